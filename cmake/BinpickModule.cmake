@@ -1,0 +1,27 @@
+# bp_add_module(NAME DIR PUBLIC_DEPS ... PRIVATE_DEPS ...)
+# One static library per top-level module; sources are the module's *.cc and
+# internal/*.cc files. Public headers live at the module root and are included
+# as "module/header.h" from the repository root.
+function(bp_add_module name)
+  cmake_parse_arguments(ARG "" "" "PUBLIC_DEPS;PRIVATE_DEPS;EXTRA_SOURCES" ${ARGN})
+  file(GLOB _srcs CONFIGURE_DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/*.cc
+       ${CMAKE_CURRENT_SOURCE_DIR}/internal/*.cc)
+  add_library(${name} STATIC ${_srcs} ${ARG_EXTRA_SOURCES})
+  target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE ${ARG_PRIVATE_DEPS} bp_warnings)
+endfunction()
+
+# bp_add_test(NAME DIR DEPS ...): one GoogleTest executable from DIR/*_test.cc.
+function(bp_add_test name dir)
+  cmake_parse_arguments(ARG "" "" "DEPS" ${ARGN})
+  file(GLOB _srcs CONFIGURE_DEPENDS ${dir}/*_test.cc)
+  if(NOT _srcs)
+    return()
+  endif()
+  add_executable(${name} ${_srcs})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock bp_warnings)
+  target_compile_definitions(${name} PRIVATE
+    BINPICK_SOURCE_DIR="${PROJECT_SOURCE_DIR}" BINPICK_BINARY_DIR="${CMAKE_BINARY_DIR}")
+  gtest_discover_tests(${name} DISCOVERY_MODE PRE_TEST
+    PROPERTIES ENVIRONMENT "BINPICK_ASSETS=${PROJECT_SOURCE_DIR}/assets")
+endfunction()

@@ -1,0 +1,196 @@
+// The cell file: one YAML document describing a picking cell. See
+// assets/cells/default.yaml (the embedded default) for every key, and
+// docs/cell.md for the reference.
+//
+// Frames: B robot base, W bin (origin at the centre of the inner floor
+// surface, z up, x along the bin's length), C camera (OpenCV: z forward,
+// x right, y down), F flange, T tool centre point, O part.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/conventions.h"
+#include "core/pose.h"
+#include "core/status.h"
+
+namespace bp {
+
+// Pinhole intrinsics with OpenCV's (k1, k2, p1, p2, k3) distortion.
+struct Intrinsics {
+  int width = 0;
+  int height = 0;
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  std::array<double, 5> distortion{};
+  bool valid() const { return width > 0 && height > 0 && fx > 0 && fy > 0; }
+};
+
+// Structured-light style depth noise. sigma_z(z) = axial_sigma_base +
+// axial_sigma_quadratic * z^2 (metres, z in metres). Pixels whose surface
+// normal is more than grazing_start_deg from the viewing ray start to drop out,
+// all drop out past grazing_full_deg. With projector_shadow, points the
+// projector (at projector_offset in the camera frame) cannot see are invalid.
+struct NoiseModel {
+  double axial_sigma_base = 0.0001;
+  double axial_sigma_quadratic = 0.0003;
+  double grazing_start_deg = 72.0;
+  double grazing_full_deg = 85.0;
+  double random_dropout = 0.002;  // fraction of valid pixels dropped at random
+  bool projector_shadow = true;
+  Vec3 projector_offset = Vec3(0.08, 0.0, 0.0);
+  bool enabled = true;
+};
+
+// A named camera configuration that RC_SWITCH_CONFIG selects by id.
+struct CameraConfig {
+  int id = 1;
+  std::string name;
+  Intrinsics intrinsics;
+  NoiseModel noise;
+  double min_depth = 0.2;  // metres; nearer / farther measurements are invalid
+  double max_depth = 3.0;
+};
+
+struct CameraSpec {
+  bool eye_in_hand = false;
+  Pose X_BC = Pose::Identity();   // eye-to-hand: camera in robot base
+  Pose X_FC = Pose::Identity();   // eye-in-hand: camera in flange
+  std::string hand_eye_file;      // optional calibration file that overrides X_BC / X_FC
+  std::vector<CameraConfig> configs;  // at least one
+  int default_config = 1;
+  const CameraConfig* FindConfig(int id) const;
+};
+
+struct SourceSpec {
+  enum class Kind { kSynthetic, kFiles, kReplay };
+  Kind kind = Kind::kSynthetic;
+  std::string dir;              // files / replay
+  int num_parts = 20;           // synthetic
+  uint64_t seed = 1;            // synthetic; a seed reproduces a scene exactly
+  bool simulate_picks = false;  // synthetic: a handed-out grasp removes its part
+  std::vector<int> part_classes;  // synthetic: classes to draw from (empty = all)
+};
+
+struct BinSpec {
+  Vec3 inner_size = Vec3(0.6, 0.4, 0.25);  // x length, y width, z height (m)
+  double wall_thickness = 0.01;
+  Pose X_BW = Pose::Identity();            // bin frame in robot base
+  std::string mesh;  // optional; generated from the sizes when empty
+};
+
+// Region of interest, in the bin frame: the inner box shrunk by wall_margin,
+// from floor_margin above the floor up to height.
+struct RoiSpec {
+  double wall_margin = 0.01;
+  double floor_margin = 0.002;
+  double height = 0.3;
+};
+
+struct Symmetry {
+  enum class Kind { kNone, kRevolute, kDiscrete };
+  Kind kind = Kind::kNone;
+  Vec3 axis = Vec3::UnitZ();  // in the part frame, through the part origin
+  int order = 1;              // kDiscrete: rotations by 2*pi/order about axis
+  // Extra discrete flips (e.g. a 180 deg turn about x for a part symmetric
+  // top-to-bottom), combined with the axis symmetry.
+  std::vector<Pose> extra;
+};
+
+struct GraspSpec {
+  std::string name;
+  std::string gripper;
+  Pose X_OG = Pose::Identity();  // grasp (tool centre point) in the part frame; tool z approaches
+};
+
+struct PartSpec {
+  int class_id = 0;
+  std::string name;
+  std::string mesh;  // resolved to an absolute path by the loader
+  Symmetry symmetry;
+  std::vector<GraspSpec> grasps;
+};
+
+struct GripperSpec {
+  enum class Kind { kSuction, kParallelJaw };
+  std::string name;
+  Kind kind = Kind::kSuction;
+  std::string mesh;                // collision / render mesh in the tool frame T
+  Pose X_FT = Pose::Identity();    // tool centre point in flange
+  double approach_distance = 0.1;  // pre-grasp offset along -z of the tool (m)
+  double opening = 0.0;            // parallel jaw: max opening (m)
+};
+
+struct EmptyBoxRule {
+  enum class Mode { kLargestRegion, kTotal };
+  int threshold_points = 2000;
+  Mode mode = Mode::kLargestRegion;
+};
+
+struct TaskSpec {
+  enum class Kind { kPick, kPlace, kInHand, kPrecision, kPick2D };
+  int id = 0;
+  Kind kind = Kind::kPick;
+  std::string name;
+  std::vector<int> part_classes;  // empty = all parts
+  std::string gripper;
+  EmptyBoxRule empty_box;
+  double max_tilt_deg = 45.0;
+  Pose place_reference = Pose::Identity();  // kPlace: taught reference
+};
+
+struct RobotSpec {
+  RobotModel model;                 // from robot.type
+  int protocol_version = 2;
+  double position_scale = 1.0;      // wire position unit in metres (1.0 = metres, 0.001 = mm)
+  std::string modbus_host;          // empty: no Modbus master
+  int modbus_port = 502;
+  int modbus_unit_id = 1;
+};
+
+struct Endpoints {
+  std::string bind = "127.0.0.1";
+  int daoai_port = 6969;
+  int gri_port = 10000;
+  int gri_official_port = 7100;
+  int http_port = 0;
+};
+
+struct Cell {
+  std::string path;       // file it was loaded from ("<embedded default>" if none)
+  std::string base_dir;   // relative paths in the file resolve against this
+  std::string name;
+  CameraSpec camera;
+  SourceSpec source;
+  BinSpec bin;
+  RoiSpec roi;
+  std::vector<PartSpec> parts;
+  std::vector<GripperSpec> grippers;
+  std::vector<TaskSpec> tasks;
+  RobotSpec robot;
+  Endpoints endpoints;
+
+  const PartSpec* FindPart(int class_id) const;
+  const GripperSpec* FindGripper(const std::string& name) const;
+  const TaskSpec* FindTask(int id) const;
+};
+
+// Loads and validates a cell file. Every error names the file, the key path
+// (e.g. "parts[1].symmetry.order") and the reason; nothing is half-loaded.
+Result<Cell> LoadCell(const std::string& path);
+// Parses YAML text; `path` is used for messages and to resolve relative paths.
+Result<Cell> ParseCell(const std::string& yaml_text, const std::string& path);
+// The embedded default cell (assets/cells/default.yaml, compiled in; its
+// relative paths resolve against the installed assets directory).
+Result<Cell> LoadDefaultCell();
+// LoadCell(path) if path is non-empty, else LoadDefaultCell().
+Result<Cell> LoadCellOrDefault(const std::string& path);
+
+// Directory holding the shipped assets (compile-time default, overridable by
+// the BINPICK_ASSETS environment variable).
+std::string AssetsDir();
+
+}  // namespace bp

@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Installs what is missing, configures (Release with debug info, ccache) and
+# builds into build/. Executables land in build/bin/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install_deps.sh
+export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
+export CCACHE_MAXSIZE="${CCACHE_MAXSIZE:-5G}"
+if [ ! -f build/CMakeCache.txt ]; then
+  cmake --preset default
+fi
+cmake --build build --parallel "$(nproc)" "$@"
