@@ -6,6 +6,8 @@ cd "$(dirname "$0")/.."
 scripts/install_deps.sh
 export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
 export CCACHE_MAXSIZE="${CCACHE_MAXSIZE:-5G}"
+# Share cache hits between checkouts (worktrees, CI clones) of the same tree.
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
 if [ ! -f build/CMakeCache.txt ]; then
   cmake --preset default
 fi
