@@ -6,6 +6,9 @@ function(bp_add_module name)
   cmake_parse_arguments(ARG "" "" "PUBLIC_DEPS;PRIVATE_DEPS;EXTRA_SOURCES" ${ARGN})
   file(GLOB _srcs CONFIGURE_DEPENDS ${CMAKE_CURRENT_SOURCE_DIR}/*.cc
        ${CMAKE_CURRENT_SOURCE_DIR}/internal/*.cc)
+  if(NOT _srcs AND NOT ARG_EXTRA_SOURCES)
+    set(_srcs ${PROJECT_SOURCE_DIR}/cmake/empty_module.cc)  # module not written yet
+  endif()
   add_library(${name} STATIC ${_srcs} ${ARG_EXTRA_SOURCES})
   target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
   target_link_libraries(${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE ${ARG_PRIVATE_DEPS} bp_warnings)
