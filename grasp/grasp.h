@@ -1,0 +1,26 @@
+// A grasp handed to a robot: where the tool centre point goes, how it gets
+// there, and which part instance it takes. Frames (STYLE.md): B robot base,
+// T tool centre point, O part. SI units.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "core/pose.h"
+
+namespace bp {
+
+struct Grasp {
+  Pose X_BT = Pose::Identity();      // tool centre point in base at the grasp
+  Pose X_BT_pre = Pose::Identity();  // pre-grasp (approach) pose of the tool in base
+  Pose X_BO = Pose::Identity();      // the part instance in base, as detected
+  int instance_id = -1;              // detected part instance (per capture)
+  int class_id = 0;                  // part class (cell parts[].class_id)
+  double score = 0.0;                // planner's ranking score, higher is better
+  std::string name;                  // grasp name from the cell (parts[].grasps[].name)
+  // Further poses in base the task may need (e.g. a place pose paired with a
+  // pick); empty for plain picks.
+  std::vector<Pose> related_X_B;
+};
+
+}  // namespace bp

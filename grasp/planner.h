@@ -1,0 +1,101 @@
+// The planner interface the server drives: capture, then detect and plan.
+//
+// The split exists for the DaoAI protocol: RC_DAOAI_CAPTURE_AND_PROCESS (20)
+// must be answered as soon as the image is captured, while detection and
+// planning continue in the background. So a request runs as
+//
+//   Result<CaptureHandle> scene = planner.Capture(request);  // fast: camera only
+//   ... answer the robot ...
+//   Result<PlanResult> plan = planner.Plan(request, **scene); // slow: perception
+//
+// "No objects", "no collision-free grasp" and "capture failed" are normal
+// outcomes reported in PlanResult / as a Capture error, never exceptions.
+//
+// Thread-safety: the server calls Capture / Plan / the hooks from its
+// detection workers (a oneTBB arena). Implementations must tolerate calls from
+// different threads, but the server never runs two Capture calls at once (one
+// camera); Plan calls for different tasks may overlap.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "core/cell.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "grasp/grasp.h"
+
+namespace bp {
+
+struct PlanRequest {
+  TaskSpec task;                // the cell's task the robot named (payload_1)
+  std::optional<Pose> X_BF;     // robot pose sent with the request (eye-in-hand needs it)
+  int camera_config_id = 0;     // cell camera config to capture with; 0 = cell default
+};
+
+// What one capture produced, opaque to the server: the planner that made it
+// knows its concrete type (e.g. a Frame). Immutable once returned.
+class CapturedScene {
+ public:
+  virtual ~CapturedScene() = default;
+  virtual std::string Describe() const = 0;  // for logs
+};
+using CaptureHandle = std::shared_ptr<const CapturedScene>;
+
+struct PlanResult {
+  enum class Outcome {
+    kGrasps,            // objects detected, at least one collision-free grasp
+    kNoObjects,         // nothing detected
+    kNoCollisionFree,   // parts detected but no collision-free grasp
+    kCaptureFailed,     // no image (set by the server when Capture fails)
+  };
+  Outcome outcome = Outcome::kNoObjects;
+  std::vector<Grasp> grasps;          // queue order: the first is handed out first
+  int64_t roi_points = 0;             // valid points inside the task's ROI
+  int64_t largest_region_points = 0;  // points of the largest connected region in the ROI
+  int detections = 0;                 // part instances detected (with or without grasps)
+  std::string message;                // human-readable detail for logs
+};
+std::string_view ToString(PlanResult::Outcome outcome);
+
+// RC_SEND_POSE (30): the robot's tool pose at teach time, to be stored as a
+// grasp relative to the last part detected for the task.
+struct TeachRequest {
+  TaskSpec task;
+  Pose X_BT = Pose::Identity();
+};
+
+class GraspPlanner {
+ public:
+  virtual ~GraspPlanner() = default;
+
+  // Acquires the data for one request (camera exposure, transfer). @returns
+  // Unavailable / Corruption / ... when no image could be captured.
+  virtual Result<CaptureHandle> Capture(const PlanRequest& request) = 0;
+
+  // Detects parts in `scene` and plans grasps for request.task. An OK result
+  // with outcome kNoObjects / kNoCollisionFree is a normal answer; a non-OK
+  // status means the planner itself failed (the server reports no objects).
+  virtual Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) = 0;
+
+  // A grasp was handed to a robot (its response is being written). Planners
+  // simulating picks remove the part before the next capture.
+  virtual void NotifyHandedOut(const TaskSpec& /*task*/, const Grasp& /*grasp*/) {}
+
+  // RC_SEND_POSE hook. @returns Unavailable when the planner cannot teach.
+  virtual Status Teach(const TeachRequest& /*request*/) {
+    return Status::Unavailable("this planner does not support teaching");
+  }
+
+  // RC_PRECISION_CHECK hook: captures the precision target for `request.task`
+  // and @returns the measured 3D error in millimetres, or a non-OK status when
+  // the target was not found (answered PRECISION_CHECK_FAIL).
+  virtual Result<double> CheckPrecision(const PlanRequest& /*request*/) {
+    return Status::Unavailable("this planner does not support precision checks");
+  }
+};
+
+}  // namespace bp

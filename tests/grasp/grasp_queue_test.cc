@@ -1,0 +1,128 @@
+#include "grasp/grasp_queue.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <thread>
+#include <vector>
+
+namespace bp {
+namespace {
+
+PlanResult MakePlan(int n, int first_instance = 0) {
+  PlanResult r;
+  r.outcome = n > 0 ? PlanResult::Outcome::kGrasps : PlanResult::Outcome::kNoObjects;
+  for (int i = 0; i < n; ++i) {
+    Grasp g;
+    g.instance_id = first_instance + i;
+    g.class_id = i % 3;
+    r.grasps.push_back(g);
+  }
+  r.detections = n;
+  return r;
+}
+
+TEST(GraspQueue, ReportsNoOutcomeBeforeAnyPlan) {
+  GraspQueue q;
+  const auto p = q.Pop();
+  EXPECT_FALSE(p.grasp.has_value());
+  EXPECT_EQ(p.remaining, 0);
+  EXPECT_FALSE(p.outcome.has_value());
+}
+
+TEST(GraspQueue, RemainingCountsIncludeThePoppedGraspThenZero) {
+  GraspQueue q;
+  q.Replace(MakePlan(3));
+  std::vector<int> remaining, instances;
+  for (int i = 0; i < 4; ++i) {
+    const auto p = q.Pop();
+    remaining.push_back(p.remaining);
+    instances.push_back(p.grasp ? p.grasp->instance_id : -1);
+    EXPECT_EQ(p.outcome, PlanResult::Outcome::kGrasps);
+  }
+  EXPECT_EQ(remaining, (std::vector<int>{3, 2, 1, 0}));
+  EXPECT_EQ(instances, (std::vector<int>{0, 1, 2, -1}));
+}
+
+TEST(GraspQueue, ReplaceDiscardsTheOldGraspsAndKeepsTheNewOutcome) {
+  GraspQueue q;
+  q.Replace(MakePlan(5));
+  (void)q.Pop();
+  PlanResult none;
+  none.outcome = PlanResult::Outcome::kNoCollisionFree;
+  none.detections = 2;
+  q.Replace(none);
+  const auto p = q.Pop();
+  EXPECT_FALSE(p.grasp);
+  EXPECT_EQ(p.outcome, PlanResult::Outcome::kNoCollisionFree);
+  ASSERT_TRUE(q.LastPlan());
+  EXPECT_EQ(q.LastPlan()->detections, 2);
+  q.Reset();
+  EXPECT_FALSE(q.Pop().outcome.has_value());
+}
+
+TEST(GraspQueue, HandsEachGraspOnceUnderConcurrentPops) {
+  constexpr int kGrasps = 20000;
+  constexpr int kThreads = 8;
+  GraspQueue q;
+  q.Replace(MakePlan(kGrasps));
+  std::vector<std::vector<int>> got(kThreads);
+  std::vector<std::vector<int>> remaining(kThreads);
+  std::atomic<bool> go{false};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      while (!go.load()) std::this_thread::yield();
+      for (;;) {
+        const auto p = q.Pop();
+        if (!p.grasp) break;
+        got[t].push_back(p.grasp->instance_id);
+        remaining[t].push_back(p.remaining);
+      }
+    });
+  }
+  go = true;
+  for (auto& th : threads) th.join();
+  std::vector<int> all, all_remaining;
+  for (int t = 0; t < kThreads; ++t) {
+    all.insert(all.end(), got[t].begin(), got[t].end());
+    all_remaining.insert(all_remaining.end(), remaining[t].begin(), remaining[t].end());
+  }
+  ASSERT_EQ(all.size(), static_cast<size_t>(kGrasps));
+  std::sort(all.begin(), all.end());
+  std::sort(all_remaining.begin(), all_remaining.end());
+  for (int i = 0; i < kGrasps; ++i) {
+    EXPECT_EQ(all[i], i);                 // every grasp exactly once
+    EXPECT_EQ(all_remaining[i], i + 1);   // every remaining count exactly once
+  }
+}
+
+TEST(GraspQueue, PopsConcurrentWithReplaceSeeOnePlanEach) {
+  // Plan i holds 1 + i % 10 grasps with instance ids 1000 * i + k. A popped
+  // grasp's remaining count must match its position in its own plan, never a
+  // mix of two plans.
+  GraspQueue q;
+  std::atomic<bool> stop{false};
+  std::atomic<int> popped{0}, bad{0};
+  std::thread popper([&] {
+    while (!stop) {
+      const auto p = q.Pop();
+      if (!p.grasp) continue;
+      ++popped;
+      const int plan = p.grasp->instance_id / 1000, k = p.grasp->instance_id % 1000;
+      if (p.remaining != (1 + plan % 10) - k) ++bad;
+    }
+  });
+  for (int i = 0; i < 2000; ++i) {
+    q.Replace(MakePlan(1 + i % 10, 1000 * i));
+    std::this_thread::yield();
+  }
+  stop = true;
+  popper.join();
+  EXPECT_EQ(bad.load(), 0);
+  EXPECT_GT(popped.load(), 0);
+}
+
+}  // namespace
+}  // namespace bp
