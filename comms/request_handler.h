@@ -1,0 +1,86 @@
+// DaoAI request semantics, independent of the transport: the socket server
+// (comms/daoai_server.h) and the Modbus transport both feed decoded requests
+// here. docs/protocols.md has the table of commands x versions this
+// implements; every decision there is made here.
+//
+// Threading: HandleAsync never blocks and never runs detection on the calling
+// (network) thread. Captures, detection, empty-box and precision checks,
+// calibration steps and teaching run on a oneTBB arena (options.detection_threads).
+// Captures are serialized (one camera). Each task has a GraspQueue replaced by
+// each detection; RC_DAOAI_PICK_POSE waits, without blocking, until the
+// task's detections in flight have finished.
+//
+// The pop rule: a grasp leaves its task's queue only when the transport calls
+// the Reply it was given, which it does right before writing the response on
+// a connection still open. A robot that disconnects while waiting loses
+// nothing; a pop whose write then fails counts as handed out (the grasp is
+// gone; the planner was told through NotifyHandedOut).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "comms/calibration_service.h"
+#include "comms/daoai_message.h"
+#include "core/cell.h"
+#include "grasp/planner.h"
+
+namespace bp {
+
+// Per-connection state a transport keeps and passes with each request.
+// Touched only during HandleAsync (the transport serializes its requests).
+struct ClientContext {
+  uint64_t id = 0;
+  std::string peer;                 // "ip:port", for logs
+  std::optional<Pose> X_BF;         // last robot pose received (position scaled to metres)
+  std::chrono::system_clock::time_point pose_time{};  // when X_BF was received
+  uint64_t requests = 0;            // requests handled on this connection
+  int last_task_id = 0;             // task of the last 19/20/21/40/50 (teach default)
+  bool warned_meta_1 = false;       // a meta_1 mismatch was logged once
+};
+
+struct RequestHandlerOptions {
+  int detection_threads = 2;  // oneTBB arena concurrency
+};
+
+class RequestHandler {
+ public:
+  // Builds the response at the moment the transport is about to write it (a
+  // pick pose pops its grasp here). nullopt: the command has no response.
+  // Called at most once, on the transport's thread.
+  using Reply = std::function<std::optional<daoai::Response>()>;
+  // Receives the Reply, either inside HandleAsync or later from a detection
+  // worker thread. Not called if the handler shuts down first.
+  using Completion = std::function<void(Reply)>;
+
+  // `planner` must outlive nothing in particular: the handler shares it.
+  // `calibration` may be null (a CountingCalibrationService is used).
+  RequestHandler(Cell cell, std::shared_ptr<GraspPlanner> planner,
+                 std::unique_ptr<CalibrationService> calibration,
+                 RequestHandlerOptions options = {});
+  ~RequestHandler();  // Shutdown()
+  RequestHandler(const RequestHandler&) = delete;
+  RequestHandler& operator=(const RequestHandler&) = delete;
+
+  void HandleAsync(const daoai::Request& request, ClientContext& client, Completion done);
+  // Blocking convenience for transports with their own threads (Modbus) and
+  // tests: HandleAsync, wait, call the Reply.
+  std::optional<daoai::Response> Handle(const daoai::Request& request, ClientContext& client);
+
+  // Waits for work in flight; pending completions are dropped. Idempotent.
+  void Shutdown();
+
+  const Cell& cell() const;
+  int camera_config_id() const;       // current RC_SWITCH_CONFIG selection
+  int QueueSize(int task_id) const;   // grasps left; -1 for an unknown task
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace bp

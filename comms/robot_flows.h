@@ -1,0 +1,39 @@
+// Robot programs of the seeds (000 "通信流程示例", 003 "Robot Program"),
+// played over a RobotClient: the robot simulator behind `binpick robot`.
+// Each step prints one line: step, command, status, pose, remaining count,
+// class and round-trip latency.
+#pragma once
+
+#include <ostream>
+#include <string>
+#include <vector>
+
+#include "comms/robot_client.h"
+
+namespace bp {
+
+struct FlowOptions {
+  std::string flow = "pick";  // see FlowNames()
+  int task_id = 0;            // pick / empty-check / precision task (payload_1)
+  int place_task_id = 2;      // pick-place: the place task
+  int config_id = 1;          // switch-config
+  int max_cycles = 20;        // pick: capture cycles before giving up
+  int max_poses = 50;         // calibrations: poses before giving up
+  int manual_poses = 9;       // calib-manual: waypoints (seed: Waypoint_1..9)
+  bool check_empty = true;    // pick: finish with the empty-box check
+};
+
+struct FlowSummary {
+  int steps = 0;
+  int picks = 0;              // OBJECTS_FOUND / DROP_OFF_POSE received
+  int last_status = 0;
+  bool ok = true;             // the flow ended the way its robot program expects
+  std::vector<double> latencies_ms;
+};
+
+const std::vector<std::string>& FlowNames();
+// @returns InvalidArgument for an unknown flow, Unavailable when the
+// connection fails; protocol outcomes (no objects, empty box) are in the summary.
+Result<FlowSummary> RunFlow(RobotClient& robot, const FlowOptions& options, std::ostream& out);
+
+}  // namespace bp
