@@ -189,6 +189,10 @@ Result<Cell> LoadDefaultCell();
 // LoadCell(path) if path is non-empty, else LoadDefaultCell().
 Result<Cell> LoadCellOrDefault(const std::string& path);
 
+// A short multi-line human summary (camera, source, bin, parts, grippers,
+// tasks, robot, endpoints), for the CLI and logs.
+std::string Describe(const Cell& cell);
+
 // Directory holding the shipped assets (compile-time default, overridable by
 // the BINPICK_ASSETS environment variable).
 std::string AssetsDir();
