@@ -847,8 +847,8 @@ std::string Describe(const Cell& cell) {
   }
   os << "\n  tasks:";
   for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;
-  os << "\n  robot: " << cell.robot.model.name << " (meta_1 id " << static_cast<int>(cell.robot.model.type)
-     << "), protocol " << cell.robot.protocol_version;
+  os << "\n  robot: " << cell.robot.model.name << " (meta_1 id " << static_cast<int>(cell.robot.model.type) << ", "
+     << ToString(cell.robot.model.convention) << "), protocol " << cell.robot.protocol_version;
   if (!cell.robot.modbus_host.empty()) os << ", modbus " << cell.robot.modbus_host << ":" << cell.robot.modbus_port;
   const Endpoints& e = cell.endpoints;
   os << "\n  endpoints: " << e.bind << " daoai " << e.daoai_port << ", gri " << e.gri_port << ", gri_official "

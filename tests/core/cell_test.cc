@@ -398,6 +398,15 @@ TEST_F(CellFileTest, RobotTypeAcceptsMeta1Id) {
   EXPECT_EQ(cell->robot.model.name, "abb");
 }
 
+TEST_F(CellFileTest, RobotTypeNameIsCaseInsensitiveAndUnknownIdsAreRejected) {
+  Result<Cell> kuka = Load(Mutate(kBaseCell, "type: ur", "type: KUKA"));
+  ASSERT_TRUE(kuka.ok()) << kuka.status().ToString();
+  EXPECT_EQ(kuka->robot.model.type, RobotType::kKuka);
+  Result<Cell> bad = Load(Mutate(kBaseCell, "type: ur", "type: 42"));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.status().message(), HasSubstr("robot.type: unknown robot type '42'"));
+}
+
 TEST_F(CellFileTest, FilesSourceDirResolvesAgainstCellDirectory) {
   Result<Cell> cell = Load(Mutate(kBaseCell, "kind: synthetic", "kind: files\n  dir: recordings"));
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
@@ -509,7 +518,7 @@ TEST_F(CellFileTest, DescribeSummarisesTheCell) {
   EXPECT_THAT(text, HasSubstr("1=vga 640x480 (default)"));
   EXPECT_THAT(text, HasSubstr("0=bushing (revolute, 1 grasps)"));
   EXPECT_THAT(text, HasSubstr("suction (suction)"));
-  EXPECT_THAT(text, HasSubstr("robot: ur"));
+  EXPECT_THAT(text, HasSubstr("robot: ur (meta_1 id 7, "));
 }
 
 // The default cell's meshes: created as empty files in a temp assets dir so
@@ -564,19 +573,5 @@ TEST(DefaultCell, MissingAssetsAreReportedAsNotFound) {
 }
 
 }  // namespace
-
-// TEMPORARY, until core/conventions.cc lands on main: weak stand-ins covering
-// only "ur" and "abb", so these tests link on their own. The real (strong)
-// definitions win as soon as they are linked in. Delete after merging main.
-[[gnu::weak]] std::optional<RobotModel> FindRobotModel(std::string_view name) {
-  if (name == "ur") return RobotModel{"ur", RobotType::kUR, OrientationConvention::kAxisAngle};
-  if (name == "abb") return RobotModel{"abb", RobotType::kABB, OrientationConvention::kQuaternionXYZW};
-  return std::nullopt;
-}
-[[gnu::weak]] std::optional<RobotModel> FindRobotModel(RobotType type) {
-  if (type == RobotType::kUR) return FindRobotModel(std::string_view("ur"));
-  if (type == RobotType::kABB) return FindRobotModel(std::string_view("abb"));
-  return std::nullopt;
-}
 
 }  // namespace bp
