@@ -225,10 +225,14 @@ class DaoaiServer::Impl {
     asio::post(io_, [this] {
       boost::system::error_code ec;
       acceptor_.close(ec);
-      std::lock_guard lock(mutex_);
-      for (auto& [id, weak] : connections_) {
-        if (auto c = weak.lock()) c->Close("server stopping");
+      std::vector<std::shared_ptr<Connection>> open;
+      {
+        std::lock_guard lock(mutex_);
+        for (auto& [id, weak] : connections_) {
+          if (auto c = weak.lock()) open.push_back(std::move(c));
+        }
       }
+      for (auto& c : open) c->Close("server stopping");  // may call back into connections_
     });
     // run() returns once the closes have completed every pending operation;
     // completions posted later stay queued and are destroyed with io_.

@@ -638,9 +638,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     }
 
     case daoai::kSwitchConfig: {
-      bool known = false;
-      for (const CameraConfig& c : cell_.camera.configs) known |= c.id == req.payload_1;
-      if (!known) {
+      if (cell_.camera.FindConfig(req.payload_1) == nullptr) {
         spdlog::warn("daoai: {} asked for unknown camera config {}", client.peer, req.payload_1);
         done(Respond(Base(daoai::kSwitchConfigFail)));
         return;

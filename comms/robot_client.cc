@@ -54,8 +54,11 @@ Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptio
   return std::unique_ptr<RobotClient>(new RobotClient(fd, options));
 }
 
-RobotClient::~RobotClient() {
+RobotClient::~RobotClient() { Close(); }
+
+void RobotClient::Close() {
   if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
 }
 
 daoai::Request RobotClient::MakeRequest(int32_t command, int32_t payload_1,

@@ -50,6 +50,9 @@ class RobotClient {
   void SetPose(const Pose& X_BF) { X_BF_ = X_BF; }
   const Pose& pose() const { return X_BF_; }
   const RobotClientOptions& options() const { return options_; }
+  void set_timeout(std::chrono::milliseconds timeout) { options_.timeout = timeout; }
+  // Closes the connection (further calls fail with Unavailable).
+  void Close();
 
   // The 48-byte request send_robot_data() builds for `command`.
   daoai::Request MakeRequest(int32_t command, int32_t payload_1 = 0, int32_t payload_2 = 0) const;

@@ -1,0 +1,482 @@
+// The DaoAI server over real loopback sockets, with the scripted (test double)
+// planner. Golden response bytes are written out by hand from the protocol
+// table in docs/protocols.md; the grasp poses come from ScriptedPlanner.
+#include "comms/daoai_server.h"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cctype>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "comms/calibration_service.h"
+#include "comms/robot_client.h"
+#include "tests/testing/scripted_planner.h"
+
+namespace bp {
+namespace {
+
+using testing::MakeTestCell;
+using testing::ScriptedPlanner;
+using namespace std::chrono_literals;
+
+std::string Hex(std::span<const uint8_t> bytes) {
+  static const char* kDigits = "0123456789ABCDEF";
+  std::string s;
+  for (size_t i = 0; i < bytes.size(); ++i) {
+    if (i > 0 && i % 4 == 0) s += ' ';
+    s += kDigits[bytes[i] >> 4];
+    s += kDigits[bytes[i] & 15];
+  }
+  return s;
+}
+
+std::string Normalize(const std::string& hex) {
+  std::string digits;
+  for (char c : hex) {
+    if (std::isxdigit(static_cast<unsigned char>(c))) digits += static_cast<char>(std::toupper(c));
+  }
+  std::string s;
+  for (size_t i = 0; i < digits.size(); ++i) {
+    if (i > 0 && i % 8 == 0) s += ' ';
+    s += digits[i];
+  }
+  return s;
+}
+
+// Responses (16 words: position[3] orientation[4] payload[6] status meta_1 meta_2).
+// Status-only answers of a version-2 UR cell.
+const char* kCalib10 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000A 00000007 00000002";
+const char* kCalib33 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000021 00000007 00000002";
+// Auto calibration: the counting service proposes the robot's own pose,
+// (0.5, -0.25, 0.3) m, rotation vector (0, 0, 1.5708).
+const char* kAuto11 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000B 00000007 00000002";
+const char* k2D14 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000E 00000007 00000002";
+const char* k2D34 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000022 00000007 00000002";
+const char* kCapture5 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000005 00000007 00000002";
+const char* kFail9 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000009 00000007 00000002";
+const char* kNoObj3 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000002";
+const char* kNoCf4 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000002";
+const char* kUnknown = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "FFFFFFFF 00000007 00000002";
+// Task 0 grasps: (0.50 / 0.51 / 0.52, -0.1, 0.1) m, rotation vector (0, 0, pi/2);
+// payload_1 = remaining incl. this x MULT, payload_2 = class x MULT.
+const char* kPick0_3 = "00001388 FFFFFC18 000003E8" "00000000 00000000 00003D5C 00000000" "00007530 00000000 00000000 00000000 00000000 00000000" "00000002 00000007 00000002";
+const char* kPick0_2 = "000013EC FFFFFC18 000003E8" "00000000 00000000 00003D5C 00000000" "00004E20 00002710 00000000 00000000 00000000 00000000" "00000002 00000007 00000002";
+const char* kPick0_1 = "00001450 FFFFFC18 000003E8" "00000000 00000000 00003D5C 00000000" "00002710 00004E20 00000000 00000000 00000000 00000000" "00000002 00000007 00000002";
+const char* kTask1Pick = "00001388 FFFFFCE0 000003E8" "00000000 00000000 00003D5C 00000000" "00007530 00000000 00000000 00000000 00000000 00000000" "00000002 00000007 00000002";
+// Place task 2: DROP_OFF_POSE (6) at (0.5, -0.06, 0.1).
+const char* kPlace = "00001388 FFFFFDA8 000003E8" "00000000 00000000 00003D5C 00000000" "00007530 00000000 00000000 00000000 00000000 00000000" "00000006 00000007 00000002";
+const char* kEmpty = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000029 00000007 00000002";
+const char* kNotEmpty = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000002A 00000007 00000002";
+// 0.42 mm x MULT = 4200 in payload_1.
+const char* kPrecOk = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00001068 00000000 00000000 00000000 00000000 00000000" "00000033 00000007 00000002";
+const char* kPrecFail = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000034 00000007 00000002";
+const char* kCfgOk = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000042 00000007 00000002";
+const char* kCfgFail = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000043 00000007 00000002";
+// A version-1 cell.
+const char* kV1Unknown = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "FFFFFFFF 00000007 00000001";
+const char* kV1Good = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000C 00000007 00000001";
+const char* kV1Done32 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000020 00000007 00000001";
+const char* kV1NoImage4 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000001";
+const char* kV1NoObj3 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000001";
+const char* kV1Calib10 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000A 00000007 00000001";
+const char* kV1Capture5 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000005 00000007 00000001";
+const char* kV1Pick0_3 = "00001388 FFFFFC18 000003E8" "00000000 00000000 00003D5C 00000000" "00007530 00000000 00000000 00000000 00000000 00000000" "00000002 00000007 00000001";
+const char* kV1Fail9 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000009 00000007 00000001";
+
+// A request as a UR robot at (0.5, -0.25, 0.3) m, rotation vector
+// (0, 0, 1.5708) sends it.
+daoai::Request Req(int32_t command, int32_t payload_1 = 0, int32_t version = 2, int32_t meta_1 = 7) {
+  daoai::Request r;
+  r.position = {5000, -2500, 3000};
+  r.orientation = {0, 0, 15708, 0};
+  r.command = command;
+  r.payload_1 = payload_1;
+  r.meta_1 = meta_1;
+  r.meta_2 = version;
+  return r;
+}
+
+class DaoaiServerTest : public ::testing::Test {
+ protected:
+  void Start(int version = 2, std::chrono::milliseconds read_timeout = 5000ms) {
+    planner_ = std::make_shared<ScriptedPlanner>();
+    handler_ = std::make_unique<RequestHandler>(
+        MakeTestCell(version), planner_, std::make_unique<CountingCalibrationService>(3));
+    DaoaiServerOptions options;
+    options.port = 0;
+    options.read_timeout = read_timeout;
+    auto server = DaoaiServer::Start(*handler_, options);
+    ASSERT_TRUE(server.ok()) << server.status().ToString();
+    server_ = std::move(*server);
+    ASSERT_GT(server_->port(), 0);
+  }
+
+  void TearDown() override {
+    if (server_) server_->Stop();
+    if (handler_) handler_->Shutdown();
+    server_.reset();
+    handler_.reset();
+  }
+
+  std::unique_ptr<RobotClient> Connect(int version = 2) {
+    RobotClientOptions o;
+    o.port = server_->port();
+    o.version = version;
+    o.timeout = 5000ms;
+    auto c = RobotClient::Connect(o);
+    EXPECT_TRUE(c.ok()) << c.status().ToString();
+    return c.ok() ? std::move(*c) : nullptr;
+  }
+
+  // Sends `request` and @returns the 64 response bytes as hex ("" on error).
+  static std::string Exchange(RobotClient& c, const daoai::Request& request) {
+    const auto out = daoai::EncodeRequest(request);
+    if (!c.SendBytes(out.data(), out.size()).ok()) return "send failed";
+    std::array<uint8_t, daoai::kResponseSize> in{};
+    const Status s = c.ReceiveBytes(in.data(), in.size());
+    if (!s.ok()) return s.ToString();
+    return Hex(in);
+  }
+
+  // Sends a command whose robot script reads no answer, and checks none comes.
+  static void ExpectNoResponse(RobotClient& c, const daoai::Request& request) {
+    const auto out = daoai::EncodeRequest(request);
+    ASSERT_TRUE(c.SendBytes(out.data(), out.size()).ok());
+    c.set_timeout(150ms);
+    uint8_t byte = 0;
+    EXPECT_FALSE(c.ReceiveBytes(&byte, 1).ok()) << "command " << request.command
+                                                << " must not be answered";
+    c.set_timeout(5000ms);
+  }
+
+  std::shared_ptr<ScriptedPlanner> planner_;
+  std::unique_ptr<RequestHandler> handler_;
+  std::unique_ptr<DaoaiServer> server_;
+};
+
+#define EXPECT_RESPONSE(client, request, golden) \
+  EXPECT_EQ(Exchange(client, request), Normalize(golden)) << "command " << (request).command
+
+TEST_F(DaoaiServerTest, AnswersEveryVersion2CommandWithGoldenBytes) {
+  Start(2);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  // -1 pose update: no response.
+  ExpectNoResponse(*c, Req(daoai::kNoCommand));
+  // Manual calibration: 1 -> 10, 6 -> 10, 2 -> nothing (the v2 script reads none).
+  EXPECT_RESPONSE(*c, Req(daoai::kStartManualCalibration), kCalib10);
+  EXPECT_RESPONSE(*c, Req(daoai::kManualAccumulatePose), kCalib10);
+  ExpectNoResponse(*c, Req(daoai::kStopManualCalibration));
+  // Accumulating outside the mode: UNKNOWN_COMMAND (the robot restarts the handshake).
+  EXPECT_RESPONSE(*c, Req(daoai::kManualAccumulatePose), kUnknown);
+  // Auto calibration: 4 -> 11 with the next pose, 7 -> 11 ... -> 33 after 3 poses.
+  EXPECT_RESPONSE(*c, Req(daoai::kStartAutoCalibration), kAuto11);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kAuto11);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kAuto11);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kCalib33);
+  // Guidance calibration: no answer in version 2.
+  ExpectNoResponse(*c, Req(daoai::kGuidanceCalibration));
+  // 2D auto calibration: 11 -> 14, 12 -> 14 ... -> 34.
+  EXPECT_RESPONSE(*c, Req(daoai::kStart2DAutoCalibration), k2D14);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulate2DPose), k2D14);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulate2DPose), k2D14);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulate2DPose), k2D34);
+  // Pick before any capture: NO_OBJECT_FOUND.
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kNoObj3);
+  // Capture (20) then picks: remaining 3, 2, 1, then NO_OBJECT_FOUND with payload_1 = 0.
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_2);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_1);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kNoObj3);
+  // Async capture (19) on task 1.
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcessAsync, 1), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 1), kTask1Pick);
+  // Place task: DROP_OFF_POSE.
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 2), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 2), kPlace);
+  // No collision-free grasp: 4 in version 2.
+  ScriptedPlanner::Script blocked;
+  blocked.grasps = 0;
+  blocked.detections = 2;
+  blocked.outcome = PlanResult::Outcome::kNoCollisionFree;
+  planner_->SetScript(1, blocked);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 1), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 1), kNoCf4);
+  // Capture failure: 9, then the pick says NO_OBJECT_FOUND.
+  ScriptedPlanner::Script broken;
+  broken.capture_fails = true;
+  planner_->SetScript(0, broken);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kFail9);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kNoObj3);
+  // Teach: no response; the planner receives the robot's pose.
+  ExpectNoResponse(*c, Req(daoai::kSendPose, 3));
+  // Empty box: task 3 scripted empty (few points, no detections), task 1 not.
+  ScriptedPlanner::Script empty;
+  empty.grasps = 0;
+  empty.roi_points = 900;
+  empty.largest_region_points = 500;
+  planner_->SetScript(3, empty);
+  EXPECT_RESPONSE(*c, Req(daoai::kCheckEmptyBox, 3), kEmpty);
+  EXPECT_RESPONSE(*c, Req(daoai::kCheckEmptyBox, 1), kNotEmpty);
+  // Precision: 51 with 0.42 mm, 52 when the target is not found.
+  EXPECT_RESPONSE(*c, Req(daoai::kPrecisionCheck, 5), kPrecOk);
+  ScriptedPlanner::Script lost;
+  lost.precision_error_mm.reset();
+  planner_->SetScript(5, lost);
+  EXPECT_RESPONSE(*c, Req(daoai::kPrecisionCheck, 5), kPrecFail);
+  // Camera configs 1 and 2 exist; 7 does not.
+  EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 2), kCfgOk);
+  EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 7), kCfgFail);
+  // Unknown command, unknown task, bad meta: UNKNOWN_COMMAND.
+  EXPECT_RESPONSE(*c, Req(99), kUnknown);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 9), kUnknown);
+  EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, /*version=*/7), kUnknown);
+  EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, 2, /*meta_1=*/55), kUnknown);
+
+  // Side effects the robot cannot see.
+  ASSERT_EQ(planner_->taught().size(), 1u);
+  EXPECT_EQ(planner_->taught()[0].task.id, 3);
+  EXPECT_NEAR(planner_->taught()[0].X_BT.translation().x(), 0.5, 1e-9);
+  EXPECT_EQ(handler_->camera_config_id(), 2);
+}
+
+TEST_F(DaoaiServerTest, AnswersEveryVersion1CommandWithGoldenBytes) {
+  Start(1);
+  auto c = Connect(1);
+  ASSERT_TRUE(c);
+  ExpectNoResponse(*c, Req(daoai::kNoCommand, 0, 1));
+  EXPECT_RESPONSE(*c, Req(daoai::kStartManualCalibration, 0, 1), kV1Calib10);
+  EXPECT_RESPONSE(*c, Req(daoai::kManualAccumulatePose, 0, 1), kV1Calib10);
+  // Seed 004: STOP_MANUAL_CALIBRATION is acknowledged with UNKNOWN_COMMAND.
+  EXPECT_RESPONSE(*c, Req(daoai::kStopManualCalibration, 0, 1), kV1Unknown);
+  // Guidance: 12 (good) until enough poses, then 32.
+  EXPECT_RESPONSE(*c, Req(daoai::kGuidanceCalibration, 0, 1), kV1Good);
+  EXPECT_RESPONSE(*c, Req(daoai::kGuidanceCalibration, 0, 1), kV1Good);
+  EXPECT_RESPONSE(*c, Req(daoai::kGuidanceCalibration, 0, 1), kV1Done32);
+  // No capture yet: NO_IMAGE_CAPTURED (4 in version 1).
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0, 1), kV1NoImage4);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0, 1), kV1Capture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0, 1), kV1Pick0_3);
+  // Version 1 has no NO_COLLISION_FREE_POSE: NO_OBJECT_FOUND instead.
+  ScriptedPlanner::Script blocked;
+  blocked.grasps = 0;
+  blocked.detections = 2;
+  blocked.outcome = PlanResult::Outcome::kNoCollisionFree;
+  planner_->SetScript(1, blocked);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 1, 1), kV1Capture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 1, 1), kV1NoObj3);
+  // Capture failure: 9, then NO_IMAGE_CAPTURED.
+  ScriptedPlanner::Script broken;
+  broken.capture_fails = true;
+  planner_->SetScript(0, broken);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0, 1), kV1Fail9);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0, 1), kV1NoImage4);
+  EXPECT_RESPONSE(*c, Req(42, 0, 1), kV1Unknown);
+}
+
+TEST_F(DaoaiServerTest, AnswersAVersion1RobotOnAVersion2CellWithTheCellsMeta) {
+  Start(2);
+  auto c = Connect(1);
+  ASSERT_TRUE(c);
+  // Version-1 semantics (STOP answered), the cell's meta_2 (2): the robot's
+  // script will pop up "interface version does not match".
+  EXPECT_RESPONSE(*c, Req(daoai::kStopManualCalibration, 0, 1), kUnknown);
+  Result<RobotReply> r = c->Call(daoai::kSwitchConfig, 1);
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  ASSERT_EQ(r->warnings.size(), 1u);
+  EXPECT_NE(r->warnings[0].find("version"), std::string::npos);
+}
+
+TEST_F(DaoaiServerTest, CompletesAShortReadSentInThreeChunks) {
+  Start(2);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  const auto bytes = daoai::EncodeRequest(Req(daoai::kSwitchConfig, 2));
+  ASSERT_TRUE(c->SendBytes(bytes.data(), 10).ok());
+  std::this_thread::sleep_for(30ms);
+  ASSERT_TRUE(c->SendBytes(bytes.data() + 10, 20).ok());
+  std::this_thread::sleep_for(30ms);
+  ASSERT_TRUE(c->SendBytes(bytes.data() + 30, 18).ok());
+  std::array<uint8_t, daoai::kResponseSize> in{};
+  ASSERT_TRUE(c->ReceiveBytes(in.data(), in.size()).ok());
+  EXPECT_EQ(Hex(in), Normalize(kCfgOk));
+}
+
+TEST_F(DaoaiServerTest, ServesTwoRobotsOnTwoTasksConcurrently) {
+  Start(2);
+  ScriptedPlanner::Script many;
+  many.grasps = 25;
+  many.plan_delay = 20ms;
+  planner_->SetScript(0, many);
+  planner_->SetScript(1, many);
+  std::vector<int> remaining[2];
+  std::vector<double> x[2];
+  std::vector<std::thread> robots;
+  for (int task = 0; task < 2; ++task) {
+    robots.emplace_back([&, task] {
+      auto c = Connect(2);
+      if (!c) return;
+      for (int cycle = 0; cycle < 2; ++cycle) {
+        Result<RobotReply> cap = c->Call(daoai::kCaptureAndProcess, task);
+        if (!cap.ok() || cap->status != daoai::kDetection) return;
+        for (;;) {
+          Result<RobotReply> pick = c->Call(daoai::kPickPose, task);
+          if (!pick.ok() || pick->status != daoai::kObjectsFound) break;
+          remaining[task].push_back(static_cast<int>(pick->payload[0]));
+          x[task].push_back(pick->X_BT->translation().y());
+        }
+      }
+    });
+  }
+  for (auto& r : robots) r.join();
+  for (int task = 0; task < 2; ++task) {
+    ASSERT_EQ(remaining[task].size(), 50u) << "task " << task;
+    for (int i = 0; i < 50; ++i) {
+      EXPECT_EQ(remaining[task][i], 25 - i % 25);
+      // Each robot only ever sees its own task's grasps (y = -0.1 + 0.02 task).
+      EXPECT_NEAR(x[task][i], -0.1 + 0.02 * task, 1e-4);
+    }
+  }
+}
+
+TEST_F(DaoaiServerTest, RobotDisconnectingMidRequestLosesNoGrasp) {
+  Start(2);
+  planner_->HoldPlans(true);
+  {
+    auto a = Connect(2);
+    ASSERT_TRUE(a);
+    EXPECT_RESPONSE(*a, Req(daoai::kCaptureAndProcess, 0), kCapture5);  // answered at capture
+    const auto pick = daoai::EncodeRequest(Req(daoai::kPickPose, 0));
+    ASSERT_TRUE(a->SendBytes(pick.data(), pick.size()).ok());  // waits for detection...
+    std::this_thread::sleep_for(50ms);
+  }  // ...and the robot is gone.
+  for (int i = 0; i < 100 && server_->connection_count() > 0; ++i) std::this_thread::sleep_for(10ms);
+  EXPECT_EQ(server_->connection_count(), 0u);
+  planner_->HoldPlans(false);
+  std::this_thread::sleep_for(50ms);
+  EXPECT_TRUE(planner_->handed_out().empty());
+  // The next robot continues the queue from its first grasp.
+  auto b = Connect(2);
+  ASSERT_TRUE(b);
+  EXPECT_RESPONSE(*b, Req(daoai::kPickPose, 0), kPick0_3);
+  EXPECT_RESPONSE(*b, Req(daoai::kPickPose, 0), kPick0_2);
+  EXPECT_EQ(planner_->handed_out().size(), 2u);
+}
+
+TEST_F(DaoaiServerTest, PickPoseWaitsForTheDetectionAndCaptureDoesNot) {
+  Start(2);
+  ScriptedPlanner::Script slow;
+  slow.plan_delay = 300ms;
+  planner_->SetScript(0, slow);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  const auto t0 = std::chrono::steady_clock::now();
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  const auto t1 = std::chrono::steady_clock::now();
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
+  const auto t2 = std::chrono::steady_clock::now();
+  EXPECT_LT(t1 - t0, 250ms) << "CAPTURE_SUCCESS must not wait for detection";
+  EXPECT_GT(t2 - t0, 250ms) << "the pick pose must wait for detection";
+}
+
+TEST_F(DaoaiServerTest, HalfMessageThenSilenceClosesOnlyThatConnection) {
+  Start(2, /*read_timeout=*/300ms);
+  auto stalled = Connect(2);
+  auto silent = Connect(2);
+  auto good = Connect(2);
+  ASSERT_TRUE(stalled && silent && good);
+  const auto bytes = daoai::EncodeRequest(Req(daoai::kSwitchConfig, 1));
+  ASSERT_TRUE(stalled->SendBytes(bytes.data(), 24).ok());
+  // The good robot keeps talking past the timeout and is never cut off.
+  for (int i = 0; i < 10; ++i) {
+    EXPECT_RESPONSE(*good, Req(daoai::kSwitchConfig, 1), kCfgOk);
+    std::this_thread::sleep_for(60ms);
+  }
+  uint8_t byte = 0;
+  stalled->set_timeout(1000ms);
+  const Status s = stalled->ReceiveBytes(&byte, 1);
+  EXPECT_NE(s.message().find("closed"), std::string::npos) << s.ToString();
+  silent->set_timeout(1000ms);
+  EXPECT_NE(silent->ReceiveBytes(&byte, 1).message().find("closed"), std::string::npos);
+  EXPECT_RESPONSE(*good, Req(daoai::kSwitchConfig, 1), kCfgOk);
+}
+
+TEST_F(DaoaiServerTest, UnknownCommandAnswersMinusOneAndTheConnectionKeepsWorking) {
+  Start(2);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Req(1234), kUnknown);
+  EXPECT_RESPONSE(*c, Req(-7), kUnknown);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
+}
+
+TEST_F(DaoaiServerTest, RemainingCountsRunDownToOneThenZero) {
+  Start(2);
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  planner_->SetScript(0, five);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  ASSERT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  std::vector<double> remaining;
+  std::vector<int32_t> statuses;
+  for (int i = 0; i < 7; ++i) {
+    Result<RobotReply> r = c->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(r.ok());
+    statuses.push_back(r->status);
+    remaining.push_back(r->payload[0]);
+    EXPECT_TRUE(r->warnings.empty());
+  }
+  EXPECT_EQ(remaining, (std::vector<double>{5, 4, 3, 2, 1, 0, 0}));
+  EXPECT_EQ(statuses, (std::vector<int32_t>{2, 2, 2, 2, 2, 3, 3}));
+}
+
+TEST_F(DaoaiServerTest, PipelinedRequestsAreAnsweredInOrder) {
+  Start(2);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  // A misbehaving robot sends three requests without waiting.
+  std::vector<uint8_t> burst;
+  for (const auto& r : {Req(daoai::kCaptureAndProcess, 0), Req(daoai::kPickPose, 0),
+                        Req(daoai::kSwitchConfig, 7)}) {
+    const auto b = daoai::EncodeRequest(r);
+    burst.insert(burst.end(), b.begin(), b.end());
+  }
+  ASSERT_TRUE(c->SendBytes(burst.data(), burst.size()).ok());
+  std::array<uint8_t, daoai::kResponseSize> in{};
+  for (const char* golden : {kCapture5, kPick0_3, kCfgFail}) {
+    ASSERT_TRUE(c->ReceiveBytes(in.data(), in.size()).ok());
+    EXPECT_EQ(Hex(in), Normalize(golden));
+  }
+}
+
+TEST_F(DaoaiServerTest, StopClosesRobotConnections) {
+  Start(2);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1), kCfgOk);
+  server_->Stop();
+  uint8_t byte = 0;
+  c->set_timeout(1000ms);
+  EXPECT_NE(c->ReceiveBytes(&byte, 1).message().find("closed"), std::string::npos);
+}
+
+TEST(DaoaiServer, RefusesABadBindAddress) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  DaoaiServerOptions options;
+  options.bind = "not-an-address";
+  options.port = 0;
+  auto server = DaoaiServer::Start(handler, options);
+  ASSERT_FALSE(server.ok());
+  EXPECT_EQ(server.status().code(), Status::Code::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace bp
