@@ -5,6 +5,7 @@
 // class i % 3, instance i. Never shipped: binpickd uses grasp/planner_factory.h.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -31,6 +32,10 @@ class ScriptedPlanner final : public GraspPlanner {
     std::chrono::milliseconds capture_delay{0};
     std::chrono::milliseconds plan_delay{0};
     std::optional<double> precision_error_mm = 0.42;  // nullopt: target not found
+    // Parts in the bin, or -1 for a bottomless bin. When set, each handed-out
+    // grasp removes a part; a plan offers min(grasps, parts left), and an
+    // empty bin reports no objects, no detections and no ROI points.
+    int pile = -1;
   };
 
   void SetScript(int task_id, Script script) {
@@ -70,14 +75,21 @@ class ScriptedPlanner final : public GraspPlanner {
       cv_.wait(lock, [this] { return !hold_; });
     }
     std::this_thread::sleep_for(s.plan_delay);
+    int grasps = s.grasps;
+    int64_t roi_points = s.roi_points, largest = s.largest_region_points;
+    if (s.pile >= 0) {
+      const int left = s.pile - HandedOutFor(request.task.id);
+      grasps = std::min(grasps, std::max(0, left));
+      if (left <= 0) roi_points = largest = 0;
+    }
     PlanResult r;
-    r.outcome = s.outcome.value_or(s.grasps > 0 ? PlanResult::Outcome::kGrasps
-                                                : PlanResult::Outcome::kNoObjects);
-    r.detections = s.detections >= 0 ? s.detections : s.grasps;
-    r.roi_points = s.roi_points;
-    r.largest_region_points = s.largest_region_points;
+    r.outcome = s.outcome.value_or(grasps > 0 ? PlanResult::Outcome::kGrasps
+                                              : PlanResult::Outcome::kNoObjects);
+    r.detections = s.detections >= 0 ? s.detections : grasps;
+    r.roi_points = roi_points;
+    r.largest_region_points = largest;
     if (r.outcome == PlanResult::Outcome::kGrasps) {
-      for (int i = 0; i < s.grasps; ++i) {
+      for (int i = 0; i < grasps; ++i) {
         Grasp g;
         g.X_BT = GraspPose(request.task.id, i);
         g.X_BT_pre = g.X_BT * MakePose(Mat3::Identity(), Vec3(0, 0, -0.08));
@@ -120,6 +132,12 @@ class ScriptedPlanner final : public GraspPlanner {
   struct Scene final : CapturedScene {
     std::string Describe() const override { return "scripted scene"; }
   };
+  int HandedOutFor(int task_id) const {
+    std::lock_guard lock(mutex_);
+    int n = 0;
+    for (const auto& [task, instance] : handed_out_) n += task == task_id;
+    return n;
+  }
   Script ScriptFor(int task_id) const {
     std::lock_guard lock(mutex_);
     auto it = scripts_.find(task_id);

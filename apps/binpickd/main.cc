@@ -1,0 +1,92 @@
+// binpickd: the picking server. Loads a cell, builds the grasp planner and
+// serves robots over the DaoAI socket protocol until SIGINT / SIGTERM.
+//
+//   binpickd [--cell FILE] [--bind ADDR] [--daoai-port N]     (port 0 disables)
+//
+// Prints exactly one line on stdout when ready to accept robots:
+//   binpickd ready: daoai 127.0.0.1:6969
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
+#include <csignal>
+#include <cstdio>
+#include <iostream>
+#include <memory>
+#include <optional>
+#include <pthread.h>
+#include <string>
+
+#include "comms/daoai_server.h"
+#include "comms/request_handler.h"
+#include "core/cell.h"
+#include "grasp/planner_factory.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"binpick picking server"};
+  std::string cell_path;
+  std::optional<std::string> bind;
+  std::optional<int> daoai_port;
+  double read_timeout_s = 30.0;
+  int detection_threads = 2;
+  std::string log_level = "info";
+  app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
+  app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
+  app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
+  app.add_option("--read-timeout", read_timeout_s,
+                 "seconds without a complete request before an idle robot is disconnected");
+  app.add_option("--detection-threads", detection_threads, "oneTBB arena size for detection");
+  app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off");
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::from_str(log_level));
+
+  // Block the stop signals before any thread starts; main waits for them.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
+  bp::Result<bp::Cell> cell = bp::LoadCellOrDefault(cell_path);
+  if (!cell.ok()) {
+    std::cerr << "binpickd: " << cell.status().ToString() << "\n";
+    return 2;
+  }
+  bp::Result<std::unique_ptr<bp::GraspPlanner>> planner = bp::MakePlanner(*cell);
+  if (!planner.ok()) {
+    std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
+    return 3;
+  }
+
+  bp::RequestHandlerOptions handler_options;
+  handler_options.detection_threads = detection_threads;
+  bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
+                             nullptr, handler_options);
+
+  bp::DaoaiServerOptions daoai;
+  daoai.bind = bind.value_or(cell->endpoints.bind);
+  daoai.port = daoai_port.value_or(cell->endpoints.daoai_port);
+  daoai.read_timeout = std::chrono::milliseconds(static_cast<int64_t>(read_timeout_s * 1000));
+  std::unique_ptr<bp::DaoaiServer> server;
+  std::string ready = "binpickd ready: daoai ";
+  if (daoai.port != 0) {
+    auto started = bp::DaoaiServer::Start(handler, daoai);
+    if (!started.ok()) {
+      std::cerr << "binpickd: " << started.status().ToString() << "\n";
+      return 2;
+    }
+    server = std::move(*started);
+    ready += server->address();
+  } else {
+    ready += "disabled";
+  }
+  spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
+  std::cout << ready << std::endl;
+
+  int signal = 0;
+  sigwait(&stop_signals, &signal);
+  spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
+  if (server) server->Stop();
+  handler.Shutdown();
+  server.reset();
+  return 0;
+}

@@ -1,0 +1,75 @@
+#include "apps/robot_cmd.h"
+
+#include <CLI/CLI.hpp>
+
+#include <iostream>
+#include <string>
+
+#include "comms/robot_client.h"
+#include "comms/robot_flows.h"
+#include "core/conventions.h"
+
+namespace bp {
+
+int RunRobotCommand(int argc, char** argv) {
+  CLI::App app{"Plays the robot side of the DaoAI socket protocol, as the seed robot scripts do."};
+  std::string host = "127.0.0.1";
+  int port = 6969;
+  std::string robot = "ur";
+  int version = 2;
+  double position_scale = 1.0;
+  int timeout_ms = 30000;
+  FlowOptions flow;
+  std::string flows;
+  for (const auto& f : FlowNames()) flows += (flows.empty() ? "" : "|") + f;
+  app.add_option("--host", host, "server address");
+  app.add_option("--port", port, "DaoAI port");
+  app.add_option("--robot", robot, "robot type (ur, abb, kuka, fanuc, yaskawa, ...): meta_1 and "
+                                   "orientation convention");
+  app.add_option("--protocol-version", version, "meta_2 (1 = seed 004, 2 = seed 000)");
+  app.add_option("--position-scale", position_scale, "metres per wire unit (0.001 for mm)");
+  app.add_option("--flow", flow.flow, flows)->required();
+  app.add_option("--task", flow.task_id, "task id (payload_1)");
+  app.add_option("--place-task", flow.place_task_id, "pick-place: the place task id");
+  app.add_option("--config", flow.config_id, "switch-config: camera config id");
+  app.add_option("--max-cycles", flow.max_cycles, "pick: capture cycles at most");
+  app.add_option("--poses", flow.manual_poses, "calib-manual / calib-guidance: poses to send");
+  app.add_option("--timeout-ms", timeout_ms, "per-response timeout");
+  bool no_empty_check = false;
+  app.add_flag("--no-empty-check", no_empty_check, "pick: skip the final empty-box check");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  flow.check_empty = !no_empty_check;
+  const std::optional<RobotModel> model = FindRobotModel(robot);
+  if (!model) {
+    std::cerr << "binpick robot: unknown robot '" << robot << "'\n";
+    return 2;
+  }
+  RobotClientOptions options;
+  options.host = host;
+  options.port = port;
+  options.robot_type = model->type;
+  options.convention = model->convention;
+  options.version = version;
+  options.position_scale = position_scale;
+  options.timeout = std::chrono::milliseconds(timeout_ms);
+  auto client = RobotClient::Connect(options);
+  if (!client.ok()) {
+    std::cerr << "binpick robot: " << client.status().ToString() << "\n";
+    return 2;
+  }
+  std::cout << "robot " << model->name << " (meta_1 " << static_cast<int>(model->type)
+            << ", version " << version << ") connected to " << host << ":" << port
+            << ", flow " << flow.flow << "\n";
+  Result<FlowSummary> summary = RunFlow(**client, flow, std::cout);
+  if (!summary.ok()) {
+    std::cerr << "binpick robot: " << summary.status().ToString() << "\n";
+    return 2;
+  }
+  return summary->ok ? 0 : 1;
+}
+
+}  // namespace bp
