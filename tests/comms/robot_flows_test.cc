@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdlib>
+#include <iostream>
 #include <sstream>
 
 #include "comms/daoai_server.h"
@@ -64,6 +66,7 @@ TEST_P(RobotFlowTest, PickClearsTheBinThenFindsItEmpty) {
   EXPECT_EQ(planner_->captures(), 4 + 1);  // + the empty-box check's capture
   EXPECT_NE(out_.str().find("remaining 3 class 0"), std::string::npos) << out_.str();
   EXPECT_NE(out_.str().find("BOX_EMPTY(41)"), std::string::npos) << out_.str();
+  if (std::getenv("BINPICK_VERBOSE")) std::cout << out_.str();
 }
 
 TEST_P(RobotFlowTest, PickPlaceGetsADropOffPoseForEachPick) {

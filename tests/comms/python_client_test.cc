@@ -1,0 +1,66 @@
+// scripts/binpick_client.py (standard library only) against the server with
+// the scripted test-double planner, run by /usr/bin/python3.
+#include <gtest/gtest.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+#include "comms/daoai_server.h"
+#include "tests/testing/scripted_planner.h"
+
+namespace bp {
+namespace {
+
+using testing::MakeTestCell;
+using testing::ScriptedPlanner;
+
+struct ClientRun {
+  int exit_code = -1;
+  std::string out;
+};
+
+ClientRun RunClient(int port, const std::string& args) {
+  const std::string cmd = "/usr/bin/python3 " BINPICK_SOURCE_DIR "/scripts/binpick_client.py --port " +
+                          std::to_string(port) + " " + args + " 2>&1";
+  ClientRun r;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return r;
+  char buf[512];
+  while (fgets(buf, sizeof(buf), p)) r.out += buf;
+  const int status = pclose(p);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+TEST(PythonClient, ClearsTheBinAndSeesItEmpty) {
+  if (!std::filesystem::exists("/usr/bin/python3")) GTEST_SKIP() << "no /usr/bin/python3";
+  auto planner = std::make_shared<ScriptedPlanner>();
+  ScriptedPlanner::Script pile;
+  pile.grasps = 3;
+  pile.pile = 4;
+  planner->SetScript(0, pile);
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  DaoaiServerOptions options;
+  options.port = 0;
+  auto server = std::move(DaoaiServer::Start(handler, options).value());
+
+  const ClientRun pick = RunClient(server->port(), "pick --task 0");
+  EXPECT_EQ(pick.exit_code, 0) << pick.out;
+  EXPECT_NE(pick.out.find("OBJECTS_FOUND remaining=3 class=0 position=(0.5, -0.1, 0.1)"),
+            std::string::npos) << pick.out;
+  EXPECT_NE(pick.out.find("picks: 4"), std::string::npos) << pick.out;
+  EXPECT_NE(pick.out.find("BOX_EMPTY"), std::string::npos) << pick.out;
+
+  const ClientRun config = RunClient(server->port(), "switch-config --config 7");
+  EXPECT_EQ(config.exit_code, 1) << config.out;
+  EXPECT_NE(config.out.find("SWITCH_CONFIG_FAIL"), std::string::npos) << config.out;
+  const ClientRun teach = RunClient(server->port(), "teach --task 0");
+  EXPECT_EQ(teach.exit_code, 0) << teach.out;
+  server->Stop();
+  handler.Shutdown();
+  EXPECT_EQ(planner->taught().size(), 1u);
+}
+
+}  // namespace
+}  // namespace bp

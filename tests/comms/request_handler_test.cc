@@ -1,0 +1,137 @@
+// RequestHandler without a transport (the path the Modbus transport takes),
+// with the scripted test-double planner.
+#include "comms/request_handler.h"
+
+#include <gtest/gtest.h>
+
+#include "tests/testing/scripted_planner.h"
+
+namespace bp {
+namespace {
+
+using testing::MakeTestCell;
+using testing::ScriptedPlanner;
+
+daoai::Request Req(int32_t command, int32_t payload_1 = 0, int32_t meta_1 = 7) {
+  daoai::Request r;
+  r.position = {5000, -2500, 3000};
+  r.orientation = {0, 0, 15708, 0};
+  r.command = command;
+  r.payload_1 = payload_1;
+  r.meta_1 = meta_1;
+  r.meta_2 = 2;
+  return r;
+}
+
+TEST(RequestHandler, AnswersInTheConventionMeta1NamesWithTheCellsMeta1) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  // An ABB robot (meta_1 0, quaternion x y z w) talking to a UR cell.
+  daoai::Request capture = Req(daoai::kCaptureAndProcess, 0, /*meta_1=*/0);
+  capture.orientation = {0, 0, 7071, 7071};  // rotation pi/2 about z
+  ASSERT_EQ(handler.Handle(capture, client)->status, daoai::kDetection);
+  EXPECT_TRUE(client.warned_meta_1);
+  ASSERT_TRUE(client.X_BF);
+  EXPECT_NEAR(RotationAngle(client.X_BF->linear()), M_PI / 2, 1e-3);
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0, /*meta_1=*/0), client);
+  ASSERT_TRUE(pick);
+  EXPECT_EQ(pick->status, daoai::kObjectsFound);
+  EXPECT_EQ(pick->orientation, (std::array<int32_t, 4>{0, 0, 7071, 7071}));
+  EXPECT_EQ(pick->meta_1, 7);  // the cell's robot: the ABB script will complain
+}
+
+TEST(RequestHandler, ScalesPositionsByTheCellsPositionUnit) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  Cell cell = MakeTestCell();
+  cell.robot.position_scale = 0.001;  // the robot speaks millimetres
+  RequestHandler handler(cell, planner, nullptr);
+  ClientContext client;
+  daoai::Request capture = Req(daoai::kCaptureAndProcess, 0);
+  capture.position = {5000000, 0, 0};  // 500 mm
+  ASSERT_EQ(handler.Handle(capture, client)->status, daoai::kDetection);
+  EXPECT_NEAR(client.X_BF->translation().x(), 0.5, 1e-9);
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0), client);
+  EXPECT_EQ(pick->position, (std::array<int32_t, 3>{5000000, -1000000, 1000000}));
+}
+
+TEST(RequestHandler, EmptyBoxRuleNeedsFewPointsAndNoDetections) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  Cell cell = MakeTestCell();
+  cell.tasks[3].empty_box.threshold_points = 2000;
+  cell.tasks[3].empty_box.mode = EmptyBoxRule::Mode::kLargestRegion;
+  cell.tasks[1].empty_box.threshold_points = 2000;
+  cell.tasks[1].empty_box.mode = EmptyBoxRule::Mode::kTotal;
+  RequestHandler handler(cell, planner, nullptr);
+  ClientContext client;
+  auto check = [&](int task, int64_t roi, int64_t largest, int detections) {
+    ScriptedPlanner::Script s;
+    s.grasps = 0;
+    s.detections = detections;
+    s.roi_points = roi;
+    s.largest_region_points = largest;
+    planner->SetScript(task, s);
+    return handler.Handle(Req(daoai::kCheckEmptyBox, task), client)->status;
+  };
+  // Largest region: scattered noise (many points, small regions) is empty.
+  EXPECT_EQ(check(3, 5000, 1999, 0), daoai::kBoxEmpty);
+  EXPECT_EQ(check(3, 5000, 2000, 0), daoai::kBoxNotEmpty);
+  EXPECT_EQ(check(3, 10, 10, 1), daoai::kBoxNotEmpty);  // a detection is never empty
+  // Total: every ROI point counts.
+  EXPECT_EQ(check(1, 5000, 1999, 0), daoai::kBoxNotEmpty);
+  EXPECT_EQ(check(1, 1999, 1999, 0), daoai::kBoxEmpty);
+  // No image: not empty.
+  ScriptedPlanner::Script broken;
+  broken.capture_fails = true;
+  planner->SetScript(1, broken);
+  EXPECT_EQ(handler.Handle(Req(daoai::kCheckEmptyBox, 1), client)->status, daoai::kBoxNotEmpty);
+}
+
+TEST(RequestHandler, CapturesWithTheSelectedCameraConfig) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  EXPECT_EQ(planner->last_config(), 1);
+  ASSERT_EQ(handler.Handle(Req(daoai::kSwitchConfig, 2), client)->status,
+            daoai::kSwitchConfigSuccess);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  EXPECT_EQ(planner->last_config(), 2);
+}
+
+TEST(RequestHandler, PoseUpdateRecordsThePoseWithoutAnswering) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  EXPECT_FALSE(handler.Handle(Req(daoai::kNoCommand), client).has_value());
+  ASSERT_TRUE(client.X_BF);
+  EXPECT_NEAR(client.X_BF->translation().y(), -0.25, 1e-9);
+  EXPECT_EQ(client.requests, 1u);
+  EXPECT_EQ(planner->captures(), 0);
+}
+
+TEST(RequestHandler, PickPoseWaitingForDetectionIsAnsweredWhenItFinishes) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status,
+            daoai::kDetection);
+  std::atomic<bool> answered{false};
+  RequestHandler::Reply reply;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), client, [&](RequestHandler::Reply r) {
+    reply = std::move(r);
+    answered = true;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_FALSE(answered.load());
+  planner->HoldPlans(false);
+  for (int i = 0; i < 200 && !answered; ++i) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_TRUE(answered.load());
+  EXPECT_EQ(handler.QueueSize(0), 3);  // nothing popped until the Reply runs
+  EXPECT_EQ(reply()->status, daoai::kObjectsFound);
+  EXPECT_EQ(handler.QueueSize(0), 2);
+}
+
+}  // namespace
+}  // namespace bp
