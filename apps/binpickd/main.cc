@@ -7,7 +7,9 @@
 //   binpickd ready: daoai 127.0.0.1:6969
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
+#include <tbb/global_control.h>
 
+#include <algorithm>
 #include <csignal>
 #include <cstdio>
 #include <iostream>
@@ -56,6 +58,13 @@ int main(int argc, char** argv) {
     std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
     return 3;
   }
+
+  // oneTBB caps its workers at cores - 1; the detection arena asks for
+  // detection_threads workers of its own, so allow them (plus this thread).
+  const size_t parallelism = std::max<size_t>(
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
+      static_cast<size_t>(detection_threads) + 1);
+  tbb::global_control allow_workers(tbb::global_control::max_allowed_parallelism, parallelism);
 
   bp::RequestHandlerOptions handler_options;
   handler_options.detection_threads = detection_threads;
