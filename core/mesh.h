@@ -2,7 +2,7 @@
 // frame. Loaded from PLY (ASCII or binary) or STL (binary or ASCII).
 #pragma once
 
-#include <Eigen/Core>
+#include <Eigen/Geometry>  // AlignedBox3f, Affine3f
 #include <string>
 #include <vector>
 
