@@ -3,9 +3,11 @@
 //
 //   binpickd [--cell FILE] [--bind ADDR] [--daoai-port N]     (port 0 disables)
 //
-// Prints exactly one line on stdout when ready to accept robots:
+// Prints exactly one line on stdout when ready to accept robots (logs go to
+// stderr):
 //   binpickd ready: daoai 127.0.0.1:6969
 #include <CLI/CLI.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
 
@@ -39,6 +41,8 @@ int main(int argc, char** argv) {
   app.add_option("--detection-threads", detection_threads, "oneTBB arena size for detection");
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off");
   CLI11_PARSE(app, argc, argv);
+  // stdout carries only the ready line; logs go to stderr.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
   spdlog::set_level(spdlog::level::from_str(log_level));
 
   // Block the stop signals before any thread starts; main waits for them.
