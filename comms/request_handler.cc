@@ -197,10 +197,11 @@ class RequestHandler::Impl {
     return r;
   }
 
-  PlanRequest MakePlanRequest(const TaskState& t, const ClientContext& client) const {
+  // `X_BF`: the pose of this request (never a stale one from an earlier message).
+  PlanRequest MakePlanRequest(const TaskState& t, const std::optional<Pose>& X_BF) const {
     PlanRequest p;
     p.task = t.spec;
-    p.X_BF = client.X_BF;
+    p.X_BF = X_BF;
     p.camera_config_id = camera_config_id_.load();
     return p;
   }
@@ -208,7 +209,7 @@ class RequestHandler::Impl {
   void StartDetection(TaskState& t, PlanRequest plan_request, std::function<void(bool)> on_captured);
   void FinishDetection(TaskState& t);
   Reply PickReply(TaskState& t, WireFormat f);
-  void Calibrate(const Request& req, const ClientContext& client, const WireFormat& f,
+  void Calibrate(const Request& req, const std::optional<Pose>& X_BF, const WireFormat& f,
                  Completion done);
 
   Cell cell_;
@@ -314,10 +315,20 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
   };
 }
 
-void RequestHandler::Impl::Calibrate(const Request& req, const ClientContext& client,
+void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pose>& pose,
                                      const WireFormat& f, Completion done) {
-  const Pose X_BF = client.X_BF.value_or(Pose::Identity());
   const int32_t command = req.command;
+  if (!pose && command != daoai::kStopManualCalibration) {
+    // A calibration step without a usable robot pose would poison the data.
+    spdlog::warn("daoai: calibration command {} with an undecodable robot pose; rejected", command);
+    if (command == daoai::kGuidanceCalibration) {
+      done(f.version == 1 ? Respond(Base(daoai::kGuidanceBad)) : NoResponse());
+    } else {
+      done(Respond(Base(daoai::kUnknownCommand)));
+    }
+    return;
+  }
+  const Pose X_BF = pose.value_or(Pose::Identity());
   serial_.Post([this, command, X_BF, f, done = std::move(done)] {
     auto answer = [&](int32_t status, const std::optional<Pose>& pose = std::nullopt) {
       Response r = Base(status);
@@ -487,12 +498,14 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
 
   // Every message carries the robot pose: record it (status page, liveness,
   // eye-in-hand captures, calibration, teaching).
-  Result<Pose> X_BF = DecodePose(req, f);
-  if (X_BF.ok()) {
-    client.X_BF = *X_BF;
+  std::optional<Pose> X_BF;
+  if (Result<Pose> decoded = DecodePose(req, f); decoded.ok()) {
+    X_BF = *decoded;
+    client.X_BF = X_BF;
     client.pose_time = std::chrono::system_clock::now();
   } else {
-    spdlog::debug("daoai: {} sent an undecodable pose: {}", client.peer, X_BF.status().ToString());
+    spdlog::debug("daoai: {} sent an undecodable pose: {}", client.peer,
+                  decoded.status().ToString());
   }
 
   TaskState* task = nullptr;
@@ -521,13 +534,13 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     case daoai::kGuidanceCalibration:
     case daoai::kStart2DAutoCalibration:
     case daoai::kAutoAccumulate2DPose:
-      Calibrate(req, client, f, std::move(done));
+      Calibrate(req, X_BF, f, std::move(done));
       return;
 
     case daoai::kCaptureAndProcessAsync:
       // Answer at once; capture and detect in the background.
       done(Respond(Base(daoai::kDetection)));
-      StartDetection(*task, MakePlanRequest(*task, client), nullptr);
+      StartDetection(*task, MakePlanRequest(*task, X_BF), nullptr);
       return;
 
     case daoai::kCaptureAndProcess: {
@@ -535,7 +548,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
       auto on_captured = [this, done = std::move(done)](bool ok) {
         done(Respond(Base(ok ? daoai::kDetection : daoai::kCaptureFail)));
       };
-      StartDetection(*task, MakePlanRequest(*task, client), std::move(on_captured));
+      StartDetection(*task, MakePlanRequest(*task, X_BF), std::move(on_captured));
       return;
     }
 
@@ -554,7 +567,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
 
     case daoai::kSendPose: {
       // Teach: no response. The pose is the robot's tool pose (what it sends).
-      if (!client.X_BF) {
+      if (!X_BF) {
         spdlog::warn("daoai: {} sent a teach pose that could not be decoded; ignored", client.peer);
         done(NoResponse());
         return;
@@ -567,7 +580,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         done(NoResponse());
         return;
       }
-      TeachRequest teach{it->second->spec, *client.X_BF};
+      TeachRequest teach{it->second->spec, *X_BF};
       done(NoResponse());
       serial_.Post([this, teach] {
         const Status s = planner_->Teach(teach);
@@ -581,7 +594,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     }
 
     case daoai::kCheckEmptyBox: {
-      PlanRequest plan_request = MakePlanRequest(*task, client);
+      PlanRequest plan_request = MakePlanRequest(*task, X_BF);
       Spawn([this, task, plan_request = std::move(plan_request), done = std::move(done)] {
         Result<CaptureHandle> scene = Status::Unavailable("not captured");
         {
@@ -616,7 +629,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     }
 
     case daoai::kPrecisionCheck: {
-      PlanRequest plan_request = MakePlanRequest(*task, client);
+      PlanRequest plan_request = MakePlanRequest(*task, X_BF);
       Spawn([this, plan_request = std::move(plan_request), done = std::move(done)] {
         Result<double> error_mm = Status::Unavailable("not run");
         {

@@ -133,5 +133,20 @@ TEST(RequestHandler, PickPoseWaitingForDetectionIsAnsweredWhenItFinishes) {
   EXPECT_EQ(handler.QueueSize(0), 2);
 }
 
+TEST(RequestHandler, AnUndecodablePoseIsNeverUsedNorReplacedByAStaleOne) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  EXPECT_FALSE(handler.Handle(Req(daoai::kNoCommand), client).has_value());  // a good pose
+  // An ABB robot (quaternion fields) sending an all-zero quaternion.
+  daoai::Request bad = Req(daoai::kSendPose, 0, /*meta_1=*/0);
+  bad.orientation = {0, 0, 0, 0};
+  EXPECT_FALSE(handler.Handle(bad, client).has_value());
+  bad.command = daoai::kStartAutoCalibration;
+  EXPECT_EQ(handler.Handle(bad, client)->status, daoai::kUnknownCommand);
+  handler.Shutdown();
+  EXPECT_TRUE(planner->taught().empty());
+}
+
 }  // namespace
 }  // namespace bp
