@@ -6,6 +6,9 @@
 #include <random>
 #include <vector>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 namespace bp::internal {
 
 Intrinsics ProjectorIntrinsics(const Intrinsics& K, const Vec3& offset, double min_depth) {
@@ -22,6 +25,13 @@ Intrinsics ProjectorIntrinsics(const Intrinsics& K, const Vec3& offset, double m
 }
 
 namespace {
+
+uint64_t SplitMix(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
 
 Eigen::Vector3d Point(const Intrinsics& K, int u, int v, double z) {
   return {(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z};
@@ -80,31 +90,36 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
   const int w = depth.width, h = depth.height;
   if (model.enabled) {
     const Intrinsics& K = *in.K;
-    std::mt19937_64 rng(seed);
-    std::uniform_real_distribution<double> U(0.0, 1.0);
-    std::normal_distribution<double> N(0.0, 1.0);
     const double cos_start = std::cos(model.grazing_start_deg * M_PI / 180.0);
     const double cos_full = std::cos(model.grazing_full_deg * M_PI / 180.0);
     const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
     std::vector<float> out(depth.data.size(), nan);
-    for (int v = 0; v < h; ++v) {
-      for (int u = 0; u < w; ++u) {
-        const double z = depth.at(u, v);
-        if (!std::isfinite(z)) continue;
-        // Grazing dropout: probability ramps linearly in angle from start to full.
-        const double c = ViewCosine(depth, K, u, v);
-        if (std::isfinite(c) && c < cos_start) {
-          const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
-          const double span = model.grazing_full_deg - model.grazing_start_deg;
-          const double p = c <= cos_full || span <= 0 ? 1.0 : (angle - model.grazing_start_deg) / span;
-          if (U(rng) < p) continue;
+    // Rows in parallel; each row has its own RNG stream (seed, row), so the
+    // result does not depend on the schedule.
+    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+      std::uniform_real_distribution<double> U(0.0, 1.0);
+      std::normal_distribution<double> N(0.0, 1.0);
+      for (int v = rows.begin(); v < rows.end(); ++v) {
+        std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
+        N.reset();
+        for (int u = 0; u < w; ++u) {
+          const double z = depth.at(u, v);
+          if (!std::isfinite(z)) continue;
+          // Grazing dropout: probability ramps linearly in angle from start to full.
+          const double c = ViewCosine(depth, K, u, v);
+          if (std::isfinite(c) && c < cos_start) {
+            const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
+            const double span = model.grazing_full_deg - model.grazing_start_deg;
+            const double p = c <= cos_full || span <= 0 ? 1.0 : (angle - model.grazing_start_deg) / span;
+            if (U(rng) < p) continue;
+          }
+          if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
+          if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
+          const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
+          out[static_cast<size_t>(v) * w + u] = static_cast<float>(z + sigma * N(rng));
         }
-        if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
-        if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
-        const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
-        out[static_cast<size_t>(v) * w + u] = static_cast<float>(z + sigma * N(rng));
       }
-    }
+    });
     depth.data.swap(out);
   }
   for (float& z : depth.data) {
