@@ -168,10 +168,11 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     t.visible_pixels = histogram[static_cast<uint16_t>(p.instance_id)];
     auto unoccluded = m.UnoccludedPixels(scene, scene.instances[i + 1], K, X_WC);
     if (!unoccluded.ok()) return unoccluded.status();
-    // The solo render samples the same pixel centres; clamp rare edge-pixel
-    // rounding differences so that visible <= unoccluded.
-    t.unoccluded_pixels = std::max(*unoccluded, t.visible_pixels);
-    t.visible_fraction = t.unoccluded_pixels > 0 ? double(t.visible_pixels) / t.unoccluded_pixels : 0.0;
+    // The solo render samples the same pixel centres, so visible <= unoccluded;
+    // the clamp only guards against a float rounding flip on an edge pixel.
+    t.unoccluded_pixels = *unoccluded;
+    t.visible_fraction =
+        t.unoccluded_pixels > 0 ? std::min(1.0, double(t.visible_pixels) / t.unoccluded_pixels) : 0.0;
     truth.parts.push_back(std::move(t));
   }
 
