@@ -1,5 +1,5 @@
 // OSMesa (llvmpipe) implementation of DepthRenderer. Fixed-function GL 1.x:
-// each mesh is compiled once into a display list with flat face normals; one
+// each mesh is compiled once into a display list with face normals; one
 // pass writes the label into red/green (material emission, exact bytes) and
 // the Lambertian intensity into blue (a single light, blue only), and depth.
 #include <GL/osmesa.h>
@@ -152,7 +152,7 @@ class OsMesaRenderer final : public DepthRenderer {
     glDisable(GL_NORMALIZE);  // model matrices are rigid, normals stay unit
     glEnable(GL_DEPTH_TEST);
     glDepthFunc(GL_LESS);
-    glShadeModel(GL_FLAT);
+    glShadeModel(GL_SMOOTH);  // per-vertex lighting interpolated: no seams inside a planar face
     glEnable(GL_LIGHTING);
     glEnable(GL_LIGHT0);
     glLightModeli(GL_LIGHT_MODEL_TWO_SIDE, GL_TRUE);
@@ -189,7 +189,7 @@ class OsMesaRenderer final : public DepthRenderer {
         Eigen::Vector3f nrm = (b - a).cross(cc - a);
         const float len = nrm.norm();
         if (len > 0) nrm /= len;
-        // GL_FLAT takes the last vertex's colour; one normal for all three.
+        // One face normal for all three vertices (faceted look).
         glNormal3f(nrm.x(), nrm.y(), nrm.z());
         glVertex3f(a.x(), a.y(), a.z());
         glVertex3f(b.x(), b.y(), b.z());
