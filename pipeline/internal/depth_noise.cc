@@ -33,14 +33,20 @@ uint64_t SplitMix(uint64_t x) {
   return x ^ (x >> 31);
 }
 
-Eigen::Vector3d Point(const Intrinsics& K, int u, int v, double z) {
-  return {(u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z};
+// Deprojection with the divisions done once.
+struct Pinhole {
+  explicit Pinhole(const Intrinsics& K) : cx(K.cx), cy(K.cy), ifx(1.0 / K.fx), ify(1.0 / K.fy) {}
+  double cx, cy, ifx, ify;
+};
+
+Eigen::Vector3d Point(const Pinhole& K, int u, int v, double z) {
+  return {(u - K.cx) * K.ifx * z, (v - K.cy) * K.ify * z, z};
 }
 
 // Cosine between the surface normal (from the clean depth) and the viewing
 // ray at (u, v); NaN if no neighbour is valid in one direction. Uses the
 // neighbour with the smaller depth step so that edges do not bend the normal.
-double ViewCosine(const DepthImage& d, const Intrinsics& K, int u, int v) {
+double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v) {
   const double z = d.at(u, v);
   const Eigen::Vector3d P = Point(K, u, v, z);
   auto tangent = [&](int du, int dv, Eigen::Vector3d& t) {
@@ -69,7 +75,8 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
   const Eigen::Vector3d P = P_C - in.projector_offset;
   if (P.z() <= 0) return false;
   const Intrinsics& K = *in.K_projector;
-  const double x = K.fx * P.x() / P.z() + K.cx, y = K.fy * P.y() / P.z() + K.cy;
+  const double iz = 1.0 / P.z();
+  const double x = K.fx * P.x() * iz + K.cx, y = K.fy * P.y() * iz + K.cy;
   const int u0 = static_cast<int>(std::floor(x)), v0 = static_cast<int>(std::floor(y));
   if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height) return true;  // outside the map: lit
   double far_z = -1;
@@ -89,7 +96,7 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const int w = depth.width, h = depth.height;
   if (model.enabled) {
-    const Intrinsics& K = *in.K;
+    const Pinhole K(*in.K);
     const double cos_start = std::cos(model.grazing_start_deg * M_PI / 180.0);
     const double cos_full = std::cos(model.grazing_full_deg * M_PI / 180.0);
     const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
@@ -108,10 +115,10 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
           // Grazing dropout: probability ramps linearly in angle from start to full.
           const double c = ViewCosine(depth, K, u, v);
           if (std::isfinite(c) && c < cos_start) {
+            if (c <= cos_full) continue;
             const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
             const double span = model.grazing_full_deg - model.grazing_start_deg;
-            const double p = c <= cos_full || span <= 0 ? 1.0 : (angle - model.grazing_start_deg) / span;
-            if (U(rng) < p) continue;
+            if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
           }
           if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
           if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
