@@ -64,6 +64,14 @@ Eigen::AlignedBox3d CollisionGeometry::WorldBounds(const Pose& X_WG) const {
   return box;
 }
 
+Eigen::AlignedBox3d CollisionGeometry::ConservativeWorldBounds(const Pose& X_WG) const {
+  Eigen::AlignedBox3d box;
+  for (int i = 0; i < 8; ++i) {
+    box.extend(X_WG * bounds_.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i)));
+  }
+  return box;
+}
+
 namespace {
 
 fcl::Transform3d ToFcl(const Pose& X) {
@@ -135,7 +143,7 @@ class CollisionScene::Impl {
   std::vector<int> Run(const CollisionGeometry& g, const Pose& X_WO, std::span<const int> ignore,
                        bool first_only) const {
     if (entries.empty()) return {};
-    const Eigen::AlignedBox3d box = g.WorldBounds(X_WO);
+    const Eigen::AlignedBox3d box = g.ConservativeWorldBounds(X_WO);
     const Eigen::Vector3d size = box.sizes().cwiseMax(1e-9);
     auto shape = std::make_shared<fcl::Boxd>(size);
     fcl::Transform3d X_WBox = fcl::Transform3d::Identity();

@@ -7,7 +7,9 @@
 // Thread-safety: CollisionGeometry is immutable. The free functions and every
 // const member of CollisionScene may be called concurrently from any number of
 // threads as long as nobody mutates the scene (Add / Remove / SetPose) at the
-// same time.
+// same time. CollisionScene::Add refreshes FCL's cached bounds inside the
+// shared geometry (same values every time): do not Add one geometry to two
+// scenes from two threads at once.
 #pragma once
 
 #include <cstdint>
@@ -38,6 +40,8 @@ class CollisionGeometry {
   const Eigen::AlignedBox3d& local_bounds() const { return bounds_; }
   // Axis-aligned bounds of the geometry placed at X_WG (exact: from the vertices).
   Eigen::AlignedBox3d WorldBounds(const Pose& X_WG) const;
+  // Cheap superset of WorldBounds: the bounds of the 8 transformed corners of local_bounds().
+  Eigen::AlignedBox3d ConservativeWorldBounds(const Pose& X_WG) const;
   size_t num_triangles() const;
 
   class Impl;

@@ -62,9 +62,9 @@ std::optional<Pose> SyntheticPile::Drop(size_t class_index, const Pose& X_WO_sta
   if (InsideInterior(box)) {
     double floor_z = 0.0;
     bool can_jump = true;
-    for (const auto& p : parts_) {
-      if (p.instance_id == self_id) continue;
-      const Eigen::AlignedBox3d other = geometries_[p.class_index]->WorldBounds(p.X_WO);
+    for (size_t i = 0; i < parts_.size(); ++i) {
+      if (parts_[i].instance_id == self_id) continue;
+      const Eigen::AlignedBox3d& other = bounds_W_[i];
       if (!OverlapXY(box, other)) continue;
       if (other.max().z() >= box.min().z()) {
         can_jump = false;
@@ -178,9 +178,7 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
       const double y_lo = -hy - rb.min().y() + margin, y_hi = hy - rb.max().y() - margin;
       if (x_lo > x_hi || y_lo > y_hi) continue;  // does not fit this way round
       double top = 0.0;
-      for (const auto& p : pile.parts_) {
-        top = std::max(top, pile.geometries_[p.class_index]->WorldBounds(p.X_WO).max().z());
-      }
+      for (const auto& b : pile.bounds_W_) top = std::max(top, b.max().z());
       const Vec3 t(x_lo + ux * (x_hi - x_lo), y_lo + uy * (y_hi - y_lo), top + 0.005 - rb.min().z());
       const auto rest = pile.Drop(ci, MakePose(R, t), -1);
       if (!rest) continue;
@@ -193,6 +191,7 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
       part.X_WO = X_WO;
       if (Status s = pile.scene_.Add(part.instance_id, pile.geometries_[ci], X_WO); !s.ok()) return s;
       pile.parts_.push_back(part);
+      pile.bounds_W_.push_back(g.WorldBounds(X_WO));
       placed = true;
     }
     if (!placed) ++pile.skipped_;
@@ -203,14 +202,16 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
 Status SyntheticPile::RemovePart(int instance_id) {
   auto it = std::find_if(parts_.begin(), parts_.end(), [&](const PilePart& p) { return p.instance_id == instance_id; });
   if (it == parts_.end()) return Status::NotFound("pile: no part " + std::to_string(instance_id));
-  const double removed_bottom = geometries_[it->class_index]->WorldBounds(it->X_WO).min().z();
+  const size_t index = static_cast<size_t>(it - parts_.begin());
+  const double removed_bottom = bounds_W_[index].min().z();
   if (Status s = scene_.Remove(instance_id); !s.ok()) return s;
   parts_.erase(it);
+  bounds_W_.erase(bounds_W_.begin() + static_cast<std::ptrdiff_t>(index));
 
   // Parts above the removed one, lowest first (ties by id: deterministic).
   std::vector<std::pair<double, size_t>> order;
   for (size_t i = 0; i < parts_.size(); ++i) {
-    const double bottom = geometries_[parts_[i].class_index]->WorldBounds(parts_[i].X_WO).min().z();
+    const double bottom = bounds_W_[i].min().z();
     if (bottom > removed_bottom - options_.tolerance) order.emplace_back(bottom, i);
   }
   std::sort(order.begin(), order.end());
@@ -220,6 +221,7 @@ Status SyntheticPile::RemovePart(int instance_id) {
     if (!rest) continue;  // wedged: stays where it is
     if (rest->translation().z() < p.X_WO.translation().z()) {
       p.X_WO = *rest;
+      bounds_W_[i] = geometries_[p.class_index]->WorldBounds(p.X_WO);
       if (Status s = scene_.SetPose(p.instance_id, p.X_WO); !s.ok()) return s;
     }
   }

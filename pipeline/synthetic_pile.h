@@ -93,6 +93,7 @@ class SyntheticPile {
   CollisionGeometryPtr bin_geometry_;
   CollisionScene scene_;
   std::vector<PilePart> parts_;
+  std::vector<Eigen::AlignedBox3d> bounds_W_;  // world bounds of parts_[i]
   int skipped_ = 0;
 };
 

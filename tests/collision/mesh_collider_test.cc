@@ -48,6 +48,9 @@ TEST(MeshCollider, WorldBoundsFollowThePose) {
   EXPECT_NEAR(box.sizes().x(), 0.1, 1e-6);
   EXPECT_NEAR(box.sizes().y(), 0.2, 1e-6);
   EXPECT_NEAR(box.center().z(), 3.0, 1e-6);
+  X.linear() = Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized()).toRotationMatrix();
+  const auto exact = a->WorldBounds(X), loose = a->ConservativeWorldBounds(X);
+  EXPECT_TRUE(loose.contains(exact));
 }
 
 TEST(CollisionScene, MeshAgainstSceneReportsTheObjectsItHits) {
