@@ -5,10 +5,9 @@
 #include <cstdio>
 #include <cstdlib>
 
-
+#include "core/mesh_gen.h"
 #include "pipeline/renderer.h"
 #include "pipeline/synthetic_source.h"
-#include "core/mesh_gen.h"
 
 namespace bp {
 namespace {

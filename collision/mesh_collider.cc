@@ -1,16 +1,16 @@
 #include "collision/mesh_collider.h"
 
-#include <algorithm>
-#include <cstdint>
-#include <string>
-#include <utility>
-
 #include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
 #include <fcl/geometry/bvh/BVH_model.h>
 #include <fcl/geometry/shape/box.h>
 #include <fcl/narrowphase/collision.h>
 #include <fcl/narrowphase/collision_object.h>
 #include <fcl/narrowphase/distance.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <string>
+#include <utility>
 
 namespace bp {
 
@@ -29,9 +29,12 @@ CollisionGeometry::CollisionGeometry(std::unique_ptr<Impl> impl) : impl_(std::mo
 }
 CollisionGeometry::~CollisionGeometry() = default;
 
-size_t CollisionGeometry::num_triangles() const { return static_cast<size_t>(impl_->model->num_tris); }
+size_t CollisionGeometry::num_triangles() const {
+  return static_cast<size_t>(impl_->model->num_tris);
+}
 
-Result<std::shared_ptr<const CollisionGeometry>> CollisionGeometry::FromMesh(const TriangleMesh& mesh) {
+Result<std::shared_ptr<const CollisionGeometry>> CollisionGeometry::FromMesh(
+    const TriangleMesh& mesh) {
   if (mesh.triangles.empty() || mesh.vertices.empty()) {
     return Status::InvalidArgument("collision geometry: empty mesh");
   }
@@ -91,14 +94,17 @@ bool NarrowCollides(const FclMesh& a, const fcl::Transform3d& X_WA, const FclMes
 
 }  // namespace
 
-bool Collides(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b, const Pose& X_WB) {
+bool Collides(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b,
+              const Pose& X_WB) {
   return NarrowCollides(*a.impl().model, ToFcl(X_WA), *b.impl().model, ToFcl(X_WB));
 }
 
-double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b, const Pose& X_WB) {
+double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b,
+                const Pose& X_WB) {
   fcl::DistanceRequestd request;
   fcl::DistanceResultd result;
-  fcl::distance(a.impl().model.get(), ToFcl(X_WA), b.impl().model.get(), ToFcl(X_WB), request, result);
+  fcl::distance(a.impl().model.get(), ToFcl(X_WA), b.impl().model.get(), ToFcl(X_WB), request,
+                result);
   return result.min_distance;
 }
 
@@ -164,7 +170,8 @@ CollisionScene& CollisionScene::operator=(CollisionScene&&) noexcept = default;
 Status CollisionScene::Add(int id, CollisionGeometryPtr geometry, const Pose& X_WO) {
   if (!geometry) return Status::InvalidArgument("collision scene: null geometry");
   if (impl_->entries.count(id)) {
-    return Status::InvalidArgument("collision scene: id " + std::to_string(id) + " already present");
+    return Status::InvalidArgument("collision scene: id " + std::to_string(id) +
+                                   " already present");
   }
   Impl::Entry e;
   e.X_WO = X_WO;
@@ -180,7 +187,8 @@ Status CollisionScene::Add(int id, CollisionGeometryPtr geometry, const Pose& X_
 
 Status CollisionScene::Remove(int id) {
   auto it = impl_->entries.find(id);
-  if (it == impl_->entries.end()) return Status::NotFound("collision scene: no object " + std::to_string(id));
+  if (it == impl_->entries.end())
+    return Status::NotFound("collision scene: no object " + std::to_string(id));
   impl_->manager.unregisterObject(it->second.object.get());
   impl_->entries.erase(it);
   return Status::Ok();
@@ -188,7 +196,8 @@ Status CollisionScene::Remove(int id) {
 
 Status CollisionScene::SetPose(int id, const Pose& X_WO) {
   auto it = impl_->entries.find(id);
-  if (it == impl_->entries.end()) return Status::NotFound("collision scene: no object " + std::to_string(id));
+  if (it == impl_->entries.end())
+    return Status::NotFound("collision scene: no object " + std::to_string(id));
   it->second.X_WO = X_WO;
   it->second.object->setTransform(ToFcl(X_WO));
   it->second.object->computeAABB();
@@ -199,7 +208,9 @@ Status CollisionScene::SetPose(int id, const Pose& X_WO) {
 bool CollisionScene::Contains(int id) const { return impl_->entries.count(id) > 0; }
 size_t CollisionScene::size() const { return impl_->entries.size(); }
 const Pose& CollisionScene::pose(int id) const { return impl_->entries.at(id).X_WO; }
-const CollisionGeometryPtr& CollisionScene::geometry(int id) const { return impl_->entries.at(id).geometry; }
+const CollisionGeometryPtr& CollisionScene::geometry(int id) const {
+  return impl_->entries.at(id).geometry;
+}
 
 std::vector<int> CollisionScene::ids() const {
   std::vector<int> out;

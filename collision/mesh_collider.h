@@ -12,14 +12,13 @@
 // scenes from two threads at once.
 #pragma once
 
+#include <Eigen/Geometry>
 #include <cstdint>
 #include <map>
 #include <memory>
 #include <optional>
 #include <span>
 #include <vector>
-
-#include <Eigen/Geometry>
 
 #include "core/mesh.h"
 #include "core/pose.h"
@@ -56,11 +55,13 @@ class CollisionGeometry {
 using CollisionGeometryPtr = std::shared_ptr<const CollisionGeometry>;
 
 // True when geometry a at X_WA and b at X_WB intersect (touching counts).
-bool Collides(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b, const Pose& X_WB);
+bool Collides(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b,
+              const Pose& X_WB);
 
 // Minimum distance between the two placed geometries, metres; 0 or a
 // negative value (not a penetration depth) when they intersect.
-double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b, const Pose& X_WB);
+double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b,
+                const Pose& X_WB);
 
 // Several placed objects with a broadphase (dynamic AABB tree). Objects are
 // named by caller-chosen integer ids.
@@ -87,7 +88,8 @@ class CollisionScene {
 
   // True if `geometry` placed at X_WO intersects any object of the scene
   // other than those in `ignore`.
-  bool Collides(const CollisionGeometry& geometry, const Pose& X_WO, std::span<const int> ignore = {}) const;
+  bool Collides(const CollisionGeometry& geometry, const Pose& X_WO,
+                std::span<const int> ignore = {}) const;
   // Ids (sorted) of the scene objects that `geometry` at X_WO intersects.
   std::vector<int> CollidingIds(const CollisionGeometry& geometry, const Pose& X_WO,
                                 std::span<const int> ignore = {}) const;

@@ -21,9 +21,9 @@
 namespace bp {
 
 struct RenderInstance {
-  size_t mesh_index = 0;          // into RenderScene::meshes
-  Pose X_WO = Pose::Identity();   // instance in the scene frame W
-  uint16_t label = 0;             // written to RenderOutput::labels (0 = background)
+  size_t mesh_index = 0;         // into RenderScene::meshes
+  Pose X_WO = Pose::Identity();  // instance in the scene frame W
+  uint16_t label = 0;            // written to RenderOutput::labels (0 = background)
 };
 
 struct RenderScene {
@@ -38,8 +38,8 @@ struct RenderScene {
 };
 
 struct RenderOutput {
-  DepthImage depth;        // metres (z in C); NaN where nothing was hit
-  LabelImage labels;       // RenderInstance::label of the nearest surface, 0 = nothing
+  DepthImage depth;          // metres (z in C); NaN where nothing was hit
+  LabelImage labels;         // RenderInstance::label of the nearest surface, 0 = nothing
   IntensityImage intensity;  // Lambertian from light_C plus ambient; 0 = nothing
 };
 
@@ -50,9 +50,11 @@ class DepthRenderer {
   virtual ~DepthRenderer() = default;
   // X_WC: camera in the scene frame. @returns InvalidArgument for bad intrinsics
   // or mesh indices, Unavailable if the GL context cannot be made current.
-  virtual Result<RenderOutput> Render(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC) = 0;
+  virtual Result<RenderOutput> Render(const RenderScene& scene, const Intrinsics& K,
+                                      const Pose& X_WC) = 0;
   // As Render, filling `out` in place (its buffers are reused between calls).
-  virtual Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, RenderOutput& out) = 0;
+  virtual Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC,
+                            RenderOutput& out) = 0;
 };
 
 // @returns Unavailable if no OSMesa context can be created.

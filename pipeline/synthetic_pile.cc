@@ -14,8 +14,8 @@ Mat3 RandomRotation(std::mt19937_64& rng) {
   std::uniform_real_distribution<double> U(0.0, 1.0);
   const double u1 = U(rng), u2 = U(rng), u3 = U(rng);
   const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
-  const Quat q(a * std::sin(2 * M_PI * u2), a * std::cos(2 * M_PI * u2), b * std::sin(2 * M_PI * u3),
-               b * std::cos(2 * M_PI * u3));
+  const Quat q(a * std::sin(2 * M_PI * u2), a * std::cos(2 * M_PI * u2),
+               b * std::sin(2 * M_PI * u3), b * std::cos(2 * M_PI * u3));
   return q.normalized().toRotationMatrix();
 }
 
@@ -45,11 +45,12 @@ const PilePart* SyntheticPile::Find(int instance_id) const {
 
 bool SyntheticPile::InsideInterior(const Eigen::AlignedBox3d& box) const {
   const double hx = bin_.inner_size.x() / 2, hy = bin_.inner_size.y() / 2;
-  return box.min().x() >= -hx && box.max().x() <= hx && box.min().y() >= -hy && box.max().y() <= hy &&
-         box.min().z() >= 0.0;
+  return box.min().x() >= -hx && box.max().x() <= hx && box.min().y() >= -hy &&
+         box.max().y() <= hy && box.min().z() >= 0.0;
 }
 
-std::optional<Pose> SyntheticPile::Drop(size_t class_index, const Pose& X_WO_start, int self_id) const {
+std::optional<Pose> SyntheticPile::Drop(size_t class_index, const Pose& X_WO_start,
+                                        int self_id) const {
   const CollisionGeometry& g = *geometries_[class_index];
   const int ignore[] = {self_id};
   auto collides = [&](const Pose& X) { return scene_.Collides(g, X, ignore); };
@@ -122,7 +123,8 @@ Pose SyntheticPile::Settle(size_t class_index, const Pose& X_WO, int self_id) co
         const Mat3 R = Eigen::AngleAxisd(angle_deg * M_PI / 180.0, axis).toRotationMatrix();
         Pose X = base;
         X.linear() = R * base.linear();
-        X.translation() = c_W + R * (base.translation() - c_W) + Vec3(0, 0, 4 * options_.coarse_step);
+        X.translation() =
+            c_W + R * (base.translation() - c_W) + Vec3(0, 0, 4 * options_.coarse_step);
         if (!InsideInterior(g.WorldBounds(X))) continue;
         const auto rest = Drop(class_index, X, self_id);
         if (!rest) continue;
@@ -140,7 +142,8 @@ Pose SyntheticPile::Settle(size_t class_index, const Pose& X_WO, int self_id) co
 }
 
 Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const TriangleMesh& bin_mesh,
-                                              std::vector<PileClass> classes, const PileOptions& options) {
+                                              std::vector<PileClass> classes,
+                                              const PileOptions& options) {
   if (classes.empty()) return Status::InvalidArgument("pile: no part classes");
   if (options.coarse_step <= 0 || options.tolerance <= 0) {
     return Status::InvalidArgument("pile: coarse_step and tolerance must be positive");
@@ -149,9 +152,11 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
   pile.bin_ = bin;
   pile.options_ = options;
   for (const auto& c : classes) {
-    if (!c.mesh) return Status::InvalidArgument("pile: class " + std::to_string(c.class_id) + " has no mesh");
+    if (!c.mesh)
+      return Status::InvalidArgument("pile: class " + std::to_string(c.class_id) + " has no mesh");
     auto g = CollisionGeometry::FromMesh(*c.mesh);
-    if (!g.ok()) return Status::InvalidArgument("pile: class " + c.name + ": " + g.status().message());
+    if (!g.ok())
+      return Status::InvalidArgument("pile: class " + c.name + ": " + g.status().message());
     pile.geometries_.push_back(*g);
   }
   pile.classes_ = std::move(classes);
@@ -160,7 +165,8 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
   pile.bin_geometry_ = *bin_g;
   if (Status s = pile.scene_.Add(kBinId, pile.bin_geometry_, Pose::Identity()); !s.ok()) return s;
 
-  const double max_rest = options.max_rest_height > 0 ? options.max_rest_height : bin.inner_size.z();
+  const double max_rest =
+      options.max_rest_height > 0 ? options.max_rest_height : bin.inner_size.z();
   const double hx = bin.inner_size.x() / 2, hy = bin.inner_size.y() / 2;
   std::mt19937_64 rng(options.seed);
   std::uniform_real_distribution<double> U(0.0, 1.0);
@@ -179,7 +185,8 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
       if (x_lo > x_hi || y_lo > y_hi) continue;  // does not fit this way round
       double top = 0.0;
       for (const auto& b : pile.bounds_W_) top = std::max(top, b.max().z());
-      const Vec3 t(x_lo + ux * (x_hi - x_lo), y_lo + uy * (y_hi - y_lo), top + 0.005 - rb.min().z());
+      const Vec3 t(x_lo + ux * (x_hi - x_lo), y_lo + uy * (y_hi - y_lo),
+                   top + 0.005 - rb.min().z());
       const auto rest = pile.Drop(ci, MakePose(R, t), -1);
       if (!rest) continue;
       const Pose X_WO = pile.Settle(ci, *rest, -1);
@@ -189,7 +196,8 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
       part.class_id = pile.classes_[ci].class_id;
       part.class_index = ci;
       part.X_WO = X_WO;
-      if (Status s = pile.scene_.Add(part.instance_id, pile.geometries_[ci], X_WO); !s.ok()) return s;
+      if (Status s = pile.scene_.Add(part.instance_id, pile.geometries_[ci], X_WO); !s.ok())
+        return s;
       pile.parts_.push_back(part);
       pile.bounds_W_.push_back(g.WorldBounds(X_WO));
       placed = true;
@@ -200,7 +208,8 @@ Result<SyntheticPile> SyntheticPile::Generate(const BinSpec& bin, const Triangle
 }
 
 Status SyntheticPile::RemovePart(int instance_id) {
-  auto it = std::find_if(parts_.begin(), parts_.end(), [&](const PilePart& p) { return p.instance_id == instance_id; });
+  auto it = std::find_if(parts_.begin(), parts_.end(),
+                         [&](const PilePart& p) { return p.instance_id == instance_id; });
   if (it == parts_.end()) return Status::NotFound("pile: no part " + std::to_string(instance_id));
   const size_t index = static_cast<size_t>(it - parts_.begin());
   const double removed_bottom = bounds_W_[index].min().z();

@@ -31,13 +31,13 @@ struct PileClass {
 struct PileOptions {
   int num_parts = 20;
   uint64_t seed = 1;
-  double coarse_step = 0.002;     // m; lowering step before bisection (keep < thinnest wall)
-  double tolerance = 0.0002;      // m; bisection stops when the bracket is this small
-  int attempts_per_part = 8;      // random poses tried before a part is skipped
+  double coarse_step = 0.002;  // m; lowering step before bisection (keep < thinnest wall)
+  double tolerance = 0.0002;   // m; bisection stops when the bracket is this small
+  int attempts_per_part = 8;   // random poses tried before a part is skipped
   // A part whose centre comes to rest higher than this above the floor does
   // not fit (bin full) and another pose is tried. <= 0: the bin's inner height.
   double max_rest_height = 0.0;
-  int settle_iterations = 2;      // rounds of "tilt a little if it lowers the part" (0 = off)
+  int settle_iterations = 2;  // rounds of "tilt a little if it lowers the part" (0 = off)
 };
 
 struct PilePart {
@@ -65,7 +65,9 @@ class SyntheticPile {
   // Number of parts that could not be placed (bin full).
   int skipped() const { return skipped_; }
   const std::vector<PileClass>& classes() const { return classes_; }
-  const CollisionGeometryPtr& class_geometry(size_t class_index) const { return geometries_[class_index]; }
+  const CollisionGeometryPtr& class_geometry(size_t class_index) const {
+    return geometries_[class_index];
+  }
   const CollisionGeometryPtr& bin_geometry() const { return bin_geometry_; }
   // Bin (id kBinId) and every part (id = instance_id) at their poses.
   const CollisionScene& scene() const { return scene_; }

@@ -57,11 +57,12 @@ class SyntheticSource::Impl {
 
   // Pixels of `instance` rendered alone: rendered through intrinsics cropped
   // to the instance's projected bounds (same pixel grid, fewer pixels).
-  Result<int> UnoccludedPixels(const RenderScene& scene, const RenderInstance& instance, const Intrinsics& K,
-                               const Pose& X_WC) {
+  Result<int> UnoccludedPixels(const RenderScene& scene, const RenderInstance& instance,
+                               const Intrinsics& K, const Pose& X_WC) {
     const TriangleMesh& mesh = *scene.meshes[instance.mesh_index];
     const Pose X_CO = X_WC.inverse() * instance.X_WO;
-    double u_min = std::numeric_limits<double>::infinity(), v_min = u_min, u_max = -u_min, v_max = -u_min;
+    double u_min = std::numeric_limits<double>::infinity(), v_min = u_min, u_max = -u_min,
+           v_max = -u_min;
     bool behind = false;
     for (const auto& p : mesh.vertices) {
       const Vec3 q = X_CO * p.cast<double>();
@@ -102,7 +103,8 @@ class SyntheticSource::Impl {
 SyntheticSource::SyntheticSource(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 SyntheticSource::~SyntheticSource() = default;
 
-Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cell, std::vector<PileClass> classes,
+Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cell,
+                                                                 std::vector<PileClass> classes,
                                                                  const TriangleMesh& bin_mesh_W) {
   const auto& wanted = cell.source.part_classes;
   if (!wanted.empty()) {
@@ -110,8 +112,10 @@ Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cel
       return std::find(wanted.begin(), wanted.end(), c.class_id) == wanted.end();
     });
   }
-  if (classes.empty()) return Status::InvalidArgument("synthetic source: no part class to draw from");
-  if (cell.camera.configs.empty()) return Status::InvalidArgument("synthetic source: no camera config");
+  if (classes.empty())
+    return Status::InvalidArgument("synthetic source: no part class to draw from");
+  if (cell.camera.configs.empty())
+    return Status::InvalidArgument("synthetic source: no camera config");
   if (cell.source.num_parts < 0 || cell.source.num_parts > 0xFFFE) {
     return Status::InvalidArgument("synthetic source: num_parts out of range");
   }
@@ -135,10 +139,12 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   Impl& m = *impl_;
   const int config_id = request.config_id == 0 ? m.cell.camera.default_config : request.config_id;
   const CameraConfig* config = FindCameraConfig(m.cell.camera, config_id);
-  if (!config) return Status::NotFound("synthetic source: no camera config " + std::to_string(config_id));
+  if (!config)
+    return Status::NotFound("synthetic source: no camera config " + std::to_string(config_id));
   Pose X_BC = m.cell.camera.X_BC;
   if (m.cell.camera.eye_in_hand) {
-    if (!request.X_BF) return Status::InvalidArgument("synthetic source: eye-in-hand capture needs X_BF");
+    if (!request.X_BF)
+      return Status::InvalidArgument("synthetic source: eye-in-hand capture needs X_BF");
     X_BC = *request.X_BF * m.cell.camera.X_FC;
   }
   const Pose X_WC = m.X_BW.inverse() * X_BC;
@@ -171,8 +177,9 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     // The solo render samples the same pixel centres, so visible <= unoccluded;
     // the clamp only guards against a float rounding flip on an edge pixel.
     t.unoccluded_pixels = *unoccluded;
-    t.visible_fraction =
-        t.unoccluded_pixels > 0 ? std::min(1.0, double(t.visible_pixels) / t.unoccluded_pixels) : 0.0;
+    t.visible_fraction = t.unoccluded_pixels > 0
+                             ? std::min(1.0, double(t.visible_pixels) / t.unoccluded_pixels)
+                             : 0.0;
     truth.parts.push_back(std::move(t));
   }
 
@@ -195,7 +202,8 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   const uint64_t noise_seed = Mix(m.cell.source.seed ^ Mix(static_cast<uint64_t>(m.captures)));
   internal::ApplyDepthNoise(noise, in, noise_seed, frame.depth);
 
-  frame.source = "synthetic seed=" + std::to_string(m.cell.source.seed) + " capture=" + std::to_string(m.captures);
+  frame.source = "synthetic seed=" + std::to_string(m.cell.source.seed) +
+                 " capture=" + std::to_string(m.captures);
   frame.timestamp_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
                            std::chrono::system_clock::now().time_since_epoch())
                            .count();
@@ -211,7 +219,8 @@ void SyntheticSource::NotifyPicked(int instance_id) {
 
 std::string SyntheticSource::Describe() const {
   return "synthetic pile: " + std::to_string(impl_->pile->parts().size()) + " parts (" +
-         std::to_string(impl_->pile->skipped()) + " skipped), seed " + std::to_string(impl_->cell.source.seed) +
+         std::to_string(impl_->pile->skipped()) + " skipped), seed " +
+         std::to_string(impl_->cell.source.seed) +
          (impl_->cell.source.simulate_picks ? ", simulating picks" : "");
 }
 

@@ -28,7 +28,8 @@ class SyntheticSource final : public CaptureSource {
   // given class meshes (all classes; part_classes filters them) and the bin
   // mesh in the bin frame W. @returns InvalidArgument if no class remains,
   // Unavailable without OSMesa.
-  static Result<std::unique_ptr<SyntheticSource>> Create(const Cell& cell, std::vector<PileClass> classes,
+  static Result<std::unique_ptr<SyntheticSource>> Create(const Cell& cell,
+                                                         std::vector<PileClass> classes,
                                                          const TriangleMesh& bin_mesh_W);
   ~SyntheticSource() override;
 

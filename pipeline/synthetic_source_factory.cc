@@ -16,15 +16,18 @@ Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell) {
     auto mesh = LoadMesh(part.mesh);
     if (!mesh.ok()) {
       return Status(mesh.status().code() == Status::Code::kNotFound
-                        ? Status::NotFound("synthetic source: part " + part.name + ": " + mesh.status().message())
-                        : Status::Corruption("synthetic source: part " + part.name + ": " + mesh.status().message()));
+                        ? Status::NotFound("synthetic source: part " + part.name + ": " +
+                                           mesh.status().message())
+                        : Status::Corruption("synthetic source: part " + part.name + ": " +
+                                             mesh.status().message()));
     }
     classes.push_back({part.class_id, part.name, std::make_shared<TriangleMesh>(std::move(*mesh))});
   }
   TriangleMesh bin_mesh;
   if (!cell.bin.mesh.empty()) {
     auto loaded = LoadMesh(cell.bin.mesh);
-    if (!loaded.ok()) return Status::NotFound("synthetic source: bin mesh: " + loaded.status().message());
+    if (!loaded.ok())
+      return Status::NotFound("synthetic source: bin mesh: " + loaded.status().message());
     bin_mesh = std::move(*loaded);
   } else {
     bin_mesh = MakeBinMesh(cell.bin);

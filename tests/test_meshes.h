@@ -1,9 +1,8 @@
 // Small in-memory meshes for tests (no files, no core/mesh.cc needed).
 #pragma once
 
-#include <cmath>
-
 #include <Eigen/Geometry>
+#include <cmath>
 
 #include "core/mesh.h"
 
@@ -14,7 +13,8 @@ inline void AppendBox(TriangleMesh& m, const Eigen::Vector3f& size, const Eigen:
   const int base = static_cast<int>(m.vertices.size());
   const Eigen::Vector3f h = size / 2;
   for (int i = 0; i < 8; ++i) {
-    m.vertices.push_back(center + Eigen::Vector3f((i & 1) ? h.x() : -h.x(), (i & 2) ? h.y() : -h.y(),
+    m.vertices.push_back(center + Eigen::Vector3f((i & 1) ? h.x() : -h.x(),
+                                                  (i & 2) ? h.y() : -h.y(),
                                                   (i & 4) ? h.z() : -h.z()));
   }
   const int f[12][3] = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
@@ -22,7 +22,8 @@ inline void AppendBox(TriangleMesh& m, const Eigen::Vector3f& size, const Eigen:
   for (const auto& t : f) m.triangles.emplace_back(base + t[0], base + t[1], base + t[2]);
 }
 
-inline TriangleMesh BoxMesh(const Eigen::Vector3f& size, const Eigen::Vector3f& center = Eigen::Vector3f::Zero()) {
+inline TriangleMesh BoxMesh(const Eigen::Vector3f& size,
+                            const Eigen::Vector3f& center = Eigen::Vector3f::Zero()) {
   TriangleMesh m;
   AppendBox(m, size, center);
   return m;

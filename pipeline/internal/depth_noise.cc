@@ -1,13 +1,13 @@
 #include "pipeline/internal/depth_noise.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
 #include <vector>
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
 
 namespace bp::internal {
 
@@ -78,7 +78,8 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
   const double iz = 1.0 / P.z();
   const double x = K.fx * P.x() * iz + K.cx, y = K.fy * P.y() * iz + K.cy;
   const int u0 = static_cast<int>(std::floor(x)), v0 = static_cast<int>(std::floor(y));
-  if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height) return true;  // outside the map: lit
+  if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height)
+    return true;  // outside the map: lit
   double far_z = -1;
   for (int dv = 0; dv <= 1; ++dv) {
     for (int du = 0; du <= 1; ++du) {
@@ -92,7 +93,8 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
 
 }  // namespace
 
-void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, DepthImage& depth) {
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
+                     DepthImage& depth) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const int w = depth.width, h = depth.height;
   if (model.enabled) {

@@ -15,10 +15,10 @@ namespace bp::internal {
 Intrinsics ProjectorIntrinsics(const Intrinsics& K, const Vec3& offset, double min_depth);
 
 struct NoiseInputs {
-  const Intrinsics* K = nullptr;           // camera
+  const Intrinsics* K = nullptr;                // camera
   const DepthImage* projector_depth = nullptr;  // null: no projector shadowing
   const Intrinsics* K_projector = nullptr;
-  Vec3 projector_offset = Vec3::Zero();    // projector origin in C; same orientation
+  Vec3 projector_offset = Vec3::Zero();  // projector origin in C; same orientation
   double min_depth = 0.0, max_depth = 1e9;
 };
 
@@ -26,6 +26,7 @@ struct NoiseInputs {
 // depth), projector shadow, random dropout, axial Gaussian noise, then the
 // depth range. Deterministic for a given seed. With !model.enabled only the
 // depth range is applied.
-void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, DepthImage& depth);
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
+                     DepthImage& depth);
 
 }  // namespace bp::internal

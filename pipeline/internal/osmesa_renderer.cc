@@ -3,14 +3,13 @@
 // pass writes the label into red/green (material emission, exact bytes) and
 // the Lambertian intensity into blue (a single light, blue only), and depth.
 #include <GL/osmesa.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <string>
-
-#include <spdlog/spdlog.h>
 
 #include "pipeline/renderer.h"
 
@@ -49,13 +48,15 @@ class OsMesaRenderer final : public DepthRenderer {
     }
   }
 
-  Result<RenderOutput> Render(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC) override {
+  Result<RenderOutput> Render(const RenderScene& scene, const Intrinsics& K,
+                              const Pose& X_WC) override {
     RenderOutput out;
     if (Status s = RenderInto(scene, K, X_WC, out); !s.ok()) return s;
     return out;
   }
 
-  Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, RenderOutput& out) override {
+  Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC,
+                    RenderOutput& out) override {
     if (!K.valid()) return Status::InvalidArgument("render: invalid intrinsics");
     if (!(scene.z_near > 0 && scene.z_far > scene.z_near)) {
       return Status::InvalidArgument("render: need 0 < z_near < z_far");
@@ -86,7 +87,8 @@ class OsMesaRenderer final : public DepthRenderer {
 
     glMatrixMode(GL_MODELVIEW);
     glLoadIdentity();
-    const GLfloat light_pos[] = {static_cast<GLfloat>(scene.light_C.x()), static_cast<GLfloat>(-scene.light_C.y()),
+    const GLfloat light_pos[] = {static_cast<GLfloat>(scene.light_C.x()),
+                                 static_cast<GLfloat>(-scene.light_C.y()),
                                  static_cast<GLfloat>(-scene.light_C.z()), 1.f};
     glLightfv(GL_LIGHT0, GL_POSITION, light_pos);
     const GLfloat amb = static_cast<GLfloat>(std::clamp(scene.ambient, 0.0, 1.0));

@@ -1,9 +1,9 @@
 #include "pipeline/renderer.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <set>
-
-#include <gtest/gtest.h>
 
 #include "tests/test_meshes.h"
 
@@ -37,8 +37,8 @@ TEST(OsMesaRenderer, FrontFaceCoversExactlyThePredictedPixelsAtThePredictedDepth
   const Intrinsics K = SmallK();
   const double x0 = -0.083, x1 = 0.121, y0 = -0.0712, y1 = 0.0331, z0 = 0.8;
   RenderScene scene;
-  scene.meshes.push_back(std::make_shared<TriangleMesh>(
-      testing::BoxMesh({float(x1 - x0), float(y1 - y0), 0.05f})));
+  scene.meshes.push_back(
+      std::make_shared<TriangleMesh>(testing::BoxMesh({float(x1 - x0), float(y1 - y0), 0.05f})));
   scene.instances.push_back({0, At((x0 + x1) / 2, (y0 + y1) / 2, z0 + 0.025), 7});
   auto out = renderer->Render(scene, K, Pose::Identity());
   ASSERT_TRUE(out.ok()) << out.status().ToString();
@@ -48,7 +48,8 @@ TEST(OsMesaRenderer, FrontFaceCoversExactlyThePredictedPixelsAtThePredictedDepth
   for (int v = 0; v < K.height; ++v) {
     for (int u = 0; u < K.width; ++u) {
       // Keep clear of pixel centres lying on an edge (rasterization tie rules).
-      ASSERT_GT(std::min({std::abs(u - u0), std::abs(u - u1), std::abs(v - v0), std::abs(v - v1)}), 0.01);
+      ASSERT_GT(std::min({std::abs(u - u0), std::abs(u - u1), std::abs(v - v0), std::abs(v - v1)}),
+                0.01);
       const bool inside = u > u0 && u < u1 && v > v0 && v < v1;
       ASSERT_EQ(out->labels.at(u, v), inside ? 7 : 0) << u << "," << v;
       if (inside) {
@@ -69,9 +70,11 @@ TEST(OsMesaRenderer, DownLookingCameraSeesTheTopFaceWhereRaysHitIt) {
   auto renderer = Renderer();
   ASSERT_TRUE(renderer);
   const Intrinsics K = SmallK();
-  Pose X_WC = MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(), Vec3(0.013, -0.021, 1.05));
+  Pose X_WC = MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(),
+                       Vec3(0.013, -0.021, 1.05));
   // Slight tilt so that the test does not rely on axis alignment.
-  X_WC.linear() = X_WC.linear() * Eigen::AngleAxisd(0.1, Vec3(0.3, 1, 0).normalized()).toRotationMatrix();
+  X_WC.linear() =
+      X_WC.linear() * Eigen::AngleAxisd(0.1, Vec3(0.3, 1, 0).normalized()).toRotationMatrix();
   const Vec3 size(0.16, 0.1, 0.05);
   Pose X_WO = At(0.02, 0.01, size.z() / 2);
   X_WO.linear() = Eigen::AngleAxisd(0.4, Vec3::UnitZ()).toRotationMatrix();
@@ -88,7 +91,8 @@ TEST(OsMesaRenderer, DownLookingCameraSeesTheTopFaceWhereRaysHitIt) {
       const double s = (size.z() - o_W.z()) / d_W.z();  // ray parameter = depth z in C
       const Vec3 p_O = X_WO.inverse() * (o_W + s * d_W);
       // Distance to the top face's boundary in pixels (footprint s / fx).
-      const double margin = std::min(size.x() / 2 - std::abs(p_O.x()), size.y() / 2 - std::abs(p_O.y()));
+      const double margin =
+          std::min(size.x() / 2 - std::abs(p_O.x()), size.y() / 2 - std::abs(p_O.y()));
       const double margin_px = margin * K.fx / s;
       if (std::abs(margin_px) < 0.5) continue;
       if (margin_px > 0) {
@@ -108,7 +112,8 @@ TEST(OsMesaRenderer, LabelsAreExactAndTheNearestSurfaceWins) {
   RenderScene scene;
   scene.meshes.push_back(std::make_shared<TriangleMesh>(testing::BoxMesh({0.04f, 0.04f, 0.04f})));
   const uint16_t labels[] = {1, 254, 255, 256, 0x1234, 0xABCD, 0xFFFE, 0xFFFF};
-  for (int i = 0; i < 8; ++i) scene.instances.push_back({0, At(-0.28 + 0.08 * i, 0, 1.0), labels[i]});
+  for (int i = 0; i < 8; ++i)
+    scene.instances.push_back({0, At(-0.28 + 0.08 * i, 0, 1.0), labels[i]});
   // A nearer box in front of the first two.
   scene.instances.push_back({0, At(-0.24, 0.0, 0.7), 99});
   auto out = renderer->Render(scene, K, Pose::Identity());

@@ -1,8 +1,8 @@
 // The synthetic source on the shipped default cell and meshes.
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
-
-#include <gtest/gtest.h>
 
 #include "core/mesh.h"
 #include "pipeline/synthetic_source.h"
@@ -45,7 +45,8 @@ TEST(SyntheticDefaultCell, CapturesAConsistentPileOfTheShippedParts) {
                                    [&](const PartTruth& t) { return t.instance_id == label; });
       ASSERT_NE(it, frame->truth->parts.end());
       const Eigen::Vector3f p_O =
-          (it->X_BO.inverse() * frame->X_BC * Deproject(frame->intrinsics, u, v, z).cast<double>()).cast<float>();
+          (it->X_BO.inverse() * frame->X_BC * Deproject(frame->intrinsics, u, v, z).cast<double>())
+              .cast<float>();
       const TriangleMesh& m = meshes[it->class_id];
       double best = 1e9;
       for (const auto& t : m.triangles) {

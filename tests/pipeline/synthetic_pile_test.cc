@@ -30,7 +30,8 @@ Result<SyntheticPile> MakePile(int n, uint64_t seed) {
   PileOptions o;
   o.num_parts = n;
   o.seed = seed;
-  return SyntheticPile::Generate(bin, testing::OpenBinMesh(bin.inner_size.cast<float>(), 0.01f), TwoClasses(), o);
+  return SyntheticPile::Generate(bin, testing::OpenBinMesh(bin.inner_size.cast<float>(), 0.01f),
+                                 TwoClasses(), o);
 }
 
 void ExpectNoInterpenetration(const SyntheticPile& pile) {
@@ -96,7 +97,8 @@ TEST(SyntheticPile, RemovingAPartLetsThePartsAboveResettle) {
     Pose lower = p.X_WO;
     lower.translation().z() -= 0.0005;
     const int self[] = {p.instance_id};
-    const auto support = pile->scene().CollidingIds(*pile->class_geometry(p.class_index), lower, self);
+    const auto support =
+        pile->scene().CollidingIds(*pile->class_geometry(p.class_index), lower, self);
     if (support.size() == 1 && support[0] != SyntheticPile::kBinId) {
       victim = support[0];
       q = p.instance_id;
@@ -112,7 +114,8 @@ TEST(SyntheticPile, RemovingAPartLetsThePartsAboveResettle) {
   EXPECT_FALSE(pile->scene().Contains(victim));
   EXPECT_FALSE(pile->RemovePart(victim).ok());
   ExpectNoInterpenetration(*pile);
-  EXPECT_LT(pile->Find(q)->X_WO.translation().z(), z_before - 0.001) << "part " << q << " did not fall";
+  EXPECT_LT(pile->Find(q)->X_WO.translation().z(), z_before - 0.001)
+      << "part " << q << " did not fall";
 }
 
 }  // namespace

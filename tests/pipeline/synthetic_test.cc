@@ -1,12 +1,11 @@
-#include "pipeline/synthetic_source.h"
+#include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 
-#include <gtest/gtest.h>
-
 #include "pipeline/internal/depth_noise.h"
+#include "pipeline/synthetic_source.h"
 #include "tests/test_meshes.h"
 
 namespace bp {
@@ -15,7 +14,8 @@ namespace {
 Cell TestCell(int num_parts, uint64_t seed, bool noise) {
   Cell cell;
   cell.name = "test";
-  cell.camera.X_BC = MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(), Vec3(0.7, 0.0, 0.9));
+  cell.camera.X_BC =
+      MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(), Vec3(0.7, 0.0, 0.9));
   CameraConfig c;
   c.id = 1;
   c.name = "qvga";
@@ -45,7 +45,8 @@ std::vector<PileClass> Classes() {
 }
 
 TriangleMesh BinMesh(const Cell& cell) {
-  return testing::OpenBinMesh(cell.bin.inner_size.cast<float>(), static_cast<float>(cell.bin.wall_thickness));
+  return testing::OpenBinMesh(cell.bin.inner_size.cast<float>(),
+                              static_cast<float>(cell.bin.wall_thickness));
 }
 
 std::unique_ptr<SyntheticSource> MakeSource(const Cell& cell) {
@@ -93,7 +94,8 @@ double MeshDistance(const TriangleMesh& m, const Vec3& p_O) {
   double best = 1e9;
   for (const auto& t : m.triangles) {
     best = std::min(best, PointTriangleDistance(p_O, m.vertices[t[0]].cast<double>(),
-                                                m.vertices[t[1]].cast<double>(), m.vertices[t[2]].cast<double>()));
+                                                m.vertices[t[1]].cast<double>(),
+                                                m.vertices[t[2]].cast<double>()));
   }
   return best;
 }
@@ -101,7 +103,8 @@ double MeshDistance(const TriangleMesh& m, const Vec3& p_O) {
 // For every 4th labelled pixel with valid depth: distance of the deprojected
 // point to the labelled part's surface at its true pose. Returns the errors
 // divided by `scale(z)`.
-std::vector<double> SurfaceErrors(const SyntheticSource& source, const Frame& f, double (*scale)(double)) {
+std::vector<double> SurfaceErrors(const SyntheticSource& source, const Frame& f,
+                                  double (*scale)(double)) {
   std::vector<double> errors;
   const auto classes = Classes();
   const TriangleMesh bin_mesh = BinMesh(TestCell(0, 0, false));
@@ -169,10 +172,12 @@ TEST(SyntheticSource, NoisyDepthStaysWithinFourSigmaOfTheSurface) {
   static const double base = noise.axial_sigma_base, quad = noise.axial_sigma_quadratic;
   const auto errors = SurfaceErrors(*source, f, [](double z) { return base + quad * z * z; });
   ASSERT_GT(errors.size(), 1000u);
-  const auto outside = std::count_if(errors.begin(), errors.end(), [](double e) { return e > 4.0; });
+  const auto outside =
+      std::count_if(errors.begin(), errors.end(), [](double e) { return e > 4.0; });
   EXPECT_LE(outside, static_cast<long>(errors.size() / 500));
   // ... and is actually noisy.
-  const auto above_half_sigma = std::count_if(errors.begin(), errors.end(), [](double e) { return e > 0.5; });
+  const auto above_half_sigma =
+      std::count_if(errors.begin(), errors.end(), [](double e) { return e > 0.5; });
   EXPECT_GT(above_half_sigma, static_cast<long>(errors.size() / 4));
 }
 
@@ -206,7 +211,8 @@ TEST(SyntheticSource, PartsUnderOthersArePartlyVisible) {
     Pose lower = p.X_WO;
     lower.translation().z() -= 0.0005;
     const int self[] = {p.instance_id};
-    for (int support : pile.scene().CollidingIds(*pile.class_geometry(p.class_index), lower, self)) {
+    for (int support :
+         pile.scene().CollidingIds(*pile.class_geometry(p.class_index), lower, self)) {
       if (support == SyntheticPile::kBinId) continue;
       const auto& t = *std::find_if(f.truth->parts.begin(), f.truth->parts.end(),
                                     [&](const PartTruth& x) { return x.instance_id == support; });
@@ -224,8 +230,9 @@ TEST(SyntheticSource, PickedPartLeavesTheNextFrameAndTheTruth) {
   auto source = MakeSource(cell);
   ASSERT_TRUE(source);
   const Frame f0 = CaptureOk(*source);
-  const auto best = std::max_element(f0.truth->parts.begin(), f0.truth->parts.end(),
-                                     [](const PartTruth& a, const PartTruth& b) { return a.visible_pixels < b.visible_pixels; });
+  const auto best = std::max_element(
+      f0.truth->parts.begin(), f0.truth->parts.end(),
+      [](const PartTruth& a, const PartTruth& b) { return a.visible_pixels < b.visible_pixels; });
   const int picked = best->instance_id;
   ASSERT_GT(best->visible_pixels, 0);
   source->NotifyPicked(picked);
@@ -233,7 +240,8 @@ TEST(SyntheticSource, PickedPartLeavesTheNextFrameAndTheTruth) {
   EXPECT_EQ(f1.truth->parts.size(), f0.truth->parts.size() - 1);
   for (const auto& t : f1.truth->parts) EXPECT_NE(t.instance_id, picked);
   EXPECT_EQ(std::count(f1.truth->labels.data.begin(), f1.truth->labels.data.end(), picked), 0);
-  for (const auto& p : source->pile().parts()) EXPECT_FALSE(source->pile().scene().ObjectCollides(p.instance_id));
+  for (const auto& p : source->pile().parts())
+    EXPECT_FALSE(source->pile().scene().ObjectCollides(p.instance_id));
 
   // Without simulate_picks the pile stays as it is.
   auto keep = MakeSource(TestCell(10, 5, false));
