@@ -7,6 +7,7 @@
 #include <boost/asio.hpp>
 #include <deque>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <unordered_map>
 #include <vector>
@@ -97,16 +98,32 @@ class Connection : public std::enable_shared_from_this<Connection> {
     const daoai::Request request = queued_.front();
     queued_.pop_front();
     std::weak_ptr<Connection> weak = weak_from_this();
-    handler_.HandleAsync(request, client_,
-                         [weak, gate = gate_](RequestHandler::Reply reply) {
-                           std::lock_guard lock(gate->mutex);
-                           if (!gate->open) return;
-                           std::shared_ptr<Connection> self = weak.lock();
-                           if (!self) return;  // closed and gone: nothing popped
-                           asio::post(self->strand_, [self, reply = std::move(reply)] {
-                             self->OnReply(reply);
-                           });
-                         });
+    // A completion called inside HandleAsync (on this thread, hence on the
+    // strand) is kept and run below without a trip through the io queue;
+    // completions from detection workers are posted to the strand.
+    in_handle_ = true;
+    handler_.HandleAsync(
+        request, client_,
+        [weak, gate = gate_, caller = std::this_thread::get_id()](RequestHandler::Reply reply) {
+          if (std::this_thread::get_id() == caller) {
+            std::shared_ptr<Connection> self = weak.lock();
+            if (self && self->in_handle_) {
+              self->sync_reply_ = std::move(reply);
+              return;
+            }
+          }
+          std::lock_guard lock(gate->mutex);
+          if (!gate->open) return;
+          std::shared_ptr<Connection> self = weak.lock();
+          if (!self) return;  // closed and gone: nothing popped
+          asio::post(self->strand_, [self, reply = std::move(reply)] { self->OnReply(reply); });
+        });
+    in_handle_ = false;
+    if (sync_reply_) {
+      RequestHandler::Reply reply = std::move(*sync_reply_);
+      sync_reply_.reset();
+      OnReply(reply);
+    }
   }
 
   void OnReply(const RequestHandler::Reply& reply) {
@@ -180,6 +197,8 @@ class Connection : public std::enable_shared_from_this<Connection> {
   std::deque<daoai::Request> queued_;
   bool busy_ = false;
   bool closed_ = false;
+  bool in_handle_ = false;                            // inside HandleAsync
+  std::optional<RequestHandler::Reply> sync_reply_;   // completed inside HandleAsync
   std::chrono::steady_clock::time_point last_activity_ = std::chrono::steady_clock::now();
 };
 
