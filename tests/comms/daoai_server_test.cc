@@ -237,7 +237,10 @@ TEST_F(DaoaiServerTest, AnswersEveryVersion2CommandWithGoldenBytes) {
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, /*version=*/7), kUnknown);
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, 2, /*meta_1=*/55), kUnknown);
 
-  // Side effects the robot cannot see.
+  // Side effects the robot cannot see (teaching has no response: let the
+  // handler finish its work first).
+  server_->Stop();
+  handler_->Shutdown();
   ASSERT_EQ(planner_->taught().size(), 1u);
   EXPECT_EQ(planner_->taught()[0].task.id, 3);
   EXPECT_NEAR(planner_->taught()[0].X_BT.translation().x(), 0.5, 1e-9);
