@@ -1,0 +1,66 @@
+// The perception pipeline: frame -> base-frame points -> ROI crop ->
+// segmentation -> pose estimation -> verified detections (issue 3).
+//
+// Frames (STYLE.md): B robot base, C camera, W bin, O part. SI units.
+// Thread-safety: Perception is built once at start-up (model tables are
+// cached); Run() is const and may be called concurrently. Run uses the oneTBB
+// arena of the calling thread (the caller owns the arena and its size).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/cell.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "pipeline/frame.h"
+
+namespace bp {
+
+struct Detection {
+  int class_id = 0;
+  Pose X_BO = Pose::Identity();   // part in robot base
+  double score = 0.0;             // fraction of the visible model surface supported by scene points
+  double visible_fraction = 0.0;  // estimated fraction of the part's surface that is visible
+  std::vector<int32_t> support;   // indices into PerceptionResult::roi_points_B
+};
+
+struct StageTiming {
+  std::string stage;  // "deproject", "roi", "segment", "pose", "verify", ...
+  double ms = 0.0;
+};
+
+struct PerceptionResult {
+  std::vector<Detection> detections;
+  // Valid points inside the ROI, in B (after the crop). Detections' support
+  // and segments index into this.
+  std::vector<Eigen::Vector3f> roi_points_B;
+  // Segment id per ROI point (-1 = floor / noise / unassigned).
+  std::vector<int32_t> segment_of_point;
+  int64_t roi_point_count = 0;          // == roi_points_B.size()
+  int64_t largest_region_points = 0;    // largest connected region of ROI points (empty-box rule)
+  std::vector<StageTiming> timings;
+  std::string reason;                   // why there are no detections, when there are none
+  double TotalMs() const;
+};
+
+struct PerceptionOptions {
+  int threads = 2;  // size of the oneTBB arena the pipeline creates when the caller has none
+};
+
+class Perception {
+ public:
+  virtual ~Perception() = default;
+  // Builds model tables for every part class of the cell (slow, once).
+  static Result<std::unique_ptr<Perception>> Build(const Cell& cell, const PerceptionOptions& options = {});
+  // Detects parts of `classes` (empty = all cell parts) in `frame`. Empty ROI,
+  // an all-NaN frame or degenerate segments give an OK result with no
+  // detections and a reason; never a pose built from NaNs.
+  virtual Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {}) const = 0;
+};
+
+}  // namespace bp
