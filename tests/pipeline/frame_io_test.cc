@@ -323,6 +323,13 @@ TEST(LoadFrameFile, PlyCutInHalfIsCorruption) {
   bytes.append(std::string(50 * 12, '\x01'));
   WriteText(dir + "/points.ply", bytes);
   ExpectLoadError(dir + "/points.ply", Status::Code::kCorruption);
+  WriteText(dir + "/ascii.ply",
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "end_header\n0 0 1\n0.1 0 1\n");
+  ExpectLoadError(dir + "/ascii.ply", Status::Code::kCorruption);
+  WriteText(dir + "/header_only.ply",
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n");
+  ExpectLoadError(dir + "/header_only.ply", Status::Code::kCorruption);
 }
 
 TEST(LoadFrameFile, PngSizeDifferentFromSidecarIsCorruption) {
@@ -372,6 +379,46 @@ TEST(LoadFrameFile, NaNOnlyCloudIsCorruptionNoValidPoints) {
   for (float& z : d.depth.data) z = nan;
   ASSERT_TRUE(WriteDepthPng(d, dir + "/nan_depth.png").ok());
   ExpectLoadError(dir + "/nan_depth.png", Status::Code::kCorruption, "no valid points");
+}
+
+}  // namespace
+}  // namespace bp
+
+namespace bp {
+namespace {
+
+// Cuts each kind of file at many lengths: every cut is reported, none crashes.
+TEST(LoadFrameFile, FilesCutAtAnyLengthAreReportedNotCrashed) {
+  const std::string dir = testing::FreshDir("in");
+  const Frame f = testing::PlaneWithBox();
+  ASSERT_TRUE(WriteCloudPcd(f, dir + "/cloud.pcd").ok());
+  ASSERT_TRUE(WriteDepthPng(f, dir + "/depth.png").ok());
+  Frame list;
+  list.points_C = f.PointsInCamera();
+  ASSERT_TRUE(WriteCloudPcd(list, dir + "/list.pcd").ok());
+  std::string ply = "ply\nformat binary_little_endian 1.0\nelement vertex 200\nproperty float x\n"
+                    "property float y\nproperty float z\nend_header\n";
+  for (int i = 0; i < 600; ++i) {
+    const float x = 0.001f * static_cast<float>(i + 1);
+    ply.append(reinterpret_cast<const char*>(&x), sizeof(x));
+  }
+  testing::WriteText(dir + "/points.ply", ply);
+  for (const char* name : {"cloud.pcd", "depth.png", "list.pcd", "points.ply"}) {
+    const std::string whole = testing::ReadBytes(dir + "/" + name);
+    const std::string cut_path = dir + "/cut_" + name;
+    if (std::string(name) == "depth.png") {
+      fs::copy_file(dir + "/depth.intrinsics.json", dir + "/cut_depth.intrinsics.json",
+                    fs::copy_options::overwrite_existing);
+    }
+    for (int k = 1; k < 40; ++k) {
+      const size_t len = whole.size() * k / 40;
+      testing::WriteText(cut_path, whole.substr(0, len));
+      Result<Frame> g = LoadFrameFile(cut_path);
+      ASSERT_FALSE(g.ok()) << name << " cut at " << len << " of " << whole.size();
+      EXPECT_EQ(g.status().code(), Status::Code::kCorruption) << g.status().ToString();
+      EXPECT_THAT(g.status().message(), HasSubstr("cut_")) << g.status().ToString();
+    }
+  }
 }
 
 }  // namespace
