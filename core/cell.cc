@@ -800,7 +800,7 @@ Result<Cell> LoadCell(const std::string& path) {
 }
 
 Result<Cell> LoadDefaultCell() {
-  return ParseImpl(internal::kDefaultCellYaml, kEmbeddedPath, fs::path(AssetsDir()));
+  return ParseImpl(internal::kDefaultCellYaml, kEmbeddedPath, fs::path(AssetsDir()) / "cells");
 }
 
 Result<Cell> LoadCellOrDefault(const std::string& path) {

@@ -192,7 +192,7 @@ Result<Cell> LoadCell(const std::string& path);
 // Parses YAML text; `path` is used for messages and to resolve relative paths.
 Result<Cell> ParseCell(const std::string& yaml_text, const std::string& path);
 // The embedded default cell (assets/cells/default.yaml, compiled in; its
-// relative paths resolve against the installed assets directory).
+// relative paths resolve against AssetsDir()/cells, as they would for the file on disk).
 Result<Cell> LoadDefaultCell();
 // LoadCell(path) if path is non-empty, else LoadDefaultCell().
 Result<Cell> LoadCellOrDefault(const std::string& path);
