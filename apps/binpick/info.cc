@@ -14,6 +14,7 @@
 
 #include "apps/binpick/command.h"
 #include "core/cell.h"
+#include "core/mesh.h"
 #include "pipeline/frame_io.h"
 
 namespace bp::cli {
@@ -110,15 +111,24 @@ int DescribeFrame(const std::string& path) {
 }
 
 int DescribeMesh(const std::string& path) {
-  // TODO(files): LoadMesh (core/mesh.cc) is not on main yet; describe meshes once it lands.
-  return Fail(kCmd, Status::Unavailable("'" + path + "': mesh support (LoadMesh) not built yet"));
+  Result<TriangleMesh> mesh = LoadMesh(path);
+  if (!mesh.ok()) return Fail(kCmd, mesh.status());
+  const Eigen::AlignedBox3f b = mesh->Bounds();
+  std::printf("file:        %s\n", path.c_str());
+  std::printf("type:        triangle mesh, %zu vertices, %zu triangles\n", mesh->vertices.size(),
+              mesh->triangles.size());
+  std::printf("bounds:      x [%.4f, %.4f] y [%.4f, %.4f] z [%.4f, %.4f] m (size %.4f x %.4f x %.4f)\n",
+              b.min().x(), b.max().x(), b.min().y(), b.max().y(), b.min().z(), b.max().z(), b.sizes().x(),
+              b.sizes().y(), b.sizes().z());
+  std::printf("area:        %.6f m^2\n", mesh->Area());
+  return kExitOk;
 }
 
 int DescribeCell(const std::string& path) {
   Result<Cell> cell = LoadCell(path);
   if (!cell.ok()) return Fail(kCmd, cell.status());
   const std::string text = Describe(*cell);
-  std::printf("file:        %s\n%s%s", path.c_str(), text.c_str(), !text.empty() && text.back() == '\n' ? "" : "\n");
+  std::printf("%s%s", text.c_str(), !text.empty() && text.back() == '\n' ? "" : "\n");
   return kExitOk;
 }
 

@@ -77,6 +77,16 @@ TEST(BinpickCli, InfoOnMissingFileFailsWithBadInput) {
   EXPECT_THAT(r.output, HasSubstr("nothing.pcd"));
 }
 
+TEST(BinpickCli, InfoDescribesMeshesAndCells) {
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets";
+  RunResult r = RunBinpick("info " + assets + "/parts/pipe_tee.ply");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("triangle mesh"));
+  r = RunBinpick("info " + assets + "/cells/default.yaml");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("pipe_tee"));
+}
+
 TEST(BinpickCli, InfoDescribesAnOrganizedDepthFrame) {
   const std::string dir = FreshDir();
   Frame f;

@@ -158,6 +158,14 @@ TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
   EXPECT_EQ(g->points_C[2], Eigen::Vector3f(0.1f, 0.1f, 1.5f));
 }
 
+TEST(CloudPly, LoadsVerticesOfABinaryMeshWithFaces) {
+  Result<Frame> g = LoadFrameFile(std::string(BINPICK_SOURCE_DIR) + "/assets/parts/pipe_tee.ply");
+  ASSERT_TRUE(g.ok()) << g.status().ToString();
+  EXPECT_FALSE(g->organized());
+  EXPECT_EQ(g->points_C.size(), 512u);
+  EXPECT_EQ(g->ValidPointCount(), 512u);
+}
+
 TEST(CloudPly, LoadsBinaryPointCloud) {
   const std::string dir = FreshDir("out");
   std::string bytes = "ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\n"
