@@ -18,11 +18,13 @@ int main(int argc, char** argv) {
   app.add_option("--out", out, "assets directory to write into");
   CLI11_PARSE(app, argc, argv);
 
-  // The default cell's bin (assets/cells/default.yaml: bin.inner_size,
-  // bin.wall_thickness). Kept in sync by hand.
-  bp::BinSpec bin;
-  bin.inner_size = bp::Vec3(0.5, 0.36, 0.2);
-  bin.wall_thickness = 0.012;
+  // The bin mesh is the default cell's bin (assets/cells/default.yaml).
+  const bp::Result<bp::Cell> cell = bp::LoadDefaultCell();
+  if (!cell.ok()) {
+    std::fprintf(stderr, "bp_make_assets: %s\n", cell.status().ToString().c_str());
+    return 1;
+  }
+  const bp::BinSpec& bin = cell->bin;
 
   const std::vector<std::pair<std::string, bp::TriangleMesh>> assets = {
       {"parts/flanged_bushing.ply", bp::MakeFlangedBushing()},

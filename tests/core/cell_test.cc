@@ -521,8 +521,8 @@ TEST_F(CellFileTest, DescribeSummarisesTheCell) {
   EXPECT_THAT(text, HasSubstr("robot: ur (meta_1 id 7, "));
 }
 
-// The default cell's meshes: created as empty files in a temp assets dir so
-// the existence check passes before (and after) the real assets exist.
+// The default cell's meshes, as empty files in a temp assets dir: the loader
+// only checks that they exist.
 const char* const kDefaultMeshes[] = {"parts/flanged_bushing.ply", "parts/l_bracket.ply", "parts/pipe_tee.ply",
                                       "grippers/suction_cup.ply", "grippers/parallel_jaw.ply"};
 
@@ -560,6 +560,25 @@ TEST(DefaultCell, LoadsWithItsPartsGrippersTasksAndConfigs) {
   Result<Cell> same = LoadCellOrDefault("");
   ASSERT_TRUE(same.ok());
   EXPECT_EQ(same->parts.size(), 3u);
+}
+
+// The shipped assets/cells/default.yaml is the embedded cell, and loads from
+// disk as it is, against the real shipped meshes.
+TEST(DefaultCell, ShippedFileLoadsFromDiskLikeTheEmbeddedCopy) {
+  const fs::path assets = fs::path(BINPICK_SOURCE_DIR) / "assets";
+  ScopedEnv env("BINPICK_ASSETS", assets.string());
+  Result<Cell> embedded = LoadDefaultCell();
+  ASSERT_TRUE(embedded.ok()) << embedded.status().ToString();
+  Result<Cell> on_disk = LoadCell((assets / "cells/default.yaml").string());
+  ASSERT_TRUE(on_disk.ok()) << on_disk.status().ToString();
+  ASSERT_EQ(on_disk->parts.size(), embedded->parts.size());
+  for (size_t i = 0; i < embedded->parts.size(); ++i) {
+    EXPECT_EQ(on_disk->parts[i].mesh, embedded->parts[i].mesh);
+    EXPECT_TRUE(fs::exists(embedded->parts[i].mesh)) << embedded->parts[i].mesh;
+  }
+  EXPECT_EQ(on_disk->grippers[0].mesh, embedded->grippers[0].mesh);
+  EXPECT_EQ(on_disk->tasks.size(), embedded->tasks.size());
+  EXPECT_EQ(on_disk->camera.configs.size(), embedded->camera.configs.size());
 }
 
 TEST(DefaultCell, MissingAssetsAreReportedAsNotFound) {

@@ -651,9 +651,9 @@ TEST(MeshGen, ParallelJawLeavesTheOpeningFreeBetweenFingers) {
 // The committed files under assets/ are what the generator makes today.
 TEST(MeshGen, CommittedAssetsMatchTheGenerator) {
   const std::string assets = TestAssetsDir();
-  BinSpec bin;
-  bin.inner_size = V3(0.5, 0.36, 0.2);
-  bin.wall_thickness = 0.012;
+  const Result<Cell> cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  const BinSpec& bin = cell->bin;
   const std::vector<std::pair<std::string, TriangleMesh>> expected = {
       {"parts/flanged_bushing.ply", MakeFlangedBushing()}, {"parts/l_bracket.ply", MakeLBracket()},
       {"parts/pipe_tee.ply", MakePipeTee()},               {"grippers/suction_cup.ply", MakeSuctionGripper()},
