@@ -1,6 +1,7 @@
 #include "pipeline/capture_source.h"
 
 #include "pipeline/file_source.h"
+#include "pipeline/synthetic_source.h"
 
 namespace bp {
 
@@ -12,8 +13,7 @@ Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell) {
       }
       return MakeFileSource(cell.source.dir, cell);
     case SourceSpec::Kind::kSynthetic:
-      // TODO(lead): return MakeSyntheticSource(cell) once pipeline/synthetic_source.h lands.
-      return Status::Unavailable("synthetic source not built");
+      return MakeSyntheticSource(cell);
     case SourceSpec::Kind::kReplay:
       return Status::Unavailable("replay: not implemented yet");
   }

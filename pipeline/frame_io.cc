@@ -86,10 +86,13 @@ Status CheckPngMagic(const std::string& path) {
   return Status::Ok();
 }
 
-json PoseToJson(const Pose& X) {
-  json rows = json::array();
+// Files are written with keys in a fixed, readable order.
+using OrderedJson = nlohmann::ordered_json;
+
+OrderedJson PoseToJson(const Pose& X) {
+  OrderedJson rows = OrderedJson::array();
   for (int r = 0; r < 4; ++r) {
-    json row = json::array();
+    OrderedJson row = OrderedJson::array();
     for (int c = 0; c < 4; ++c) row.push_back(X.matrix()(r, c));
     rows.push_back(row);
   }
@@ -126,10 +129,43 @@ Result<json> ReadJson(const std::string& path) {
   return j;
 }
 
-Status WriteJson(const json& j, const std::string& path) {
+// dump(2), but arrays of plain numbers on one line ("[1.0, 0.0, 0.0, 0.7]"),
+// so that matrices and vectors read as such.
+std::string PrettyJson(const OrderedJson& j) {
+  const std::string text = j.dump(2);
+  std::string out;
+  out.reserve(text.size());
+  size_t i = 0;
+  while (i < text.size()) {
+    if (text[i] == '[') {
+      const size_t close = text.find_first_of("[]{}\"", i + 1);
+      if (close != std::string::npos && text[close] == ']') {
+        out += '[';
+        bool space = false;
+        for (size_t k = i + 1; k < close; ++k) {
+          const char c = text[k];
+          if (c == ' ' || c == '\n') {
+            space = true;
+            continue;
+          }
+          if (space && out.back() == ',') out += ' ';
+          space = false;
+          out += c;
+        }
+        out += ']';
+        i = close + 1;
+        continue;
+      }
+    }
+    out += text[i++];
+  }
+  return out;
+}
+
+Status WriteJson(const OrderedJson& j, const std::string& path) {
   std::ofstream out(path, std::ios::trunc);
   if (!out) return Status::Internal(Quote(path) + ": cannot open for writing");
-  out << j.dump(2) << "\n";
+  out << PrettyJson(j) << "\n";
   out.close();
   if (!out) return Status::Internal(Quote(path) + ": write failed");
   return Status::Ok();
@@ -146,7 +182,7 @@ struct Sidecar {
 
 Status WriteSidecar(const Frame& frame, bool with_intrinsics, std::optional<double> depth_scale,
                     const std::string& data_path) {
-  json j;
+  OrderedJson j;
   j["format"] = kSidecarFormat;
   if (with_intrinsics) {
     const Intrinsics& K = frame.intrinsics;
@@ -596,12 +632,12 @@ Result<LabelImage> ReadLabelPng(const std::string& path) {
 Status WriteGroundTruthJson(const Frame& frame, const std::string& path) {
   if (!frame.truth) return Status::InvalidArgument(Quote(path) + ": frame has no ground truth");
   const GroundTruth& truth = *frame.truth;
-  json j;
+  OrderedJson j;
   j["format"] = kTruthFormat;
   j["seed"] = truth.seed;
   j["source"] = frame.source;
   j["X_BC"] = PoseToJson(frame.X_BC);
-  j["parts"] = json::array();
+  j["parts"] = OrderedJson::array();
   for (const PartTruth& part : truth.parts) {
     const Quat q(part.X_BO.linear());
     const Vec3 t = part.X_BO.translation();

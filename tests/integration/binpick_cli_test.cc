@@ -1,6 +1,7 @@
 // Runs the built binpick binary (build/bin/binpick) as a user would.
 #include <sys/wait.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -9,6 +10,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
 
 namespace bp {
@@ -75,6 +77,57 @@ TEST(BinpickCli, InfoOnMissingFileFailsWithBadInput) {
   const RunResult r = RunBinpick("info /nonexistent/nothing.pcd");
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_THAT(r.output, HasSubstr("nothing.pcd"));
+}
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+TEST(BinpickCli, RenderWritesAFrameThatLoadsBackWithItsTruth) {
+  const std::string dir = FreshDir();
+  const RunResult r = RunBinpick("render --seed 5 --out " + dir + "/a");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("parts placed"));
+  Result<Frame> depth = LoadFrameFile(dir + "/a/depth.png");
+  ASSERT_TRUE(depth.ok()) << depth.status().ToString();
+  ASSERT_TRUE(depth->organized());
+  ASSERT_TRUE(depth->truth.has_value());
+  EXPECT_EQ(depth->truth->seed, 5u);
+  EXPECT_FALSE(depth->truth->parts.empty());
+  EXPECT_EQ(depth->truth->labels.width, depth->depth.width);
+  EXPECT_EQ(depth->intensity.width, depth->depth.width);
+  Result<Frame> cloud = LoadFrameFile(dir + "/a/cloud.pcd");
+  ASSERT_TRUE(cloud.ok()) << cloud.status().ToString();
+  ASSERT_TRUE(cloud->organized());
+  EXPECT_TRUE(cloud->X_BC.matrix() == depth->X_BC.matrix());
+  ASSERT_EQ(cloud->depth.data.size(), depth->depth.data.size());
+  for (size_t i = 0; i < cloud->depth.data.size(); ++i) {
+    const float a = cloud->depth.data[i], b = depth->depth.data[i];
+    ASSERT_EQ(std::isnan(a), std::isnan(b)) << i;
+    if (!std::isnan(a)) {
+      ASSERT_NEAR(a, b, 0.5 * kDepthPngScale + 1e-6) << i;
+    }
+  }
+  // The same seed writes the same ground truth.
+  ASSERT_EQ(RunBinpick("render --seed 5 --out " + dir + "/b").exit_code, 0);
+  EXPECT_EQ(ReadAll(dir + "/a/truth.json"), ReadAll(dir + "/b/truth.json"));
+  // The file source serves the rendered directory: cloud.pcd, depth.png, wrap.
+  Cell cell;
+  auto source = MakeFileSource(dir + "/a", cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  for (const char* expected : {"cloud.pcd", "depth.png", "cloud.pcd"}) {
+    Result<Frame> f = (*source)->Capture({});
+    ASSERT_TRUE(f.ok()) << f.status().ToString();
+    EXPECT_EQ(fs::path(f->source).filename().string(), expected);
+    EXPECT_TRUE(f->truth.has_value());
+  }
+}
+
+TEST(BinpickCli, RenderWithUnknownConfigFailsWithBadInput) {
+  const RunResult r = RunBinpick("render --seed 1 --config 99 --out " + FreshDir() + "/x");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("99"));
 }
 
 TEST(BinpickCli, InfoDescribesMeshesAndCells) {
