@@ -1,0 +1,39 @@
+// The binpick command line: one Command per subcommand, registered in
+// main.cc. Each lives in its own file (render.cc, info.cc, ...).
+#pragma once
+
+#include <functional>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "core/status.h"
+
+namespace bp::cli {
+
+// Process exit codes shared by all subcommands.
+enum ExitCode : int {
+  kExitOk = 0,
+  kExitFailure = 1,   // runtime failure (renderer, device, write error)
+  kExitBadInput = 2,  // bad command line, missing / malformed input file
+};
+
+struct Command {
+  std::string name;
+  std::string help;
+  // Adds the subcommand's options to `sub` and returns the action main runs
+  // when this subcommand is chosen (options are parsed by then).
+  std::function<std::function<int()>(CLI::App& sub)> setup;
+};
+
+Command RenderCommand();
+Command InfoCommand();
+
+// kExitBadInput for errors in what the user gave us (InvalidArgument,
+// NotFound, Corruption, OutOfRange), kExitFailure otherwise.
+int ExitCodeFor(const Status& status);
+// Prints "binpick <command>: <status>" as one line on stderr and returns
+// ExitCodeFor(status).
+int Fail(const std::string& command, const Status& status);
+
+}  // namespace bp::cli

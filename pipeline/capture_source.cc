@@ -1,0 +1,23 @@
+#include "pipeline/capture_source.h"
+
+#include "pipeline/file_source.h"
+#include "pipeline/synthetic_source.h"
+
+namespace bp {
+
+Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell) {
+  switch (cell.source.kind) {
+    case SourceSpec::Kind::kFiles:
+      if (cell.source.dir.empty()) {
+        return Status::InvalidArgument(cell.path + ": source.dir is required when source.kind is files");
+      }
+      return MakeFileSource(cell.source.dir, cell);
+    case SourceSpec::Kind::kSynthetic:
+      return MakeSyntheticSource(cell);
+    case SourceSpec::Kind::kReplay:
+      return Status::Unavailable("replay: not implemented yet");
+  }
+  return Status::InvalidArgument(cell.path + ": unknown source.kind");
+}
+
+}  // namespace bp

@@ -1,0 +1,712 @@
+#include "pipeline/frame_io.h"
+
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <optional>
+#include <system_error>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/console/print.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+namespace bp {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// PNG signature (PNG spec, section 5.2).
+constexpr std::array<unsigned char, 8> kPngMagic = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+// Sidecar "format" tag; bump the number on an incompatible change.
+constexpr const char* kSidecarFormat = "binpick.intrinsics/1";
+constexpr const char* kTruthFormat = "binpick.truth/1";
+// Largest count a 16-bit PNG holds.
+constexpr double kMaxDepthCount = 65535.0;
+
+std::string Quote(const std::string& path) { return "'" + path + "'"; }
+
+std::string LowerExtension(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext;
+}
+
+// Silences PCL's console output (it prints to stderr on every parse error)
+// while a file is parsed; we report through Status instead.
+class QuietPcl {
+ public:
+  QuietPcl() : saved_(pcl::console::getVerbosityLevel()) {
+    pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
+  }
+  ~QuietPcl() { pcl::console::setVerbosityLevel(saved_); }
+  QuietPcl(const QuietPcl&) = delete;
+  QuietPcl& operator=(const QuietPcl&) = delete;
+
+ private:
+  pcl::console::VERBOSITY_LEVEL saved_;
+};
+
+// Missing / not a regular file / empty, checked before any parser sees it.
+Result<uintmax_t> CheckReadable(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return Status::NotFound(Quote(path) + ": no such file");
+  if (!fs::is_regular_file(path, ec)) return Status::InvalidArgument(Quote(path) + ": not a regular file");
+  const uintmax_t size = fs::file_size(path, ec);
+  if (ec) return Status::NotFound(Quote(path) + ": cannot stat: " + ec.message());
+  if (size == 0) return Status::Corruption(Quote(path) + ": empty file");
+  return size;
+}
+
+std::string ReadHead(const std::string& path, size_t n) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(n, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(n));
+  head.resize(static_cast<size_t>(in.gcount()));
+  return head;
+}
+
+Status CheckPngMagic(const std::string& path) {
+  const std::string head = ReadHead(path, kPngMagic.size());
+  if (head.size() < kPngMagic.size() || std::memcmp(head.data(), kPngMagic.data(), kPngMagic.size()) != 0) {
+    return Status::Corruption(Quote(path) + ": not a PNG file (bad magic)");
+  }
+  return Status::Ok();
+}
+
+// Files are written with keys in a fixed, readable order.
+using OrderedJson = nlohmann::ordered_json;
+
+OrderedJson PoseToJson(const Pose& X) {
+  OrderedJson rows = OrderedJson::array();
+  for (int r = 0; r < 4; ++r) {
+    OrderedJson row = OrderedJson::array();
+    for (int c = 0; c < 4; ++c) row.push_back(X.matrix()(r, c));
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+// Throws json::exception on a wrong shape (caught by the callers' boundary).
+Result<Pose> PoseFromJson(const json& j, const std::string& what) {
+  if (!j.is_array() || j.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
+  Eigen::Matrix4d M;
+  for (int r = 0; r < 4; ++r) {
+    const json& row = j.at(r);
+    if (!row.is_array() || row.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
+    for (int c = 0; c < 4; ++c) M(r, c) = row.at(c).get<double>();
+  }
+  if (!M.allFinite()) return Status::Corruption(what + " has non-finite entries");
+  if (M.row(3) != Eigen::RowVector4d(0, 0, 0, 1)) return Status::Corruption(what + " last row is not [0, 0, 0, 1]");
+  const Mat3 R = M.topLeftCorner<3, 3>();
+  if (!(R.transpose() * R).isApprox(Mat3::Identity(), 1e-6) || R.determinant() < 0) {
+    return Status::Corruption(what + " rotation is not orthonormal");
+  }
+  Pose X = Pose::Identity();
+  X.matrix() = M;
+  return X;
+}
+
+Result<json> ReadJson(const std::string& path) {
+  auto size = CheckReadable(path);
+  if (!size.ok()) return size.status();
+  std::ifstream in(path);
+  json j = json::parse(in, nullptr, /*allow_exceptions=*/false);
+  if (j.is_discarded()) return Status::Corruption(Quote(path) + ": not valid JSON (truncated?)");
+  if (!j.is_object()) return Status::Corruption(Quote(path) + ": expected a JSON object");
+  return j;
+}
+
+// dump(2), but arrays of plain numbers on one line ("[1.0, 0.0, 0.0, 0.7]"),
+// so that matrices and vectors read as such.
+std::string PrettyJson(const OrderedJson& j) {
+  const std::string text = j.dump(2);
+  std::string out;
+  out.reserve(text.size());
+  size_t i = 0;
+  while (i < text.size()) {
+    if (text[i] == '[') {
+      const size_t close = text.find_first_of("[]{}\"", i + 1);
+      if (close != std::string::npos && text[close] == ']') {
+        out += '[';
+        bool space = false;
+        for (size_t k = i + 1; k < close; ++k) {
+          const char c = text[k];
+          if (c == ' ' || c == '\n') {
+            space = true;
+            continue;
+          }
+          if (space && out.back() == ',') out += ' ';
+          space = false;
+          out += c;
+        }
+        out += ']';
+        i = close + 1;
+        continue;
+      }
+    }
+    out += text[i++];
+  }
+  return out;
+}
+
+Status WriteJson(const OrderedJson& j, const std::string& path) {
+  std::ofstream out(path, std::ios::trunc);
+  if (!out) return Status::Internal(Quote(path) + ": cannot open for writing");
+  out << PrettyJson(j) << "\n";
+  out.close();
+  if (!out) return Status::Internal(Quote(path) + ": write failed");
+  return Status::Ok();
+}
+
+// --- Intrinsics sidecar ------------------------------------------------------
+
+struct Sidecar {
+  std::optional<Intrinsics> intrinsics;  // absent for unorganized clouds
+  double depth_scale = kDepthPngScale;
+  Pose X_BC = Pose::Identity();
+  int64_t timestamp_ns = 0;
+};
+
+Status WriteSidecar(const Frame& frame, bool with_intrinsics, std::optional<double> depth_scale,
+                    const std::string& data_path) {
+  OrderedJson j;
+  j["format"] = kSidecarFormat;
+  if (with_intrinsics) {
+    const Intrinsics& K = frame.intrinsics;
+    j["width"] = K.width;
+    j["height"] = K.height;
+    j["fx"] = K.fx;
+    j["fy"] = K.fy;
+    j["cx"] = K.cx;
+    j["cy"] = K.cy;
+    j["distortion"] = K.distortion;
+  }
+  if (depth_scale) j["depth_scale"] = *depth_scale;
+  j["X_BC"] = PoseToJson(frame.X_BC);
+  j["timestamp_ns"] = frame.timestamp_ns;
+  j["source"] = frame.source;
+  return WriteJson(j, IntrinsicsSidecarPath(data_path));
+}
+
+Result<Sidecar> ReadSidecarUnnamed(const std::string& sidecar_path);
+
+// Sidecar errors name the data file as well as the sidecar.
+Result<Sidecar> ReadSidecar(const std::string& sidecar_path, const std::string& data_path) {
+  Result<Sidecar> s = ReadSidecarUnnamed(sidecar_path);
+  if (s.ok()) return s;
+  const Status& e = s.status();
+  const std::string msg = Quote(data_path) + ": sidecar " + e.message();
+  switch (e.code()) {
+    case Status::Code::kNotFound: return Status::NotFound(msg);
+    case Status::Code::kInvalidArgument: return Status::InvalidArgument(msg);
+    default: return Status::Corruption(msg);
+  }
+}
+
+Result<Sidecar> ReadSidecarUnnamed(const std::string& sidecar_path) {
+  auto j = ReadJson(sidecar_path);
+  if (!j.ok()) return j.status();
+  const std::string where = Quote(sidecar_path) + ": ";
+  try {
+    Sidecar s;
+    if (j->contains("width")) {
+      Intrinsics K;
+      K.width = j->at("width").get<int>();
+      K.height = j->at("height").get<int>();
+      K.fx = j->at("fx").get<double>();
+      K.fy = j->at("fy").get<double>();
+      K.cx = j->at("cx").get<double>();
+      K.cy = j->at("cy").get<double>();
+      if (j->contains("distortion")) K.distortion = j->at("distortion").get<std::array<double, 5>>();
+      if (!K.valid()) return Status::Corruption(where + "intrinsics need width, height, fx, fy > 0");
+      s.intrinsics = K;
+    }
+    if (j->contains("depth_scale")) {
+      s.depth_scale = j->at("depth_scale").get<double>();
+      if (!(s.depth_scale > 0) || !std::isfinite(s.depth_scale)) {
+        return Status::Corruption(where + "depth_scale must be > 0");
+      }
+    }
+    if (j->contains("X_BC")) {
+      auto X = PoseFromJson(j->at("X_BC"), where + "X_BC");
+      if (!X.ok()) return X.status();
+      s.X_BC = *X;
+    }
+    if (j->contains("timestamp_ns")) s.timestamp_ns = j->at("timestamp_ns").get<int64_t>();
+    return s;
+  } catch (const std::exception& e) {
+    return Status::Corruption(where + "bad sidecar: " + e.what());
+  }
+}
+
+// --- PNG helpers ---------------------------------------------------------------
+
+// Reads a single-channel PNG of the given OpenCV depth (CV_8U / CV_16U).
+Result<cv::Mat> ReadGreyPng(const std::string& path, int cv_depth) {
+  auto size = CheckReadable(path);
+  if (!size.ok()) return size.status();
+  if (Status s = CheckPngMagic(path); !s.ok()) return s;
+  cv::Mat m;
+  try {
+    m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const std::exception& e) {
+    return Status::Corruption(Quote(path) + ": cannot decode PNG: " + e.what());
+  }
+  if (m.empty()) return Status::Corruption(Quote(path) + ": cannot decode PNG (truncated or corrupt)");
+  if (m.channels() != 1) {
+    return Status::InvalidArgument(Quote(path) + ": PNG has " + std::to_string(m.channels()) +
+                                   " channels, expected 1 (grey)");
+  }
+  if (m.depth() != cv_depth) {
+    const char* want = cv_depth == CV_16U ? "16-bit" : "8-bit";
+    const char* got = m.depth() == CV_8U ? "8-bit" : m.depth() == CV_16U ? "16-bit" : "non-8/16-bit";
+    return Status::InvalidArgument(Quote(path) + ": " + got + " PNG where a " + want + " PNG is expected");
+  }
+  return m;
+}
+
+Status WritePng(const cv::Mat& m, const std::string& path) {
+  try {
+    if (!cv::imwrite(path, m)) return Status::Internal(Quote(path) + ": cannot write PNG");
+  } catch (const std::exception& e) {
+    return Status::Internal(Quote(path) + ": cannot write PNG: " + e.what());
+  }
+  return Status::Ok();
+}
+
+template <typename T>
+Image<T> ImageFromMat(const cv::Mat& m) {
+  Image<T> img(m.cols, m.rows);
+  for (int v = 0; v < m.rows; ++v) std::memcpy(&img.at(0, v), m.ptr<T>(v), sizeof(T) * m.cols);
+  return img;
+}
+
+// --- Loaders per type ------------------------------------------------------------
+
+bool ValidDepth(float z) { return std::isfinite(z) && z > 0.f; }
+
+Status RequireValidPoints(const Frame& frame, const std::string& path) {
+  if (frame.ValidPointCount() == 0) return Status::Corruption(Quote(path) + ": no valid points");
+  return Status::Ok();
+}
+
+Result<Frame> LoadDepthPng(const std::string& path, const Pose& X_BC_default) {
+  (void)X_BC_default;  // the sidecar is required, and it carries X_BC
+  auto m = ReadGreyPng(path, CV_16U);
+  if (!m.ok()) return m.status();
+  const std::string sidecar_path = IntrinsicsSidecarPath(path);
+  std::error_code ec;
+  if (!fs::exists(sidecar_path, ec)) {
+    return Status::NotFound(Quote(path) + ": depth PNG needs its intrinsics sidecar " + Quote(sidecar_path));
+  }
+  auto sidecar = ReadSidecar(sidecar_path, path);
+  if (!sidecar.ok()) return sidecar.status();
+  if (!sidecar->intrinsics) {
+    return Status::Corruption(Quote(sidecar_path) + ": no intrinsics (width, height, fx, fy, cx, cy)");
+  }
+  const Intrinsics& K = *sidecar->intrinsics;
+  if (m->cols != K.width || m->rows != K.height) {
+    return Status::Corruption(Quote(path) + ": PNG is " + std::to_string(m->cols) + "x" +
+                              std::to_string(m->rows) + " but its sidecar says " + std::to_string(K.width) +
+                              "x" + std::to_string(K.height));
+  }
+  Frame frame;
+  frame.intrinsics = K;
+  frame.X_BC = sidecar->X_BC;
+  frame.timestamp_ns = sidecar->timestamp_ns;
+  frame.depth = DepthImage(K.width, K.height, std::numeric_limits<float>::quiet_NaN());
+  const double scale = sidecar->depth_scale;
+  for (int v = 0; v < K.height; ++v) {
+    const uint16_t* row = m->ptr<uint16_t>(v);
+    for (int u = 0; u < K.width; ++u) {
+      if (row[u] != 0) frame.depth.at(u, v) = static_cast<float>(row[u] * scale);
+    }
+  }
+  return frame;
+}
+
+// True if every valid point of the organized cloud is where Deproject puts
+// its z through K (so the depth image alone reproduces the cloud).
+bool MatchesPinhole(const pcl::PointCloud<pcl::PointXYZ>& cloud, const Intrinsics& K) {
+  for (int v = 0; v < K.height; ++v) {
+    for (int u = 0; u < K.width; ++u) {
+      const pcl::PointXYZ& p = cloud.at(u, v);
+      const bool any_finite = std::isfinite(p.x) || std::isfinite(p.y) || std::isfinite(p.z);
+      if (!any_finite) continue;
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !ValidDepth(p.z)) return false;
+      const Eigen::Vector3f q = Deproject(K, static_cast<float>(u), static_cast<float>(v), p.z);
+      const float tol = 1e-6f + 1e-5f * p.z;
+      if (std::abs(q.x() - p.x) > tol || std::abs(q.y() - p.y) > tol) return false;
+    }
+  }
+  return true;
+}
+
+Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
+  const std::string head = ReadHead(path, 64);
+  if (!(head.rfind("#", 0) == 0 || head.rfind("VERSION", 0) == 0 || head.rfind("FIELDS", 0) == 0)) {
+    return Status::Corruption(Quote(path) + ": not a PCD file (bad magic)");
+  }
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  {
+    QuietPcl quiet;
+    pcl::PCDReader reader;
+    pcl::PCLPointCloud2 header;
+    Eigen::Vector4f origin;
+    Eigen::Quaternionf orientation;
+    int pcd_version = 0, data_type = 0;
+    unsigned int data_idx = 0;
+    if (reader.readHeader(path, header, origin, orientation, pcd_version, data_type, data_idx) < 0) {
+      return Status::Corruption(Quote(path) + ": bad PCD header");
+    }
+    bool has[3] = {false, false, false};
+    for (const auto& f : header.fields) {
+      if (f.name == "x") has[0] = true;
+      if (f.name == "y") has[1] = true;
+      if (f.name == "z") has[2] = true;
+    }
+    if (!has[0] || !has[1] || !has[2]) return Status::Corruption(Quote(path) + ": PCD has no x, y, z fields");
+    // Binary data must fill width * height points; PCL checks this too, but
+    // its message goes to stderr.
+    if (data_type == 1) {
+      const uintmax_t need = static_cast<uintmax_t>(data_idx) +
+                             static_cast<uintmax_t>(header.width) * header.height * header.point_step;
+      std::error_code ec;
+      const uintmax_t have = fs::file_size(path, ec);
+      if (have < need) {
+        return Status::Corruption(Quote(path) + ": truncated PCD: " + std::to_string(have) + " bytes, header needs " +
+                                  std::to_string(need));
+      }
+    }
+    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+  }
+  if (cloud.size() != static_cast<size_t>(cloud.width) * cloud.height) {
+    return Status::Corruption(Quote(path) + ": PCD has " + std::to_string(cloud.size()) + " points, header says " +
+                              std::to_string(cloud.width) + "x" + std::to_string(cloud.height));
+  }
+  Frame frame;
+  frame.X_BC = X_BC_default;
+  const std::string sidecar_path = IntrinsicsSidecarPath(path);
+  std::optional<Sidecar> sidecar;
+  std::error_code ec;
+  if (fs::exists(sidecar_path, ec)) {
+    auto s = ReadSidecar(sidecar_path, path);
+    if (!s.ok()) return s.status();
+    sidecar = *s;
+    frame.X_BC = s->X_BC;
+    frame.timestamp_ns = s->timestamp_ns;
+  }
+  const bool organized = cloud.height > 1;
+  if (organized && sidecar && sidecar->intrinsics) {
+    const Intrinsics& K = *sidecar->intrinsics;
+    if (static_cast<int>(cloud.width) != K.width || static_cast<int>(cloud.height) != K.height) {
+      return Status::Corruption(Quote(path) + ": PCD is " + std::to_string(cloud.width) + "x" +
+                                std::to_string(cloud.height) + " but its sidecar says " + std::to_string(K.width) +
+                                "x" + std::to_string(K.height));
+    }
+    if (MatchesPinhole(cloud, K)) {
+      frame.intrinsics = K;
+      frame.depth = DepthImage(K.width, K.height, std::numeric_limits<float>::quiet_NaN());
+      for (int v = 0; v < K.height; ++v) {
+        for (int u = 0; u < K.width; ++u) {
+          const float z = cloud.at(u, v).z;
+          if (ValidDepth(z)) frame.depth.at(u, v) = z;
+        }
+      }
+      return frame;
+    }
+    // Points are not a pinhole deprojection of their z: keep them as they are.
+  }
+  frame.points_C.reserve(cloud.size());
+  for (const auto& p : cloud.points) frame.points_C.emplace_back(p.x, p.y, p.z);
+  return frame;
+}
+
+Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
+  const std::string head = ReadHead(path, 5);
+  if (!(head.rfind("ply\n", 0) == 0 || head.rfind("ply\r\n", 0) == 0)) {
+    return Status::Corruption(Quote(path) + ": not a PLY file (bad magic)");
+  }
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  {
+    QuietPcl quiet;
+    pcl::PLYReader reader;
+    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+  }
+  Frame frame;
+  frame.X_BC = X_BC_default;
+  const std::string sidecar_path = IntrinsicsSidecarPath(path);
+  std::error_code ec;
+  if (fs::exists(sidecar_path, ec)) {
+    auto s = ReadSidecar(sidecar_path, path);
+    if (!s.ok()) return s.status();
+    frame.X_BC = s->X_BC;
+    frame.timestamp_ns = s->timestamp_ns;
+  }
+  frame.points_C.reserve(cloud.size());
+  for (const auto& p : cloud.points) frame.points_C.emplace_back(p.x, p.y, p.z);
+  return frame;
+}
+
+// Attaches truth / intensity / labels found beside `path`.
+Status AttachCompanions(const std::string& path, Frame& frame) {
+  std::error_code ec;
+  const fs::path p(path);
+  const std::string own_truth = (p.parent_path() / (p.stem().string() + ".truth.json")).string();
+  for (const std::string& truth_path : {own_truth, CompanionPath(path, "truth.json")}) {
+    if (!fs::exists(truth_path, ec)) continue;
+    auto truth = ReadGroundTruthJson(truth_path);
+    if (!truth.ok()) return truth.status();
+    frame.truth = std::move(*truth);
+    break;
+  }
+  if (!frame.organized()) return Status::Ok();
+  const std::string intensity_path = CompanionPath(path, "intensity.png");
+  if (fs::exists(intensity_path, ec)) {
+    auto img = ReadIntensityPng(intensity_path);
+    if (!img.ok()) return img.status();
+    if (img->width != frame.depth.width || img->height != frame.depth.height) {
+      return Status::Corruption(Quote(intensity_path) + ": intensity size differs from " + Quote(path));
+    }
+    frame.intensity = std::move(*img);
+  }
+  const std::string labels_path = CompanionPath(path, "labels.png");
+  if (frame.truth && fs::exists(labels_path, ec)) {
+    auto img = ReadLabelPng(labels_path);
+    if (!img.ok()) return img.status();
+    if (img->width != frame.depth.width || img->height != frame.depth.height) {
+      return Status::Corruption(Quote(labels_path) + ": label image size differs from " + Quote(path));
+    }
+    frame.truth->labels = std::move(*img);
+  }
+  return Status::Ok();
+}
+
+Result<Frame> LoadFrameFileUnchecked(const std::string& path, const Pose& X_BC_default) {
+  const std::string ext = LowerExtension(path);
+  if (ext != ".pcd" && ext != ".ply" && ext != ".png") {
+    return Status::InvalidArgument(Quote(path) + ": unsupported file type '" + ext +
+                                   "' (expected .pcd, .ply or a 16-bit depth .png)");
+  }
+  auto size = CheckReadable(path);
+  if (!size.ok()) return size.status();
+  Result<Frame> frame = ext == ".pcd"   ? LoadPcd(path, X_BC_default)
+                        : ext == ".ply" ? LoadPly(path, X_BC_default)
+                                        : LoadDepthPng(path, X_BC_default);
+  if (!frame.ok()) return frame;
+  if (Status s = RequireValidPoints(*frame, path); !s.ok()) return s;
+  if (Status s = AttachCompanions(path, *frame); !s.ok()) return s;
+  frame->source = path;
+  return frame;
+}
+
+}  // namespace
+
+std::string IntrinsicsSidecarPath(const std::string& data_path) {
+  const fs::path p(data_path);
+  return (p.parent_path() / (p.stem().string() + ".intrinsics.json")).string();
+}
+
+std::string CompanionPath(const std::string& data_path, const std::string& role) {
+  const fs::path p(data_path);
+  const std::string stem = p.stem().string();
+  for (const char* word : {"depth", "cloud"}) {
+    const size_t n = std::strlen(word);
+    if (stem.size() >= n && stem.compare(stem.size() - n, n, word) == 0) {
+      return (p.parent_path() / (stem.substr(0, stem.size() - n) + role)).string();
+    }
+  }
+  return (p.parent_path() / (stem + "." + role)).string();
+}
+
+bool HasIntrinsicsSidecar(const std::string& data_path) {
+  std::error_code ec;
+  return fs::exists(IntrinsicsSidecarPath(data_path), ec);
+}
+
+Status WriteDepthPng(const Frame& frame, const std::string& path) {
+  if (!frame.organized()) return Status::InvalidArgument(Quote(path) + ": frame has no depth image to write");
+  const DepthImage& D = frame.depth;
+  if (D.width != frame.intrinsics.width || D.height != frame.intrinsics.height) {
+    return Status::InvalidArgument(Quote(path) + ": depth image size differs from the intrinsics");
+  }
+  cv::Mat m(D.height, D.width, CV_16UC1);
+  for (int v = 0; v < D.height; ++v) {
+    uint16_t* row = m.ptr<uint16_t>(v);
+    for (int u = 0; u < D.width; ++u) {
+      const float z = D.at(u, v);
+      if (!ValidDepth(z)) {
+        row[u] = 0;
+        continue;
+      }
+      const double count = std::round(z / kDepthPngScale);
+      if (count > kMaxDepthCount) {
+        return Status::OutOfRange(Quote(path) + ": depth " + std::to_string(z) + " m at pixel (" +
+                                  std::to_string(u) + ", " + std::to_string(v) +
+                                  ") exceeds the 16-bit PNG range (6.5535 m)");
+      }
+      row[u] = static_cast<uint16_t>(std::max(1.0, count));  // a positive depth never becomes "invalid"
+    }
+  }
+  if (Status s = WritePng(m, path); !s.ok()) return s;
+  return WriteSidecar(frame, /*with_intrinsics=*/true, kDepthPngScale, path);
+}
+
+Status WriteCloudPcd(const Frame& frame, const std::string& path) {
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  if (frame.organized()) {
+    const Intrinsics& K = frame.intrinsics;
+    if (frame.depth.width != K.width || frame.depth.height != K.height) {
+      return Status::InvalidArgument(Quote(path) + ": depth image size differs from the intrinsics");
+    }
+    cloud.width = K.width;
+    cloud.height = K.height;
+    cloud.points.resize(static_cast<size_t>(K.width) * K.height, pcl::PointXYZ(nan, nan, nan));
+    for (int v = 0; v < K.height; ++v) {
+      for (int u = 0; u < K.width; ++u) {
+        const float z = frame.depth.at(u, v);
+        if (!ValidDepth(z)) continue;
+        const Eigen::Vector3f p = Deproject(K, static_cast<float>(u), static_cast<float>(v), z);
+        cloud.at(u, v) = pcl::PointXYZ(p.x(), p.y(), p.z());
+      }
+    }
+  } else {
+    if (frame.points_C.empty()) return Status::InvalidArgument(Quote(path) + ": frame has no points to write");
+    cloud.width = static_cast<uint32_t>(frame.points_C.size());
+    cloud.height = 1;
+    cloud.points.reserve(frame.points_C.size());
+    for (const auto& p : frame.points_C) cloud.points.emplace_back(p.x(), p.y(), p.z());
+  }
+  cloud.is_dense = false;
+  try {
+    QuietPcl quiet;
+    if (pcl::io::savePCDFileBinary(path, cloud) < 0) return Status::Internal(Quote(path) + ": cannot write PCD");
+  } catch (const std::exception& e) {
+    return Status::Internal(Quote(path) + ": cannot write PCD: " + e.what());
+  }
+  return WriteSidecar(frame, frame.organized(), std::nullopt, path);
+}
+
+Status WriteIntensityPng(const Frame& frame, const std::string& path) {
+  const IntensityImage& I = frame.intensity;
+  if (I.empty()) return Status::InvalidArgument(Quote(path) + ": frame has no intensity image");
+  cv::Mat m(I.height, I.width, CV_8UC1, const_cast<uint8_t*>(I.data.data()));
+  return WritePng(m, path);
+}
+
+Status WriteLabelPng(const Frame& frame, const std::string& path) {
+  if (!frame.truth || frame.truth->labels.empty()) {
+    return Status::InvalidArgument(Quote(path) + ": frame has no label image");
+  }
+  const LabelImage& L = frame.truth->labels;
+  cv::Mat m(L.height, L.width, CV_16UC1, const_cast<uint16_t*>(L.data.data()));
+  return WritePng(m, path);
+}
+
+Result<IntensityImage> ReadIntensityPng(const std::string& path) {
+  auto m = ReadGreyPng(path, CV_8U);
+  if (!m.ok()) return m.status();
+  return ImageFromMat<uint8_t>(*m);
+}
+
+Result<LabelImage> ReadLabelPng(const std::string& path) {
+  auto m = ReadGreyPng(path, CV_16U);
+  if (!m.ok()) return m.status();
+  return ImageFromMat<uint16_t>(*m);
+}
+
+Status WriteGroundTruthJson(const Frame& frame, const std::string& path) {
+  if (!frame.truth) return Status::InvalidArgument(Quote(path) + ": frame has no ground truth");
+  const GroundTruth& truth = *frame.truth;
+  OrderedJson j;
+  j["format"] = kTruthFormat;
+  j["seed"] = truth.seed;
+  j["source"] = frame.source;
+  j["X_BC"] = PoseToJson(frame.X_BC);
+  j["parts"] = OrderedJson::array();
+  for (const PartTruth& part : truth.parts) {
+    const Quat q(part.X_BO.linear());
+    const Vec3 t = part.X_BO.translation();
+    j["parts"].push_back({
+        {"instance_id", part.instance_id},
+        {"class_id", part.class_id},
+        {"class_name", part.class_name},
+        {"X_BO", PoseToJson(part.X_BO)},
+        {"xyz", {t.x(), t.y(), t.z()}},
+        {"quat_wxyz", {q.w(), q.x(), q.y(), q.z()}},
+        {"visible_pixels", part.visible_pixels},
+        {"unoccluded_pixels", part.unoccluded_pixels},
+        {"visible_fraction", part.visible_fraction},
+    });
+  }
+  return WriteJson(j, path);
+}
+
+Result<GroundTruth> ReadGroundTruthJson(const std::string& path) {
+  auto j = ReadJson(path);
+  if (!j.ok()) return j.status();
+  const std::string where = Quote(path) + ": ";
+  try {
+    GroundTruth truth;
+    truth.seed = j->value("seed", uint64_t{0});
+    if (!j->contains("parts") || !j->at("parts").is_array()) {
+      return Status::Corruption(where + "no \"parts\" array");
+    }
+    int index = 0;
+    for (const json& jp : j->at("parts")) {
+      const std::string at = where + "parts[" + std::to_string(index++) + "]";
+      PartTruth part;
+      part.instance_id = jp.at("instance_id").get<int>();
+      part.class_id = jp.at("class_id").get<int>();
+      part.class_name = jp.value("class_name", std::string());
+      if (jp.contains("X_BO")) {
+        auto X = PoseFromJson(jp.at("X_BO"), at + ".X_BO");
+        if (!X.ok()) return X.status();
+        part.X_BO = *X;
+      } else {
+        const auto xyz = jp.at("xyz").get<std::array<double, 3>>();
+        const auto wxyz = jp.at("quat_wxyz").get<std::array<double, 4>>();
+        const Quat q(wxyz[0], wxyz[1], wxyz[2], wxyz[3]);
+        if (!(q.norm() > 0.5)) return Status::Corruption(at + ".quat_wxyz is not a unit quaternion");
+        part.X_BO = MakePose(q, Vec3(xyz[0], xyz[1], xyz[2]));
+      }
+      part.visible_pixels = jp.value("visible_pixels", 0);
+      part.unoccluded_pixels = jp.value("unoccluded_pixels", 0);
+      part.visible_fraction = jp.value("visible_fraction", 0.0);
+      truth.parts.push_back(std::move(part));
+    }
+    return truth;
+  } catch (const std::exception& e) {
+    return Status::Corruption(where + "bad ground truth: " + e.what());
+  }
+}
+
+Result<Frame> LoadFrameFile(const std::string& path, const Pose& X_BC_default) {
+  // Last line of defence: PCL, OpenCV and nlohmann may throw on malformed
+  // input; nothing crosses this boundary.
+  try {
+    return LoadFrameFileUnchecked(path, X_BC_default);
+  } catch (const std::exception& e) {
+    return Status::Corruption(Quote(path) + ": " + e.what());
+  } catch (...) {
+    return Status::Corruption(Quote(path) + ": unknown error while reading");
+  }
+}
+
+Result<Frame> LoadFrameFile(const std::string& path) { return LoadFrameFile(path, Pose::Identity()); }
+
+}  // namespace bp

@@ -1,0 +1,162 @@
+// Runs the built binpick binary (build/bin/binpick) as a user would.
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "pipeline/file_source.h"
+#include "pipeline/frame_io.h"
+
+namespace bp {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+struct RunResult {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr
+};
+
+RunResult RunBinpick(const std::string& args) {
+  const std::string binary = std::string(BINPICK_BINARY_DIR) + "/bin/binpick";
+  RunResult r;
+  if (!fs::exists(binary)) {
+    r.output = "binpick binary not built: " + binary;
+    return r;
+  }
+  FILE* pipe = popen((binary + " " + args + " 2>&1").c_str(), "r");
+  if (!pipe) return r;
+  char buf[4096];
+  size_t n = 0;
+  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) r.output.append(buf, n);
+  const int status = pclose(pipe);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+std::string FreshDir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const fs::path dir = fs::temp_directory_path() / "binpick_tests" / (std::string("cli.") + info->name());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir.string();
+}
+
+TEST(BinpickCli, HelpListsSubcommands) {
+  const RunResult r = RunBinpick("--help");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("render"));
+  EXPECT_THAT(r.output, HasSubstr("info"));
+}
+
+TEST(BinpickCli, UnknownSubcommandPrintsUsageAndFails) {
+  const RunResult r = RunBinpick("frobnicate");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("render"));  // usage lists the real subcommands
+}
+
+TEST(BinpickCli, InfoOnTruncatedCloudFailsWithBadInputNamingTheFile) {
+  const std::string dir = FreshDir();
+  const std::string path = dir + "/broken_cloud.pcd";
+  std::ofstream(path) << "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                         "WIDTH 100\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\nxyz";
+  const RunResult r = RunBinpick("info " + path);
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("broken_cloud.pcd"));
+  EXPECT_THAT(r.output, HasSubstr("truncated"));
+}
+
+TEST(BinpickCli, InfoOnMissingFileFailsWithBadInput) {
+  const RunResult r = RunBinpick("info /nonexistent/nothing.pcd");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("nothing.pcd"));
+}
+
+std::string ReadAll(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+TEST(BinpickCli, RenderWritesAFrameThatLoadsBackWithItsTruth) {
+  const std::string dir = FreshDir();
+  const RunResult r = RunBinpick("render --seed 5 --out " + dir + "/a");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("parts placed"));
+  Result<Frame> depth = LoadFrameFile(dir + "/a/depth.png");
+  ASSERT_TRUE(depth.ok()) << depth.status().ToString();
+  ASSERT_TRUE(depth->organized());
+  ASSERT_TRUE(depth->truth.has_value());
+  EXPECT_EQ(depth->truth->seed, 5u);
+  EXPECT_FALSE(depth->truth->parts.empty());
+  EXPECT_EQ(depth->truth->labels.width, depth->depth.width);
+  EXPECT_EQ(depth->intensity.width, depth->depth.width);
+  Result<Frame> cloud = LoadFrameFile(dir + "/a/cloud.pcd");
+  ASSERT_TRUE(cloud.ok()) << cloud.status().ToString();
+  ASSERT_TRUE(cloud->organized());
+  EXPECT_TRUE(cloud->X_BC.matrix() == depth->X_BC.matrix());
+  ASSERT_EQ(cloud->depth.data.size(), depth->depth.data.size());
+  for (size_t i = 0; i < cloud->depth.data.size(); ++i) {
+    const float a = cloud->depth.data[i], b = depth->depth.data[i];
+    ASSERT_EQ(std::isnan(a), std::isnan(b)) << i;
+    if (!std::isnan(a)) {
+      ASSERT_NEAR(a, b, 0.5 * kDepthPngScale + 1e-6) << i;
+    }
+  }
+  // The same seed writes the same ground truth.
+  ASSERT_EQ(RunBinpick("render --seed 5 --out " + dir + "/b").exit_code, 0);
+  EXPECT_EQ(ReadAll(dir + "/a/truth.json"), ReadAll(dir + "/b/truth.json"));
+  // The file source serves the rendered directory: cloud.pcd, depth.png, wrap.
+  Cell cell;
+  auto source = MakeFileSource(dir + "/a", cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  for (const char* expected : {"cloud.pcd", "depth.png", "cloud.pcd"}) {
+    Result<Frame> f = (*source)->Capture({});
+    ASSERT_TRUE(f.ok()) << f.status().ToString();
+    EXPECT_EQ(fs::path(f->source).filename().string(), expected);
+    EXPECT_TRUE(f->truth.has_value());
+  }
+}
+
+TEST(BinpickCli, RenderWithUnknownConfigFailsWithBadInput) {
+  const RunResult r = RunBinpick("render --seed 1 --config 99 --out " + FreshDir() + "/x");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("99"));
+}
+
+TEST(BinpickCli, InfoDescribesMeshesAndCells) {
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets";
+  RunResult r = RunBinpick("info " + assets + "/parts/pipe_tee.ply");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("triangle mesh"));
+  r = RunBinpick("info " + assets + "/cells/default.yaml");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("pipe_tee"));
+}
+
+TEST(BinpickCli, InfoDescribesAnOrganizedDepthFrame) {
+  const std::string dir = FreshDir();
+  Frame f;
+  f.intrinsics.width = 8;
+  f.intrinsics.height = 6;
+  f.intrinsics.fx = f.intrinsics.fy = 10;
+  f.intrinsics.cx = 3.5;
+  f.intrinsics.cy = 2.5;
+  f.depth = DepthImage(8, 6, 1.25f);
+  f.depth.at(0, 0) = 0.75f;
+  ASSERT_TRUE(WriteDepthPng(f, dir + "/depth.png").ok());
+  const RunResult r = RunBinpick("info " + dir + "/depth.png");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_THAT(r.output, HasSubstr("organized 8x6"));
+  EXPECT_THAT(r.output, HasSubstr("48 valid of 48"));
+  EXPECT_THAT(r.output, HasSubstr("0.7500 .. 1.2500 m"));
+}
+
+}  // namespace
+}  // namespace bp
