@@ -3,7 +3,11 @@
 // 000 UR Modbus script), with the scripted test-double planner.
 #include <gtest/gtest.h>
 
+#include <sys/wait.h>
+
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <cstdlib>
 #include <iostream>
 #include <random>
@@ -453,6 +457,81 @@ TEST(ModbusMaster, RejectsAnInvalidMapAtStart) {
   ASSERT_FALSE(master.ok());
   EXPECT_EQ(master.status().code(), Status::Code::kInvalidArgument);
   handler.Shutdown();
+}
+
+// `binpick robot --modbus`: the executable is the slave, this process the master.
+TEST(ModbusRobotCommand, PlaysThePickFlowAsAModbusSlave) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  ScriptedPlanner::Script pile;
+  pile.grasps = 2;
+  pile.pile = 3;
+  planner->SetScript(0, pile);
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  int port = 0;
+  {
+    auto probe = ModbusRobotSim::Start({});  // a free port, left free
+    ASSERT_TRUE(probe.ok());
+    port = (*probe)->port();
+  }
+  ModbusMasterOptions mo;
+  mo.port = port;
+  mo.backoff_min = 10ms;
+  mo.backoff_max = 50ms;
+  auto master = std::move(ModbusMaster::Start(handler, mo).value());
+  const std::string cmd = BINPICK_BINARY_DIR "/bin/binpick-robot --modbus --flow pick --port " +
+                          std::to_string(port) + " --wait-master 10 2>&1";
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  char buf[512];
+  while (fgets(buf, sizeof(buf), p)) out += buf;
+  const int status = pclose(p);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+  EXPECT_NE(out.find("Modbus slave listening on 127.0.0.1:" + std::to_string(port)),
+            std::string::npos) << out;
+  EXPECT_NE(out.find("OBJECTS_FOUND(2) pose [0.5000 -0.1000 0.1000 | 0.0000 0.0000 1.5708 "
+                     "0.0000] remaining 2 class 0"), std::string::npos) << out;
+  EXPECT_NE(out.find("pick: 10 steps, 3 picks"), std::string::npos) << out;
+  EXPECT_NE(out.find("BOX_EMPTY(41)"), std::string::npos) << out;
+  master->Stop();
+  handler.Shutdown();
+}
+
+// Cross-implementation: the robot is a pymodbus slave (scripts/modbus_robot_sim.py).
+TEST(ModbusMaster, ServesAPymodbusRobotInBothVersions) {
+  if (std::system("/usr/bin/python3 -c 'import pymodbus.server' >/dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "no /usr/bin/python3 with pymodbus (scripts/install_deps.sh)";
+  }
+  for (int version : {1, 2}) {
+    auto planner = std::make_shared<ScriptedPlanner>();
+    RequestHandler handler(MakeTestCell(version), planner, nullptr);
+    int port = 0;
+    {
+      auto probe = ModbusRobotSim::Start({});
+      ASSERT_TRUE(probe.ok());
+      port = (*probe)->port();
+    }
+    ModbusMasterOptions mo;
+    mo.port = port;
+    mo.backoff_min = 20ms;
+    mo.backoff_max = 100ms;
+    auto master = std::move(ModbusMaster::Start(handler, mo).value());
+    const std::string cmd = "/usr/bin/python3 " BINPICK_SOURCE_DIR
+                            "/scripts/modbus_robot_sim.py --count 40 --version " +
+                            std::to_string(version) + " --port " + std::to_string(port) + " 2>&1";
+    std::string out;
+    FILE* p = popen(cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    char buf[512];
+    while (fgets(buf, sizeof(buf), p)) out += buf;
+    const int status = pclose(p);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+    EXPECT_NE(out.find("40 of 40 answers right"), std::string::npos) << out;
+    master->Stop();
+    EXPECT_EQ(master->stats().requests, 40u) << "version " << version;
+    EXPECT_EQ(master->stats().responses, 40u) << "version " << version;
+    handler.Shutdown();
+  }
 }
 
 // Figure: request -> response latency at the default poll interval (printed,
