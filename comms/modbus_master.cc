@@ -100,7 +100,8 @@ class ModbusMaster::Impl {
     auto backoff = o_.backoff_min;
     bool warned = false;
     while (!stopping()) {
-      modbus_t* ctx = modbus_new_tcp(o_.host.c_str(), o_.port);
+      // _pi: host names and IPv6 too (getaddrinfo).
+      modbus_t* ctx = modbus_new_tcp_pi(o_.host.c_str(), std::to_string(o_.port).c_str());
       if (ctx == nullptr) {
         spdlog::error("modbus: {}: cannot create a context: {}", address(), modbus_strerror(errno));
         return;

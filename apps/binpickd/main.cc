@@ -112,6 +112,9 @@ int main(int argc, char** argv) {
       bp::ModbusMasterOptions o = base;
       const size_t colon = hp.rfind(':');
       o.host = hp.substr(0, colon);
+      if (o.host.size() > 2 && o.host.front() == '[' && o.host.back() == ']') {
+        o.host = o.host.substr(1, o.host.size() - 2);  // [::1]:502
+      }
       o.port = 0;
       if (colon != std::string::npos) {
         try {

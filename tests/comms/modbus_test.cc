@@ -332,7 +332,7 @@ INSTANTIATE_TEST_SUITE_P(
 TEST(ModbusMaster, RobotRestartingMidRequestIsServedAfterReconnect) {
   ModbusRig rig;
   ScriptedPlanner::Script slow;
-  slow.capture_delay = 200ms;
+  slow.capture_delay = 500ms;  // the restart happens during this capture
   slow.pile = 2;
   rig.planner_->SetScript(0, slow);
   const int port = rig.sim_->port();
@@ -346,6 +346,9 @@ TEST(ModbusMaster, RobotRestartingMidRequestIsServedAfterReconnect) {
   }
   ASSERT_EQ(rig.sim_->ReadRegister(144), 0) << "the master never took the request";
   rig.StartRobot(port);  // same address, registers back to 0
+  ScriptedPlanner::Script fast;
+  fast.pile = 2;
+  rig.planner_->SetScript(0, fast);
   ASSERT_TRUE(rig.sim_->WaitForMaster(5s));
   // The restarted program runs its pick cycle from the start.
   FlowOptions f;
