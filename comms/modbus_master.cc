@@ -121,18 +121,23 @@ class ModbusMaster::Impl {
       }
       spdlog::info("modbus: connected to robot {} (unit {})", address(), o_.unit_id);
       warned = false;
-      backoff = o_.backoff_min;
       Count([](ModbusMasterStats& s) { ++s.connects; s.connected = true; });
-      Serve(ctx);
+      // The backoff restarts only after a connection that answered: a robot
+      // that accepts but never answers (e.g. another unit id) is retried
+      // ever more slowly.
+      if (Serve(ctx)) backoff = o_.backoff_min;
       Count([](ModbusMasterStats& s) { s.connected = false; });
       modbus_close(ctx);
       modbus_free(ctx);
       if (!Sleep(backoff)) return;
+      backoff = std::min(backoff * 2, o_.backoff_max);
     }
   }
 
-  // One connection: polls until an error or Stop.
-  void Serve(modbus_t* ctx) {
+  // One connection: polls until an error or Stop. @returns whether the
+  // robot answered at least one read.
+  bool Serve(modbus_t* ctx) {
+    bool answered = false;
     ClientContext client;
     client.id = ++connections_;
     client.peer = "modbus " + address();
@@ -149,13 +154,14 @@ class ModbusMaster::Impl {
     while (!stopping()) {
       if (modbus_read_registers(ctx, span_.lo, span_.count, regs.data()) != span_.count) {
         fail("reading the registers");
-        return;
+        return answered;
       }
+      answered = true;
       const bool flag = at(m.request_flag) == 1;
       const bool stale = span_.marker && stale_flag == 1 &&
                          at(m.request_base + modbus::kMarkerField) == modbus::kMarker;
       if (!flag || stale) {
-        if (!Sleep(o_.poll_interval)) return;
+        if (!Sleep(o_.poll_interval)) return answered;
         continue;
       }
       std::array<uint16_t, daoai::kRequestFields> fields{};
@@ -163,7 +169,7 @@ class ModbusMaster::Impl {
       const daoai::Request request = modbus::DecodeRequest(fields);
       if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
         fail("clearing the request flag");
-        return;
+        return answered;
       }
       stale_flag = 0;
       if (at(m.response_flag) != 0) {
@@ -173,7 +179,7 @@ class ModbusMaster::Impl {
         Count([](ModbusMasterStats& s) { ++s.unread; });
         if (modbus_write_register(ctx, m.response_flag, 0) != 1) {
           fail("clearing the unread response flag");
-          return;
+          return answered;
         }
       }
       Count([](ModbusMasterStats& s) { ++s.requests; });
@@ -216,10 +222,11 @@ class ModbusMaster::Impl {
                      "reconnecting", address(), request.command, response->status,
                      modbus_strerror(errno));
         Count([](ModbusMasterStats& s) { ++s.lost; });
-        return;
+        return answered;
       }
       Count([](ModbusMasterStats& s) { ++s.responses; });
     }
+    return answered;
   }
 
   RequestHandler& handler_;

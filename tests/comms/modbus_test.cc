@@ -451,6 +451,32 @@ TEST(ModbusMaster, PoseThatDoesNotFitIsRefusedSoTheRobotDoesNotMove) {
   EXPECT_EQ(rig.master_->stats().refused, 1u);
 }
 
+TEST(ModbusMaster, OnlyTheConfiguredUnitIdIsServed) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ModbusRobotSimOptions so;
+  so.unit_id = 3;
+  auto sim = std::move(ModbusRobotSim::Start(so).value());
+  auto robot = RobotClient::Over(sim->Transport(), RobotClientOptions{});
+  robot->set_timeout(300ms);
+  ModbusMasterOptions mo;
+  mo.port = sim->port();
+  mo.timeout = 50ms;
+  mo.unit_id = 1;  // the robot is unit 3: it does not answer
+  auto wrong = std::move(ModbusMaster::Start(handler, mo).value());
+  Result<RobotReply> r = robot->Call(daoai::kSwitchConfig, 2);
+  EXPECT_FALSE(r.ok());
+  wrong->Stop();
+  EXPECT_EQ(wrong->stats().requests, 0u);
+  mo.unit_id = 3;
+  auto right = std::move(ModbusMaster::Start(handler, mo).value());
+  r = robot->Call(daoai::kSwitchConfig, 2);  // the request is still pending: answered
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  right->Stop();
+  handler.Shutdown();
+}
+
 TEST(ModbusMaster, RejectsAnInvalidMapAtStart) {
   auto planner = std::make_shared<ScriptedPlanner>();
   RequestHandler handler(MakeTestCell(), planner, nullptr);
