@@ -2,6 +2,8 @@
 // serves robots over the DaoAI socket protocol until SIGINT / SIGTERM.
 //
 //   binpickd [--cell FILE] [--bind ADDR] [--daoai-port N]     (port 0 disables)
+//            [--modbus-robot HOST:PORT]...  (Modbus master per robot slave;
+//             default: the cell's robot.modbus, if any)
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
@@ -19,8 +21,10 @@
 #include <optional>
 #include <pthread.h>
 #include <string>
+#include <vector>
 
 #include "comms/daoai_server.h"
+#include "comms/modbus_master.h"
 #include "comms/request_handler.h"
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
@@ -33,6 +37,8 @@ int main(int argc, char** argv) {
   double read_timeout_s = 30.0;
   int detection_threads = 2;
   std::string log_level = "info";
+  std::vector<std::string> modbus_robots;
+  std::optional<int> modbus_poll_ms;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -40,6 +46,11 @@ int main(int argc, char** argv) {
                  "seconds without a complete request before an idle robot is disconnected");
   app.add_option("--detection-threads", detection_threads, "oneTBB arena size for detection");
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off");
+  app.add_option("--modbus-robot", modbus_robots,
+                 "HOST:PORT of a robot Modbus slave to serve as master (repeatable; default: the "
+                 "cell's robot.modbus)");
+  app.add_option("--modbus-poll-ms", modbus_poll_ms,
+                 "Modbus request flag poll interval (default: the cell's robot.modbus.poll_ms)");
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
@@ -92,6 +103,43 @@ int main(int argc, char** argv) {
   } else {
     ready += "disabled";
   }
+  // One Modbus master per robot slave, sharing the handler.
+  std::vector<std::unique_ptr<bp::ModbusMaster>> masters;
+  {
+    std::vector<bp::ModbusMasterOptions> robots;
+    const bp::ModbusMasterOptions base = bp::ModbusMasterOptionsFromCell(cell->robot);
+    for (const std::string& hp : modbus_robots) {
+      bp::ModbusMasterOptions o = base;
+      const size_t colon = hp.rfind(':');
+      o.host = hp.substr(0, colon);
+      if (o.host.size() > 2 && o.host.front() == '[' && o.host.back() == ']') {
+        o.host = o.host.substr(1, o.host.size() - 2);  // [::1]:502
+      }
+      o.port = 0;
+      if (colon != std::string::npos) {
+        try {
+          o.port = std::stoi(hp.substr(colon + 1));
+        } catch (const std::exception&) {
+        }
+      }
+      if (colon == std::string::npos || o.host.empty() || o.port <= 0) {
+        std::cerr << "binpickd: --modbus-robot '" << hp << "' is not HOST:PORT\n";
+        return 2;
+      }
+      robots.push_back(o);
+    }
+    if (modbus_robots.empty() && !cell->robot.modbus_host.empty()) robots.push_back(base);
+    for (bp::ModbusMasterOptions& o : robots) {
+      if (modbus_poll_ms) o.poll_interval = std::chrono::milliseconds(*modbus_poll_ms);
+      auto started = bp::ModbusMaster::Start(handler, o);
+      if (!started.ok()) {
+        std::cerr << "binpickd: " << started.status().ToString() << "\n";
+        return 2;
+      }
+      spdlog::info("binpickd: Modbus master for robot {}", (*started)->address());
+      masters.push_back(std::move(*started));
+    }
+  }
   spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
   std::cout << ready << std::endl;
 
@@ -99,6 +147,7 @@ int main(int argc, char** argv) {
   sigwait(&stop_signals, &signal);
   spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
   if (server) server->Stop();
+  for (auto& master : masters) master->Stop();
   handler.Shutdown();
   server.reset();
   return 0;
