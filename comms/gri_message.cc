@@ -41,26 +41,28 @@ std::string Fmt(Format f) { return std::string(ToString(f)); }
 // Writes header + job id; @returns the offset after the job id.
 Result<size_t> WriteHead(std::vector<uint8_t>& b, Format f, size_t length, uint8_t pose_format,
                          uint8_t action, int32_t job_id) {
-  if (f == Format::kV2) {
+  const bool v2 = f == Format::kV2;
+  const size_t magic = v2 ? 1 : 4;
+  if (v2) {
+    b[0] = kV2Magic;
+  } else {
+    std::memcpy(b.data(), kOfficialMagic.data(), magic);
+  }
+  b[magic] = v2 ? kV2Version : kOfficialVersion;
+  b[magic + 1] = static_cast<uint8_t>(length);
+  b[magic + 2] = pose_format;
+  b[magic + 3] = action;
+  const size_t id_at = magic + 4;
+  if (v2) {
     Result<int8_t> id = Narrow<int8_t>(job_id, "job_id");
     if (!id.ok()) return id.status();
-    b[0] = kV2Magic;
-    b[1] = kV2Version;
-    b[2] = static_cast<uint8_t>(length);
-    b[3] = pose_format;
-    b[4] = action;
-    Write<int8_t>(b, 5, *id);
-    return size_t{6};
+    Write<int8_t>(b, id_at, *id);
+    return id_at + 1;
   }
   Result<uint16_t> id = Narrow<uint16_t>(job_id, "job_id");
   if (!id.ok()) return id.status();
-  std::memcpy(b.data(), kOfficialMagic.data(), 4);
-  b[4] = kOfficialVersion;
-  b[5] = static_cast<uint8_t>(length);
-  b[6] = pose_format;
-  b[7] = action;
-  Write<uint16_t>(b, 8, *id);
-  return size_t{10};
+  Write<uint16_t>(b, id_at, *id);
+  return id_at + 2;
 }
 
 Status WritePose(std::vector<uint8_t>& b, Format f, size_t at, const std::array<double, 7>& pose) {
@@ -130,6 +132,16 @@ Status CheckFrame(std::span<const uint8_t> b, Format& f, size_t (*expected)(Form
   return Status::Ok();
 }
 
+// Reads pose format, action and job id of a checked frame; @returns v2-ness.
+template <typename Message>
+bool ReadHead(std::span<const uint8_t> b, Message& m) {
+  const bool v2 = m.format == Format::kV2;
+  m.pose_format = b[v2 ? 3 : 6];
+  m.action = b[v2 ? 4 : 7];
+  m.job_id = v2 ? Read<int8_t>(b, 5) : Read<uint16_t>(b, 8);
+  return v2;
+}
+
 }  // namespace
 
 std::string_view ToString(Format f) { return f == Format::kV2 ? "v2" : "official"; }
@@ -183,10 +195,7 @@ Result<Request> DecodeRequest(std::span<const uint8_t> b, Fault* fault) {
   Fault& out = fault ? *fault : local;
   Request r;
   if (Status s = CheckFrame(b, r.format, &RequestSize, out); !s.ok()) return s;
-  const bool v2 = r.format == Format::kV2;
-  r.pose_format = b[v2 ? 3 : 6];
-  r.action = b[v2 ? 4 : 7];
-  r.job_id = v2 ? Read<int8_t>(b, 5) : Read<uint16_t>(b, 8);
+  const bool v2 = ReadHead(b, r);
   const size_t pose_at = v2 ? 6 : 10;
   r.pose = ReadPose(b, r.format, pose_at);
   for (size_t i = 0; i < 4; ++i) r.data[i] = Read<int32_t>(b, pose_at + 28 + 4 * i);
@@ -216,10 +225,7 @@ Result<Response> DecodeResponse(std::span<const uint8_t> b) {
   Fault fault;
   Response r;
   if (Status s = CheckFrame(b, r.format, &ResponseSize, fault); !s.ok()) return s;
-  const bool v2 = r.format == Format::kV2;
-  r.pose_format = b[v2 ? 3 : 6];
-  r.action = b[v2 ? 4 : 7];
-  r.job_id = v2 ? Read<int8_t>(b, 5) : Read<uint16_t>(b, 8);
+  const bool v2 = ReadHead(b, r);
   r.error_code = v2 ? Read<int8_t>(b, 6) : Read<int16_t>(b, 10);
   const size_t pose_at = v2 ? 7 : 12;
   r.pose = ReadPose(b, r.format, pose_at);

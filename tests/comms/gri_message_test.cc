@@ -9,20 +9,12 @@
 #include <string>
 #include <vector>
 
+#include "tests/testing/hex.h"
+
 namespace bp::gri {
 namespace {
 
-std::vector<uint8_t> FromHex(const std::string& hex) {
-  std::vector<uint8_t> out;
-  std::string digits;
-  for (char c : hex) {
-    if (std::isxdigit(static_cast<unsigned char>(c))) digits += c;
-  }
-  for (size_t i = 0; i + 1 < digits.size(); i += 2) {
-    out.push_back(static_cast<uint8_t>(std::stoi(digits.substr(i, 2), nullptr, 16)));
-  }
-  return out;
-}
+using testing::FromHex;
 
 // v2 TRIGGER_JOB_SYNC, job 0, MM_QUATERNION (2), robot at (500, -100, 100) mm,
 // quaternion x, y, z, w = 0, 0, 0, 1; data zero.
@@ -62,76 +54,64 @@ const char* kOfficialPoseHex =
     "00000000 02000000 01000000 00000000 00000000"
     "00000000 00000000 00000000 00000000 00000000";
 
-TEST(GriMessage, V2RequestMatchesGoldenBytesBothWays) {
+Request TriggerRequest(Format f) {
   Request r;
-  r.format = Format::kV2;
-  r.pose_format = 2;
+  r.format = f;
+  r.pose_format = f == Format::kV2 ? 2 : 1;
   r.action = kTriggerJobSync;
-  r.job_id = 0;
-  r.pose = {500, -100, 100, 0, 0, 0, 1};
-  Result<std::vector<uint8_t>> bytes = EncodeRequest(r);
-  ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
-  EXPECT_EQ(*bytes, FromHex(kV2TriggerHex));
-
-  Result<Request> decoded = DecodeRequest(FromHex(kV2TriggerHex));
-  ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
-  EXPECT_EQ(decoded->format, Format::kV2);
-  EXPECT_EQ(decoded->action, kTriggerJobSync);
-  EXPECT_EQ(decoded->pose, r.pose);
+  r.pose = f == Format::kV2 ? std::array<double, 7>{500, -100, 100, 0, 0, 0, 1}
+                            : std::array<double, 7>{500, -100, 100, 1, 0, 0, 0};
+  return r;
 }
 
-TEST(GriMessage, V2ResponseMatchesGoldenBytesBothWays) {
+// GET_NEXT_POSE answer for job 1 with 2 primary and 1 related pose left.
+Response PoseResponse(Format f) {
   Response r;
-  r.format = Format::kV2;
+  r.format = f;
   r.pose_format = 2;
   r.action = kGetNextPose;
   r.job_id = 1;
-  r.pose = {500, -80, 100, 0, 0, 0.70710677f, 0.70710677f};
-  r.data[0] = 2;
-  r.data[1] = 1;
-  Result<std::vector<uint8_t>> bytes = EncodeResponse(r);
-  ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
-  EXPECT_EQ(*bytes, FromHex(kV2PoseHex));
-  Result<Response> decoded = DecodeResponse(FromHex(kV2PoseHex));
-  ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
-  EXPECT_EQ(decoded->job_id, 1);
-  EXPECT_EQ(decoded->data[0], 2);
-  EXPECT_EQ(decoded->data[1], 1);
-  EXPECT_FLOAT_EQ(static_cast<float>(decoded->pose[6]), 0.70710677f);
+  const double q = f == Format::kV2 ? 0.70710677f : 0.70710678;
+  r.pose = {500, -80, 100, 0, 0, q, q};
+  const size_t slot = f == Format::kV2 ? 0 : 1;  // official data_1 is the node return code
+  r.data[slot] = 2;
+  r.data[slot + 1] = 1;
+  return r;
 }
 
-TEST(GriMessage, OfficialRequestMatchesGoldenBytesBothWays) {
-  Request r;
-  r.format = Format::kOfficial;
-  r.pose_format = 1;
-  r.action = kTriggerJobSync;
-  r.pose = {500, -100, 100, 1, 0, 0, 0};
-  Result<std::vector<uint8_t>> bytes = EncodeRequest(r);
-  ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
-  EXPECT_EQ(*bytes, FromHex(kOfficialTriggerHex));
-  Result<Request> decoded = DecodeRequest(FromHex(kOfficialTriggerHex));
-  ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
-  EXPECT_EQ(decoded->format, Format::kOfficial);
-  EXPECT_EQ(decoded->pose, r.pose);
+TEST(GriMessage, RequestsMatchGoldenBytesBothWays) {
+  for (auto [f, hex] : {std::pair{Format::kV2, kV2TriggerHex},
+                        std::pair{Format::kOfficial, kOfficialTriggerHex}}) {
+    SCOPED_TRACE(ToString(f));
+    const Request r = TriggerRequest(f);
+    Result<std::vector<uint8_t>> bytes = EncodeRequest(r);
+    ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
+    EXPECT_EQ(*bytes, FromHex(hex));
+    Result<Request> decoded = DecodeRequest(FromHex(hex));
+    ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
+    EXPECT_EQ(decoded->format, f);
+    EXPECT_EQ(decoded->action, kTriggerJobSync);
+    EXPECT_EQ(decoded->pose_format, r.pose_format);
+    EXPECT_EQ(decoded->pose, r.pose);
+  }
 }
 
-TEST(GriMessage, OfficialResponseMatchesGoldenBytesBothWays) {
-  Response r;
-  r.format = Format::kOfficial;
-  r.pose_format = 2;
-  r.action = kGetNextPose;
-  r.job_id = 1;
-  r.pose = {500, -80, 100, 0, 0, 0.70710678, 0.70710678};
-  r.data[1] = 2;
-  r.data[2] = 1;
-  Result<std::vector<uint8_t>> bytes = EncodeResponse(r);
-  ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
-  EXPECT_EQ(*bytes, FromHex(kOfficialPoseHex));
-  Result<Response> decoded = DecodeResponse(FromHex(kOfficialPoseHex));
-  ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
-  EXPECT_DOUBLE_EQ(decoded->pose[1], -80.0);
-  EXPECT_DOUBLE_EQ(decoded->pose[6], 0.707107);
-  EXPECT_EQ(decoded->data[1], 2);
+TEST(GriMessage, ResponsesMatchGoldenBytesBothWays) {
+  for (auto [f, hex] : {std::pair{Format::kV2, kV2PoseHex},
+                        std::pair{Format::kOfficial, kOfficialPoseHex}}) {
+    SCOPED_TRACE(ToString(f));
+    const Response r = PoseResponse(f);
+    Result<std::vector<uint8_t>> bytes = EncodeResponse(r);
+    ASSERT_TRUE(bytes.ok()) << bytes.status().ToString();
+    EXPECT_EQ(*bytes, FromHex(hex));
+    Result<Response> decoded = DecodeResponse(FromHex(hex));
+    ASSERT_TRUE(decoded.ok()) << decoded.status().ToString();
+    EXPECT_EQ(decoded->job_id, 1);
+    EXPECT_EQ(decoded->data, r.data);
+    EXPECT_DOUBLE_EQ(decoded->pose[1], -80.0);
+    // v2 floats come back exactly; official values to 1e-6.
+    EXPECT_NEAR(decoded->pose[6], r.pose[6], f == Format::kV2 ? 0.0 : 1e-6);
+  }
 }
 
 TEST(GriMessage, OfficialJobIdIsUnsigned16AndV2JobIdSigned8) {

@@ -13,6 +13,7 @@
 
 #include "comms/daoai_server.h"
 #include "comms/robot_client.h"
+#include "tests/testing/hex.h"
 #include "tests/testing/scripted_planner.h"
 
 namespace bp {
@@ -23,17 +24,7 @@ using testing::MakeTestCell;
 using testing::ScriptedPlanner;
 using namespace std::chrono_literals;
 
-std::vector<uint8_t> FromHex(const std::string& hex) {
-  std::vector<uint8_t> out;
-  std::string digits;
-  for (char c : hex) {
-    if (std::isxdigit(static_cast<unsigned char>(c))) digits += c;
-  }
-  for (size_t i = 0; i + 1 < digits.size(); i += 2) {
-    out.push_back(static_cast<uint8_t>(std::stoi(digits.substr(i, 2), nullptr, 16)));
-  }
-  return out;
-}
+using testing::FromHex;
 
 // ScriptedPlanner plus what the GRI needs and it does not do: `related`
 // poses per grasp (1, 2, ... cm above the grasp) and the robot pose of the
