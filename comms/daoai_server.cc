@@ -48,8 +48,8 @@ class Connection final : public Session {
     }
     MarkActivity();
     if (queued_.size() >= max_queued_) {
-      spdlog::warn("daoai: {} sent more than {} requests without waiting for answers",
-                   client_.peer, max_queued_);
+      spdlog::warn("daoai: {} sent more than {} requests without waiting for answers", client_.peer,
+                   max_queued_);
       DoClose("request queue overflow");
       return;
     }

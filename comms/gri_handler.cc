@@ -38,8 +38,8 @@ Result<std::array<double, 7>> ToWire(const Pose& X, Format f, uint8_t pose_forma
 Result<Pose> FromWire(const gri::Request& r) {
   std::array<double, 7> v = r.pose;
   if (r.format == Format::kOfficial) v[0] = v[1] = v[2] = 0.0;  // position decoded below
-  Result<Pose> X =
-      DecodeGriPose(v, static_cast<GriPoseFormat>(r.pose_format), OrderFor(r.format, r.pose_format));
+  Result<Pose> X = DecodeGriPose(v, static_cast<GriPoseFormat>(r.pose_format),
+                                 OrderFor(r.format, r.pose_format));
   if (X.ok() && r.format == Format::kOfficial) {
     X->translation() = Vec3(r.pose[0], r.pose[1], r.pose[2]) / 1000.0;
   }
@@ -97,9 +97,10 @@ gri::Response GriHandler::ErrorResponse(const gri::Request& request, gri::Code c
 std::vector<uint8_t> GriHandler::Serialize(const gri::Response& response) {
   Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(response);
   if (bytes.ok()) return std::move(*bytes);
-  spdlog::error("gri: {} response to action {} job {} does not fit its format ({}); answering "
-                "INTERNAL_ERROR", gri::ToString(response.format), response.action, response.job_id,
-                bytes.status().ToString());
+  spdlog::error(
+      "gri: {} response to action {} job {} does not fit its format ({}); answering "
+      "INTERNAL_ERROR",
+      gri::ToString(response.format), response.action, response.job_id, bytes.status().ToString());
   gri::Request echo;
   echo.format = response.format;
   echo.pose_format = response.pose_format;
@@ -172,9 +173,7 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
 
 void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Completion done) {
   ++client.requests;
-  auto answer = [&done, &req](Code code) {
-    done([r = Build(req, code)] { return r; });
-  };
+  auto answer = [&done, &req](Code code) { done([r = Build(req, code)] { return r; }); };
 
   // Every request carries the robot pose: keep it (status, eye-in-hand captures).
   std::optional<Pose> X_BF;
@@ -196,8 +195,10 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
     return;
   }
   if (ReturnsPose(req.action) && !ValidPoseFormat(req.pose_format)) {
-    spdlog::warn("gri: {} asked for a pose in pose format {} (action {}); answering "
-                 "INVALID_REQUEST_ERROR", client.peer, req.pose_format, req.action);
+    spdlog::warn(
+        "gri: {} asked for a pose in pose format {} (action {}); answering "
+        "INVALID_REQUEST_ERROR",
+        client.peer, req.pose_format, req.action);
     answer(Code::kInvalidRequest);
     return;
   }
@@ -227,9 +228,8 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
       }
       // Sync: answer with the first pose once the detection finished.
       Reply reply = NextPoseReply(req, /*after_trigger=*/true);
-      (void)tasks_.WhenIdle(req.job_id, [done = std::move(done), reply = std::move(reply)] {
-        done(reply);
-      });
+      (void)tasks_.WhenIdle(req.job_id,
+                            [done = std::move(done), reply = std::move(reply)] { done(reply); });
       return;
     }
 
@@ -248,7 +248,8 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
         std::lock_guard lock(mutex_);
         Job& job = jobs_.at(req.job_id);
         const int primary = tasks_.QueueSize(req.job_id);
-        if (job.next_related >= job.related.size()) return Build(req, Code::kNoRelatedPoses, std::nullopt, primary);
+        if (job.next_related >= job.related.size())
+          return Build(req, Code::kNoRelatedPoses, std::nullopt, primary);
         const Pose& X_B = job.related[job.next_related++];
         Result<std::array<double, 7>> wire = ToWire(X_B, req.format, req.pose_format);
         if (!wire.ok()) {

@@ -58,7 +58,7 @@ class GriHandler {
 
  private:
   struct Job {
-    uint64_t consumed = 0;  // detections finished whose results the GRI used up
+    uint64_t consumed = 0;      // detections finished whose results the GRI used up
     std::vector<Pose> related;  // of the last primary handed out, in order
     size_t next_related = 0;
   };

@@ -104,7 +104,8 @@ Status CheckFrame(std::span<const uint8_t> b, Format& f, size_t (*expected)(Form
   if (b.size() < header) {
     fault = Fault::kShort;
     return Status::Corruption("gri: " + Fmt(f) + " message of " + std::to_string(b.size()) +
-                              " bytes is shorter than its " + std::to_string(header) + "-byte header");
+                              " bytes is shorter than its " + std::to_string(header) +
+                              "-byte header");
   }
   if (f == Format::kOfficial && std::memcmp(b.data(), kOfficialMagic.data(), 4) != 0) {
     fault = Fault::kWrongMagic;
@@ -158,6 +159,7 @@ std::optional<Format> DetectFormat(uint8_t first_byte) {
 
 int32_t WireErrorCode(Format f, Code c) {
   const bool v2 = f == Format::kV2;
+  // clang-format off
   switch (c) {
     case Code::kOk: return 0;
     case Code::kUnknownError: return v2 ? 1 : -1;
@@ -174,6 +176,7 @@ int32_t WireErrorCode(Format f, Code c) {
     case Code::kJobStillRunning: return v2 ? 16 : 4;
     case Code::kNotImplemented: return v2 ? 100 : -14;
   }
+  // clang-format on
   return v2 ? 1 : -1;
 }
 
@@ -181,11 +184,16 @@ Code CodeFor(Fault fault) {
   switch (fault) {
     case Fault::kShort:
     case Fault::kLong:
-    case Fault::kLengthMismatch: return Code::kInvalidRequestLength;
-    case Fault::kWrongMagic: return Code::kInvalidRequest;
-    case Fault::kWrongVersion: return Code::kUnknownProtocolVersion;
-    case Fault::kUnknownAction: return Code::kInvalidAction;
-    case Fault::kUnknownPoseFormat: return Code::kInvalidRequest;
+    case Fault::kLengthMismatch:
+      return Code::kInvalidRequestLength;
+    case Fault::kWrongMagic:
+      return Code::kInvalidRequest;
+    case Fault::kWrongVersion:
+      return Code::kUnknownProtocolVersion;
+    case Fault::kUnknownAction:
+      return Code::kInvalidAction;
+    case Fault::kUnknownPoseFormat:
+      return Code::kInvalidRequest;
   }
   return Code::kInvalidRequest;
 }

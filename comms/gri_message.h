@@ -99,7 +99,7 @@ struct Request {
   Format format = Format::kV2;
   uint8_t pose_format = 0;
   uint8_t action = 0;
-  int32_t job_id = 0;           // v2: -128..127; official: 0..65535
+  int32_t job_id = 0;            // v2: -128..127; official: 0..65535
   std::array<double, 7> pose{};  // x, y, z, rot_1..rot_4 in wire units
   std::array<int32_t, 4> data{};
 };
@@ -109,8 +109,8 @@ struct Response {
   uint8_t pose_format = 0;
   uint8_t action = 0;
   int32_t job_id = 0;
-  int32_t error_code = 0;        // wire value (WireErrorCode)
-  std::array<double, 7> pose{};  // wire units
+  int32_t error_code = 0;          // wire value (WireErrorCode)
+  std::array<double, 7> pose{};    // wire units
   std::array<int32_t, 10> data{};  // v2 carries data_1..5 only
 };
 

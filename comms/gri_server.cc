@@ -135,8 +135,8 @@ class Connection final : public Session {
 
   bool Enqueue(Item item) {
     if (queued_.size() >= options_.max_queued_requests) {
-      spdlog::warn("gri: {} sent more than {} requests without waiting for answers",
-                   client_.peer, options_.max_queued_requests);
+      spdlog::warn("gri: {} sent more than {} requests without waiting for answers", client_.peer,
+                   options_.max_queued_requests);
       DoClose("request queue overflow");
       return false;
     }
@@ -179,9 +179,11 @@ class Connection final : public Session {
     processing_timer_.async_wait([self = Self(), seq](boost::system::error_code ec) {
       if (ec || self->closed_ || seq != self->seq_ || self->answered_) return;
       self->answered_ = true;
-      spdlog::warn("gri: {}: job {} action {} has no result after {} ms; answering "
-                   "PROCESSING_TIMEOUT", self->client_.peer, self->current_.job_id,
-                   self->current_.action, self->options_.processing_timeout.count());
+      spdlog::warn(
+          "gri: {}: job {} action {} has no result after {} ms; answering "
+          "PROCESSING_TIMEOUT",
+          self->client_.peer, self->current_.job_id, self->current_.action,
+          self->options_.processing_timeout.count());
       self->Write(GriHandler::Serialize(
           GriHandler::ErrorResponse(self->current_, gri::Code::kProcessingTimeout)));
     });
@@ -206,9 +208,9 @@ class Connection final : public Session {
   std::array<uint8_t, std::max(gri::kV2RequestSize, gri::kOfficialRequestSize)> in_{};
   size_t have_ = 0;  // bytes of in_ read
   std::deque<Item> queued_;
-  uint64_t seq_ = 0;        // request in progress
-  bool answered_ = false;   // its answer is written or being written
-  gri::Request current_;    // the request in progress
+  uint64_t seq_ = 0;       // request in progress
+  bool answered_ = false;  // its answer is written or being written
+  gri::Request current_;   // the request in progress
   asio::steady_timer processing_timer_;
 };
 

@@ -56,8 +56,8 @@ class GriServer {
   GriServer(const GriServer&) = delete;
   GriServer& operator=(const GriServer&) = delete;
 
-  int v2_port() const;        // bound port; 0 when disabled
-  int official_port() const;  // bound port; 0 when disabled
+  int v2_port() const;           // bound port; 0 when disabled
+  int official_port() const;     // bound port; 0 when disabled
   std::string Describe() const;  // "v2 127.0.0.1:10000, official 127.0.0.1:7100"
   size_t connection_count() const;
   void Stop();  // idempotent

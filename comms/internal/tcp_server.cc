@@ -108,7 +108,8 @@ Listener::~Listener() {
 Status Listener::Listen(const std::string& bind, const std::vector<int>& ports, int io_threads) {
   boost::system::error_code ec;
   const asio::ip::address address = asio::ip::make_address(bind, ec);
-  if (ec) return Status::InvalidArgument(std::string(log_name_) + ": bad bind address '" + bind + "'");
+  if (ec)
+    return Status::InvalidArgument(std::string(log_name_) + ": bad bind address '" + bind + "'");
   for (int port : ports) {
     if (port < 0 || port > 65535) {
       return Status::InvalidArgument(std::string(log_name_) + ": bad port " + std::to_string(port));
@@ -160,32 +161,32 @@ size_t Listener::connection_count() const {
 
 void Listener::Accept(tcp::acceptor& acceptor, int port) {
   Strand strand = asio::make_strand(io_);
-  acceptor.async_accept(strand, [this, &acceptor, port, strand](boost::system::error_code ec,
-                                                                 tcp::socket socket) {
-    if (ec) {
-      if (ec != asio::error::operation_aborted) {
-        spdlog::warn("{}: accept failed: {}", log_name_, ec.message());
-        Accept(acceptor, port);
-      }
-      return;
-    }
-    uint64_t id = 0;
-    {
-      std::lock_guard lock(mutex_);
-      id = ++next_id_;
-    }
-    std::shared_ptr<Session> session = factory_(SessionArgs{
-        std::move(socket), strand, gate_, id, port, [this](uint64_t closed_id) {
+  acceptor.async_accept(
+      strand, [this, &acceptor, port, strand](boost::system::error_code ec, tcp::socket socket) {
+        if (ec) {
+          if (ec != asio::error::operation_aborted) {
+            spdlog::warn("{}: accept failed: {}", log_name_, ec.message());
+            Accept(acceptor, port);
+          }
+          return;
+        }
+        uint64_t id = 0;
+        {
           std::lock_guard lock(mutex_);
-          connections_.erase(closed_id);
-        }});
-    {
-      std::lock_guard lock(mutex_);
-      connections_[id] = session;
-    }
-    session->Start();
-    Accept(acceptor, port);
-  });
+          id = ++next_id_;
+        }
+        std::shared_ptr<Session> session = factory_(
+            SessionArgs{std::move(socket), strand, gate_, id, port, [this](uint64_t closed_id) {
+                          std::lock_guard lock(mutex_);
+                          connections_.erase(closed_id);
+                        }});
+        {
+          std::lock_guard lock(mutex_);
+          connections_[id] = session;
+        }
+        session->Start();
+        Accept(acceptor, port);
+      });
 }
 
 }  // namespace bp::internal

@@ -6,9 +6,6 @@
 #pragma once
 
 #include <atomic>
-#include <utility>  // before Asio: its awaitable.hpp uses std::exchange
-
-#include <boost/asio.hpp>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -17,7 +14,11 @@
 #include <string>
 #include <thread>
 #include <unordered_map>
+#include <utility>
 #include <vector>
+
+// After <utility>: Asio's awaitable.hpp uses std::exchange without including it.
+#include <boost/asio.hpp>
 
 #include "comms/request_handler.h"
 #include "core/status.h"
@@ -124,8 +125,8 @@ class Session : public std::enable_shared_from_this<Session> {
   std::function<void(uint64_t)> on_closed_;
   const std::chrono::milliseconds read_timeout_;
   std::vector<uint8_t> write_buf_;
-  bool in_handle_ = false;            // inside the handler's HandleAsync
-  std::function<void()> sync_work_;   // completed inside HandleAsync
+  bool in_handle_ = false;           // inside the handler's HandleAsync
+  std::function<void()> sync_work_;  // completed inside HandleAsync
   std::chrono::steady_clock::time_point last_activity_ = std::chrono::steady_clock::now();
 };
 

@@ -19,38 +19,38 @@ using testing::FromHex;
 // v2 TRIGGER_JOB_SYNC, job 0, MM_QUATERNION (2), robot at (500, -100, 100) mm,
 // quaternion x, y, z, w = 0, 0, 0, 1; data zero.
 const char* kV2TriggerHex =
-    "02 02 32 02 02"                          // magic 2, version 2, length 50, format 2, action 2
-    "00"                                      // job 0
-    "0000FA43 0000C8C2 0000C842"              // 500.0f, -100.0f, 100.0f
-    "00000000 00000000 00000000 0000803F"     // 0, 0, 0, 1.0f
-    "00000000 00000000 00000000 00000000";    // data_1..4
+    "02 02 32 02 02"                        // magic 2, version 2, length 50, format 2, action 2
+    "00"                                    // job 0
+    "0000FA43 0000C8C2 0000C842"            // 500.0f, -100.0f, 100.0f
+    "00000000 00000000 00000000 0000803F"   // 0, 0, 0, 1.0f
+    "00000000 00000000 00000000 00000000";  // data_1..4
 
 // v2 GET_NEXT_POSE answer, job 1, NO_ERROR, (500, -80, 100) mm, quaternion
 // (0, 0, 0.70710677, 0.70710677); data_1 = 2 primary left, data_2 = 1 related.
 const char* kV2PoseHex =
-    "02 02 37 02 05"                          // magic 2, version 2, length 55, format 2, action 5
-    "01 00"                                   // job 1, error 0
-    "0000FA43 0000A0C2 0000C842"              // 500.0f, -80.0f, 100.0f
-    "00000000 00000000 F304353F F304353F"     // 0, 0, 0.70710677f, 0.70710677f
+    "02 02 37 02 05"                       // magic 2, version 2, length 55, format 2, action 5
+    "01 00"                                // job 1, error 0
+    "0000FA43 0000A0C2 0000C842"           // 500.0f, -80.0f, 100.0f
+    "00000000 00000000 F304353F F304353F"  // 0, 0, 0.70710677f, 0.70710677f
     "02000000 01000000 00000000 00000000 00000000";
 
 // Official TRIGGER_JOB_SYNC, job 0, pose format 1 (w, x, y, z), robot at
 // (500, -100, 100) mm, identity; every value x 1e6.
 const char* kOfficialTriggerHex =
-    "47524900 01 36 01 02"                    // "GRI\0", version 1, length 54, format 1, action 2
-    "0000"                                    // job 0 (uint16)
-    "0065CD1D 001F0AFA 00E1F505"              // 500e6, -100e6, 100e6
-    "40420F00 00000000 00000000 00000000"     // w = 1e6, x, y, z
+    "47524900 01 36 01 02"                 // "GRI\0", version 1, length 54, format 1, action 2
+    "0000"                                 // job 0 (uint16)
+    "0065CD1D 001F0AFA 00E1F505"           // 500e6, -100e6, 100e6
+    "40420F00 00000000 00000000 00000000"  // w = 1e6, x, y, z
     "00000000 00000000 00000000 00000000";
 
 // Official GET_NEXT_POSE answer, job 1, success, format 2 (x, y, z, w),
 // (500, -80, 100) mm, quaternion (0, 0, 0.707107, 0.707107) x 1e6;
 // data_1 node return code 0, data_2 = 2 primary left, data_3 = 1 related.
 const char* kOfficialPoseHex =
-    "47524900 01 50 02 05"                    // "GRI\0", version 1, length 80, format 2, action 5
-    "0100 0000"                               // job 1, error 0 (int16)
-    "0065CD1D 004C3BFB 00E1F505"              // 500e6, -80e6, 100e6
-    "00000000 00000000 23CA0A00 23CA0A00"     // 0, 0, 707107, 707107
+    "47524900 01 50 02 05"                 // "GRI\0", version 1, length 80, format 2, action 5
+    "0100 0000"                            // job 1, error 0 (int16)
+    "0065CD1D 004C3BFB 00E1F505"           // 500e6, -80e6, 100e6
+    "00000000 00000000 23CA0A00 23CA0A00"  // 0, 0, 707107, 707107
     "00000000 02000000 01000000 00000000 00000000"
     "00000000 00000000 00000000 00000000 00000000";
 
@@ -80,8 +80,8 @@ Response PoseResponse(Format f) {
 }
 
 TEST(GriMessage, RequestsMatchGoldenBytesBothWays) {
-  for (auto [f, hex] : {std::pair{Format::kV2, kV2TriggerHex},
-                        std::pair{Format::kOfficial, kOfficialTriggerHex}}) {
+  for (auto [f, hex] :
+       {std::pair{Format::kV2, kV2TriggerHex}, std::pair{Format::kOfficial, kOfficialTriggerHex}}) {
     SCOPED_TRACE(ToString(f));
     const Request r = TriggerRequest(f);
     Result<std::vector<uint8_t>> bytes = EncodeRequest(r);
@@ -97,8 +97,8 @@ TEST(GriMessage, RequestsMatchGoldenBytesBothWays) {
 }
 
 TEST(GriMessage, ResponsesMatchGoldenBytesBothWays) {
-  for (auto [f, hex] : {std::pair{Format::kV2, kV2PoseHex},
-                        std::pair{Format::kOfficial, kOfficialPoseHex}}) {
+  for (auto [f, hex] :
+       {std::pair{Format::kV2, kV2PoseHex}, std::pair{Format::kOfficial, kOfficialPoseHex}}) {
     SCOPED_TRACE(ToString(f));
     const Response r = PoseResponse(f);
     Result<std::vector<uint8_t>> bytes = EncodeResponse(r);
@@ -167,6 +167,7 @@ struct Corruption {
 };
 
 TEST(GriMessage, EveryCorruptedRequestIsRejectedWithItsFault) {
+  // clang-format off
   const std::vector<Corruption> cases = {
       {"v2 wrong first byte", kV2TriggerHex, [](auto& b) { b[0] = 7; }, Fault::kWrongMagic, "wrong magic"},
       {"official magic GRX", kOfficialTriggerHex, [](auto& b) { b[2] = 'X'; }, Fault::kWrongMagic, "wrong magic"},
@@ -184,6 +185,7 @@ TEST(GriMessage, EveryCorruptedRequestIsRejectedWithItsFault) {
       {"v2 pose format 11", kV2TriggerHex, [](auto& b) { b[3] = 11; }, Fault::kUnknownPoseFormat, "pose format 11"},
       {"official pose format 255", kOfficialTriggerHex, [](auto& b) { b[6] = 255; }, Fault::kUnknownPoseFormat, "pose format 255"},
   };
+  // clang-format on
   for (const Corruption& c : cases) {
     SCOPED_TRACE(c.name);
     std::vector<uint8_t> bytes = FromHex(c.hex);

@@ -369,16 +369,16 @@ TEST_P(GriServerTest, EachPortServesBothFormats) {
 TEST_P(GriServerTest, SyncTriggerResponseMatchesGoldenBytes) {
   // Job 1, first grasp (500, -80, 100) mm, rotated pi/2 about z; pose format 2.
   const char* kV2 =
-      "02 02 37 02 02"                          // magic, version, length 55, format 2, action 2
-      "01 00"                                   // job 1, NO_ERROR
-      "0000FA43 0000A0C2 0000C842"              // 500.0f, -80.0f, 100.0f
-      "00000000 00000000 F304353F F304353F"     // quaternion x, y, z, w
+      "02 02 37 02 02"                       // magic, version, length 55, format 2, action 2
+      "01 00"                                // job 1, NO_ERROR
+      "0000FA43 0000A0C2 0000C842"           // 500.0f, -80.0f, 100.0f
+      "00000000 00000000 F304353F F304353F"  // quaternion x, y, z, w
       "02000000 01000000 00000000 00000000 00000000";  // 2 primary, 1 related left
   const char* kOfficial =
-      "47524900 01 50 02 02"                    // "GRI\0", version 1, length 80, format 2, action 2
-      "0100 0000"                               // job 1, success
-      "0065CD1D 004C3BFB 00E1F505"              // 500e6, -80e6, 100e6
-      "00000000 00000000 23CA0A00 23CA0A00"     // quaternion x, y, z, w x 1e6
+      "47524900 01 50 02 02"                 // "GRI\0", version 1, length 80, format 2, action 2
+      "0100 0000"                            // job 1, success
+      "0065CD1D 004C3BFB 00E1F505"           // 500e6, -80e6, 100e6
+      "00000000 00000000 23CA0A00 23CA0A00"  // quaternion x, y, z, w x 1e6
       "00000000 02000000 01000000 00000000 00000000"  // node rc 0, 2 primary, 1 related
       "00000000 00000000 00000000 00000000 00000000";
   auto robot = Connect();
