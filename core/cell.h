@@ -59,7 +59,11 @@ struct CameraSpec {
   bool eye_in_hand = false;
   Pose X_BC = Pose::Identity();   // eye-to-hand: camera in robot base
   Pose X_FC = Pose::Identity();   // eye-in-hand: camera in flange
-  std::string hand_eye_file;      // optional calibration file that overrides X_BC / X_FC
+  // Optional hand-eye calibration file, stored as a resolved absolute path.
+  // When it exists at load time it must be YAML with a `pose` key (same pose
+  // syntax as the cell), which overrides X_BC (eye-to-hand) or X_FC
+  // (eye-in-hand); when it does not exist yet, the cell's `pose` is used.
+  std::string hand_eye_file;
   std::vector<CameraConfig> configs;  // at least one
   int default_config = 1;
   const CameraConfig* FindConfig(int id) const;
@@ -178,16 +182,24 @@ struct Cell {
   const TaskSpec* FindTask(int id) const;
 };
 
-// Loads and validates a cell file. Every error names the file, the key path
-// (e.g. "parts[1].symmetry.order") and the reason; nothing is half-loaded.
+// Loads and validates a cell file. Every error names the file, the line, the
+// key path (e.g. "parts[1].symmetry.order") and the reason, as
+// "<file>:<line>: <key path>: <reason>"; nothing is half-loaded.
+// @returns NotFound for a missing cell, mesh or hand-eye file, Corruption for
+// a YAML syntax error, InvalidArgument for everything else. Mesh files are
+// only checked to exist (LoadMesh parses them); their paths are made absolute.
 Result<Cell> LoadCell(const std::string& path);
 // Parses YAML text; `path` is used for messages and to resolve relative paths.
 Result<Cell> ParseCell(const std::string& yaml_text, const std::string& path);
 // The embedded default cell (assets/cells/default.yaml, compiled in; its
-// relative paths resolve against the installed assets directory).
+// relative paths resolve against AssetsDir()/cells, as they would for the file on disk).
 Result<Cell> LoadDefaultCell();
 // LoadCell(path) if path is non-empty, else LoadDefaultCell().
 Result<Cell> LoadCellOrDefault(const std::string& path);
+
+// A short multi-line human summary (camera, source, bin, parts, grippers,
+// tasks, robot, endpoints), for the CLI and logs.
+std::string Describe(const Cell& cell);
 
 // Directory holding the shipped assets (compile-time default, overridable by
 // the BINPICK_ASSETS environment variable).

@@ -2,7 +2,7 @@
 // frame. Loaded from PLY (ASCII or binary) or STL (binary or ASCII).
 #pragma once
 
-#include <Eigen/Core>
+#include <Eigen/Geometry>  // AlignedBox3f, Affine3f
 #include <string>
 #include <vector>
 
@@ -17,6 +17,8 @@ struct TriangleMesh {
   bool empty() const { return triangles.empty(); }
   Eigen::AlignedBox3f Bounds() const;
   // Largest distance between two vertices (the part "diameter" used by ADD-S).
+  // Exact up to 6000 vertices (O(n^2)); above that an extreme-point estimate
+  // D' with 0.997 D <= D' <= D in O(1024 n) (see mesh.cc).
   double Diameter() const;
   // Total surface area, m^2.
   double Area() const;

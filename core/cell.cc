@@ -1,0 +1,860 @@
+// The cell file loader. Reference: docs/cell.md.
+//
+// Parsing walks the YAML tree with the key path of every node, so each error
+// can name the file, the line, the key path and the reason. Errors are raised
+// inside this file as a private exception (CellError) and turned into a Status
+// at the public boundary; yaml-cpp's own exceptions are caught there too.
+// A Cell is only returned once every section has been validated.
+
+#include "core/cell.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <initializer_list>
+#include <numbers>
+#include <set>
+#include <sstream>
+#include <string_view>
+#include <utility>
+
+namespace bp {
+namespace internal {
+extern const std::string_view kDefaultCellYaml;  // generated from assets/cells/default.yaml
+}  // namespace internal
+
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kEmbeddedPath = "<embedded default>";
+constexpr int kMaxSyntheticParts = 500;
+// |q| may differ from 1 by this much before normalisation (hand-typed values).
+constexpr double kQuatNormTolerance = 1e-2;
+// Largest |(R^T R - I)_ij| accepted for a rotation matrix before re-orthonormalisation.
+constexpr double kOrthonormalTolerance = 1e-3;
+
+struct CellError {
+  Status status;
+};
+
+Status MakeStatus(Status::Code code, std::string msg) {
+  switch (code) {
+    case Status::Code::kNotFound: return Status::NotFound(std::move(msg));
+    case Status::Code::kCorruption: return Status::Corruption(std::move(msg));
+    default: return Status::InvalidArgument(std::move(msg));
+  }
+}
+
+std::string Join(const std::string& path, std::string_view key) {
+  return path.empty() ? std::string(key) : path + "." + std::string(key);
+}
+
+std::string At(const std::string& path, size_t i) { return path + "[" + std::to_string(i) + "]"; }
+
+std::string FormatNumber(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+size_t EditDistance(std::string_view a, std::string_view b) {
+  std::vector<size_t> row(b.size() + 1);
+  for (size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (size_t i = 1; i <= a.size(); ++i) {
+    size_t diag = row[0];
+    row[0] = i;
+    for (size_t j = 1; j <= b.size(); ++j) {
+      const size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diag + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diag = up;
+    }
+  }
+  return row[b.size()];
+}
+
+std::string OneOf(std::initializer_list<std::string_view> names) {
+  std::string s;
+  for (std::string_view n : names) s += (s.empty() ? "" : ", ") + std::string(n);
+  return s;
+}
+
+// R = Rz(yaw) * Ry(pitch) * Rx(roll): fixed axes X, then Y, then Z.
+Mat3 RotationFromRpyDeg(double roll_deg, double pitch_deg, double yaw_deg) {
+  constexpr double kDeg = std::numbers::pi / 180.0;
+  return (Eigen::AngleAxisd(yaw_deg * kDeg, Vec3::UnitZ()) *
+          Eigen::AngleAxisd(pitch_deg * kDeg, Vec3::UnitY()) *
+          Eigen::AngleAxisd(roll_deg * kDeg, Vec3::UnitX()))
+      .toRotationMatrix();
+}
+
+// Walks one YAML document. `file_` names the document in messages and
+// `base_dir_` resolves its relative paths.
+class Parser {
+ public:
+  Parser(std::string file, fs::path base_dir) : file_(std::move(file)), base_dir_(std::move(base_dir)) {}
+
+  Cell ParseCell(const YAML::Node& root);
+  Pose ParseHandEye(const YAML::Node& root);
+
+ private:
+  using Code = Status::Code;
+
+  // ---- errors -------------------------------------------------------------
+  [[noreturn]] void Fail(const YAML::Node& where, const std::string& key, const std::string& reason,
+                         Code code = Code::kInvalidArgument) const {
+    std::string msg = file_;
+    if (const int line = LineOf(where); line > 0) msg += ":" + std::to_string(line);
+    msg += ": ";
+    if (!key.empty()) msg += key + ": ";
+    msg += reason;
+    throw CellError{MakeStatus(code, std::move(msg))};
+  }
+  void Check(bool ok, const YAML::Node& where, const std::string& key, const std::string& reason) const {
+    if (!ok) Fail(where, key, reason);
+  }
+  static int LineOf(const YAML::Node& n) {
+    if (!n.IsDefined()) return 0;
+    try {
+      return n.Mark().line + 1;  // null mark: line -1
+    } catch (const YAML::Exception&) {
+      return 0;
+    }
+  }
+  static std::string What(const YAML::Node& n) {
+    if (!n.IsDefined() || n.IsNull()) return "nothing";
+    if (n.IsSequence()) return "a list";
+    if (n.IsMap()) return "a map";
+    return "'" + n.Scalar() + "'";
+  }
+
+  // ---- structure ----------------------------------------------------------
+  // Checks that n is a map and that every key is in `allowed`, once.
+  void ExpectMap(const YAML::Node& n, const std::string& path,
+                 std::initializer_list<std::string_view> allowed) const {
+    if (!n.IsMap()) Fail(n, path, "expected a map, got " + What(n));
+    std::set<std::string> seen;
+    for (const auto& kv : n) {
+      const YAML::Node& k = kv.first;
+      if (!k.IsScalar()) Fail(k, path, "map keys must be plain names");
+      const std::string& name = k.Scalar();
+      if (std::find(allowed.begin(), allowed.end(), name) == allowed.end()) {
+        std::string reason = "unknown key '" + name + "'";
+        std::string_view best;
+        size_t best_d = 3;  // suggest only close matches
+        for (std::string_view a : allowed) {
+          if (const size_t d = EditDistance(name, a); d < best_d) best_d = d, best = a;
+        }
+        if (!best.empty()) reason += " (did you mean '" + std::string(best) + "'?)";
+        reason += "; allowed keys: " + OneOf(allowed);
+        Fail(k, Join(path, name), reason);
+      }
+      if (!seen.insert(name).second) Fail(k, Join(path, name), "duplicate key");
+    }
+  }
+  void ExpectSeq(const YAML::Node& n, const std::string& path) const {
+    if (!n.IsSequence()) Fail(n, path, "expected a list, got " + What(n));
+  }
+  YAML::Node Req(const YAML::Node& map, const std::string& path, std::string_view key) const {
+    YAML::Node c = map[std::string(key)];
+    if (!c.IsDefined()) Fail(map, Join(path, key), "missing required key");
+    return c;
+  }
+
+  // ---- scalars ------------------------------------------------------------
+  double Number(const YAML::Node& n, const std::string& key) const {
+    double v = 0;
+    if (!n.IsScalar() || !YAML::convert<double>::decode(n, v)) Fail(n, key, "expected a number, got " + What(n));
+    if (!std::isfinite(v)) Fail(n, key, "expected a finite number, got " + What(n));
+    return v;
+  }
+  int Int(const YAML::Node& n, const std::string& key) const {
+    int v = 0;
+    if (!n.IsScalar() || !YAML::convert<int>::decode(n, v)) Fail(n, key, "expected an integer, got " + What(n));
+    return v;
+  }
+  uint64_t Uint64(const YAML::Node& n, const std::string& key) const {
+    uint64_t v = 0;
+    if (!n.IsScalar() || !YAML::convert<uint64_t>::decode(n, v)) {
+      Fail(n, key, "expected a non-negative integer, got " + What(n));
+    }
+    return v;
+  }
+  bool Bool(const YAML::Node& n, const std::string& key) const {
+    bool v = false;
+    if (!n.IsScalar() || !YAML::convert<bool>::decode(n, v)) Fail(n, key, "expected true or false, got " + What(n));
+    return v;
+  }
+  std::string String(const YAML::Node& n, const std::string& key) const {
+    if (!n.IsScalar()) Fail(n, key, "expected a string, got " + What(n));
+    return n.Scalar();
+  }
+  std::string Name(const YAML::Node& n, const std::string& key) const {
+    std::string s = String(n, key);
+    Check(!s.empty(), n, key, "must not be empty");
+    return s;
+  }
+  template <typename E>
+  E Enum(const YAML::Node& n, const std::string& key, std::string_view what,
+         std::initializer_list<std::pair<std::string_view, E>> names) const {
+    const std::string s = String(n, key);
+    std::string all;
+    for (const auto& [name, value] : names) {
+      if (s == name) return value;
+      all += (all.empty() ? "" : ", ") + std::string(name);
+    }
+    Fail(n, key, "unknown " + std::string(what) + " '" + s + "' (expected one of: " + all + ")");
+  }
+  // Optional scalars: `def` when the key is absent.
+  double OptNumber(const YAML::Node& map, const std::string& path, const char* key, double def) const {
+    const YAML::Node c = map[key];
+    return c.IsDefined() ? Number(c, Join(path, key)) : def;
+  }
+  int OptInt(const YAML::Node& map, const std::string& path, const char* key, int def) const {
+    const YAML::Node c = map[key];
+    return c.IsDefined() ? Int(c, Join(path, key)) : def;
+  }
+  bool OptBool(const YAML::Node& map, const std::string& path, const char* key, bool def) const {
+    const YAML::Node c = map[key];
+    return c.IsDefined() ? Bool(c, Join(path, key)) : def;
+  }
+  std::string OptString(const YAML::Node& map, const std::string& path, const char* key, std::string def) const {
+    const YAML::Node c = map[key];
+    return c.IsDefined() ? String(c, Join(path, key)) : def;
+  }
+  int Port(const YAML::Node& map, const std::string& path, const char* key, int def, int lo = 0) const {
+    const int p = OptInt(map, path, key, def);
+    Check(p >= lo && p <= 65535, map[key], Join(path, key),
+          "port " + std::to_string(p) + " is outside " + std::to_string(lo) + "..65535");
+    return p;
+  }
+
+  // ---- lists, vectors, poses ----------------------------------------------
+  std::vector<double> Numbers(const YAML::Node& n, const std::string& key, size_t count) const {
+    if (!n.IsSequence() || n.size() != count) {
+      Fail(n, key, "expected a list of " + std::to_string(count) + " numbers, got " +
+                       (n.IsSequence() ? "a list of " + std::to_string(n.size()) : What(n)));
+    }
+    std::vector<double> v(count);
+    for (size_t i = 0; i < count; ++i) v[i] = Number(n[i], At(key, i));
+    return v;
+  }
+  Vec3 Vector3(const YAML::Node& n, const std::string& key) const {
+    const std::vector<double> v = Numbers(n, key, 3);
+    return Vec3(v[0], v[1], v[2]);
+  }
+  std::vector<int> Ints(const YAML::Node& n, const std::string& key) const {
+    ExpectSeq(n, key);
+    std::vector<int> v;
+    for (size_t i = 0; i < n.size(); ++i) v.push_back(Int(n[i], At(key, i)));
+    return v;
+  }
+  Pose ParsePose(const YAML::Node& n, const std::string& key) const;
+
+  // ---- paths --------------------------------------------------------------
+  std::string Resolve(const std::string& p) const {
+    fs::path path(p);
+    if (path.is_relative()) path = base_dir_ / path;
+    return path.lexically_normal().string();
+  }
+  // A mesh path, resolved; the file must exist (it is parsed later, by LoadMesh).
+  std::string MeshPath(const YAML::Node& n, const std::string& key) const {
+    const std::string resolved = Resolve(Name(n, key));
+    std::error_code ec;
+    if (!fs::is_regular_file(resolved, ec)) {
+      Fail(n, key, "mesh file '" + resolved + "' does not exist", Code::kNotFound);
+    }
+    return resolved;
+  }
+
+  // ---- sections -----------------------------------------------------------
+  void ParseCamera(const YAML::Node& n, Cell& cell) const;
+  CameraConfig ParseCameraConfig(const YAML::Node& n, const std::string& path) const;
+  NoiseModel ParseNoise(const YAML::Node& n, const std::string& path) const;
+  void ParseSource(const YAML::Node& n, Cell& cell) const;
+  void ParseBin(const YAML::Node& n, Cell& cell) const;
+  void ParseRoi(const YAML::Node& n, Cell& cell) const;
+  void ParseGrippers(const YAML::Node& n, Cell& cell) const;
+  void ParseParts(const YAML::Node& n, Cell& cell) const;
+  Symmetry ParseSymmetry(const YAML::Node& n, const std::string& path) const;
+  void ParseTasks(const YAML::Node& n, Cell& cell) const;
+  void ParseRobot(const YAML::Node& n, Cell& cell) const;
+  void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
+
+  std::string file_;
+  fs::path base_dir_;
+};
+
+Pose Parser::ParsePose(const YAML::Node& n, const std::string& key) const {
+  ExpectMap(n, key, {"xyz", "rpy_deg", "quat_wxyz", "matrix"});
+  const YAML::Node xyz = n["xyz"], rpy = n["rpy_deg"], quat = n["quat_wxyz"], matrix = n["matrix"];
+  const int rotations = rpy.IsDefined() + quat.IsDefined() + matrix.IsDefined();
+  if (rotations > 1) Fail(n, key, "give at most one of rpy_deg, quat_wxyz, matrix");
+  Pose X = Pose::Identity();
+  if (xyz.IsDefined()) X.translation() = Vector3(xyz, Join(key, "xyz"));
+  if (rpy.IsDefined()) {
+    const std::vector<double> a = Numbers(rpy, Join(key, "rpy_deg"), 3);
+    X.linear() = RotationFromRpyDeg(a[0], a[1], a[2]);
+  } else if (quat.IsDefined()) {
+    const std::string qkey = Join(key, "quat_wxyz");
+    const std::vector<double> q = Numbers(quat, qkey, 4);
+    const Quat Q(q[0], q[1], q[2], q[3]);
+    if (std::abs(Q.norm() - 1.0) > kQuatNormTolerance) {
+      Fail(quat, qkey, "quaternion norm " + FormatNumber(Q.norm()) + " is not 1");
+    }
+    X.linear() = Q.normalized().toRotationMatrix();
+  } else if (matrix.IsDefined()) {
+    const std::string mkey = Join(key, "matrix");
+    if (xyz.IsDefined()) Fail(n, key, "give the translation either in xyz or in matrix, not both");
+    if (!matrix.IsSequence() || matrix.size() != 4) Fail(matrix, mkey, "expected 4 rows of 4 numbers");
+    Eigen::Matrix4d M;
+    for (int r = 0; r < 4; ++r) {
+      const std::vector<double> row = Numbers(matrix[r], At(mkey, r), 4);
+      for (int c = 0; c < 4; ++c) M(r, c) = row[c];
+    }
+    if ((M.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).cwiseAbs().maxCoeff() > 1e-9) {
+      Fail(matrix, At(mkey, 3), "last row must be [0, 0, 0, 1]");
+    }
+    const Mat3 R = M.topLeftCorner<3, 3>();
+    const double err = (R.transpose() * R - Mat3::Identity()).cwiseAbs().maxCoeff();
+    if (err > kOrthonormalTolerance || R.determinant() < 0) {
+      Fail(matrix, mkey, "rotation part is not orthonormal with determinant +1");
+    }
+    X.linear() = Quat(R).normalized().toRotationMatrix();
+    X.translation() = M.topRightCorner<3, 1>();
+  }
+  return X;
+}
+
+NoiseModel Parser::ParseNoise(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"axial_sigma_base", "axial_sigma_quadratic", "grazing_start_deg", "grazing_full_deg",
+                      "random_dropout", "projector_shadow", "projector_offset", "enabled"});
+  NoiseModel m;
+  m.axial_sigma_base = OptNumber(n, path, "axial_sigma_base", m.axial_sigma_base);
+  Check(m.axial_sigma_base >= 0, n["axial_sigma_base"], Join(path, "axial_sigma_base"), "must be >= 0");
+  m.axial_sigma_quadratic = OptNumber(n, path, "axial_sigma_quadratic", m.axial_sigma_quadratic);
+  Check(m.axial_sigma_quadratic >= 0, n["axial_sigma_quadratic"], Join(path, "axial_sigma_quadratic"),
+        "must be >= 0");
+  m.grazing_start_deg = OptNumber(n, path, "grazing_start_deg", m.grazing_start_deg);
+  Check(m.grazing_start_deg >= 0 && m.grazing_start_deg <= 90, n["grazing_start_deg"],
+        Join(path, "grazing_start_deg"), "must be in [0, 90]");
+  m.grazing_full_deg = OptNumber(n, path, "grazing_full_deg", m.grazing_full_deg);
+  Check(m.grazing_full_deg >= m.grazing_start_deg && m.grazing_full_deg <= 90, n["grazing_full_deg"],
+        Join(path, "grazing_full_deg"), "must be in [grazing_start_deg, 90]");
+  m.random_dropout = OptNumber(n, path, "random_dropout", m.random_dropout);
+  Check(m.random_dropout >= 0 && m.random_dropout <= 1, n["random_dropout"], Join(path, "random_dropout"),
+        "must be in [0, 1]");
+  m.projector_shadow = OptBool(n, path, "projector_shadow", m.projector_shadow);
+  if (n["projector_offset"].IsDefined()) {
+    m.projector_offset = Vector3(n["projector_offset"], Join(path, "projector_offset"));
+  }
+  m.enabled = OptBool(n, path, "enabled", m.enabled);
+  return m;
+}
+
+CameraConfig Parser::ParseCameraConfig(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"id", "name", "resolution", "intrinsics", "depth_range", "noise"});
+  CameraConfig c;
+  c.id = Int(Req(n, path, "id"), Join(path, "id"));
+  Check(c.id >= 0, n["id"], Join(path, "id"), "must be >= 0");
+  c.name = OptString(n, path, "name", "config" + std::to_string(c.id));
+
+  const std::string rkey = Join(path, "resolution");
+  const YAML::Node res = Req(n, path, "resolution");
+  if (!res.IsSequence() || res.size() != 2) Fail(res, rkey, "expected [width, height] in pixels");
+  c.intrinsics.width = Int(res[0], At(rkey, 0));
+  c.intrinsics.height = Int(res[1], At(rkey, 1));
+  Check(c.intrinsics.width > 0, res[0], At(rkey, 0), "width must be > 0");
+  Check(c.intrinsics.height > 0, res[1], At(rkey, 1), "height must be > 0");
+
+  const std::string ikey = Join(path, "intrinsics");
+  const YAML::Node in = Req(n, path, "intrinsics");
+  ExpectMap(in, ikey, {"fx", "fy", "cx", "cy", "distortion"});
+  Intrinsics& K = c.intrinsics;
+  K.fx = Number(Req(in, ikey, "fx"), Join(ikey, "fx"));
+  K.fy = Number(Req(in, ikey, "fy"), Join(ikey, "fy"));
+  K.cx = Number(Req(in, ikey, "cx"), Join(ikey, "cx"));
+  K.cy = Number(Req(in, ikey, "cy"), Join(ikey, "cy"));
+  Check(K.fx > 0, in["fx"], Join(ikey, "fx"), "focal length must be > 0");
+  Check(K.fy > 0, in["fy"], Join(ikey, "fy"), "focal length must be > 0");
+  Check(K.cx >= 0 && K.cx <= K.width, in["cx"], Join(ikey, "cx"), "principal point must lie in [0, width]");
+  Check(K.cy >= 0 && K.cy <= K.height, in["cy"], Join(ikey, "cy"), "principal point must lie in [0, height]");
+  if (const YAML::Node d = in["distortion"]; d.IsDefined()) {
+    const std::string dkey = Join(ikey, "distortion");
+    if (!d.IsSequence() || (d.size() != 4 && d.size() != 5)) Fail(d, dkey, "expected [k1, k2, p1, p2(, k3)]");
+    for (size_t i = 0; i < d.size(); ++i) K.distortion[i] = Number(d[i], At(dkey, i));
+  }
+
+  if (const YAML::Node r = n["depth_range"]; r.IsDefined()) {
+    const std::string dkey = Join(path, "depth_range");
+    const std::vector<double> v = Numbers(r, dkey, 2);
+    Check(v[0] > 0 && v[0] < v[1], r, dkey,
+          "expected [min, max] with 0 < min < max (m), got [" + FormatNumber(v[0]) + ", " + FormatNumber(v[1]) + "]");
+    c.min_depth = v[0];
+    c.max_depth = v[1];
+  }
+  if (const YAML::Node m = n["noise"]; m.IsDefined()) c.noise = ParseNoise(m, Join(path, "noise"));
+  return c;
+}
+
+void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
+  const std::string path = "camera";
+  ExpectMap(n, path, {"mount", "pose", "hand_eye_file", "default_config", "configs"});
+  CameraSpec& cam = cell.camera;
+  if (const YAML::Node m = n["mount"]; m.IsDefined()) {
+    cam.eye_in_hand = Enum<bool>(m, "camera.mount", "mount", {{"eye_to_hand", false}, {"eye_in_hand", true}});
+  }
+
+  // The camera pose: from the hand-eye file when it exists, else from `pose`.
+  std::optional<Pose> pose;
+  if (const YAML::Node p = n["pose"]; p.IsDefined()) pose = ParsePose(p, "camera.pose");
+  if (const YAML::Node h = n["hand_eye_file"]; h.IsDefined()) {
+    cam.hand_eye_file = Resolve(Name(h, "camera.hand_eye_file"));
+    std::error_code ec;
+    if (fs::exists(cam.hand_eye_file, ec)) {
+      std::ifstream in(cam.hand_eye_file);
+      std::stringstream text;
+      text << in.rdbuf();
+      if (!in) Fail(h, "camera.hand_eye_file", "cannot read '" + cam.hand_eye_file + "'", Code::kNotFound);
+      try {
+        Parser calib(cam.hand_eye_file, fs::path(cam.hand_eye_file).parent_path());
+        pose = calib.ParseHandEye(YAML::Load(text.str()));
+      } catch (const CellError& e) {
+        throw CellError{MakeStatus(e.status.code(), e.status.message() + " (camera.hand_eye_file of " + file_ + ")")};
+      } catch (const YAML::ParserException& e) {
+        throw CellError{Status::Corruption(cam.hand_eye_file + ":" + std::to_string(e.mark.line + 1) +
+                                           ": YAML syntax error: " + e.msg + " (camera.hand_eye_file of " + file_ + ")")};
+      }
+    }
+  }
+  if (!pose) Fail(n, "camera.pose", "missing required key (no hand-eye calibration file found either)");
+  (cam.eye_in_hand ? cam.X_FC : cam.X_BC) = *pose;
+
+  const YAML::Node configs = Req(n, path, "configs");
+  ExpectSeq(configs, "camera.configs");
+  Check(configs.size() > 0, configs, "camera.configs", "at least one camera configuration is required");
+  for (size_t i = 0; i < configs.size(); ++i) {
+    const std::string ckey = At("camera.configs", i);
+    CameraConfig c = ParseCameraConfig(configs[i], ckey);
+    if (cam.FindConfig(c.id) != nullptr) {
+      Fail(configs[i]["id"], Join(ckey, "id"), "duplicate camera config id " + std::to_string(c.id));
+    }
+    cam.configs.push_back(std::move(c));
+  }
+  cam.default_config = OptInt(n, path, "default_config", cam.configs.front().id);
+  if (cam.FindConfig(cam.default_config) == nullptr) {
+    Fail(n["default_config"], "camera.default_config",
+         "config id " + std::to_string(cam.default_config) + " is not among camera.configs");
+  }
+}
+
+Pose Parser::ParseHandEye(const YAML::Node& root) {
+  if (!root.IsMap()) Fail(root, "", "expected a map with a 'pose' key");
+  return ParsePose(Req(root, "", "pose"), "pose");  // other keys (residuals, dates, ...) are ignored
+}
+
+void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
+  const std::string path = "source";
+  ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes"});
+  SourceSpec& s = cell.source;
+  if (const YAML::Node k = n["kind"]; k.IsDefined()) {
+    s.kind = Enum<SourceSpec::Kind>(k, "source.kind", "source kind",
+                                    {{"synthetic", SourceSpec::Kind::kSynthetic},
+                                     {"files", SourceSpec::Kind::kFiles},
+                                     {"replay", SourceSpec::Kind::kReplay}});
+  }
+  if (const YAML::Node d = n["dir"]; d.IsDefined()) s.dir = Resolve(Name(d, "source.dir"));
+  if (s.kind != SourceSpec::Kind::kSynthetic && s.dir.empty()) {
+    Fail(n, "source.dir", "missing required key (source kind files / replay reads from a directory)");
+  }
+  s.num_parts = OptInt(n, path, "num_parts", s.num_parts);
+  Check(s.num_parts >= 0 && s.num_parts <= kMaxSyntheticParts, n["num_parts"], "source.num_parts",
+        "must be in 0.." + std::to_string(kMaxSyntheticParts) + ", got " + std::to_string(s.num_parts));
+  if (const YAML::Node v = n["seed"]; v.IsDefined()) s.seed = Uint64(v, "source.seed");
+  s.simulate_picks = OptBool(n, path, "simulate_picks", s.simulate_picks);
+  if (const YAML::Node pc = n["part_classes"]; pc.IsDefined()) {
+    s.part_classes = Ints(pc, "source.part_classes");
+    for (size_t i = 0; i < s.part_classes.size(); ++i) {
+      Check(cell.FindPart(s.part_classes[i]) != nullptr, pc[i], At("source.part_classes", i),
+            "unknown part class " + std::to_string(s.part_classes[i]));
+    }
+  }
+}
+
+void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {
+  ExpectMap(n, "bin", {"inner_size", "wall_thickness", "pose", "mesh"});
+  BinSpec& b = cell.bin;
+  if (const YAML::Node s = n["inner_size"]; s.IsDefined()) {
+    b.inner_size = Vector3(s, "bin.inner_size");
+    for (int i = 0; i < 3; ++i) Check(b.inner_size[i] > 0, s[i], At("bin.inner_size", i), "must be > 0");
+  }
+  b.wall_thickness = OptNumber(n, "bin", "wall_thickness", b.wall_thickness);
+  Check(b.wall_thickness > 0, n["wall_thickness"], "bin.wall_thickness", "must be > 0");
+  if (const YAML::Node p = n["pose"]; p.IsDefined()) b.X_BW = ParsePose(p, "bin.pose");
+  if (const YAML::Node m = n["mesh"]; m.IsDefined()) b.mesh = MeshPath(m, "bin.mesh");
+}
+
+void Parser::ParseRoi(const YAML::Node& n, Cell& cell) const {
+  ExpectMap(n, "roi", {"wall_margin", "floor_margin", "height"});
+  RoiSpec& r = cell.roi;
+  r.wall_margin = OptNumber(n, "roi", "wall_margin", r.wall_margin);
+  r.floor_margin = OptNumber(n, "roi", "floor_margin", r.floor_margin);
+  r.height = OptNumber(n, "roi", "height", r.height);
+  Check(r.wall_margin >= 0, n["wall_margin"], "roi.wall_margin", "must be >= 0");
+  Check(r.floor_margin >= 0, n["floor_margin"], "roi.floor_margin", "must be >= 0");
+  Check(r.height > 0, n["height"], "roi.height", "must be > 0");
+  const double min_side = std::min(cell.bin.inner_size.x(), cell.bin.inner_size.y());
+  Check(2 * r.wall_margin < min_side, n["wall_margin"], "roi.wall_margin",
+        "leaves an empty region of interest (2 * " + FormatNumber(r.wall_margin) + " m >= bin inner side " +
+            FormatNumber(min_side) + " m)");
+  Check(r.floor_margin < r.height, n["floor_margin"], "roi.floor_margin",
+        "leaves an empty region of interest (floor_margin >= roi.height)");
+}
+
+void Parser::ParseGrippers(const YAML::Node& n, Cell& cell) const {
+  ExpectSeq(n, "grippers");
+  Check(n.size() > 0, n, "grippers", "at least one gripper is required");
+  for (size_t i = 0; i < n.size(); ++i) {
+    const YAML::Node g = n[i];
+    const std::string path = At("grippers", i);
+    ExpectMap(g, path, {"name", "kind", "mesh", "tcp", "approach_distance", "opening"});
+    GripperSpec spec;
+    spec.name = Name(Req(g, path, "name"), Join(path, "name"));
+    Check(cell.FindGripper(spec.name) == nullptr, g["name"], Join(path, "name"),
+          "duplicate gripper name '" + spec.name + "'");
+    spec.kind = Enum<GripperSpec::Kind>(Req(g, path, "kind"), Join(path, "kind"), "gripper kind",
+                                        {{"suction", GripperSpec::Kind::kSuction},
+                                         {"parallel_jaw", GripperSpec::Kind::kParallelJaw}});
+    spec.mesh = MeshPath(Req(g, path, "mesh"), Join(path, "mesh"));
+    if (const YAML::Node t = g["tcp"]; t.IsDefined()) spec.X_FT = ParsePose(t, Join(path, "tcp"));
+    spec.approach_distance = OptNumber(g, path, "approach_distance", spec.approach_distance);
+    Check(spec.approach_distance > 0, g["approach_distance"], Join(path, "approach_distance"), "must be > 0 (m)");
+    spec.opening = OptNumber(g, path, "opening", spec.opening);
+    Check(spec.opening >= 0, g["opening"], Join(path, "opening"), "must be >= 0 (m)");
+    if (spec.kind == GripperSpec::Kind::kParallelJaw) {
+      Check(spec.opening > 0, g["opening"].IsDefined() ? g["opening"] : g, Join(path, "opening"),
+            "a parallel_jaw gripper needs an opening > 0 (m)");
+    }
+    cell.grippers.push_back(std::move(spec));
+  }
+}
+
+Symmetry Parser::ParseSymmetry(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"type", "axis", "order", "extra"});
+  Symmetry s;
+  s.kind = Enum<Symmetry::Kind>(Req(n, path, "type"), Join(path, "type"), "symmetry type",
+                                {{"none", Symmetry::Kind::kNone},
+                                 {"revolute", Symmetry::Kind::kRevolute},
+                                 {"discrete", Symmetry::Kind::kDiscrete}});
+  if (const YAML::Node a = n["axis"]; a.IsDefined()) {
+    const Vec3 axis = Vector3(a, Join(path, "axis"));
+    Check(axis.norm() > 1e-9, a, Join(path, "axis"), "axis must be non-zero");
+    s.axis = axis.normalized();
+  }
+  if (s.kind == Symmetry::Kind::kDiscrete) {
+    s.order = Int(Req(n, path, "order"), Join(path, "order"));
+    Check(s.order >= 2, n["order"], Join(path, "order"),
+          "a discrete symmetry needs order >= 2, got " + std::to_string(s.order));
+  } else if (n["order"].IsDefined()) {
+    Fail(n["order"], Join(path, "order"), "order applies only to type discrete");
+  }
+  if (const YAML::Node e = n["extra"]; e.IsDefined()) {
+    ExpectSeq(e, Join(path, "extra"));
+    for (size_t i = 0; i < e.size(); ++i) s.extra.push_back(ParsePose(e[i], At(Join(path, "extra"), i)));
+  }
+  return s;
+}
+
+void Parser::ParseParts(const YAML::Node& n, Cell& cell) const {
+  ExpectSeq(n, "parts");
+  Check(n.size() > 0, n, "parts", "at least one part is required");
+  for (size_t i = 0; i < n.size(); ++i) {
+    const YAML::Node p = n[i];
+    const std::string path = At("parts", i);
+    ExpectMap(p, path, {"class_id", "name", "mesh", "symmetry", "grasps"});
+    PartSpec part;
+    part.class_id = Int(Req(p, path, "class_id"), Join(path, "class_id"));
+    Check(part.class_id >= 0, p["class_id"], Join(path, "class_id"), "must be >= 0");
+    Check(cell.FindPart(part.class_id) == nullptr, p["class_id"], Join(path, "class_id"),
+          "duplicate part class id " + std::to_string(part.class_id));
+    part.name = Name(Req(p, path, "name"), Join(path, "name"));
+    part.mesh = MeshPath(Req(p, path, "mesh"), Join(path, "mesh"));
+    if (const YAML::Node s = p["symmetry"]; s.IsDefined()) part.symmetry = ParseSymmetry(s, Join(path, "symmetry"));
+    if (const YAML::Node gs = p["grasps"]; gs.IsDefined()) {
+      const std::string gpath = Join(path, "grasps");
+      ExpectSeq(gs, gpath);
+      for (size_t j = 0; j < gs.size(); ++j) {
+        const YAML::Node g = gs[j];
+        const std::string key = At(gpath, j);
+        ExpectMap(g, key, {"name", "gripper", "pose"});
+        GraspSpec grasp;
+        grasp.name = Name(Req(g, key, "name"), Join(key, "name"));
+        grasp.gripper = Name(Req(g, key, "gripper"), Join(key, "gripper"));
+        Check(cell.FindGripper(grasp.gripper) != nullptr, g["gripper"], Join(key, "gripper"),
+              "unknown gripper '" + grasp.gripper + "' (not in grippers)");
+        grasp.X_OG = ParsePose(Req(g, key, "pose"), Join(key, "pose"));
+        part.grasps.push_back(std::move(grasp));
+      }
+    }
+    cell.parts.push_back(std::move(part));
+  }
+}
+
+void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
+  ExpectSeq(n, "tasks");
+  Check(n.size() > 0, n, "tasks", "at least one task is required");
+  for (size_t i = 0; i < n.size(); ++i) {
+    const YAML::Node t = n[i];
+    const std::string path = At("tasks", i);
+    ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "place_reference"});
+    TaskSpec task;
+    task.id = Int(Req(t, path, "id"), Join(path, "id"));
+    Check(task.id >= 0, t["id"], Join(path, "id"), "must be >= 0");
+    Check(cell.FindTask(task.id) == nullptr, t["id"], Join(path, "id"), "duplicate task id " + std::to_string(task.id));
+    task.name = OptString(t, path, "name", "task" + std::to_string(task.id));
+    if (const YAML::Node k = t["kind"]; k.IsDefined()) {
+      task.kind = Enum<TaskSpec::Kind>(k, Join(path, "kind"), "task kind",
+                                       {{"pick", TaskSpec::Kind::kPick},
+                                        {"place", TaskSpec::Kind::kPlace},
+                                        {"in_hand", TaskSpec::Kind::kInHand},
+                                        {"precision", TaskSpec::Kind::kPrecision},
+                                        {"pick_2d", TaskSpec::Kind::kPick2D}});
+    }
+    if (const YAML::Node ps = t["parts"]; ps.IsDefined()) {
+      task.part_classes = Ints(ps, Join(path, "parts"));
+      for (size_t j = 0; j < task.part_classes.size(); ++j) {
+        Check(cell.FindPart(task.part_classes[j]) != nullptr, ps[j], At(Join(path, "parts"), j),
+              "unknown part class " + std::to_string(task.part_classes[j]));
+      }
+    }
+    task.gripper = Name(Req(t, path, "gripper"), Join(path, "gripper"));
+    Check(cell.FindGripper(task.gripper) != nullptr, t["gripper"], Join(path, "gripper"),
+          "unknown gripper '" + task.gripper + "' (not in grippers)");
+    if (const YAML::Node e = t["empty_box"]; e.IsDefined()) {
+      const std::string ekey = Join(path, "empty_box");
+      ExpectMap(e, ekey, {"threshold_points", "mode"});
+      task.empty_box.threshold_points = OptInt(e, ekey, "threshold_points", task.empty_box.threshold_points);
+      Check(task.empty_box.threshold_points >= 0, e["threshold_points"], Join(ekey, "threshold_points"),
+            "must be >= 0");
+      if (const YAML::Node m = e["mode"]; m.IsDefined()) {
+        task.empty_box.mode = Enum<EmptyBoxRule::Mode>(m, Join(ekey, "mode"), "empty_box mode",
+                                                       {{"largest_region", EmptyBoxRule::Mode::kLargestRegion},
+                                                        {"total", EmptyBoxRule::Mode::kTotal}});
+      }
+    }
+    task.max_tilt_deg = OptNumber(t, path, "max_tilt_deg", task.max_tilt_deg);
+    Check(task.max_tilt_deg >= 0 && task.max_tilt_deg <= 180, t["max_tilt_deg"], Join(path, "max_tilt_deg"),
+          "must be in [0, 180]");
+    if (const YAML::Node r = t["place_reference"]; r.IsDefined()) {
+      task.place_reference = ParsePose(r, Join(path, "place_reference"));
+    }
+    cell.tasks.push_back(std::move(task));
+  }
+}
+
+void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
+  ExpectMap(n, "robot", {"type", "protocol_version", "position_scale", "modbus"});
+  RobotSpec& r = cell.robot;
+  const YAML::Node type = Req(n, "robot", "type");
+  const std::string name = Name(type, "robot.type");
+  std::optional<RobotModel> model;
+  int id = 0;
+  if (YAML::convert<int>::decode(type, id)) {
+    model = FindRobotModel(static_cast<RobotType>(id));
+  } else {
+    model = FindRobotModel(std::string_view(name));
+  }
+  if (!model) Fail(type, "robot.type", "unknown robot type '" + name + "' (a robot name such as ur, abb, kuka, or a meta_1 id)");
+  r.model = *model;
+  r.protocol_version = OptInt(n, "robot", "protocol_version", r.protocol_version);
+  Check(r.protocol_version == 1 || r.protocol_version == 2, n["protocol_version"], "robot.protocol_version",
+        "must be 1 or 2, got " + std::to_string(r.protocol_version));
+  r.position_scale = OptNumber(n, "robot", "position_scale", r.position_scale);
+  Check(r.position_scale > 0, n["position_scale"], "robot.position_scale", "must be > 0");
+  if (const YAML::Node m = n["modbus"]; m.IsDefined()) {
+    ExpectMap(m, "robot.modbus", {"host", "port", "unit_id"});
+    r.modbus_host = Name(Req(m, "robot.modbus", "host"), "robot.modbus.host");
+    r.modbus_port = Port(m, "robot.modbus", "port", r.modbus_port, 1);
+    r.modbus_unit_id = OptInt(m, "robot.modbus", "unit_id", r.modbus_unit_id);
+    Check(r.modbus_unit_id >= 0 && r.modbus_unit_id <= 255, m["unit_id"], "robot.modbus.unit_id",
+          "must be in 0..255");
+  }
+}
+
+void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
+  ExpectMap(n, "endpoints", {"bind", "daoai_port", "gri_port", "gri_official_port", "http_port"});
+  Endpoints& e = cell.endpoints;
+  e.bind = OptString(n, "endpoints", "bind", e.bind);
+  Check(!e.bind.empty(), n["bind"], "endpoints.bind", "must not be empty");
+  std::vector<std::pair<const char*, int*>> ports = {{"daoai_port", &e.daoai_port},
+                                                     {"gri_port", &e.gri_port},
+                                                     {"gri_official_port", &e.gri_official_port},
+                                                     {"http_port", &e.http_port}};
+  for (size_t i = 0; i < ports.size(); ++i) {
+    *ports[i].second = Port(n, "endpoints", ports[i].first, *ports[i].second);
+    for (size_t j = 0; j < i; ++j) {  // 0 means "disabled" and may repeat
+      Check(*ports[i].second == 0 || *ports[i].second != *ports[j].second, n[ports[i].first],
+            Join("endpoints", ports[i].first),
+            "port " + std::to_string(*ports[i].second) + " is already used by endpoints." + ports[j].first);
+    }
+  }
+}
+
+Cell Parser::ParseCell(const YAML::Node& root) {
+  if (!root.IsDefined() || root.IsNull()) Fail(root, "", "the cell file is empty");
+  if (!root.IsMap()) Fail(root, "", "expected a map of sections at the top level, got " + What(root));
+  ExpectMap(root, "",
+            {"name", "camera", "source", "bin", "roi", "parts", "grippers", "tasks", "robot", "endpoints"});
+  Cell cell;
+  cell.path = file_;
+  cell.base_dir = base_dir_.string();
+  cell.name = OptString(root, "", "name", file_ == kEmbeddedPath ? "default" : fs::path(file_).stem().string());
+  // Sections are parsed in dependency order, not file order: grasps and
+  // tasks refer to grippers, the source and tasks to part classes.
+  ParseGrippers(Req(root, "", "grippers"), cell);
+  ParseParts(Req(root, "", "parts"), cell);
+  ParseCamera(Req(root, "", "camera"), cell);
+  if (const YAML::Node s = root["source"]; s.IsDefined()) ParseSource(s, cell);
+  else ParseSource(YAML::Node(YAML::NodeType::Map), cell);
+  if (const YAML::Node b = root["bin"]; b.IsDefined()) ParseBin(b, cell);
+  if (const YAML::Node r = root["roi"]; r.IsDefined()) ParseRoi(r, cell);
+  else ParseRoi(YAML::Node(YAML::NodeType::Map), cell);  // still checked against the bin
+  ParseTasks(Req(root, "", "tasks"), cell);
+  ParseRobot(Req(root, "", "robot"), cell);
+  if (const YAML::Node e = root["endpoints"]; e.IsDefined()) ParseEndpoints(e, cell);
+  return cell;
+}
+
+Result<Cell> ParseImpl(std::string_view text, const std::string& file, const fs::path& base_dir) {
+  try {
+    const YAML::Node root = YAML::Load(std::string(text));
+    Parser parser(file, base_dir);
+    return parser.ParseCell(root);
+  } catch (const CellError& e) {
+    return e.status;
+  } catch (const YAML::ParserException& e) {
+    return Status::Corruption(file + ":" + std::to_string(e.mark.line + 1) + ":" + std::to_string(e.mark.column + 1) +
+                              ": YAML syntax error: " + e.msg);
+  } catch (const YAML::Exception& e) {
+    return Status::Corruption(file + ": " + e.what());
+  } catch (const std::exception& e) {
+    return Status::Internal(file + ": " + e.what());
+  }
+}
+
+}  // namespace
+
+const CameraConfig* CameraSpec::FindConfig(int id) const {
+  for (const CameraConfig& c : configs) {
+    if (c.id == id) return &c;
+  }
+  return nullptr;
+}
+
+const PartSpec* Cell::FindPart(int class_id) const {
+  for (const PartSpec& p : parts) {
+    if (p.class_id == class_id) return &p;
+  }
+  return nullptr;
+}
+
+const GripperSpec* Cell::FindGripper(const std::string& gripper_name) const {
+  for (const GripperSpec& g : grippers) {
+    if (g.name == gripper_name) return &g;
+  }
+  return nullptr;
+}
+
+const TaskSpec* Cell::FindTask(int id) const {
+  for (const TaskSpec& t : tasks) {
+    if (t.id == id) return &t;
+  }
+  return nullptr;
+}
+
+std::string AssetsDir() {
+  if (const char* env = std::getenv("BINPICK_ASSETS"); env != nullptr && env[0] != '\0') return env;
+  return BINPICK_ASSETS_DIR;
+}
+
+Result<Cell> ParseCell(const std::string& yaml_text, const std::string& path) {
+  std::error_code ec;
+  fs::path base = path.empty() ? fs::current_path(ec) : fs::absolute(path, ec).parent_path();
+  return ParseImpl(yaml_text, path.empty() ? std::string("<string>") : path, base);
+}
+
+Result<Cell> LoadCell(const std::string& path) {
+  if (path.empty()) return Status::InvalidArgument("cell file path is empty");
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return Status::NotFound(path + ": cell file does not exist");
+  if (!fs::is_regular_file(path, ec)) return Status::InvalidArgument(path + ": cell file is not a regular file");
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  text << in.rdbuf();
+  if (!in) return Status::NotFound(path + ": cannot read the cell file");
+  return ParseCell(text.str(), path);
+}
+
+Result<Cell> LoadDefaultCell() {
+  return ParseImpl(internal::kDefaultCellYaml, kEmbeddedPath, fs::path(AssetsDir()) / "cells");
+}
+
+Result<Cell> LoadCellOrDefault(const std::string& path) {
+  return path.empty() ? LoadDefaultCell() : LoadCell(path);
+}
+
+std::string Describe(const Cell& cell) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(3);
+  os << "cell '" << cell.name << "' (" << cell.path << ")\n";
+  const CameraSpec& cam = cell.camera;
+  const Vec3 t_cam = (cam.eye_in_hand ? cam.X_FC : cam.X_BC).translation();
+  os << "  camera: " << (cam.eye_in_hand ? "eye_in_hand" : "eye_to_hand") << " at [" << t_cam.x() << ", "
+     << t_cam.y() << ", " << t_cam.z() << "] m" << (cam.hand_eye_file.empty() ? "" : ", hand-eye " + cam.hand_eye_file)
+     << "; configs:";
+  for (const CameraConfig& c : cam.configs) {
+    os << " " << c.id << "=" << c.name << " " << c.intrinsics.width << "x" << c.intrinsics.height
+       << (c.id == cam.default_config ? " (default)" : "");
+  }
+  os << "\n  source: ";
+  const SourceSpec& s = cell.source;
+  switch (s.kind) {
+    case SourceSpec::Kind::kSynthetic:
+      os << "synthetic, " << s.num_parts << " parts, seed " << s.seed << (s.simulate_picks ? ", simulated picks" : "");
+      break;
+    case SourceSpec::Kind::kFiles: os << "files from " << s.dir; break;
+    case SourceSpec::Kind::kReplay: os << "replay of " << s.dir; break;
+  }
+  const Vec3& b = cell.bin.inner_size;
+  os << "\n  bin: " << b.x() << " x " << b.y() << " x " << b.z() << " m at [" << cell.bin.X_BW.translation().x()
+     << ", " << cell.bin.X_BW.translation().y() << ", " << cell.bin.X_BW.translation().z() << "]\n  parts:";
+  for (const PartSpec& p : cell.parts) {
+    const char* sym = p.symmetry.kind == Symmetry::Kind::kNone      ? "no symmetry"
+                      : p.symmetry.kind == Symmetry::Kind::kRevolute ? "revolute"
+                                                                     : "discrete";
+    os << " " << p.class_id << "=" << p.name << " (" << sym;
+    if (p.symmetry.kind == Symmetry::Kind::kDiscrete) os << " " << p.symmetry.order;
+    os << ", " << p.grasps.size() << " grasps)";
+  }
+  os << "\n  grippers:";
+  for (const GripperSpec& g : cell.grippers) {
+    os << " " << g.name << " (" << (g.kind == GripperSpec::Kind::kSuction ? "suction" : "parallel_jaw") << ")";
+  }
+  os << "\n  tasks:";
+  for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;
+  os << "\n  robot: " << cell.robot.model.name << " (meta_1 id " << static_cast<int>(cell.robot.model.type) << ", "
+     << ToString(cell.robot.model.convention) << "), protocol " << cell.robot.protocol_version;
+  if (!cell.robot.modbus_host.empty()) os << ", modbus " << cell.robot.modbus_host << ":" << cell.robot.modbus_port;
+  const Endpoints& e = cell.endpoints;
+  os << "\n  endpoints: " << e.bind << " daoai " << e.daoai_port << ", gri " << e.gri_port << ", gri_official "
+     << e.gri_official_port << ", http " << (e.http_port == 0 ? std::string("off") : std::to_string(e.http_port))
+     << "\n";
+  return os.str();
+}
+
+}  // namespace bp

@@ -1,0 +1,139 @@
+#include "pipeline/internal/depth_noise.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+namespace bp::internal {
+
+Intrinsics ProjectorIntrinsics(const Intrinsics& K, const Vec3& offset, double min_depth) {
+  Intrinsics P = K;
+  P.distortion = {};
+  const double z = std::max(min_depth, 0.05);
+  const int pad_x = static_cast<int>(std::ceil(K.fx * std::abs(offset.x()) / z)) + 2;
+  const int pad_y = static_cast<int>(std::ceil(K.fy * std::abs(offset.y()) / z)) + 2;
+  P.width = K.width + 2 * std::min(pad_x, K.width);
+  P.height = K.height + 2 * std::min(pad_y, K.height);
+  P.cx = K.cx + std::min(pad_x, K.width);
+  P.cy = K.cy + std::min(pad_y, K.height);
+  return P;
+}
+
+namespace {
+
+uint64_t SplitMix(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+// Deprojection with the divisions done once.
+struct Pinhole {
+  explicit Pinhole(const Intrinsics& K) : cx(K.cx), cy(K.cy), ifx(1.0 / K.fx), ify(1.0 / K.fy) {}
+  double cx, cy, ifx, ify;
+};
+
+Eigen::Vector3d Point(const Pinhole& K, int u, int v, double z) {
+  return {(u - K.cx) * K.ifx * z, (v - K.cy) * K.ify * z, z};
+}
+
+// Cosine between the surface normal (from the clean depth) and the viewing
+// ray at (u, v); NaN if no neighbour is valid in one direction. Uses the
+// neighbour with the smaller depth step so that edges do not bend the normal.
+double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v) {
+  const double z = d.at(u, v);
+  const Eigen::Vector3d P = Point(K, u, v, z);
+  auto tangent = [&](int du, int dv, Eigen::Vector3d& t) {
+    double best = std::numeric_limits<double>::infinity();
+    for (int s : {1, -1}) {
+      const int uu = u + s * du, vv = v + s * dv;
+      if (uu < 0 || vv < 0 || uu >= d.width || vv >= d.height) continue;
+      const double zz = d.at(uu, vv);
+      if (!std::isfinite(zz) || std::abs(zz - z) >= best) continue;
+      best = std::abs(zz - z);
+      t = (Point(K, uu, vv, zz) - P) * s;
+    }
+    return std::isfinite(best);
+  };
+  Eigen::Vector3d tx, ty;
+  if (!tangent(1, 0, tx) || !tangent(0, 1, ty)) return std::numeric_limits<double>::quiet_NaN();
+  const Eigen::Vector3d n = tx.cross(ty);
+  const double nn = n.norm() * P.norm();
+  if (nn <= 0) return std::numeric_limits<double>::quiet_NaN();
+  return std::abs(n.dot(P)) / nn;
+}
+
+// True if the projector sees the camera point P_C (depth test against the
+// projector's depth map; the 2x2 neighbourhood tolerates steep slopes).
+bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
+  const Eigen::Vector3d P = P_C - in.projector_offset;
+  if (P.z() <= 0) return false;
+  const Intrinsics& K = *in.K_projector;
+  const double iz = 1.0 / P.z();
+  const double x = K.fx * P.x() * iz + K.cx, y = K.fy * P.y() * iz + K.cy;
+  const int u0 = static_cast<int>(std::floor(x)), v0 = static_cast<int>(std::floor(y));
+  if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height)
+    return true;  // outside the map: lit
+  double far_z = -1;
+  for (int dv = 0; dv <= 1; ++dv) {
+    for (int du = 0; du <= 1; ++du) {
+      const float z = in.projector_depth->at(u0 + du, v0 + dv);
+      far_z = std::max(far_z, std::isfinite(z) ? static_cast<double>(z) : 1e9);
+    }
+  }
+  const double tolerance = 0.001 + 0.002 * P.z();
+  return P.z() <= far_z + tolerance;
+}
+
+}  // namespace
+
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
+                     DepthImage& depth) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const int w = depth.width, h = depth.height;
+  if (model.enabled) {
+    const Pinhole K(*in.K);
+    const double cos_start = std::cos(model.grazing_start_deg * M_PI / 180.0);
+    const double cos_full = std::cos(model.grazing_full_deg * M_PI / 180.0);
+    const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
+    std::vector<float> out(depth.data.size(), nan);
+    // Rows in parallel; each row has its own RNG stream (seed, row), so the
+    // result does not depend on the schedule.
+    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+      std::uniform_real_distribution<double> U(0.0, 1.0);
+      std::normal_distribution<double> N(0.0, 1.0);
+      for (int v = rows.begin(); v < rows.end(); ++v) {
+        std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
+        N.reset();
+        for (int u = 0; u < w; ++u) {
+          const double z = depth.at(u, v);
+          if (!std::isfinite(z)) continue;
+          // Grazing dropout: probability ramps linearly in angle from start to full.
+          const double c = ViewCosine(depth, K, u, v);
+          if (std::isfinite(c) && c < cos_start) {
+            if (c <= cos_full) continue;
+            const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
+            const double span = model.grazing_full_deg - model.grazing_start_deg;
+            if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
+          }
+          if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
+          if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
+          const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
+          out[static_cast<size_t>(v) * w + u] = static_cast<float>(z + sigma * N(rng));
+        }
+      }
+    });
+    depth.data.swap(out);
+  }
+  for (float& z : depth.data) {
+    if (std::isfinite(z) && (z < in.min_depth || z > in.max_depth)) z = nan;
+  }
+}
+
+}  // namespace bp::internal

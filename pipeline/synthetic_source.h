@@ -1,0 +1,59 @@
+// The synthetic capture source: a seeded pile of parts (SyntheticPile) in the
+// cell's bin, rendered with OSMesa through the selected camera configuration,
+// with structured-light noise and full ground truth. See docs/synthetic.md.
+//
+// Frame content: depth (noisy unless the config's noise is disabled),
+// intensity (Lambertian, light at the projector), intrinsics, X_BC, timestamp,
+// source "synthetic seed=S capture=N" and truth (labels before noise, per-part
+// class, X_BO, visible / unoccluded pixels). A seed reproduces every frame
+// exactly: noise uses its own RNG seeded from (seed, capture index).
+//
+// Not thread-safe (one owner calls Capture / NotifyPicked); it owns a GL context.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/cell.h"
+#include "core/mesh.h"
+#include "pipeline/capture_source.h"
+#include "pipeline/synthetic_pile.h"
+
+namespace bp {
+
+class SyntheticSource final : public CaptureSource {
+ public:
+  // Builds the pile from cell.source (num_parts, seed, part_classes) using the
+  // given class meshes (all classes; part_classes filters them) and the bin
+  // mesh in the bin frame W. @returns InvalidArgument if no class remains,
+  // Unavailable without OSMesa.
+  static Result<std::unique_ptr<SyntheticSource>> Create(const Cell& cell,
+                                                         std::vector<PileClass> classes,
+                                                         const TriangleMesh& bin_mesh_W);
+  ~SyntheticSource() override;
+
+  // NotFound for an unknown config id; InvalidArgument for eye-in-hand without X_BF.
+  Result<Frame> Capture(const CaptureRequest& request) override;
+  // With cell.source.simulate_picks: removes the part and lets the rest resettle
+  // (effective for the next capture). Unknown ids are ignored.
+  void NotifyPicked(int instance_id) override;
+  std::string Describe() const override;
+
+  // The current pile, poses in the bin frame W (X_BO = X_BW() * X_WO).
+  const SyntheticPile& pile() const;
+  const Pose& X_BW() const;
+  // Number of frames captured so far.
+  int capture_count() const;
+
+ private:
+  class Impl;
+  explicit SyntheticSource(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// Loads the part meshes (LoadMesh) and the bin mesh (cell.bin.mesh, or one
+// generated from the bin sizes) and creates the source.
+Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell);
+
+}  // namespace bp

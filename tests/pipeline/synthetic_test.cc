@@ -1,0 +1,372 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "pipeline/internal/depth_noise.h"
+#include "pipeline/synthetic_source.h"
+#include "tests/test_meshes.h"
+
+namespace bp {
+namespace {
+
+Cell TestCell(int num_parts, uint64_t seed, bool noise) {
+  Cell cell;
+  cell.name = "test";
+  cell.camera.X_BC =
+      MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(), Vec3(0.7, 0.0, 0.9));
+  CameraConfig c;
+  c.id = 1;
+  c.name = "qvga";
+  c.intrinsics.width = 320;
+  c.intrinsics.height = 240;
+  c.intrinsics.fx = c.intrinsics.fy = 400;
+  c.intrinsics.cx = 159.5;
+  c.intrinsics.cy = 119.5;
+  c.min_depth = 0.3;
+  c.max_depth = 2.0;
+  c.noise.enabled = noise;
+  cell.camera.configs.push_back(c);
+  cell.camera.default_config = 1;
+  cell.bin.inner_size = Vec3(0.3, 0.2, 0.15);
+  cell.bin.wall_thickness = 0.01;
+  cell.bin.X_BW = MakePose(Mat3::Identity(), Vec3(0.7, 0.0, 0.0));
+  cell.source.num_parts = num_parts;
+  cell.source.seed = seed;
+  return cell;
+}
+
+std::vector<PileClass> Classes() {
+  std::vector<PileClass> c(2);
+  c[0] = {0, "block", std::make_shared<TriangleMesh>(testing::BoxMesh({0.06f, 0.04f, 0.02f}))};
+  c[1] = {1, "puck", std::make_shared<TriangleMesh>(testing::CylinderMesh(0.02f, 0.03f))};
+  return c;
+}
+
+TriangleMesh BinMesh(const Cell& cell) {
+  return testing::OpenBinMesh(cell.bin.inner_size.cast<float>(),
+                              static_cast<float>(cell.bin.wall_thickness));
+}
+
+std::unique_ptr<SyntheticSource> MakeSource(const Cell& cell) {
+  auto s = SyntheticSource::Create(cell, Classes(), BinMesh(cell));
+  EXPECT_TRUE(s.ok()) << s.status().ToString();
+  return s.ok() ? std::move(*s) : nullptr;
+}
+
+Frame CaptureOk(SyntheticSource& source, CaptureRequest request = {}) {
+  auto f = source.Capture(request);
+  EXPECT_TRUE(f.ok()) << f.status().ToString();
+  return f.ok() ? std::move(*f) : Frame{};
+}
+
+template <typename T>
+bool SameBytes(const Image<T>& a, const Image<T>& b) {
+  return a.width == b.width && a.height == b.height &&
+         std::memcmp(a.data.data(), b.data.data(), a.data.size() * sizeof(T)) == 0;
+}
+
+// Distance from p to triangle abc (Ericson, Real-Time Collision Detection 5.1.5).
+double PointTriangleDistance(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const Vec3 ab = b - a, ac = c - a, ap = p - a;
+  const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+  if (d1 <= 0 && d2 <= 0) return (p - a).norm();
+  const Vec3 bp = p - b;
+  const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+  if (d3 >= 0 && d4 <= d3) return (p - b).norm();
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) return (p - (a + d1 / (d1 - d3) * ab)).norm();
+  const Vec3 cp = p - c;
+  const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+  if (d6 >= 0 && d5 <= d6) return (p - c).norm();
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) return (p - (a + d2 / (d2 - d6) * ac)).norm();
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+    return (p - (b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b))).norm();
+  }
+  const double denom = 1.0 / (va + vb + vc);
+  return (p - (a + ab * (vb * denom) + ac * (vc * denom))).norm();
+}
+
+double MeshDistance(const TriangleMesh& m, const Vec3& p_O) {
+  double best = 1e9;
+  for (const auto& t : m.triangles) {
+    best = std::min(best, PointTriangleDistance(p_O, m.vertices[t[0]].cast<double>(),
+                                                m.vertices[t[1]].cast<double>(),
+                                                m.vertices[t[2]].cast<double>()));
+  }
+  return best;
+}
+
+// For every 4th labelled pixel with valid depth: distance of the deprojected
+// point to the labelled part's surface at its true pose. Returns the errors
+// divided by `scale(z)`.
+std::vector<double> SurfaceErrors(const SyntheticSource& source, const Frame& f,
+                                  double (*scale)(double)) {
+  std::vector<double> errors;
+  const auto classes = Classes();
+  const TriangleMesh bin_mesh = BinMesh(TestCell(0, 0, false));
+  for (int v = 0; v < f.depth.height; v += 4) {
+    for (int u = 0; u < f.depth.width; u += 4) {
+      const float z = f.depth.at(u, v);
+      const uint16_t label = f.truth->labels.at(u, v);
+      if (!std::isfinite(z) || label == 0) continue;
+      const Vec3 p_B = f.X_BC * Deproject(f.intrinsics, u, v, z).cast<double>();
+      double d;
+      if (label == GroundTruth::kBinLabel) {
+        d = MeshDistance(bin_mesh, source.X_BW().inverse() * p_B);
+      } else {
+        auto it = std::find_if(f.truth->parts.begin(), f.truth->parts.end(),
+                               [&](const PartTruth& t) { return t.instance_id == label; });
+        if (it == f.truth->parts.end()) {
+          ADD_FAILURE() << "label " << label << " has no truth";
+          continue;
+        }
+        d = MeshDistance(*classes[it->class_id].mesh, it->X_BO.inverse() * p_B);
+      }
+      errors.push_back(d / scale(z));
+    }
+  }
+  return errors;
+}
+
+TEST(SyntheticSource, SameSeedGivesIdenticalFramesAndAnotherSeedDoesNot) {
+  auto a = MakeSource(TestCell(8, 3, true));
+  auto b = MakeSource(TestCell(8, 3, true));
+  auto c = MakeSource(TestCell(8, 4, true));
+  ASSERT_TRUE(a && b && c);
+  const Frame fa = CaptureOk(*a), fb = CaptureOk(*b), fc = CaptureOk(*c);
+  EXPECT_TRUE(SameBytes(fa.depth, fb.depth));
+  EXPECT_TRUE(SameBytes(fa.intensity, fb.intensity));
+  EXPECT_TRUE(SameBytes(fa.truth->labels, fb.truth->labels));
+  EXPECT_FALSE(SameBytes(fa.depth, fc.depth));
+  EXPECT_FALSE(SameBytes(fa.truth->labels, fc.truth->labels));
+  EXPECT_EQ(fa.source, "synthetic seed=3 capture=0");
+  // The next capture of one pile draws new noise but shows the same scene.
+  const Frame fa2 = CaptureOk(*a);
+  EXPECT_FALSE(SameBytes(fa.depth, fa2.depth));
+  EXPECT_TRUE(SameBytes(fa.truth->labels, fa2.truth->labels));
+}
+
+TEST(SyntheticSource, NoiselessDepthLiesOnTheLabelledPartsSurface) {
+  auto source = MakeSource(TestCell(10, 5, false));
+  ASSERT_TRUE(source);
+  const Frame f = CaptureOk(*source);
+  ASSERT_TRUE(f.truth.has_value());
+  ASSERT_TRUE(f.organized());
+  const auto errors = SurfaceErrors(*source, f, [](double) { return 1.0; });
+  ASSERT_GT(errors.size(), 1000u);
+  const double worst = *std::max_element(errors.begin(), errors.end());
+  EXPECT_LT(worst, 0.0005);
+  // Every part is in the truth with its class and a pose in B.
+  EXPECT_EQ(f.truth->parts.size(), source->pile().parts().size());
+}
+
+TEST(SyntheticSource, NoisyDepthStaysWithinFourSigmaOfTheSurface) {
+  auto source = MakeSource(TestCell(10, 5, true));
+  ASSERT_TRUE(source);
+  const Frame f = CaptureOk(*source);
+  const NoiseModel noise;
+  static const double base = noise.axial_sigma_base, quad = noise.axial_sigma_quadratic;
+  const auto errors = SurfaceErrors(*source, f, [](double z) { return base + quad * z * z; });
+  ASSERT_GT(errors.size(), 1000u);
+  const auto outside =
+      std::count_if(errors.begin(), errors.end(), [](double e) { return e > 4.0; });
+  EXPECT_LE(outside, static_cast<long>(errors.size() / 500));
+  // ... and is actually noisy.
+  const auto above_half_sigma =
+      std::count_if(errors.begin(), errors.end(), [](double e) { return e > 0.5; });
+  EXPECT_GT(above_half_sigma, static_cast<long>(errors.size() / 4));
+}
+
+TEST(SyntheticSource, LoneUnoccludedPartIsFullyVisible) {
+  auto source = MakeSource(TestCell(1, 2, false));
+  ASSERT_TRUE(source);
+  const Frame f = CaptureOk(*source);
+  ASSERT_EQ(f.truth->parts.size(), 1u);
+  const PartTruth& t = f.truth->parts[0];
+  EXPECT_GT(t.visible_pixels, 50);
+  EXPECT_EQ(t.visible_pixels, t.unoccluded_pixels);
+  EXPECT_DOUBLE_EQ(t.visible_fraction, 1.0);
+}
+
+TEST(SyntheticSource, PartsUnderOthersArePartlyVisible) {
+  auto source = MakeSource(TestCell(25, 5, false));
+  ASSERT_TRUE(source);
+  const Frame f = CaptureOk(*source);
+  int partly = 0;
+  for (const auto& t : f.truth->parts) {
+    EXPECT_GE(t.visible_fraction, 0.0);
+    EXPECT_LE(t.visible_fraction, 1.0);
+    EXPECT_LE(t.visible_pixels, t.unoccluded_pixels);
+    partly += (t.visible_fraction < 0.95) ? 1 : 0;
+  }
+  EXPECT_GT(partly, 0);
+  // Parts that support another one are, seen from above, mostly partly hidden by it.
+  int supporters = 0, hidden_supporters = 0;
+  const auto& pile = source->pile();
+  for (const auto& p : pile.parts()) {
+    Pose lower = p.X_WO;
+    lower.translation().z() -= 0.0005;
+    const int self[] = {p.instance_id};
+    for (int support :
+         pile.scene().CollidingIds(*pile.class_geometry(p.class_index), lower, self)) {
+      if (support == SyntheticPile::kBinId) continue;
+      const auto& t = *std::find_if(f.truth->parts.begin(), f.truth->parts.end(),
+                                    [&](const PartTruth& x) { return x.instance_id == support; });
+      ++supporters;
+      hidden_supporters += t.visible_fraction < 1.0 ? 1 : 0;
+    }
+  }
+  ASSERT_GT(supporters, 0);
+  EXPECT_GE(hidden_supporters * 4, supporters * 3) << hidden_supporters << " of " << supporters;
+}
+
+TEST(SyntheticSource, PickedPartLeavesTheNextFrameAndTheTruth) {
+  Cell cell = TestCell(10, 5, false);
+  cell.source.simulate_picks = true;
+  auto source = MakeSource(cell);
+  ASSERT_TRUE(source);
+  const Frame f0 = CaptureOk(*source);
+  const auto best = std::max_element(
+      f0.truth->parts.begin(), f0.truth->parts.end(),
+      [](const PartTruth& a, const PartTruth& b) { return a.visible_pixels < b.visible_pixels; });
+  const int picked = best->instance_id;
+  ASSERT_GT(best->visible_pixels, 0);
+  source->NotifyPicked(picked);
+  const Frame f1 = CaptureOk(*source);
+  EXPECT_EQ(f1.truth->parts.size(), f0.truth->parts.size() - 1);
+  for (const auto& t : f1.truth->parts) EXPECT_NE(t.instance_id, picked);
+  EXPECT_EQ(std::count(f1.truth->labels.data.begin(), f1.truth->labels.data.end(), picked), 0);
+  for (const auto& p : source->pile().parts())
+    EXPECT_FALSE(source->pile().scene().ObjectCollides(p.instance_id));
+
+  // Without simulate_picks the pile stays as it is.
+  auto keep = MakeSource(TestCell(10, 5, false));
+  ASSERT_TRUE(keep);
+  keep->NotifyPicked(picked);
+  EXPECT_EQ(keep->pile().parts().size(), f0.truth->parts.size());
+}
+
+TEST(SyntheticSource, RejectsUnknownConfigAndEyeInHandWithoutFlangePose) {
+  Cell cell = TestCell(2, 1, false);
+  auto source = MakeSource(cell);
+  ASSERT_TRUE(source);
+  CaptureRequest bad;
+  bad.config_id = 7;
+  EXPECT_EQ(source->Capture(bad).status().code(), Status::Code::kNotFound);
+
+  cell.camera.eye_in_hand = true;
+  cell.camera.X_FC = Pose::Identity();
+  auto hand = MakeSource(cell);
+  ASSERT_TRUE(hand);
+  EXPECT_EQ(hand->Capture({}).status().code(), Status::Code::kInvalidArgument);
+  CaptureRequest r;
+  r.X_BF = cell.camera.X_BC;  // flange where the fixed camera was: same view
+  const Frame f = CaptureOk(*hand, r);
+  const Frame g = CaptureOk(*source);
+  EXPECT_TRUE(f.X_BC.isApprox(g.X_BC));
+  EXPECT_TRUE(SameBytes(f.truth->labels, g.truth->labels));
+}
+
+TEST(SyntheticSource, ProjectorShadowInvalidatesPixelsBesideRaisedParts) {
+  Cell cell = TestCell(6, 9, true);
+  NoiseModel& n = cell.camera.configs[0].noise;
+  n.axial_sigma_base = n.axial_sigma_quadratic = 0;
+  n.random_dropout = 0;
+  n.grazing_start_deg = n.grazing_full_deg = 90;
+  auto shadowed = MakeSource(cell);
+  n.projector_shadow = false;
+  auto lit = MakeSource(cell);
+  ASSERT_TRUE(shadowed && lit);
+  const Frame a = CaptureOk(*shadowed), b = CaptureOk(*lit);
+  const size_t valid_a = a.ValidPointCount(), valid_b = b.ValidPointCount();
+  EXPECT_LT(valid_a + 100, valid_b);
+  // Without shadow and noise the depth is the clean render.
+  for (size_t i = 0; i < b.depth.data.size(); ++i) {
+    EXPECT_EQ(std::isfinite(b.depth.data[i]), b.truth->labels.data[i] != 0);
+  }
+}
+
+TEST(DepthNoise, GrazingSurfacesDropOutAndRangeIsEnforced) {
+  Intrinsics K;
+  K.width = 200;
+  K.height = 200;
+  K.fx = K.fy = 300;
+  K.cx = 99.5;
+  K.cy = 99.5;
+  // Rows 0-99: plane facing the camera at 1 m. Rows 100-199: plane through
+  // (0, 0, 1) with normal (sin t, 0, cos t), t = 75 deg, so the angle to the
+  // viewing ray of column u is t - atan(xn) (xn = (u - cx) / fx).
+  const double t = 75.0 * M_PI / 180.0;
+  DepthImage depth(200, 200);
+  for (int v = 0; v < 200; ++v) {
+    for (int u = 0; u < 200; ++u) {
+      const double xn = (u - K.cx) / K.fx;
+      const double denom = 1.0 + std::tan(t) * xn;
+      depth.at(u, v) = v < 100 ? 1.0f : denom > 0.02 ? static_cast<float>(1.0 / denom) : NAN;
+    }
+  }
+  depth.at(5, 5) = 0.1f;  // nearer than min_depth
+  NoiseModel model;
+  model.projector_shadow = false;
+  internal::NoiseInputs in;
+  in.K = &K;
+  in.min_depth = 0.3;
+  in.max_depth = 100.0;
+  DepthImage noisy = depth;
+  internal::ApplyDepthNoise(model, in, 42, noisy);
+  EXPECT_TRUE(std::isnan(noisy.at(5, 5)));
+
+  int facing = 0, facing_valid = 0;
+  double sum2 = 0;
+  int steep = 0, steep_valid = 0, mild = 0, mild_valid = 0, mid = 0, mid_valid = 0;
+  for (int v = 1; v < 199; ++v) {
+    if (v >= 98 && v <= 101) continue;
+    for (int u = 1; u < 199; ++u) {
+      if (!std::isfinite(depth.at(u, v)) || !std::isfinite(depth.at(u - 1, v))) continue;
+      const bool valid = std::isfinite(noisy.at(u, v));
+      if (v < 100) {
+        ++facing;
+        if (valid) {
+          ++facing_valid;
+          sum2 += std::pow(noisy.at(u, v) - 1.0, 2);
+        }
+        continue;
+      }
+      const double angle_deg = (t - std::atan((u - K.cx) / K.fx)) * 180.0 / M_PI;
+      if (angle_deg > 85.5) {
+        ++steep;
+        steep_valid += valid;
+      } else if (angle_deg < 71.5) {
+        ++mild;
+        mild_valid += valid;
+      } else if (angle_deg > 77.5 && angle_deg < 79.5) {
+        ++mid;
+        mid_valid += valid;
+      }
+    }
+  }
+  ASSERT_GT(steep, 100);
+  ASSERT_GT(mild, 100);
+  ASSERT_GT(mid, 100);
+  EXPECT_EQ(steep_valid, 0);
+  EXPECT_GT(mild_valid, 0.99 * mild);
+  EXPECT_GT(mid_valid, 0.3 * mid);
+  EXPECT_LT(mid_valid, 0.7 * mid);
+  EXPECT_GT(facing_valid, 0.99 * facing);
+  EXPECT_LT(facing_valid, facing);  // random dropout
+  const double sigma = std::sqrt(sum2 / facing_valid);
+  EXPECT_NEAR(sigma, model.axial_sigma_base + model.axial_sigma_quadratic, 0.00004);
+  // Reproducible with the seed, different with another.
+  DepthImage again = depth, other = depth;
+  internal::ApplyDepthNoise(model, in, 42, again);
+  internal::ApplyDepthNoise(model, in, 43, other);
+  EXPECT_TRUE(SameBytes(noisy, again));
+  EXPECT_FALSE(SameBytes(noisy, other));
+}
+
+}  // namespace
+}  // namespace bp
