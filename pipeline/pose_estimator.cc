@@ -101,17 +101,18 @@ struct VerifyStats {
 // 1 for points on the boundary of the sampled surface: the centroid of their
 // neighbours within radius is off-centre by more than a quarter radius (a
 // straight edge gives 4 / (3 pi) ~ 0.42 radius, the interior ~0).
-std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> pts, const internal::PointHash& hash,
-                                   float radius) {
-  std::vector<uint8_t> flags(pts.size(), 0);
-  for (size_t i = 0; i < pts.size(); ++i) {
+// queries: the points to flag; hashed: the points hash was built on.
+std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std::span<const Eigen::Vector3f> hashed,
+                                   const internal::PointHash& hash, float radius) {
+  std::vector<uint8_t> flags(queries.size(), 0);
+  for (size_t i = 0; i < queries.size(); ++i) {
     Eigen::Vector3f sum = Eigen::Vector3f::Zero();
     int n = 0;
-    hash.ForEachWithin(pts[i], radius, [&](int j, float) {
-      sum += pts[j];
+    hash.ForEachWithin(queries[i], radius, [&](int j, float) {
+      sum += hashed[j];
       ++n;
     });
-    flags[i] = (n < 4 || (sum / static_cast<float>(n) - pts[i]).norm() > 0.25f * radius) ? 1 : 0;
+    flags[i] = (n < 4 || (sum / static_cast<float>(n) - queries[i]).norm() > 0.25f * radius) ? 1 : 0;
   }
   return flags;
 }
@@ -128,7 +129,7 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(icp_model_spacing > 0) || !(verify_model_spacing > 0)) return fail("model spacings must be > 0");
   if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
   if (ppf_max_bucket_entries < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
-  if (icp_iterations < 1) return fail("icp_iterations must be >= 1");
+  if (icp_iterations < 1 || icp_max_points < 100) return fail("icp_iterations must be >= 1, icp_max_points >= 100");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
   if (!(visible_min_cos >= 0 && visible_min_cos < 1)) return fail("visible_min_cos must be in [0, 1)");
@@ -149,8 +150,9 @@ struct PoseEstimator::Impl {
   internal::PpfModel ppf;
 
   // Visible-surface test, support and free-space test for one pose.
+  // stride > 1 checks every stride-th verification sample (a quick pass).
   VerifyStats Verify(const Pose& X_BO, const SceneView& view, const internal::PointHash& scene_hash,
-                     const SegmentDepth& segment_depth) const;
+                     const SegmentDepth& segment_depth, int stride = 1) const;
   internal::IcpResult Refine(std::span<const Eigen::Vector3f> scene, std::span<const uint8_t> boundary,
                              const Pose& X_BO, const Vec3& camera_B, float initial, float final_gate,
                              int iterations) const {
@@ -243,7 +245,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
 
 VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
                                         const internal::PointHash& scene_hash,
-                                        const SegmentDepth& segment_depth) const {
+                                        const SegmentDepth& segment_depth, int stride) const {
   VerifyStats s;
   const Eigen::Matrix3f R = X_BO.linear().cast<float>();
   const Eigen::Vector3f t = X_BO.translation().cast<float>();
@@ -268,7 +270,7 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
   };
   std::vector<Cand> cands;
   cands.reserve(verify.size() / 2 + 1);
-  for (size_t i = 0; i < verify.size(); ++i) {
+  for (size_t i = 0; i < verify.size(); i += static_cast<size_t>(std::max(1, stride))) {
     const Eigen::Vector3f p = R * verify.points[i] + t;
     const Eigen::Vector3f n = R * verify.normals[i];
     const Eigen::Vector3f to_cam = c - p;
@@ -284,7 +286,7 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
   const Eigen::Vector3f x = z.unitOrthogonal();
   const Eigen::Vector3f y = z.cross(x);
   const float range = std::max((o - c).norm(), 1e-3f);
-  const float cell_m = 1.5f * static_cast<float>(options.verify_model_spacing);
+  const float cell_m = 1.5f * static_cast<float>(options.verify_model_spacing) * std::sqrt(static_cast<float>(std::max(1, stride)));
   const float cell_ang = cell_m / range;
   const int half = static_cast<int>(std::ceil(1.2 * diameter / cell_m)) + 2;
   const int N = 2 * half + 1;
@@ -314,8 +316,10 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
     const float d = (cands[i].p - c).dot(z);
     if (d > zbuf[cell_of[i]] + cell_m * (0.5f + tan_theta)) continue;  // hidden by the part itself
     ++s.visible;
-    bool supported = scene_hash.AnyWithin(cands[i].p, support);
+    bool supported = false;
     if (have_depth) {
+      // O(1) through the depth image first; the segment's points only when
+      // the pixel disagrees.
       const Eigen::Vector3f pc = R_CB * cands[i].p + t_CB;
       if (pc.z() > 0) {
         const Intrinsics& K = view.intrinsics;
@@ -326,15 +330,21 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
           if (std::isfinite(zm) && zm > 0) {
             // Slanted surfaces change depth by about a pixel footprint * tan(theta).
             const float slack = static_cast<float>(pc.z() / K.fx) * tan_theta;
-            if (!supported && std::abs(zm - pc.z()) < support + slack) supported = true;
+            supported = std::abs(zm - pc.z()) < support + slack;
+            if (!supported) supported = scene_hash.AnyWithin(cands[i].p, support);
             if (!supported) {
               if (zm < pc.z() - free_thr - slack) ++s.occluded;
               else if (zm > pc.z() + free_thr + slack) ++s.free_space;
             }
+          } else {
+            supported = scene_hash.AnyWithin(cands[i].p, support);
           }
         }
       }
-    } else if (!supported && !segment_depth.empty()) {
+    } else {
+      supported = scene_hash.AnyWithin(cands[i].p, support);
+    }
+    if (!have_depth && !supported && !segment_depth.empty()) {
       // The segment's nearest surface along the ray: in front of it by more
       // than the threshold is free space; behind it, occluded by the segment.
       float dp = 0;
@@ -411,10 +421,12 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   }
 
   // Scene hash (normals, support), voxel subsampling at the PPF distance step.
-  internal::PointHash hash;
-  hash.Build(pts, m.step);
+  internal::PointHash hash;  // normal estimation: radius step visits 2 x 2 x 2 cells
+  hash.Build(pts, 2.f * m.step);
   const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
   std::vector<Eigen::Vector3f> sub_p, sub_n;
+  // Per finite point: index of its voxel's subsampled point, -1 if none.
+  std::vector<int> sub_of(pts.size(), -1);
   {
     const float inv = 1.f / m.step;
     std::vector<std::pair<uint64_t, int>> keys(pts.size());
@@ -438,6 +450,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
         }
       }
       const Eigen::Vector3f centre = sum / static_cast<float>(e - k);
+      const size_t voxel_begin = k;
       k = e;
       Eigen::Vector3f normal;
       if (!view.normals_B.empty()) {
@@ -465,6 +478,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
         if (normal.dot(cam - centre) < 0) normal = -normal;
       }
       if (!normal.allFinite() || !centre.allFinite()) continue;
+      for (size_t j = voxel_begin; j < e; ++j) sub_of[keys[j].second] = static_cast<int>(sub_p.size());
       sub_p.push_back(centre);
       sub_n.push_back(normal);
     }
@@ -518,24 +532,43 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
 
   // Refinement in two passes. Every coarse pose: ICP on the subsampled points,
   // then a quick verification and NMS; the survivors: ICP on the
-  // full-resolution points (strided to at most ~4000) and the final check.
+  // full-resolution points (strided to at most icp_max_points) and the final check.
   const Vec3 camera_B = view.X_BC.translation();
   const float gate0 = static_cast<float>(opt.icp_initial_relative_distance) * m.step;
   const float gate1 = static_cast<float>(opt.icp_final_distance);
+  const auto t_aux = Clock::now();
   const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
   const SegmentDepth segment_depth =
       have_depth ? SegmentDepth{} : BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
+  // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
+  internal::PointHash support_hash;
+  support_hash.Build(pts, 2.f * static_cast<float>(opt.support_distance));
+  // Boundary flags on the subsampled points; a full-resolution point takes its
+  // voxel's flag (the ICP boundary term is one-sided, so flagging a few
+  // millimetres of interior next to an edge costs nothing).
   internal::PointHash sub_hash;
-  sub_hash.Build(sub_p, 2.f * m.step);
-  const std::vector<uint8_t> sub_boundary = BoundaryFlags(sub_p, sub_hash, 2.f * m.step);
-  const std::vector<uint8_t> all_boundary = BoundaryFlags(pts, hash, m.step);
+  sub_hash.Build(sub_p, 4.f * m.step);
+  const std::vector<uint8_t> sub_boundary = BoundaryFlags(sub_p, sub_p, sub_hash, 2.f * m.step);
+  // Fine ICP points: every boundary point (they carry the in-plane
+  // constraints) plus the rest strided to about icp_max_points in all.
   std::vector<Eigen::Vector3f> fine;
   std::vector<uint8_t> fine_boundary;
-  const size_t fine_stride = std::max<size_t>(1, pts.size() / 4000);
-  for (size_t i = 0; i < pts.size(); i += fine_stride) {
-    fine.push_back(pts[i]);
-    fine_boundary.push_back(all_boundary[i]);
+  {
+    size_t n_boundary = 0;
+    for (size_t i = 0; i < pts.size(); ++i) n_boundary += sub_of[i] < 0 || sub_boundary[sub_of[i]];
+    const size_t budget = std::max<size_t>(static_cast<size_t>(opt.icp_max_points), n_boundary + 1) - n_boundary;
+    const size_t interior = pts.size() - n_boundary;
+    const size_t stride = std::max<size_t>(1, (interior + budget - 1) / budget);
+    size_t seen = 0;
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const bool b = sub_of[i] < 0 || sub_boundary[sub_of[i]];
+      if (b || (seen++ % stride) == 0) {
+        fine.push_back(pts[i]);
+        fine_boundary.push_back(b ? 1 : 0);
+      }
+    }
   }
+  out.timings.prepare_ms += Ms(t_aux, Clock::now());
   struct Candidate {
     Pose X_BO;
     VerifyStats stats;
@@ -566,11 +599,11 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     internal::IcpResult icp;
     timed(refine_ms, [&] {
       icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
-                     std::max(5, opt.icp_iterations / 2));
+                     std::max(4, opt.icp_iterations / 4));
     });
     if (!icp.ok) continue;
     Candidate c{icp.X_BO, {}, icp, cp.votes};
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, hash, segment_depth); });
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3); });
     first.push_back(c);
   }
   std::stable_sort(first.begin(), first.end(), by_score);
@@ -598,7 +631,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     if (!icp.ok || !icp.X_BO.matrix().allFinite()) continue;
     c.X_BO = icp.X_BO;
     c.icp = icp;
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, hash, segment_depth); });
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth); });
     if (!passes(c.stats, opt.min_score)) {
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
@@ -631,7 +664,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     const Eigen::Vector3f t = X_OB.translation().cast<float>();
     for (size_t i = 0; i < pts.size(); ++i) {
       const Eigen::Vector3f q = R * pts[i] + t;
-      const int idx = m.field.Nearest(q, m.dense.points);
+      const int idx = m.field.Lookup(q);
       if (idx >= 0 && (q - m.dense.points[idx]).squaredNorm() <= sup * sup) h.supporting_indices.push_back(index[i]);
     }
   }

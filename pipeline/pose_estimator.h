@@ -32,7 +32,7 @@ struct PoseEstimatorOptions {
   double ppf_angle_step_deg = 12.0;
   // Table buckets (one per quantised feature) keep at most this many model
   // pairs; bounds the voting cost (see internal/ppf_matcher.h).
-  int ppf_max_bucket_entries = 100;
+  int ppf_max_bucket_entries = 50;
   // Spacing of the dense model samples used by ICP, metres.
   double icp_model_spacing = 0.0008;
   // Spacing of the model samples used by verification, metres.
@@ -41,7 +41,7 @@ struct PoseEstimatorOptions {
   // --- coarse stage ---
   // Fraction of the subsampled scene points used as reference points, and a cap.
   double reference_fraction = 0.2;
-  int max_reference_points = 40;
+  int max_reference_points = 20;
   // Pose clustering thresholds: translation relative to the diameter, rotation.
   double cluster_relative_translation = 0.1;
   double cluster_rotation_deg = 24.0;
@@ -49,7 +49,10 @@ struct PoseEstimatorOptions {
   int max_coarse_poses = 4;
 
   // --- refinement ---
+  // Fine ICP iterations, most stop early (the coarse pass uses a quarter).
   int icp_iterations = 30;
+  // The fine ICP pass uses at most this many segment points (strided).
+  int icp_max_points = 1500;
   // Correspondence distance at the first ICP iteration (relative to the PPF
   // sampling distance), shrinking to icp_final_distance.
   double icp_initial_relative_distance = 1.5;

@@ -1,5 +1,6 @@
 // A uniform hash grid over a point set for fixed-radius queries (radius <=
-// cell size). Built in O(n log n) by sorting cell keys; no per-point heap
+// cell size; radius <= cell / 2 visits 8 cells instead of 27, which is what
+// costs: each cell is a hash probe). Built in O(n log n) by sorting cell keys; no per-point heap
 // allocation. Immutable after Build, so const queries are thread-safe.
 #pragma once
 
@@ -22,11 +23,14 @@ class PointHash {
   template <typename F>
   void ForEachWithin(const Eigen::Vector3f& q, float radius, F&& f) const {
     const float r2 = radius * radius;
-    const int cx = CellCoord(q.x()), cy = CellCoord(q.y()), cz = CellCoord(q.z());
-    for (int dz = -1; dz <= 1; ++dz) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
-          const auto [begin, end] = Range(Key(cx + dx, cy + dy, cz + dz));
+    // radius <= cell: the ball overlaps at most 2 cells per axis.
+    const int x0 = CellCoord(q.x() - radius), x1 = CellCoord(q.x() + radius);
+    const int y0 = CellCoord(q.y() - radius), y1 = CellCoord(q.y() + radius);
+    const int z0 = CellCoord(q.z() - radius), z1 = CellCoord(q.z() + radius);
+    for (int z = z0; z <= z1; ++z) {
+      for (int y = y0; y <= y1; ++y) {
+        for (int x = x0; x <= x1; ++x) {
+          const auto [begin, end] = Range(Key(x, y, z));
           for (uint32_t k = begin; k < end; ++k) {
             const uint32_t i = order_[k];
             const float d2 = (points_[i] - q).squaredNorm();

@@ -35,7 +35,7 @@ struct IcpModel {
 struct IcpOptions {
   int iterations = 20;
   float initial_distance = 0.005f;  // metres; gate at the first iteration
-  float final_distance = 0.002f;    // metres; gate from ~2/3 of the iterations on
+  float final_distance = 0.002f;    // metres; gate from iteration min(iterations / 3, 6) on
   int min_correspondences = 12;
   // Optional per-scene-point flags (1 = on the boundary of the segment's
   // surface). A boundary point whose closest model sample lies at a convex

@@ -11,13 +11,22 @@ namespace {
 
 constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);
 
-inline float AngleBetween(const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
-  return std::atan2(a.cross(b).norm(), a.dot(b));
+// atan2 to ~1e-5 rad (polynomial on [0, 1]); far below the 12 deg alpha bins.
+inline float FastAtan2(float y, float x) {
+  const float ax = std::abs(x), ay = std::abs(y);
+  const float mx = std::max(ax, ay);
+  if (mx == 0.f) return 0.f;
+  const float a = std::min(ax, ay) / mx;
+  const float s = a * a;
+  float r = ((-0.0464964749f * s + 0.15931422f) * s - 0.327622764f) * s * a + a;
+  if (ay > ax) r = 1.57079637f - r;
+  if (x < 0) r = 3.14159274f - r;
+  return y < 0 ? -r : r;
 }
 
 inline float Alpha(const Eigen::Matrix3f& R, const Eigen::Vector3f& d) {
   const Eigen::Vector3f p = R * d;
-  return std::atan2(p.z(), p.y());
+  return FastAtan2(p.z(), p.y());
 }
 
 }  // namespace
@@ -40,13 +49,11 @@ int PpfModel::Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Ei
   const float dist = d.norm();
   if (!(dist < max_distance_) || dist <= 0.f) return -1;
   const int db = static_cast<int>(dist / params_.distance_step);
-  const float bin = static_cast<float>(params_.angle_bins) / static_cast<float>(M_PI);
   const int A = params_.angle_bins;
-  const auto q = [&](float angle) { return std::min(A - 1, static_cast<int>(angle * bin)); };
-  const Eigen::Vector3f du = d / dist;
-  const int a1 = q(std::acos(std::clamp(n1.dot(du), -1.f, 1.f)));
-  const int a2 = q(std::acos(std::clamp(n2.dot(du), -1.f, 1.f)));
-  const int a3 = q(AngleBetween(n1, n2));
+  const float inv = 1.f / dist;
+  const int a1 = AngleBin(n1.dot(d) * inv);
+  const int a2 = AngleBin(n2.dot(d) * inv);
+  const int a3 = AngleBin(n1.dot(n2));
   return ((db * A + a1) * A + a2) * A + a3;
 }
 
@@ -60,6 +67,11 @@ void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Ei
   to_canonical_.resize(n);
   for (size_t i = 0; i < n; ++i) to_canonical_[i] = AlignToX(normals_[i]);
   n_dist_ = static_cast<int>(max_distance / params.distance_step) + 1;
+  for (int i = 0; i < kCosTable; ++i) {
+    const double c = -1.0 + 2.0 * i / (kCosTable - 1);
+    cos_to_bin_[i] = static_cast<uint8_t>(
+        std::min(params.angle_bins - 1, static_cast<int>(std::acos(c) * params.angle_bins / M_PI)));
+  }
   const int A = params.angle_bins;
   const size_t keys = static_cast<size_t>(n_dist_) * A * A * A;
   offsets_.assign(keys + 1, 0);

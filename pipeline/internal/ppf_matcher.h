@@ -13,6 +13,8 @@
 // points are clustered (translation + symmetry-aware rotation thresholds).
 #pragma once
 
+#include <algorithm>
+#include <array>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -27,7 +29,7 @@ namespace bp::internal {
 
 struct PpfParams {
   float distance_step = 0.003f;  // metres
-  int angle_bins = 15;           // feature angles over [0, pi]
+  int angle_bins = 15;           // feature angles over [0, pi]; at most 255
   int alpha_bins = 30;           // alpha over [0, 2 pi)
   // Keys with more entries keep an evenly spread subset of this size. Large
   // buckets are the non-discriminative pairs (mostly coplanar ones); capping
@@ -69,6 +71,14 @@ class PpfModel {
   // Dense feature key, or -1 if the pair is out of range.
   int Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
           const Eigen::Vector3f& n2) const;
+
+  // Angle bin of the angle whose cosine is c, by table (no acos per pair).
+  int AngleBin(float c) const {
+    const int i = static_cast<int>((std::clamp(c, -1.f, 1.f) + 1.f) * (0.5f * (kCosTable - 1)) + 0.5f);
+    return cos_to_bin_[i];
+  }
+  static constexpr int kCosTable = 4096;
+  std::array<uint8_t, kCosTable> cos_to_bin_{};
 
   struct Entry {
     uint32_t ref;
