@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <thread>
 #include <vector>
 
@@ -117,6 +118,12 @@ TEST(GraspQueue, PopsConcurrentWithReplaceSeeOnePlanEach) {
   for (int i = 0; i < 2000; ++i) {
     q.Replace(MakePlan(1 + i % 10, 1000 * i));
     std::this_thread::yield();
+  }
+  // The popper may not have been scheduled during the loop (2 busy cores): let
+  // it take at least the last plan's grasps before stopping it.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (popped.load() == 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
   }
   stop = true;
   popper.join();
