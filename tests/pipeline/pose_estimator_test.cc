@@ -198,7 +198,11 @@ TEST(PoseEstimator, GivesOneHypothesisPerPartForTwoTouchingParts) {
   const RenderedScene scene =
       Render({{&part.mesh, X_B1}, {&part.mesh, X_B2}, {&floor, Pose::Identity()}}, cam, 0.0002, 13);
   const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1, 2});
-  auto r = Estimator(0).Estimate(ViewOf(segment, cam));
+  // As the pipeline calls it: with the depth image and the floor.
+  SceneView view = OnFloor(ViewOf(segment, cam));
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  auto r = Estimator(0).Estimate(view);
   ASSERT_TRUE(r.ok());
   ASSERT_EQ(r->hypotheses.size(), 2u) << r->no_result_reason;
   for (const Pose& truth : {X_B1, X_B2}) {
