@@ -582,6 +582,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     acc += Ms(a, Clock::now());
   };
   auto by_score = [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; };
+  const double min_score = have_depth ? opt.min_score : opt.min_score_without_depth;
   auto passes = [&](const VerifyStats& st, double min_score) {
     return st.visible - st.occluded >= opt.min_visible_points && st.score >= min_score;
   };
@@ -612,7 +613,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   std::vector<Candidate> survivors;
   for (const Candidate& c : first) {
     // Loose threshold here: the fine pass usually raises the score.
-    if (!passes(c.stats, 0.6 * opt.min_score)) {
+    if (!passes(c.stats, 0.6 * min_score)) {
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
       continue;
@@ -632,7 +633,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     c.X_BO = icp.X_BO;
     c.icp = icp;
     timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth); });
-    if (!passes(c.stats, opt.min_score)) {
+    if (!passes(c.stats, min_score)) {
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
       continue;
@@ -673,7 +674,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   out.timings.verify_ms = verify_ms;
   if (out.hypotheses.empty()) {
     std::ostringstream os;
-    os << "no hypothesis passed verification (best score " << best_rejected << ", need " << opt.min_score;
+    os << "no hypothesis passed verification (best score " << best_rejected << ", need " << min_score;
     if (below_support > 0) os << "; " << below_support << " below the support plane";
     os << ")";
     out.no_result_reason = os.str();

@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/mesh_gen.h"
 #include "tests/pipeline/pose_test_util.h"
 
 namespace bp {
@@ -106,6 +107,36 @@ TEST(PoseEstimator, FindsSinglePartAtKnownPoseWithinHalfMillimetreAndHalfDegree)
   }
 }
 
+TEST(PoseEstimator, FindsTheShippedPartsAtKnownPoses) {
+  const TestCamera cam = DefaultCamera();
+  Symmetry tee;
+  tee.kind = Symmetry::Kind::kDiscrete;
+  tee.order = 2;
+  const std::vector<PartCase> parts = {{"flanged_bushing", MakeFlangedBushing(), testing::RevoluteZ()},
+                                       {"l_bracket", MakeLBracket(), Symmetry{}},
+                                       {"pipe_tee", MakePipeTee(), tee}};
+  const TriangleMesh floor = Floor();
+  std::mt19937_64 rng{99};
+  for (const PartCase& part : parts) {
+    auto est = PoseEstimator::Build(part.mesh, part.symmetry);
+    ASSERT_TRUE(est.ok()) << est.status().ToString();
+    for (int trial = 0; trial < 2; ++trial) {
+      const Pose X_BO = Resting(part.mesh, testing::RandomRotation(rng, 70 * kDeg), 0.01 * trial, -0.01);
+      const RenderedScene scene = Render({{&part.mesh, X_BO}, {&floor, Pose::Identity()}}, cam, 0.0003, 31 + trial);
+      const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1});
+      SceneView view = OnFloor(ViewOf(segment, cam));
+      view.depth = &scene.depth;
+      view.intrinsics = cam.K;
+      auto r = (*est)->Estimate(view);
+      ASSERT_TRUE(r.ok());
+      ASSERT_FALSE(r->hypotheses.empty()) << part.name << " trial " << trial << ": " << r->no_result_reason;
+      const PoseHypothesis& h = r->hypotheses.front();
+      EXPECT_LT(SymmetricTranslationError(h.X_BO, X_BO, part.symmetry), 0.0005) << part.name << " trial " << trial;
+      EXPECT_LT(SymmetricRotationError(h.X_BO, X_BO, part.symmetry), 0.5 * kDeg) << part.name << " trial " << trial;
+    }
+  }
+}
+
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
   // The stable resting poses: plane faces seen head-on leave the in-plane
   // position to the silhouette only.
@@ -198,7 +229,11 @@ TEST(PoseEstimator, GivesOneHypothesisPerPartForTwoTouchingParts) {
   const RenderedScene scene =
       Render({{&part.mesh, X_B1}, {&part.mesh, X_B2}, {&floor, Pose::Identity()}}, cam, 0.0002, 13);
   const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1, 2});
-  auto r = Estimator(0).Estimate(ViewOf(segment, cam));
+  // As the pipeline calls it: with the depth image and the floor.
+  SceneView view = OnFloor(ViewOf(segment, cam));
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  auto r = Estimator(0).Estimate(view);
   ASSERT_TRUE(r.ok());
   ASSERT_EQ(r->hypotheses.size(), 2u) << r->no_result_reason;
   for (const Pose& truth : {X_B1, X_B2}) {
