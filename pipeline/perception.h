@@ -50,6 +50,17 @@ struct PerceptionResult {
 
 struct PerceptionOptions {
   int threads = 2;  // size of the oneTBB arena the pipeline creates when the caller has none
+  // Segmentation (docs/perception_pipeline.md): organized-grid region growing.
+  // Neighbouring points join when closer than segment_max_jump (metres) and
+  // their normals differ by less than segment_normal_angle_deg (0 = no normal
+  // condition: depth-continuous connected components).
+  double segment_max_jump = 0.004;
+  double segment_normal_angle_deg = 0.0;
+  // Segments with fewer grid points are not sent to the pose estimator.
+  int min_segment_points = 60;
+  // Grid spacing targeted on the bin floor (metres): high-resolution frames are
+  // segmented and matched on every k-th pixel so that the spacing is about this.
+  double grid_spacing = 0.0012;
 };
 
 class Perception {
