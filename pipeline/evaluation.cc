@@ -68,7 +68,7 @@ double RotationErrorOf(const Pose& X_a, const Pose& X_b, const Symmetry& sym) {
   if (sym.kind == Symmetry::Kind::kRevolute) {
     const Vec3 axis = sym.axis.normalized();
     const Vec3 a = X_a.linear() * axis, b = X_b.linear() * axis;
-    return std::acos(std::clamp(a.dot(b), -1.0, 1.0));
+    return std::atan2(a.cross(b).norm(), a.dot(b));
   }
   return RotationAngle(X_a.linear().transpose() * X_b.linear());
 }
@@ -127,7 +127,7 @@ double SymmetryAwareTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, con
   return dist;
 }
 
-double AddS(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b) {
+double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b) {
   if (points_O.empty()) return 0.0;
   const Eigen::Affine3f A = Eigen::Affine3f(X_BO_a.matrix().cast<float>());
   const Eigen::Affine3f Bf = Eigen::Affine3f(X_BO_b.matrix().cast<float>());
@@ -181,7 +181,7 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
         if (o.target) ++out.targets_found[p.class_id];
         o.translation_error = SymmetryAwareTranslationError(d.X_BO, p.X_BO, model->symmetry);
         o.rotation_error = SymmetryAwareRotationError(d.X_BO, p.X_BO, model->symmetry);
-        o.adds = AddS(model->points_O, d.X_BO, p.X_BO);
+        o.adds = AddSDistance(model->points_O, d.X_BO, p.X_BO);
         o.adds_ok = o.adds < options.adds_relative * model->diameter;
       }
     }

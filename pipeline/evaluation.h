@@ -40,8 +40,8 @@ Result<std::vector<EvalPartModel>> LoadEvalModels(const Cell& cell);
 double SymmetryAwareRotationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry);
 // Origin distance after applying the symmetry element that minimises the rotation error.
 double SymmetryAwareTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry);
-// Mean over points_O of the distance from X_a p to the nearest X_b q, metres.
-double AddS(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b);
+// ADD-S: mean over points_O of the distance from X_a p to the nearest X_b q, metres.
+double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b);
 
 struct EvalOptions {
   double min_visible_fraction = 0.5;

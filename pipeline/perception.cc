@@ -43,6 +43,12 @@ constexpr float kFloorMinNormalZ = 0.95f;
 // weaker one's support is already claimed.
 constexpr double kNmsRelativeDistance = 0.3;
 constexpr double kMaxSharedSupport = 0.5;
+// A segment is matched again on its unclaimed points when at least this
+// fraction of it is left after the first pass.
+constexpr double kResidualFraction = 0.25;
+// Unorganized clouds are grouped by voxel connectivity at this voxel size
+// (fine enough that 5000 points scattered through the bin stay isolated).
+constexpr float kUnorganizedVoxel = 0.003f;
 // Normals use neighbours this far away (in metres on the bin floor).
 constexpr double kNormalBaseline = 0.0025;
 
@@ -206,7 +212,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     t = stage("segment", t);
   } else {
     // Unorganized clouds: voxel connected components; the estimator estimates normals.
-    const int n = internal::VoxelRegions(pts, max_jump, &region_of_point);
+    const int n = internal::VoxelRegions(pts, kUnorganizedVoxel, &region_of_point);
     t = stage("regions", t);
     std::vector<int32_t> size(static_cast<size_t>(n), 0);
     for (int32_t r : region_of_point) ++size[static_cast<size_t>(r)];
@@ -254,78 +260,131 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     return finish();
   }
 
-  // 4. Pose per (segment, class), in parallel on the caller's arena.
-  const size_t n_jobs = seg_range.size() * models.size();
-  std::vector<internal::ClassEstimate> estimates(n_jobs);
-  const bool have_normals = !seg_normals.empty();
-  tbb::parallel_for(size_t{0}, n_jobs, [&](size_t job) {
-    const size_t s = job / models.size();
-    const ClassModel& model = *models[job % models.size()];
+  // 4. Pose per (segment, class), in parallel on the caller's arena. Each
+  // view is the segment's samples, then (with context_relative_radius > 0)
+  // the other segments' samples near its centroid: a part that self-occlusion
+  // cut into pieces is seen whole from each piece.
+  double max_diameter = 0.0;
+  for (const ClassModel* m : models) max_diameter = std::max(max_diameter, m->diameter());
+  const float context_radius = static_cast<float>(options_.context_relative_radius * max_diameter);
+  std::vector<std::vector<int32_t>> view_of_segment(seg_range.size());
+  tbb::parallel_for(size_t{0}, seg_range.size(), [&](size_t s) {
     const auto [b, e] = seg_range[s];
-    internal::SegmentView view;
-    view.points_B = std::span<const Eigen::Vector3f>(seg_points.data() + b, static_cast<size_t>(e - b));
-    if (have_normals) {
-      view.normals_B = std::span<const Eigen::Vector3f>(seg_normals.data() + b, static_cast<size_t>(e - b));
+    std::vector<int32_t>& view = view_of_segment[s];
+    for (int32_t k = b; k < e; ++k) view.push_back(k);
+    if (!(context_radius > 0.f)) return;
+    Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
+    for (int32_t k = b; k < e; ++k) centroid += seg_points[static_cast<size_t>(k)];
+    centroid /= static_cast<float>(e - b);
+    const float r2 = context_radius * context_radius;
+    for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {
+      if (k >= b && k < e) continue;
+      if ((seg_points[static_cast<size_t>(k)] - centroid).squaredNorm() < r2) view.push_back(k);
     }
-    view.frame = &frame;
-    view.floor_plane_B = floor_plane_B;
-    estimates[job] = model.Estimate(view);
   });
-  t = stage("pose", t);
-
-  // 5. One detection per physical part: best score first, across segments and classes.
-  std::vector<Candidate> candidates;
+  // Runs every class model on every view (index lists into seg_points).
+  const bool have_normals = !seg_normals.empty();
   std::string first_reason;
-  for (size_t job = 0; job < n_jobs; ++job) {
-    const size_t s = job / models.size();
-    const ClassModel& model = *models[job % models.size()];
-    if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
-    for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
-      if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
-      Candidate c;
-      c.class_id = model.class_id();
-      c.diameter = model.diameter();
-      c.segment = static_cast<int>(s);
-      c.support_roi.reserve(h.support.size());
-      for (int k : h.support) {
-        if (k >= 0 && k < seg_range[s].second - seg_range[s].first) {
-          c.support_roi.push_back(seg_roi_index[static_cast<size_t>(seg_range[s].first + k)]);
-        }
+  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
+    const size_t n_jobs = views.size() * models.size();
+    std::vector<internal::ClassEstimate> estimates(n_jobs);
+    tbb::parallel_for(size_t{0}, n_jobs, [&](size_t job) {
+      const std::vector<int32_t>& index = views[job / models.size()];
+      const ClassModel& model = *models[job % models.size()];
+      std::vector<Eigen::Vector3f> points, normals;
+      points.reserve(index.size());
+      for (int32_t k : index) points.push_back(seg_points[static_cast<size_t>(k)]);
+      if (have_normals) {
+        normals.reserve(index.size());
+        for (int32_t k : index) normals.push_back(seg_normals[static_cast<size_t>(k)]);
       }
-      c.h = std::move(h);
-      candidates.push_back(std::move(c));
+      internal::SegmentView view;
+      view.points_B = points;
+      view.normals_B = normals;
+      view.frame = &frame;
+      view.floor_plane_B = floor_plane_B;
+      estimates[job] = model.Estimate(view);
+    });
+    std::vector<Candidate> candidates;
+    for (size_t job = 0; job < n_jobs; ++job) {
+      const size_t s = job / models.size();
+      const ClassModel& model = *models[job % models.size()];
+      if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
+      for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
+        if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
+        Candidate c;
+        c.class_id = model.class_id();
+        c.diameter = model.diameter();
+        c.segment = static_cast<int>(s);
+        c.support_roi.reserve(h.support.size());
+        const std::vector<int32_t>& index = views[s];
+        for (int k : h.support) {
+          if (k >= 0 && static_cast<size_t>(k) < index.size()) {
+            c.support_roi.push_back(seg_roi_index[static_cast<size_t>(index[static_cast<size_t>(k)])]);
+          }
+        }
+        c.h = std::move(h);
+        candidates.push_back(std::move(c));
+      }
     }
-  }
-  std::stable_sort(candidates.begin(), candidates.end(),
-                   [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
+    return candidates;
+  };
+
+  // 5. One detection per physical part: best score first, across segments and
+  // classes; a candidate is a duplicate when its centre is near an accepted
+  // one or most of its support is already claimed.
   std::vector<uint8_t> claimed(pts.size(), 0);
   std::vector<double> accepted_diameter;
-  for (Candidate& c : candidates) {
-    bool duplicate = false;
-    for (size_t k = 0; k < result.detections.size(); ++k) {
-      const double dist = (result.detections[k].X_BO.translation() - c.h.X_BO.translation()).norm();
-      if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
-        duplicate = true;
-        break;
+  const auto accept = [&](std::vector<Candidate> candidates) {
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
+    for (Candidate& c : candidates) {
+      bool duplicate = false;
+      for (size_t k = 0; k < result.detections.size(); ++k) {
+        const double dist = (result.detections[k].X_BO.translation() - c.h.X_BO.translation()).norm();
+        if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
+          duplicate = true;
+          break;
+        }
       }
+      if (!duplicate && !c.support_roi.empty()) {
+        size_t shared = 0;
+        for (int32_t i : c.support_roi) shared += claimed[static_cast<size_t>(i)];
+        duplicate = static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size());
+      }
+      if (duplicate) continue;
+      for (int32_t i : c.support_roi) claimed[static_cast<size_t>(i)] = 1;
+      accepted_diameter.push_back(c.diameter);
+      Detection d;
+      d.class_id = c.class_id;
+      d.X_BO = c.h.X_BO;
+      d.score = c.h.score;
+      d.visible_fraction = c.h.visible_fraction;
+      d.support = std::move(c.support_roi);
+      result.detections.push_back(std::move(d));
     }
-    if (!duplicate && !c.support_roi.empty()) {
-      size_t shared = 0;
-      for (int32_t i : c.support_roi) shared += claimed[static_cast<size_t>(i)];
-      duplicate = static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size());
+  };
+
+  std::vector<Candidate> candidates = estimate(view_of_segment);
+  t = stage("pose", t);
+  accept(std::move(candidates));
+  t = stage("verify", t);
+
+  // Residual pass: segments that a detection explained only in part (touching
+  // parts merged into one segment) are matched again on their unclaimed points.
+  std::vector<std::vector<int32_t>> residual;
+  for (const auto& [b, e] : seg_range) {
+    std::vector<int32_t> left;
+    for (int32_t k = b; k < e; ++k) {
+      if (!claimed[static_cast<size_t>(seg_roi_index[static_cast<size_t>(k)])]) left.push_back(k);
     }
-    if (duplicate) continue;
-    for (int32_t i : c.support_roi) claimed[static_cast<size_t>(i)] = 1;
-    accepted_diameter.push_back(c.diameter);
-    Detection d;
-    d.class_id = c.class_id;
-    d.X_BO = c.h.X_BO;
-    d.score = c.h.score;
-    d.visible_fraction = c.h.visible_fraction;
-    d.support = std::move(c.support_roi);
-    result.detections.push_back(std::move(d));
+    const auto n = static_cast<int32_t>(left.size());
+    if (n < e - b && n >= options_.min_segment_points && n >= kResidualFraction * (e - b)) {
+      residual.push_back(std::move(left));
+    }
   }
-  stage("verify", t);
+  if (!residual.empty()) accept(estimate(residual));
+  stage("residual", t);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +
                     (first_reason.empty() ? "" : " (e.g. " + first_reason + ")");

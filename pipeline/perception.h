@@ -54,10 +54,14 @@ struct PerceptionOptions {
   // Neighbouring points join when closer than segment_max_jump (metres) and
   // their normals differ by less than segment_normal_angle_deg (0 = no normal
   // condition: depth-continuous connected components).
-  double segment_max_jump = 0.004;
-  double segment_normal_angle_deg = 0.0;
+  double segment_max_jump = 0.006;
+  double segment_normal_angle_deg = 25.0;
   // Segments with fewer grid points are not sent to the pose estimator.
   int min_segment_points = 60;
+  // The pose estimator sees each segment plus the other segments' points
+  // within this fraction of the largest part diameter of its centroid (0 = the
+  // segment alone).
+  double context_relative_radius = 0.0;
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;

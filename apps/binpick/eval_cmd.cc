@@ -36,6 +36,7 @@ struct EvalCliOptions {
   int num_parts = 0;  // 0 = the cell's
   double normal_angle_deg = -1.0;
   double max_jump = -1.0;
+  double context = -1.0;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -116,6 +117,7 @@ int Run(const EvalCliOptions& opt) {
   popt.threads = opt.threads;
   if (opt.normal_angle_deg >= 0) popt.segment_normal_angle_deg = opt.normal_angle_deg;
   if (opt.max_jump > 0) popt.segment_max_jump = opt.max_jump;
+  if (opt.context >= 0) popt.context_relative_radius = opt.context;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -149,6 +151,25 @@ int Run(const EvalCliOptions& opt) {
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
+    if (spdlog::should_log(spdlog::level::debug)) {
+      for (const Detection& d : result->detections) {
+        double best = 1e9;
+        const PartTruth* near = nullptr;
+        for (const PartTruth& p : frame->truth->parts) {
+          const double dist = (p.X_BO.translation() - d.X_BO.translation()).norm();
+          if (dist < best) {
+            best = dist;
+            near = &p;
+          }
+        }
+        if (near != nullptr) {
+          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} -> nearest inst {} class {} vis {:.2f} "
+                        "at {:.1f} mm",
+                        i, d.class_id, d.score, d.visible_fraction, d.support.size(), near->instance_id,
+                        near->class_id, near->visible_fraction, best * 1000);
+        }
+      }
+    }
     const SegmentationFigures seg = EvaluateSegmentation(*frame, *result, *cell);
     seg_total.parts += seg.parts;
     seg_total.split += seg.split;
@@ -184,6 +205,8 @@ Command EvalCommand() {
                    sub.add_option("--normal-angle", opt->normal_angle_deg,
                                   "segmentation normal-angle threshold, degrees (tuning)");
                    sub.add_option("--max-jump", opt->max_jump, "segmentation neighbour distance, metres (tuning)");
+                   sub.add_option("--context", opt->context,
+                                  "context radius around segments, fraction of the part diameter (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }
