@@ -28,6 +28,7 @@ struct Command {
 
 Command RenderCommand();
 Command InfoCommand();
+Command RobotCommand();
 Command EvalCommand();  // eval_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
