@@ -285,6 +285,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // Runs every class model on every view (index lists into seg_points).
   const bool have_normals = !seg_normals.empty();
   std::string first_reason;
+  int rejected_low_score = 0;
   const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
     const size_t n_jobs = views.size() * models.size();
     std::vector<internal::ClassEstimate> estimates(n_jobs);
@@ -312,6 +313,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
       for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
         if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
+        if (h.score < options_.min_detection_score) {
+          ++rejected_low_score;
+          continue;
+        }
         Candidate c;
         c.class_id = model.class_id();
         c.diameter = model.diameter();
@@ -387,6 +392,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   stage("residual", t);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +
+                    (rejected_low_score > 0 ? " (" + std::to_string(rejected_low_score) + " below min_detection_score)"
+                                            : std::string()) +
                     (first_reason.empty() ? "" : " (e.g. " + first_reason + ")");
   }
   return finish();

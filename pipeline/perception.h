@@ -58,6 +58,10 @@ struct PerceptionOptions {
   double segment_normal_angle_deg = 25.0;
   // Segments with fewer grid points are not sent to the pose estimator.
   int min_segment_points = 60;
+  // Detections need at least this verification score (the estimator's own
+  // threshold is lower; measured: wrong-class / wrong-pose hypotheses that
+  // survive it mostly score 0.35-0.7, true ones 0.9+).
+  double min_detection_score = 0.7;
   // The pose estimator sees each segment plus the other segments' points
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).

@@ -37,6 +37,7 @@ struct EvalCliOptions {
   double normal_angle_deg = -1.0;
   double max_jump = -1.0;
   double context = -1.0;
+  double min_score = -1.0;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -118,6 +119,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.normal_angle_deg >= 0) popt.segment_normal_angle_deg = opt.normal_angle_deg;
   if (opt.max_jump > 0) popt.segment_max_jump = opt.max_jump;
   if (opt.context >= 0) popt.context_relative_radius = opt.context;
+  if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -207,6 +209,7 @@ Command EvalCommand() {
                    sub.add_option("--max-jump", opt->max_jump, "segmentation neighbour distance, metres (tuning)");
                    sub.add_option("--context", opt->context,
                                   "context radius around segments, fraction of the part diameter (tuning)");
+                   sub.add_option("--min-score", opt->min_score, "detection score threshold (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }
