@@ -150,7 +150,6 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
 
     std::vector<int32_t> region_of_cell;
     internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell);
-    internal::SpreadLabels(roi, grid, region_of_cell, grid_jump, &region_of_point);
     t = stage("regions", t);
 
     const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
@@ -208,7 +207,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       seg_roi_index[static_cast<size_t>(k)] = i;
     }
     for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
-    internal::SpreadLabels(roi, grid, segment_of_cell, grid_jump, &result.segment_of_point);
+    // One pass gives every ROI point its segment and its connected region.
+    internal::SpreadLabels(roi, grid, segment_of_cell, region_of_cell, grid_jump, &result.segment_of_point,
+                           &region_of_point);
     t = stage("segment", t);
   } else {
     // Unorganized clouds: voxel connected components; the estimator estimates normals.

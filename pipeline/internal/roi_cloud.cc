@@ -51,23 +51,31 @@ void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud
   out->point_of_pixel.assign(static_cast<size_t>(w) * h, -1);
   out->points_B.reserve(static_cast<size_t>(w) * h / 2);
   out->pixel_of_point.reserve(static_cast<size_t>(w) * h / 2);
+  // p_C = z * (x_u, y_v, 1), so p_W = z * (x_u * R_WC.col(0) + y_v * R_WC.col(1) + R_WC.col(2)) + t_WC:
+  // the ray direction in W is a per-column term plus a per-row term (same in B).
   const Intrinsics& K = frame.intrinsics;
-  const float inv_fx = static_cast<float>(1.0 / K.fx), inv_fy = static_cast<float>(1.0 / K.fy);
-  const float cx = static_cast<float>(K.cx), cy = static_cast<float>(K.cy);
+  std::vector<Eigen::Vector3f> col_W(static_cast<size_t>(w)), col_B(static_cast<size_t>(w));
+  for (int u = 0; u < w; ++u) {
+    const float x = static_cast<float>((u - K.cx) / K.fx);
+    col_W[static_cast<size_t>(u)] = x * R_WC.col(0);
+    col_B[static_cast<size_t>(u)] = x * R_BC.col(0);
+  }
   int64_t valid = 0;
   for (int v = 0; v < h; ++v) {
     const float* row = frame.depth.data.data() + static_cast<size_t>(v) * w;
-    const float y_over_z = (static_cast<float>(v) - cy) * inv_fy;
+    const float y = static_cast<float>((v - K.cy) / K.fy);
+    const Eigen::Vector3f row_W = y * R_WC.col(1) + R_WC.col(2);
+    const Eigen::Vector3f row_B = y * R_BC.col(1) + R_BC.col(2);
     for (int u = 0; u < w; ++u) {
       const float z = row[u];
       if (!(z > 0.f) || !std::isfinite(z)) continue;  // NaN fails z > 0
       ++valid;
-      const Eigen::Vector3f p_C((static_cast<float>(u) - cx) * inv_fx * z, y_over_z * z, z);
-      if (!inside(R_WC * p_C + t_WC)) continue;
+      const Eigen::Vector3f p_W = z * (col_W[static_cast<size_t>(u)] + row_W) + t_WC;
+      if (!inside(p_W)) continue;
       const int32_t pixel = v * w + u;
       out->point_of_pixel[static_cast<size_t>(pixel)] = static_cast<int32_t>(out->points_B.size());
       out->pixel_of_point.push_back(pixel);
-      out->points_B.push_back(R_BC * p_C + t_BC);
+      out->points_B.push_back(z * (col_B[static_cast<size_t>(u)] + row_B) + t_BC);
     }
   }
   out->valid_points = valid;
@@ -243,28 +251,35 @@ int VoxelRegions(const std::vector<Eigen::Vector3f>& points, float voxel, std::v
   return regions;
 }
 
-void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& label_of_cell,
-                  float max_jump, std::vector<int32_t>* label_of_point) {
-  label_of_point->assign(roi.points_B.size(), -1);
+void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& a_of_cell,
+                  const std::vector<int32_t>& b_of_cell, float max_jump, std::vector<int32_t>* a_of_point,
+                  std::vector<int32_t>* b_of_point) {
+  a_of_point->assign(roi.points_B.size(), -1);
+  if (b_of_point != nullptr) b_of_point->assign(roi.points_B.size(), -1);
   const float jump2 = max_jump * max_jump;
   const int s = grid.stride;
   for (size_t i = 0; i < roi.points_B.size(); ++i) {
     const int32_t pixel = roi.pixel_of_point[i];
     const int u = pixel % roi.width, v = pixel / roi.width;
-    // Nearest grid cell (rounded), then the cell the pixel belongs to.
+    // The nearest grid cell (rounded), then the cell the pixel's block starts at.
     const int cands[2][2] = {{(u + s / 2) / s, (v + s / 2) / s}, {u / s, v / s}};
     for (const auto& cand : cands) {
       if (cand[0] >= grid.width || cand[1] >= grid.height) continue;
       const size_t cell = static_cast<size_t>(cand[1]) * grid.width + cand[0];
-      const int32_t label = label_of_cell[cell];
-      if (label < 0) continue;
       const int32_t q = grid.point_of_cell[cell];
+      if (q < 0 || (a_of_cell[cell] < 0 && (b_of_point == nullptr || b_of_cell[cell] < 0))) continue;
       if ((roi.points_B[static_cast<size_t>(q)] - roi.points_B[i]).squaredNorm() <= jump2) {
-        (*label_of_point)[i] = label;
+        (*a_of_point)[i] = a_of_cell[cell];
+        if (b_of_point != nullptr) (*b_of_point)[i] = b_of_cell[cell];
         break;
       }
     }
   }
+}
+
+void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& label_of_cell,
+                  float max_jump, std::vector<int32_t>* label_of_point) {
+  SpreadLabels(roi, grid, label_of_cell, label_of_cell, max_jump, label_of_point, nullptr);
 }
 
 }  // namespace bp::internal

@@ -72,7 +72,11 @@ int VoxelRegions(const std::vector<Eigen::Vector3f>& points, float voxel, std::v
 
 // Spreads grid-cell labels to every ROI point: a point takes the label of the
 // cell covering its pixel when within max_jump of that cell's point, else -1.
+// Two label sets at once (one pass over the points).
 void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& label_of_cell,
                   float max_jump, std::vector<int32_t>* label_of_point);
+void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& a_of_cell,
+                  const std::vector<int32_t>& b_of_cell, float max_jump, std::vector<int32_t>* a_of_point,
+                  std::vector<int32_t>* b_of_point);
 
 }  // namespace bp::internal
