@@ -57,7 +57,7 @@ struct PerceptionOptions {
   double segment_max_jump = 0.006;
   double segment_normal_angle_deg = 25.0;
   // Segments with fewer grid points are not sent to the pose estimator.
-  int min_segment_points = 60;
+  int min_segment_points = 150;
   // Detections need at least this verification score (the estimator's own
   // threshold is lower; measured: wrong-class / wrong-pose hypotheses that
   // survive it mostly score 0.35-0.7, true ones 0.9+).

@@ -38,6 +38,7 @@ struct EvalCliOptions {
   double max_jump = -1.0;
   double context = -1.0;
   double min_score = -1.0;
+  int min_segment = -1;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -120,6 +121,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.max_jump > 0) popt.segment_max_jump = opt.max_jump;
   if (opt.context >= 0) popt.context_relative_radius = opt.context;
   if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
+  if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -210,6 +212,7 @@ Command EvalCommand() {
                    sub.add_option("--context", opt->context,
                                   "context radius around segments, fraction of the part diameter (tuning)");
                    sub.add_option("--min-score", opt->min_score, "detection score threshold (tuning)");
+                   sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }
