@@ -171,7 +171,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<int32_t> segment_of_cell;
     const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
     const int n_regions =
-        internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell);
+        internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
+                              static_cast<float>(options_.segment_convex_tolerance));
     // Keep segments with enough samples, renumbered by size (largest first).
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
     for (int32_t s : segment_of_cell) {

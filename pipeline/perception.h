@@ -56,6 +56,9 @@ struct PerceptionOptions {
   // condition: depth-continuous connected components).
   double segment_max_jump = 0.006;
   double segment_normal_angle_deg = 25.0;
+  // With >= 0, neighbours across a convex crease join whatever their normals
+  // ((n_a - n_b) . (p_a - p_b) >= this * |p_a - p_b|); < 0 = off.
+  double segment_convex_tolerance = -1.0;
   // Segments with fewer grid points are not sent to the pose estimator.
   int min_segment_points = 150;
   // Detections need at least this verification score (the estimator's own

@@ -39,6 +39,7 @@ struct EvalCliOptions {
   double context = -1.0;
   double min_score = -1.0;
   int min_segment = -1;
+  double convex = -2.0;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -122,6 +123,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.context >= 0) popt.context_relative_radius = opt.context;
   if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
   if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
+  if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -213,6 +215,7 @@ Command EvalCommand() {
                                   "context radius around segments, fraction of the part diameter (tuning)");
                    sub.add_option("--min-score", opt->min_score, "detection score threshold (tuning)");
                    sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
+                   sub.add_option("--convex", opt->convex, "convex-crease tolerance, < 0 off (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }

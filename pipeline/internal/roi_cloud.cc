@@ -148,7 +148,7 @@ void GridNormals(const RoiCloud& roi, const SampleGrid& grid, int radius, float 
 
 int GrowRegions(const RoiCloud& roi, const SampleGrid& grid, const std::vector<Eigen::Vector3f>& normals,
                 float max_jump, float max_normal_angle_rad, const std::vector<uint8_t>& excluded,
-                std::vector<int32_t>* region_of_cell) {
+                std::vector<int32_t>* region_of_cell, float convex_tolerance) {
   const int W = grid.width, H = grid.height;
   region_of_cell->assign(grid.point_of_cell.size(), -1);
   const bool use_normals = max_normal_angle_rad > 0.f;
@@ -182,7 +182,13 @@ int GrowRegions(const RoiCloud& roi, const SampleGrid& grid, const std::vector<E
         if (use_normals) {
           const Eigen::Vector3f& a = normals[static_cast<size_t>(c)];
           const Eigen::Vector3f& b = normals[n];
-          if (!b.allFinite() || a.dot(b) < min_cos) continue;
+          if (!b.allFinite()) continue;
+          if (a.dot(b) < min_cos) {
+            // A convex crease (the surfaces bend away from the camera, as at a
+            // part's own edge) may join; concave ones (where parts meet) not.
+            const Eigen::Vector3f& q = roi.points_B[static_cast<size_t>(grid.point_of_cell[n])];
+            if (!(convex_tolerance >= 0.f) || (a - b).dot(p - q) < convex_tolerance * (p - q).norm()) continue;
+          }
         }
         (*region_of_cell)[n] = id;
         stack.push_back(static_cast<int32_t>(n));

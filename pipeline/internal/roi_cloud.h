@@ -60,11 +60,13 @@ void GridNormals(const RoiCloud& roi, const SampleGrid& grid, int radius, float 
 
 // Region growing on the grid (4-neighbours): two cells join when their points
 // are within max_jump and, if max_normal_angle_rad > 0, their normals differ by
-// less than that angle. Cells in `excluded` (may be empty) never join.
+// less than that angle, or (convex_tolerance >= 0) when the crease between
+// them is convex: (n_a - n_b) . (p_a - p_b) >= convex_tolerance * |p_a - p_b|.
+// Cells in `excluded` (may be empty) never join.
 // @returns per cell a region id (-1 = empty / excluded) and the region count.
 int GrowRegions(const RoiCloud& roi, const SampleGrid& grid, const std::vector<Eigen::Vector3f>& normals,
                 float max_jump, float max_normal_angle_rad, const std::vector<uint8_t>& excluded,
-                std::vector<int32_t>* region_of_cell);
+                std::vector<int32_t>* region_of_cell, float convex_tolerance = -1.f);
 
 // Voxel-hash connected components for unorganized ROI clouds (26-neighbours).
 // @returns per point a region id and the region count.
