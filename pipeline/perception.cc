@@ -6,6 +6,7 @@
 #include <cmath>
 #include <map>
 #include <numeric>
+#include <set>
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -138,6 +139,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   std::vector<Eigen::Vector3f> seg_points, seg_normals;  // grid samples, grouped by segment
   std::vector<int32_t> seg_roi_index;                     // ROI index of each grid sample
   std::vector<std::pair<int32_t, int32_t>> seg_range;     // [begin, end) per segment
+  std::vector<std::vector<int32_t>> region_views;         // see PerceptionOptions::match_regions
   if (roi.organized()) {
     // Grid stride from the pixel footprint on the bin floor.
     const double z_floor = std::abs((frame.X_BC.inverse() * cell_.bin.X_BW.translation()).z());
@@ -198,6 +200,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     seg_normals.resize(seg_points.size());
     seg_roi_index.resize(seg_points.size());
     std::vector<int32_t> fill(start.begin(), start.end() - 1);
+    std::vector<int32_t> cell_of_sample(seg_points.size());
     for (size_t c = 0; c < segment_of_cell.size(); ++c) {
       const int32_t s = segment_of_cell[c];
       if (s < 0) continue;
@@ -206,8 +209,26 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       seg_points[static_cast<size_t>(k)] = roi.points_B[static_cast<size_t>(i)];
       seg_normals[static_cast<size_t>(k)] = normals[c];
       seg_roi_index[static_cast<size_t>(k)] = i;
+      cell_of_sample[static_cast<size_t>(k)] = static_cast<int32_t>(c);
     }
     for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
+    if (options_.match_regions) {
+      // Connected regions that hold two or more segments, as extra views.
+      std::map<int32_t, std::vector<int32_t>> by_region;
+      std::map<int32_t, std::set<int32_t>> segments_of_region;
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        if (segment_of_cell[c] >= 0 && region_of_cell[c] >= 0) segments_of_region[region_of_cell[c]].insert(segment_of_cell[c]);
+      }
+      for (int s = 0; s < kept; ++s) {
+        for (int32_t k = seg_range[static_cast<size_t>(s)].first; k < seg_range[static_cast<size_t>(s)].second; ++k) {
+          const int32_t cell = cell_of_sample[static_cast<size_t>(k)];
+          if (region_of_cell[static_cast<size_t>(cell)] >= 0) by_region[region_of_cell[static_cast<size_t>(cell)]].push_back(k);
+        }
+      }
+      for (auto& [r, view] : by_region) {
+        if (segments_of_region[r].size() >= 2) region_views.push_back(std::move(view));
+      }
+    }
     // One pass gives every ROI point its segment and its connected region.
     internal::SpreadLabels(roi, grid, segment_of_cell, region_of_cell, grid_jump, &result.segment_of_point,
                            &region_of_point);
@@ -372,6 +393,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
   };
 
+  for (auto& view : region_views) view_of_segment.push_back(std::move(view));
   std::vector<Candidate> candidates = estimate(view_of_segment);
   t = stage("pose", t);
   accept(std::move(candidates));

@@ -65,6 +65,9 @@ struct PerceptionOptions {
   // threshold is lower; measured: wrong-class / wrong-pose hypotheses that
   // survive it mostly score 0.35-0.7, true ones 0.9+).
   double min_detection_score = 0.7;
+  // Also match each connected region (depth continuity only) that holds two
+  // or more segments, as one more view (parts cut by the normal condition).
+  bool match_regions = true;
   // The pose estimator sees each segment plus the other segments' points
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).

@@ -40,6 +40,7 @@ struct EvalCliOptions {
   double min_score = -1.0;
   int min_segment = -1;
   double convex = -2.0;
+  bool regions = false;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -124,6 +125,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
   if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
   if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
+  if (opt.regions) popt.match_regions = true;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -216,6 +218,7 @@ Command EvalCommand() {
                    sub.add_option("--min-score", opt->min_score, "detection score threshold (tuning)");
                    sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
                    sub.add_option("--convex", opt->convex, "convex-crease tolerance, < 0 off (tuning)");
+                   sub.add_flag("--match-regions", opt->regions, "also match multi-segment regions (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }
