@@ -6,7 +6,6 @@
 #include <cmath>
 #include <map>
 #include <numeric>
-#include <set>
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
@@ -214,19 +213,26 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
     if (options_.match_regions) {
       // Connected regions that hold two or more segments, as extra views.
-      std::map<int32_t, std::vector<int32_t>> by_region;
-      std::map<int32_t, std::set<int32_t>> segments_of_region;
+      const int32_t n_cc = region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
+      std::vector<int32_t> first_segment(static_cast<size_t>(n_cc), -1);
+      std::vector<uint8_t> multi(static_cast<size_t>(n_cc), 0);
       for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-        if (segment_of_cell[c] >= 0 && region_of_cell[c] >= 0) segments_of_region[region_of_cell[c]].insert(segment_of_cell[c]);
+        const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
+        if (sgm < 0 || r < 0) continue;
+        int32_t& first = first_segment[static_cast<size_t>(r)];
+        if (first < 0) first = sgm;
+        else if (first != sgm) multi[static_cast<size_t>(r)] = 1;
       }
-      for (int s = 0; s < kept; ++s) {
-        for (int32_t k = seg_range[static_cast<size_t>(s)].first; k < seg_range[static_cast<size_t>(s)].second; ++k) {
-          const int32_t cell = cell_of_sample[static_cast<size_t>(k)];
-          if (region_of_cell[static_cast<size_t>(cell)] >= 0) by_region[region_of_cell[static_cast<size_t>(cell)]].push_back(k);
+      std::vector<int32_t> view_of_region(static_cast<size_t>(n_cc), -1);
+      for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {
+        const int32_t r = region_of_cell[static_cast<size_t>(cell_of_sample[static_cast<size_t>(k)])];
+        if (r < 0 || !multi[static_cast<size_t>(r)]) continue;
+        int32_t& v = view_of_region[static_cast<size_t>(r)];
+        if (v < 0) {
+          v = static_cast<int32_t>(region_views.size());
+          region_views.emplace_back();
         }
-      }
-      for (auto& [r, view] : by_region) {
-        if (segments_of_region[r].size() >= 2) region_views.push_back(std::move(view));
+        region_views[static_cast<size_t>(v)].push_back(k);
       }
     }
     // One pass gives every ROI point its segment and its connected region.
