@@ -1,0 +1,63 @@
+// A precomputed closest-point lookup for a fixed point set (the model's dense
+// surface samples, in O): a dense voxel grid over the bounding box plus a band,
+// each voxel holding the index of the sample nearest its centre (or -1 beyond
+// the band). A lookup is O(1), which is what makes ICP cheap: the table is
+// built once per part at start-up. Immutable after Build (thread-safe reads).
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace bp::internal {
+
+class ClosestPointField {
+ public:
+  // REQUIRES: voxel > 0, band >= voxel.
+  void Build(std::span<const Eigen::Vector3f> points, float voxel, float band);
+
+  // Index of the sample nearest to the voxel containing q, or -1 outside the band.
+  int Lookup(const Eigen::Vector3f& q) const {
+    const Eigen::Vector3f g = (q - origin_) * inv_voxel_;
+    const int x = static_cast<int>(g.x()), y = static_cast<int>(g.y()), z = static_cast<int>(g.z());
+    if (g.x() < 0 || g.y() < 0 || g.z() < 0 || x >= dims_.x() || y >= dims_.y() || z >= dims_.z()) return -1;
+    return cells_[(static_cast<size_t>(z) * dims_.y() + y) * dims_.x() + x];
+  }
+  // Nearer to exact: the best, measured from q itself, of the samples stored
+  // in the 8 voxels whose centres surround q. -1 if none.
+  int Nearest(const Eigen::Vector3f& q, std::span<const Eigen::Vector3f> points) const {
+    const Eigen::Vector3f g = (q - origin_) * inv_voxel_ - Eigen::Vector3f::Constant(0.5f);
+    if (g.x() < 0 || g.y() < 0 || g.z() < 0) return -1;
+    const int x0 = static_cast<int>(g.x()), y0 = static_cast<int>(g.y()), z0 = static_cast<int>(g.z());
+    if (x0 + 1 >= dims_.x() || y0 + 1 >= dims_.y() || z0 + 1 >= dims_.z()) return -1;
+    int best = -1;
+    float best_d2 = 0;
+    for (int dz = 0; dz <= 1; ++dz) {
+      for (int dy = 0; dy <= 1; ++dy) {
+        const size_t row = (static_cast<size_t>(z0 + dz) * dims_.y() + (y0 + dy)) * dims_.x() + x0;
+        for (int dx = 0; dx <= 1; ++dx) {
+          const int idx = cells_[row + dx];
+          if (idx < 0 || idx == best) continue;
+          const float d2 = (points[idx] - q).squaredNorm();
+          if (best < 0 || d2 < best_d2) {
+            best = idx;
+            best_d2 = d2;
+          }
+        }
+      }
+    }
+    return best;
+  }
+  float band() const { return band_; }
+  size_t memory_bytes() const { return cells_.size() * sizeof(int32_t); }
+
+ private:
+  Eigen::Vector3f origin_ = Eigen::Vector3f::Zero();
+  float inv_voxel_ = 1.f, band_ = 0.f;
+  Eigen::Vector3i dims_ = Eigen::Vector3i::Zero();
+  std::vector<int32_t> cells_;
+};
+
+}  // namespace bp::internal

@@ -1,0 +1,194 @@
+#include "pipeline/internal/ppf_matcher.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "pipeline/pose_estimator.h"
+
+namespace bp::internal {
+namespace {
+
+constexpr float kTwoPi = static_cast<float>(2.0 * M_PI);
+
+// atan2 to ~1e-5 rad (polynomial on [0, 1]); far below the 12 deg alpha bins.
+inline float FastAtan2(float y, float x) {
+  const float ax = std::abs(x), ay = std::abs(y);
+  const float mx = std::max(ax, ay);
+  if (mx == 0.f) return 0.f;
+  const float a = std::min(ax, ay) / mx;
+  const float s = a * a;
+  float r = ((-0.0464964749f * s + 0.15931422f) * s - 0.327622764f) * s * a + a;
+  if (ay > ax) r = 1.57079637f - r;
+  if (x < 0) r = 3.14159274f - r;
+  return y < 0 ? -r : r;
+}
+
+inline float Alpha(const Eigen::Matrix3f& R, const Eigen::Vector3f& d) {
+  const Eigen::Vector3f p = R * d;
+  return FastAtan2(p.z(), p.y());
+}
+
+}  // namespace
+
+Eigen::Matrix3f AlignToX(const Eigen::Vector3f& n) {
+  const Eigen::Vector3f x = Eigen::Vector3f::UnitX();
+  const Eigen::Vector3f axis = n.cross(x);
+  const float s = axis.norm();
+  const float c = n.dot(x);
+  if (s < 1e-6f) {
+    if (c > 0) return Eigen::Matrix3f::Identity();
+    return Eigen::AngleAxisf(static_cast<float>(M_PI), Eigen::Vector3f::UnitY()).toRotationMatrix();
+  }
+  return Eigen::AngleAxisf(std::atan2(s, c), axis / s).toRotationMatrix();
+}
+
+int PpfModel::Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
+                  const Eigen::Vector3f& n2) const {
+  const Eigen::Vector3f d = p2 - p1;
+  const float dist = d.norm();
+  if (!(dist < max_distance_) || dist <= 0.f) return -1;
+  const int db = static_cast<int>(dist / params_.distance_step);
+  const int A = params_.angle_bins;
+  const float inv = 1.f / dist;
+  const int a1 = AngleBin(n1.dot(d) * inv);
+  const int a2 = AngleBin(n2.dot(d) * inv);
+  const int a3 = AngleBin(n1.dot(n2));
+  return ((db * A + a1) * A + a2) * A + a3;
+}
+
+void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+                     const PpfParams& params, float max_distance) {
+  params_ = params;
+  max_distance_ = max_distance;
+  points_.assign(points.begin(), points.end());
+  normals_.assign(normals.begin(), normals.end());
+  const size_t n = points_.size();
+  to_canonical_.resize(n);
+  for (size_t i = 0; i < n; ++i) to_canonical_[i] = AlignToX(normals_[i]);
+  n_dist_ = static_cast<int>(max_distance / params.distance_step) + 1;
+  for (int i = 0; i < kCosTable; ++i) {
+    const double c = -1.0 + 2.0 * i / (kCosTable - 1);
+    cos_to_bin_[i] = static_cast<uint8_t>(
+        std::min(params.angle_bins - 1, static_cast<int>(std::acos(c) * params.angle_bins / M_PI)));
+  }
+  const int A = params.angle_bins;
+  const size_t keys = static_cast<size_t>(n_dist_) * A * A * A;
+  offsets_.assign(keys + 1, 0);
+  // Two passes: count per key, then fill.
+  for (size_t r = 0; r < n; ++r) {
+    for (size_t i = 0; i < n; ++i) {
+      if (i == r) continue;
+      const int k = Key(points_[r], normals_[r], points_[i], normals_[i]);
+      if (k >= 0) ++offsets_[k + 1];
+    }
+  }
+  std::partial_sum(offsets_.begin(), offsets_.end(), offsets_.begin());
+  entries_.resize(offsets_.back());
+  std::vector<uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
+  for (size_t r = 0; r < n; ++r) {
+    for (size_t i = 0; i < n; ++i) {
+      if (i == r) continue;
+      const int k = Key(points_[r], normals_[r], points_[i], normals_[i]);
+      if (k < 0) continue;
+      entries_[fill[k]++] = Entry{static_cast<uint32_t>(r), Alpha(to_canonical_[r], points_[i] - points_[r])};
+    }
+  }
+  // Cap bucket sizes (evenly spread subset), compacting in place.
+  const size_t cap = static_cast<size_t>(std::max(1, params.max_bucket_entries));
+  size_t write = 0;
+  uint32_t begin = offsets_[0];
+  for (size_t k = 0; k < keys; ++k) {
+    const uint32_t end = offsets_[k + 1];
+    const size_t count = end - begin;
+    offsets_[k] = static_cast<uint32_t>(write);
+    if (count <= cap) {
+      for (uint32_t e = begin; e < end; ++e) entries_[write++] = entries_[e];
+    } else {
+      for (size_t j = 0; j < cap; ++j) entries_[write++] = entries_[begin + (j * count) / cap];
+    }
+    begin = end;
+  }
+  offsets_[keys] = static_cast<uint32_t>(write);
+  entries_.resize(write);
+  entries_.shrink_to_fit();
+}
+
+std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
+                                        std::span<const Eigen::Vector3f> normals,
+                                        std::span<const uint8_t> reference_ok, const PpfMatchOptions& options,
+                                        const Symmetry& symmetry) const {
+  std::vector<CoarsePose> out;
+  const size_t ns = points.size();
+  const size_t nm = points_.size();
+  if (ns < 3 || nm == 0) return out;
+  const int NA = params_.alpha_bins;
+  const float alpha_scale = static_cast<float>(NA) / kTwoPi;
+  std::vector<uint16_t> acc(nm * NA);
+  std::vector<CoarsePose> candidates;
+
+  // Reference points: every stride-th eligible point, at most max_reference_points.
+  std::vector<uint32_t> refs;
+  for (size_t i = 0; i < ns; ++i) {
+    if (reference_ok.size() != ns || reference_ok[i]) refs.push_back(static_cast<uint32_t>(i));
+  }
+  size_t stride = static_cast<size_t>(std::max(1, options.reference_stride));
+  stride = std::max(stride, (refs.size() + options.max_reference_points - 1) / std::max(1, options.max_reference_points));
+  for (size_t ri = 0; ri < refs.size(); ri += stride) {
+    const size_t r = refs[ri];
+    const Eigen::Vector3f& sr = points[r];
+    const Eigen::Vector3f& nr = normals[r];
+    const Eigen::Matrix3f Rs = AlignToX(nr);
+    std::fill(acc.begin(), acc.end(), 0);
+    int best = 0;
+    size_t best_bin = 0;
+    for (size_t i = 0; i < ns; ++i) {
+      if (i == r) continue;
+      const int k = Key(sr, nr, points[i], normals[i]);
+      if (k < 0) continue;
+      const uint32_t begin = offsets_[k], end = offsets_[k + 1];
+      if (begin == end) continue;
+      const float as = Alpha(Rs, points[i] - sr);
+      for (uint32_t e = begin; e < end; ++e) {
+        float a = as - entries_[e].alpha;
+        if (a < 0) a += kTwoPi;
+        int b = static_cast<int>(a * alpha_scale);
+        if (b >= NA) b -= NA;
+        const size_t cell = static_cast<size_t>(entries_[e].ref) * NA + b;
+        const int v = ++acc[cell];
+        if (v > best) {
+          best = v;
+          best_bin = cell;
+        }
+      }
+    }
+    if (best < 3) continue;
+    const size_t mr = best_bin / NA;
+    const float alpha = (static_cast<float>(best_bin % NA) + 0.5f) / alpha_scale;
+    // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
+    const Eigen::Matrix3f R =
+        Rs.transpose() * Eigen::AngleAxisf(alpha, Eigen::Vector3f::UnitX()).toRotationMatrix() * to_canonical_[mr];
+    const Eigen::Vector3f t = sr - R * points_[mr];
+    candidates.push_back(CoarsePose{MakePose(R.cast<double>(), t.cast<double>()), best});
+  }
+
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const CoarsePose& a, const CoarsePose& b) { return a.votes > b.votes; });
+  for (const CoarsePose& c : candidates) {
+    bool merged = false;
+    for (CoarsePose& cluster : out) {
+      if ((cluster.X_BO.translation() - c.X_BO.translation()).norm() < options.cluster_translation &&
+          SymmetricRotationError(cluster.X_BO, c.X_BO, symmetry) < options.cluster_rotation) {
+        cluster.votes += c.votes;
+        merged = true;
+        break;
+      }
+    }
+    if (!merged) out.push_back(c);
+  }
+  std::stable_sort(out.begin(), out.end(), [](const CoarsePose& a, const CoarsePose& b) { return a.votes > b.votes; });
+  if (static_cast<int>(out.size()) > options.max_poses) out.resize(options.max_poses);
+  return out;
+}
+
+}  // namespace bp::internal

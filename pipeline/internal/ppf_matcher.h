@@ -1,0 +1,99 @@
+// Point-pair-feature voting (Drost, Ulrich, Navab, Ilic, CVPR 2010).
+//
+// Model table: every ordered pair (r, i) of sampled model points gives the
+// feature F = (|d|, angle(n_r, d), angle(n_i, d), angle(n_r, n_i)), quantised
+// by the distance step and the angle step into a dense key (no hashing: the
+// key space is n_dist * n_angle^3). Entries are stored CSR-style: offsets by
+// key, then (r, alpha_m) with alpha_m the angle of m_i about the x axis after
+// moving m_r to the origin and n_r onto +x.
+//
+// Matching: for each scene reference point s_r and partner s_i, the entries of
+// the pair's key vote for (r, alpha = alpha_s - alpha_m) in a 2D accumulator;
+// the peak gives X_BO = T_s^-1 * Rx(alpha) * T_m. Poses from all reference
+// points are clustered (translation + symmetry-aware rotation thresholds).
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/cell.h"
+#include "core/pose.h"
+
+namespace bp::internal {
+
+struct PpfParams {
+  float distance_step = 0.003f;  // metres
+  int angle_bins = 15;           // feature angles over [0, pi]; at most 255
+  int alpha_bins = 30;           // alpha over [0, 2 pi)
+  // Keys with more entries keep an evenly spread subset of this size. Large
+  // buckets are the non-discriminative pairs (mostly coplanar ones); capping
+  // them bounds the voting cost and acts as inverse-frequency weighting.
+  int max_bucket_entries = 100;
+};
+
+struct CoarsePose {
+  Pose X_BO = Pose::Identity();
+  int votes = 0;
+};
+
+struct PpfMatchOptions {
+  int reference_stride = 5;          // every k-th scene point is a reference point
+  int max_reference_points = 80;
+  double cluster_translation = 0.01; // metres
+  double cluster_rotation = 0.4;     // radians
+  int max_poses = 4;
+};
+
+class PpfModel {
+ public:
+  // points / normals: the sampled model in O (unit normals).
+  void Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+             const PpfParams& params, float max_distance);
+
+  // Clustered coarse poses, most votes first. scene points / normals in B,
+  // subsampled at about the model's distance step. Thread-safe.
+  // reference_ok (optional, one per point): 0 excludes a point as a reference
+  // point (it still votes as a partner).
+  std::vector<CoarsePose> Match(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+                                std::span<const uint8_t> reference_ok, const PpfMatchOptions& options,
+                                const Symmetry& symmetry) const;
+
+  size_t size() const { return points_.size(); }
+  size_t pair_count() const { return entries_.size(); }
+
+ private:
+  // Dense feature key, or -1 if the pair is out of range.
+  int Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
+          const Eigen::Vector3f& n2) const;
+
+  // Angle bin of the angle whose cosine is c, by table (no acos per pair).
+  int AngleBin(float c) const {
+    const int i = static_cast<int>((std::clamp(c, -1.f, 1.f) + 1.f) * (0.5f * (kCosTable - 1)) + 0.5f);
+    return cos_to_bin_[i];
+  }
+  static constexpr int kCosTable = 4096;
+  std::array<uint8_t, kCosTable> cos_to_bin_{};
+
+  struct Entry {
+    uint32_t ref;
+    float alpha;
+  };
+  PpfParams params_;
+  float max_distance_ = 0;
+  int n_dist_ = 0;
+  std::vector<Eigen::Vector3f> points_, normals_;
+  std::vector<Eigen::Matrix3f> to_canonical_;  // R with R * n_r = +x
+  std::vector<uint32_t> offsets_;              // size = keys + 1
+  std::vector<Entry> entries_;
+};
+
+// Rotation taking unit vector n onto +x.
+Eigen::Matrix3f AlignToX(const Eigen::Vector3f& n);
+
+}  // namespace bp::internal

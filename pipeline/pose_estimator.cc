@@ -1,0 +1,684 @@
+#include "pipeline/pose_estimator.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <sstream>
+
+#include <Eigen/Eigenvalues>
+
+#include "pipeline/internal/closest_point_field.h"
+#include "pipeline/internal/model_sampling.h"
+#include "pipeline/internal/point_hash.h"
+#include "pipeline/internal/point_to_plane_icp.h"
+#include "pipeline/internal/ppf_matcher.h"
+
+namespace bp {
+
+using internal::OrientedPoints;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+constexpr uint64_t kSamplingSeed = 0x5eed;
+constexpr int kMinScenePoints = 30;
+constexpr int kMinSampledPoints = 8;
+
+// Without a depth image: the segment's points splatted into an angular grid
+// seen from the camera centre, keeping the nearest depth per cell. Cells
+// without points are unknown.
+struct SegmentDepth {
+  Eigen::Vector3f c = Eigen::Vector3f::Zero(), x = Eigen::Vector3f::UnitX(), y = Eigen::Vector3f::UnitY(),
+                  z = Eigen::Vector3f::UnitZ();
+  float cell_ang = 1;
+  int nu = 0, nv = 0;
+  float u0 = 0, v0 = 0;
+  std::vector<float> zmin;
+  bool empty() const { return zmin.empty(); }
+  // Nearest measured depth along the ray through p, NaN if unknown; *d gets p's depth.
+  float At(const Eigen::Vector3f& p, float* d) const {
+    const Eigen::Vector3f v = p - c;
+    *d = v.dot(z);
+    if (*d <= 0) return std::numeric_limits<float>::quiet_NaN();
+    const int u = static_cast<int>(std::floor(v.dot(x) / *d / cell_ang - u0));
+    const int w = static_cast<int>(std::floor(v.dot(y) / *d / cell_ang - v0));
+    if (u < 0 || w < 0 || u >= nu || w >= nv) return std::numeric_limits<float>::quiet_NaN();
+    const float zm = zmin[static_cast<size_t>(w) * nu + u];
+    return std::isfinite(zm) ? zm : std::numeric_limits<float>::quiet_NaN();
+  }
+};
+
+SegmentDepth BuildSegmentDepth(std::span<const Eigen::Vector3f> pts, const Eigen::Vector3f& camera, float cell_m) {
+  SegmentDepth b;
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const auto& p : pts) mean += p;
+  mean /= static_cast<float>(pts.size());
+  b.c = camera;
+  const float range = (mean - camera).norm();
+  if (!(range > 1e-3f)) return b;
+  b.z = (mean - camera) / range;
+  b.x = b.z.unitOrthogonal();
+  b.y = b.z.cross(b.x);
+  b.cell_ang = cell_m / range;
+  float umin = 1e30f, umax = -1e30f, vmin = 1e30f, vmax = -1e30f;
+  std::vector<Eigen::Vector3f> uvd(pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) {
+    const Eigen::Vector3f v = pts[i] - camera;
+    const float d = v.dot(b.z);
+    if (d <= 0) {
+      uvd[i] = Eigen::Vector3f(0, 0, -1);
+      continue;
+    }
+    uvd[i] = Eigen::Vector3f(v.dot(b.x) / d / b.cell_ang, v.dot(b.y) / d / b.cell_ang, d);
+    umin = std::min(umin, uvd[i].x()), umax = std::max(umax, uvd[i].x());
+    vmin = std::min(vmin, uvd[i].y()), vmax = std::max(vmax, uvd[i].y());
+  }
+  if (umin > umax) return b;
+  b.u0 = std::floor(umin) - 1, b.v0 = std::floor(vmin) - 1;
+  b.nu = static_cast<int>(umax - b.u0) + 2, b.nv = static_cast<int>(vmax - b.v0) + 2;
+  if (static_cast<int64_t>(b.nu) * b.nv > 4'000'000) return SegmentDepth{};  // absurd extent: skip the test
+  b.zmin.assign(static_cast<size_t>(b.nu) * b.nv, std::numeric_limits<float>::infinity());
+  for (const auto& e : uvd) {
+    if (e.z() <= 0) continue;
+    const size_t k = static_cast<size_t>(static_cast<int>(e.y() - b.v0)) * b.nu + static_cast<int>(e.x() - b.u0);
+    b.zmin[k] = std::min(b.zmin[k], e.z());
+  }
+  return b;
+}
+
+struct VerifyStats {
+  int visible = 0, occluded = 0, supported = 0, free_space = 0;
+  bool below_support = false;
+  double score = -1;
+};
+
+// 1 for points on the boundary of the sampled surface: the centroid of their
+// neighbours within radius is off-centre by more than a quarter radius (a
+// straight edge gives 4 / (3 pi) ~ 0.42 radius, the interior ~0).
+// queries: the points to flag; hashed: the points hash was built on.
+std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std::span<const Eigen::Vector3f> hashed,
+                                   const internal::PointHash& hash, float radius) {
+  std::vector<uint8_t> flags(queries.size(), 0);
+  for (size_t i = 0; i < queries.size(); ++i) {
+    Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+    int n = 0;
+    hash.ForEachWithin(queries[i], radius, [&](int j, float) {
+      sum += hashed[j];
+      ++n;
+    });
+    flags[i] = (n < 4 || (sum / static_cast<float>(n) - queries[i]).norm() > 0.25f * radius) ? 1 : 0;
+  }
+  return flags;
+}
+
+}  // namespace
+
+bool PoseEstimatorOptions::IsValid(std::string* error) const {
+  auto fail = [&](const char* what) {
+    if (error) *error = what;
+    return false;
+  };
+  if (!(ppf_relative_sampling > 0.005 && ppf_relative_sampling <= 0.2)) return fail("ppf_relative_sampling must be in (0.005, 0.2]");
+  if (!(ppf_angle_step_deg >= 3 && ppf_angle_step_deg <= 45)) return fail("ppf_angle_step_deg must be in [3, 45]");
+  if (!(icp_model_spacing > 0) || !(verify_model_spacing > 0)) return fail("model spacings must be > 0");
+  if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
+  if (ppf_max_bucket_entries < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
+  if (icp_iterations < 1 || icp_max_points < 100) return fail("icp_iterations must be >= 1, icp_max_points >= 100");
+  if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
+  if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
+  if (!(visible_min_cos >= 0 && visible_min_cos < 1)) return fail("visible_min_cos must be in [0, 1)");
+  return true;
+}
+
+struct PoseEstimator::Impl {
+  PoseEstimatorOptions options;
+  Symmetry symmetry;
+  double diameter = 0;
+  float step = 0;                  // PPF sampling distance
+  Eigen::Vector3f centroid_O = Eigen::Vector3f::Zero();
+  OrientedPoints dense;            // ICP targets
+  std::vector<internal::EdgePlane> edge_planes;  // per dense sample
+  internal::ClosestPointField field;
+  OrientedPoints verify;           // verification samples
+  OrientedPoints ppf_points;
+  internal::PpfModel ppf;
+
+  // Visible-surface test, support and free-space test for one pose.
+  // stride > 1 checks every stride-th verification sample (a quick pass).
+  VerifyStats Verify(const Pose& X_BO, const SceneView& view, const internal::PointHash& scene_hash,
+                     const SegmentDepth& segment_depth, int stride = 1) const;
+  internal::IcpResult Refine(std::span<const Eigen::Vector3f> scene, std::span<const uint8_t> boundary,
+                             const Pose& X_BO, const Vec3& camera_B, float initial, float final_gate,
+                             int iterations) const {
+    internal::IcpModel model{dense.points, dense.normals, &field, edge_planes};
+    internal::IcpOptions o;
+    o.boundary = boundary;
+    o.iterations = iterations;
+    o.initial_distance = initial;
+    o.final_distance = final_gate;
+    return internal::RefinePointToPlane(model, scene, X_BO, camera_B, o);
+  }
+};
+
+PoseEstimator::PoseEstimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+PoseEstimator::~PoseEstimator() = default;
+double PoseEstimator::diameter() const { return impl_->diameter; }
+double PoseEstimator::sampling_distance() const { return impl_->step; }
+int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->ppf_points.size()); }
+const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { return impl_->verify.points; }
+const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
+
+Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& mesh, const Symmetry& symmetry,
+                                                            const PoseEstimatorOptions& options) {
+  std::string error;
+  if (!options.IsValid(&error)) return Status::InvalidArgument("PoseEstimatorOptions: " + error);
+  if (mesh.empty()) return Status::InvalidArgument("pose estimator: empty mesh");
+  if (symmetry.kind != Symmetry::Kind::kNone && !(symmetry.axis.norm() > 1e-9)) {
+    return Status::InvalidArgument("pose estimator: symmetry axis is zero");
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->options = options;
+  impl->symmetry = symmetry;
+  impl->dense = internal::SampleSurface(mesh, options.icp_model_spacing, kSamplingSeed);
+  if (impl->dense.size() < 100) {
+    return Status::InvalidArgument("pose estimator: mesh has (almost) no surface area at spacing " +
+                                   std::to_string(options.icp_model_spacing) + " m");
+  }
+  impl->diameter = internal::PointSetDiameter(impl->dense.points);
+  if (!(impl->diameter > 0) || !std::isfinite(impl->diameter)) {
+    return Status::InvalidArgument("pose estimator: degenerate mesh (zero or non-finite diameter)");
+  }
+  impl->step = static_cast<float>(options.ppf_relative_sampling * impl->diameter);
+  for (const auto& p : impl->dense.points) impl->centroid_O += p;
+  impl->centroid_O /= static_cast<float>(impl->dense.size());
+
+  impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
+  impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
+  const float band = std::max(static_cast<float>(options.icp_initial_relative_distance) * impl->step,
+                              static_cast<float>(2 * options.icp_final_distance));
+  impl->field.Build(impl->dense.points, std::max(0.001f, static_cast<float>(options.icp_model_spacing)), band);
+
+  {
+    // Convex sharp edges: neighbours whose normal is > 30 deg off and that lie
+    // below this sample's tangent plane belong to the face across the edge;
+    // their mean normal and offset give that face's plane.
+    internal::PointHash dense_hash;
+    const float r = 2.5f * static_cast<float>(options.icp_model_spacing);
+    dense_hash.Build(impl->dense.points, r);
+    const float cos30 = std::cos(static_cast<float>(30.0 * M_PI / 180.0));
+    impl->edge_planes.assign(impl->dense.size(), internal::EdgePlane{});
+    for (size_t i = 0; i < impl->dense.size(); ++i) {
+      const Eigen::Vector3f& p = impl->dense.points[i];
+      const Eigen::Vector3f& n = impl->dense.normals[i];
+      Eigen::Vector3f n_sum = Eigen::Vector3f::Zero(), p_sum = Eigen::Vector3f::Zero();
+      int k = 0;
+      dense_hash.ForEachWithin(p, r, [&](int j, float d2) {
+        if (d2 <= 0.f) return;
+        if (n.dot(impl->dense.normals[j]) < cos30 && (impl->dense.points[j] - p).dot(n) < -0.1f * std::sqrt(d2)) {
+          n_sum += impl->dense.normals[j];
+          p_sum += impl->dense.points[j];
+          ++k;
+        }
+      });
+      if (k > 0 && n_sum.norm() > 1e-3f) {
+        const Eigen::Vector3f no = n_sum.normalized();
+        impl->edge_planes[i] = internal::EdgePlane{no, no.dot(p_sum / static_cast<float>(k))};
+      }
+    }
+  }
+
+  internal::PpfParams params;
+  params.distance_step = impl->step;
+  params.angle_bins = static_cast<int>(std::lround(180.0 / options.ppf_angle_step_deg));
+  params.alpha_bins = 2 * params.angle_bins;
+  params.max_bucket_entries = options.ppf_max_bucket_entries;
+  impl->ppf.Build(impl->ppf_points.points, impl->ppf_points.normals, params,
+                  static_cast<float>(impl->diameter * 1.001));
+  return std::unique_ptr<PoseEstimator>(new PoseEstimator(std::move(impl)));
+}
+
+VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
+                                        const internal::PointHash& scene_hash,
+                                        const SegmentDepth& segment_depth, int stride) const {
+  VerifyStats s;
+  const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+  const Eigen::Vector3f t = X_BO.translation().cast<float>();
+  if (view.support_plane_B) {
+    const Eigen::Vector3f n = view.support_plane_B->head<3>().cast<float>();
+    const float d = static_cast<float>((*view.support_plane_B)[3]);
+    const float limit = -static_cast<float>(options.max_support_penetration);
+    for (const auto& p : verify.points) {
+      if (n.dot(R * p + t) + d < limit) {
+        s.below_support = true;
+        return s;
+      }
+    }
+  }
+  const Eigen::Vector3f c = view.X_BC.translation().cast<float>();
+  const float min_cos = static_cast<float>(options.visible_min_cos);
+
+  // 1. Camera-facing points.
+  struct Cand {
+    Eigen::Vector3f p;
+    float cos;
+  };
+  std::vector<Cand> cands;
+  cands.reserve(verify.size() / 2 + 1);
+  for (size_t i = 0; i < verify.size(); i += static_cast<size_t>(std::max(1, stride))) {
+    const Eigen::Vector3f p = R * verify.points[i] + t;
+    const Eigen::Vector3f n = R * verify.normals[i];
+    const Eigen::Vector3f to_cam = c - p;
+    const float dist = to_cam.norm();
+    const float cs = n.dot(to_cam) / std::max(dist, 1e-9f);
+    if (cs >= min_cos) cands.push_back({p, cs});
+  }
+  if (cands.empty()) return s;
+
+  // 2. Self-occlusion: splat into a small angular depth buffer seen from the camera.
+  const Eigen::Vector3f o = R * centroid_O + t;
+  const Eigen::Vector3f z = (o - c).normalized();
+  const Eigen::Vector3f x = z.unitOrthogonal();
+  const Eigen::Vector3f y = z.cross(x);
+  const float range = std::max((o - c).norm(), 1e-3f);
+  const float cell_m = 1.5f * static_cast<float>(options.verify_model_spacing) * std::sqrt(static_cast<float>(std::max(1, stride)));
+  const float cell_ang = cell_m / range;
+  const int half = static_cast<int>(std::ceil(1.2 * diameter / cell_m)) + 2;
+  const int N = 2 * half + 1;
+  std::vector<float> zbuf(static_cast<size_t>(N) * N, std::numeric_limits<float>::infinity());
+  std::vector<int> cell_of(cands.size(), -1);
+  for (size_t i = 0; i < cands.size(); ++i) {
+    const Eigen::Vector3f v = cands[i].p - c;
+    const float d = v.dot(z);
+    if (d <= 0) continue;
+    const int u = static_cast<int>(std::floor(v.dot(x) / d / cell_ang)) + half;
+    const int w = static_cast<int>(std::floor(v.dot(y) / d / cell_ang)) + half;
+    if (u < 0 || w < 0 || u >= N || w >= N) continue;
+    cell_of[i] = w * N + u;
+    zbuf[cell_of[i]] = std::min(zbuf[cell_of[i]], d);
+  }
+
+  const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
+  const Pose X_CB = view.X_BC.inverse();
+  const Eigen::Matrix3f R_CB = X_CB.linear().cast<float>();
+  const Eigen::Vector3f t_CB = X_CB.translation().cast<float>();
+  const float support = static_cast<float>(options.support_distance);
+  const float free_thr = static_cast<float>(options.free_space_distance);
+  for (size_t i = 0; i < cands.size(); ++i) {
+    if (cell_of[i] < 0) continue;
+    const float cs = cands[i].cos;
+    const float tan_theta = std::sqrt(std::max(0.f, 1 - cs * cs)) / cs;
+    const float d = (cands[i].p - c).dot(z);
+    if (d > zbuf[cell_of[i]] + cell_m * (0.5f + tan_theta)) continue;  // hidden by the part itself
+    ++s.visible;
+    bool supported = false;
+    if (have_depth) {
+      // O(1) through the depth image first; the segment's points only when
+      // the pixel disagrees.
+      const Eigen::Vector3f pc = R_CB * cands[i].p + t_CB;
+      if (pc.z() > 0) {
+        const Intrinsics& K = view.intrinsics;
+        const int u = static_cast<int>(std::lround(K.fx * pc.x() / pc.z() + K.cx));
+        const int v = static_cast<int>(std::lround(K.fy * pc.y() / pc.z() + K.cy));
+        if (u >= 0 && v >= 0 && u < view.depth->width && v < view.depth->height) {
+          const float zm = view.depth->at(u, v);
+          if (std::isfinite(zm) && zm > 0) {
+            // Slanted surfaces change depth by about a pixel footprint * tan(theta).
+            const float slack = static_cast<float>(pc.z() / K.fx) * tan_theta;
+            supported = std::abs(zm - pc.z()) < support + slack;
+            if (!supported) supported = scene_hash.AnyWithin(cands[i].p, support);
+            if (!supported) {
+              if (zm < pc.z() - free_thr - slack) ++s.occluded;
+              else if (zm > pc.z() + free_thr + slack) ++s.free_space;
+            }
+          } else {
+            supported = scene_hash.AnyWithin(cands[i].p, support);
+          }
+        }
+      }
+    } else {
+      supported = scene_hash.AnyWithin(cands[i].p, support);
+    }
+    if (!have_depth && !supported && !segment_depth.empty()) {
+      // The segment's nearest surface along the ray: in front of it by more
+      // than the threshold is free space; behind it, occluded by the segment.
+      float dp = 0;
+      const float zm = segment_depth.At(cands[i].p, &dp);
+      if (std::isfinite(zm)) {
+        const float slack = segment_depth.cell_ang * dp * tan_theta;
+        if (dp < zm - free_thr) ++s.free_space;
+        else if (dp > zm + free_thr + slack) ++s.occluded;
+      }
+    }
+    if (supported) ++s.supported;
+  }
+  const int denom = s.visible - s.occluded;
+  if (denom > 0) {
+    s.score = (s.supported - options.free_space_weight * s.free_space) / static_cast<double>(denom);
+  }
+  return s;
+}
+
+Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
+  const Impl& m = *impl_;
+  const PoseEstimatorOptions& opt = m.options;
+  PoseEstimates out;
+  if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
+    return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
+                                   " entries for " + std::to_string(view.points_B.size()) + " points");
+  }
+  if (!view.X_BC.matrix().allFinite()) return Status::InvalidArgument("SceneView: X_BC is not finite");
+  if (view.support_plane_B &&
+      (!view.support_plane_B->allFinite() || std::abs(view.support_plane_B->head<3>().norm() - 1.0) > 1e-3)) {
+    return Status::InvalidArgument("SceneView: support_plane_B needs a finite unit normal");
+  }
+  const auto t0 = Clock::now();
+
+  // Finite points only; keep their original indices for supporting_indices.
+  std::vector<Eigen::Vector3f> pts;
+  std::vector<int> index;
+  pts.reserve(view.points_B.size());
+  index.reserve(view.points_B.size());
+  for (size_t i = 0; i < view.points_B.size(); ++i) {
+    if (view.points_B[i].allFinite()) {
+      pts.push_back(view.points_B[i]);
+      index.push_back(static_cast<int>(i));
+    }
+  }
+  out.scene_points = static_cast<int>(pts.size());
+  if (static_cast<int>(pts.size()) < kMinScenePoints) {
+    out.no_result_reason = "too few finite points in the segment (" + std::to_string(pts.size()) + ", need " +
+                           std::to_string(kMinScenePoints) + ")";
+    return out;
+  }
+  // Degenerate geometry: spread along fewer than two directions.
+  {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const auto& p : pts) mean += p.cast<double>();
+    mean /= static_cast<double>(pts.size());
+    Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+    for (const auto& p : pts) {
+      const Eigen::Vector3d d = p.cast<double>() - mean;
+      C += d * d.transpose();
+    }
+    C /= static_cast<double>(pts.size());
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+    const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
+    const double min_spread = 0.05 * m.step;
+    if (std::sqrt(ev[1]) < min_spread) {
+      out.no_result_reason = "degenerate segment: points are (nearly) collinear";
+      return out;
+    }
+    if (std::sqrt(ev[2]) < 0.05 * m.diameter) {
+      out.no_result_reason = "segment is much smaller than the part";
+      return out;
+    }
+  }
+
+  // Scene hash (normals, support), voxel subsampling at the PPF distance step.
+  internal::PointHash hash;  // normal estimation: radius step visits 2 x 2 x 2 cells
+  hash.Build(pts, 2.f * m.step);
+  const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
+  std::vector<Eigen::Vector3f> sub_p, sub_n;
+  // Per finite point: index of its voxel's subsampled point, -1 if none.
+  std::vector<int> sub_of(pts.size(), -1);
+  {
+    const float inv = 1.f / m.step;
+    std::vector<std::pair<uint64_t, int>> keys(pts.size());
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const auto c = [&](float v) {
+        return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v * inv)) + (1 << 20)) & 0x1FFFFF;
+      };
+      keys[i] = {c(pts[i].x()) | (c(pts[i].y()) << 21) | (c(pts[i].z()) << 42), static_cast<int>(i)};
+    }
+    std::sort(keys.begin(), keys.end());
+    for (size_t k = 0; k < keys.size();) {
+      size_t e = k;
+      Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+      Eigen::Vector3f nsum = Eigen::Vector3f::Zero();
+      for (; e < keys.size() && keys[e].first == keys[k].first; ++e) {
+        const int i = keys[e].second;
+        sum += pts[i];
+        if (!view.normals_B.empty()) {
+          Eigen::Vector3f n = view.normals_B[index[i]];
+          if (n.allFinite()) nsum += (n.dot(cam - pts[i]) < 0 ? -n : n);
+        }
+      }
+      const Eigen::Vector3f centre = sum / static_cast<float>(e - k);
+      const size_t voxel_begin = k;
+      k = e;
+      Eigen::Vector3f normal;
+      if (!view.normals_B.empty()) {
+        if (nsum.norm() < 1e-6f) continue;
+        normal = nsum.normalized();
+      } else {
+        // PCA over full-resolution neighbours within one step.
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        Eigen::Matrix3d S = Eigen::Matrix3d::Zero();
+        int n = 0;
+        hash.ForEachWithin(centre, m.step, [&](int j, float) {
+          const Eigen::Vector3d p = pts[j].cast<double>();
+          mean += p;
+          S += p * p.transpose();
+          ++n;
+        });
+        if (n < 5) continue;
+        mean /= n;
+        S = S / n - mean * mean.transpose();
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(S);
+        if (es.info() != Eigen::Success) continue;
+        // Flat enough to carry a normal: smallest eigenvalue well below the middle one.
+        if (!(es.eigenvalues()[1] > 0) || es.eigenvalues()[0] > 0.5 * es.eigenvalues()[1]) continue;
+        normal = es.eigenvectors().col(0).cast<float>();
+        if (normal.dot(cam - centre) < 0) normal = -normal;
+      }
+      if (!normal.allFinite() || !centre.allFinite()) continue;
+      for (size_t j = voxel_begin; j < e; ++j) sub_of[keys[j].second] = static_cast<int>(sub_p.size());
+      sub_p.push_back(centre);
+      sub_n.push_back(normal);
+    }
+  }
+  out.sampled_points = static_cast<int>(sub_p.size());
+  const auto t1 = Clock::now();
+  out.timings.prepare_ms = Ms(t0, t1);
+  if (static_cast<int>(sub_p.size()) < kMinSampledPoints) {
+    out.no_result_reason = "too few subsampled points with a normal (" + std::to_string(sub_p.size()) + ")";
+    return out;
+  }
+
+  // Coarse: PPF voting and pose clustering.
+  internal::PpfMatchOptions mo;
+  mo.reference_stride = std::max(1, static_cast<int>(std::lround(1.0 / opt.reference_fraction)));
+  mo.max_reference_points = opt.max_reference_points;
+  mo.cluster_translation = opt.cluster_relative_translation * m.diameter;
+  mo.cluster_rotation = opt.cluster_rotation_deg * M_PI / 180.0;
+  mo.max_poses = 3 * opt.max_coarse_poses;
+  // With a support plane: points on it are not reference points (the floor
+  // would otherwise dominate the votes), and coarse poses that sink the part
+  // into it are dropped before refinement.
+  std::vector<uint8_t> reference_ok;
+  if (view.support_plane_B) {
+    const Eigen::Vector3f n = view.support_plane_B->head<3>().cast<float>();
+    const float d = static_cast<float>((*view.support_plane_B)[3]);
+    reference_ok.resize(sub_p.size());
+    for (size_t i = 0; i < sub_p.size(); ++i) reference_ok[i] = n.dot(sub_p[i]) + d > 0.5f * m.step;
+  }
+  std::vector<internal::CoarsePose> coarse = m.ppf.Match(sub_p, sub_n, reference_ok, mo, m.symmetry);
+  if (view.support_plane_B) {
+    const Eigen::Vector3f n = view.support_plane_B->head<3>().cast<float>();
+    const float d = static_cast<float>((*view.support_plane_B)[3]);
+    const float limit = -static_cast<float>(opt.max_support_penetration) - 1.5f * m.step;
+    std::erase_if(coarse, [&](const internal::CoarsePose& cp) {
+      const Eigen::Matrix3f R = cp.X_BO.linear().cast<float>();
+      const Eigen::Vector3f t = cp.X_BO.translation().cast<float>();
+      for (const auto& p : m.ppf_points.points) {
+        if (n.dot(R * p + t) + d < limit) return true;
+      }
+      return false;
+    });
+  }
+  if (static_cast<int>(coarse.size()) > opt.max_coarse_poses) coarse.resize(opt.max_coarse_poses);
+  const auto t2 = Clock::now();
+  out.timings.coarse_ms = Ms(t1, t2);
+  if (coarse.empty()) {
+    out.no_result_reason = "no pose received enough votes";
+    return out;
+  }
+
+  // Refinement in two passes. Every coarse pose: ICP on the subsampled points,
+  // then a quick verification and NMS; the survivors: ICP on the
+  // full-resolution points (strided to at most icp_max_points) and the final check.
+  const Vec3 camera_B = view.X_BC.translation();
+  const float gate0 = static_cast<float>(opt.icp_initial_relative_distance) * m.step;
+  const float gate1 = static_cast<float>(opt.icp_final_distance);
+  const auto t_aux = Clock::now();
+  const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
+  const SegmentDepth segment_depth =
+      have_depth ? SegmentDepth{} : BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
+  // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
+  internal::PointHash support_hash;
+  support_hash.Build(pts, 2.f * static_cast<float>(opt.support_distance));
+  // Boundary flags on the subsampled points; a full-resolution point takes its
+  // voxel's flag (the ICP boundary term is one-sided, so flagging a few
+  // millimetres of interior next to an edge costs nothing).
+  internal::PointHash sub_hash;
+  sub_hash.Build(sub_p, 4.f * m.step);
+  const std::vector<uint8_t> sub_boundary = BoundaryFlags(sub_p, sub_p, sub_hash, 2.f * m.step);
+  // Fine ICP points: every boundary point (they carry the in-plane
+  // constraints) plus the rest strided to about icp_max_points in all.
+  std::vector<Eigen::Vector3f> fine;
+  std::vector<uint8_t> fine_boundary;
+  {
+    size_t n_boundary = 0;
+    for (size_t i = 0; i < pts.size(); ++i) n_boundary += sub_of[i] < 0 || sub_boundary[sub_of[i]];
+    const size_t budget = std::max<size_t>(static_cast<size_t>(opt.icp_max_points), n_boundary + 1) - n_boundary;
+    const size_t interior = pts.size() - n_boundary;
+    const size_t stride = std::max<size_t>(1, (interior + budget - 1) / budget);
+    size_t seen = 0;
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const bool b = sub_of[i] < 0 || sub_boundary[sub_of[i]];
+      if (b || (seen++ % stride) == 0) {
+        fine.push_back(pts[i]);
+        fine_boundary.push_back(b ? 1 : 0);
+      }
+    }
+  }
+  out.timings.prepare_ms += Ms(t_aux, Clock::now());
+  struct Candidate {
+    Pose X_BO;
+    VerifyStats stats;
+    internal::IcpResult icp;
+    int votes = 0;
+  };
+  double refine_ms = 0, verify_ms = 0;
+  auto timed = [](double& acc, auto&& f) {
+    const auto a = Clock::now();
+    f();
+    acc += Ms(a, Clock::now());
+  };
+  auto by_score = [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; };
+  auto passes = [&](const VerifyStats& st, double min_score) {
+    return st.visible - st.occluded >= opt.min_visible_points && st.score >= min_score;
+  };
+  const double nms = opt.nms_relative_distance * m.diameter;
+  auto duplicate_of = [&](const Pose& X, const std::vector<Candidate>& kept) {
+    const Eigen::Vector3d centre = X * m.centroid_O.cast<double>();
+    for (const Candidate& k : kept) {
+      if ((k.X_BO * m.centroid_O.cast<double>() - centre).norm() < nms) return true;
+    }
+    return false;
+  };
+
+  std::vector<Candidate> first;
+  for (const internal::CoarsePose& cp : coarse) {
+    internal::IcpResult icp;
+    timed(refine_ms, [&] {
+      icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
+                     std::max(4, opt.icp_iterations / 4));
+    });
+    if (!icp.ok) continue;
+    Candidate c{icp.X_BO, {}, icp, cp.votes};
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3); });
+    first.push_back(c);
+  }
+  std::stable_sort(first.begin(), first.end(), by_score);
+  double best_rejected = -1;
+  int below_support = 0;
+  std::vector<Candidate> survivors;
+  for (const Candidate& c : first) {
+    // Loose threshold here: the fine pass usually raises the score.
+    if (!passes(c.stats, 0.6 * opt.min_score)) {
+      below_support += c.stats.below_support;
+      best_rejected = std::max(best_rejected, c.stats.score);
+      continue;
+    }
+    if (duplicate_of(c.X_BO, survivors)) continue;
+    survivors.push_back(c);
+    if (static_cast<int>(survivors.size()) >= opt.max_hypotheses) break;
+  }
+  std::vector<Candidate> finals;
+  for (Candidate c : survivors) {
+    internal::IcpResult icp;
+    timed(refine_ms, [&] {
+      icp = m.Refine(fine, fine_boundary, c.X_BO, camera_B, std::max(gate1, 0.75f * m.step), gate1,
+                     opt.icp_iterations);
+    });
+    if (!icp.ok || !icp.X_BO.matrix().allFinite()) continue;
+    c.X_BO = icp.X_BO;
+    c.icp = icp;
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth); });
+    if (!passes(c.stats, opt.min_score)) {
+      below_support += c.stats.below_support;
+      best_rejected = std::max(best_rejected, c.stats.score);
+      continue;
+    }
+    finals.push_back(c);
+  }
+  std::stable_sort(finals.begin(), finals.end(), by_score);
+  std::vector<Candidate> kept;
+  for (const Candidate& c : finals) {
+    if (duplicate_of(c.X_BO, kept)) continue;
+    kept.push_back(c);
+    PoseHypothesis h;
+    h.X_BO = c.X_BO;
+    h.score = c.stats.score;
+    h.visible_points = c.stats.visible;
+    h.occluded_points = c.stats.occluded;
+    h.supported_points = c.stats.supported;
+    h.free_space_points = c.stats.free_space;
+    h.rms_residual = c.icp.rms;
+    h.coarse_votes = c.votes;
+    out.hypotheses.push_back(std::move(h));
+  }
+  const auto t3 = Clock::now();
+  // Supporting scene points of the kept hypotheses.
+  const float sup = static_cast<float>(opt.support_distance + 0.5 * opt.icp_model_spacing);
+  for (PoseHypothesis& h : out.hypotheses) {
+    const Pose X_OB = h.X_BO.inverse();
+    const Eigen::Matrix3f R = X_OB.linear().cast<float>();
+    const Eigen::Vector3f t = X_OB.translation().cast<float>();
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const Eigen::Vector3f q = R * pts[i] + t;
+      const int idx = m.field.Lookup(q);
+      if (idx >= 0 && (q - m.dense.points[idx]).squaredNorm() <= sup * sup) h.supporting_indices.push_back(index[i]);
+    }
+  }
+  verify_ms += Ms(t3, Clock::now());
+  out.timings.refine_ms = refine_ms;
+  out.timings.verify_ms = verify_ms;
+  if (out.hypotheses.empty()) {
+    std::ostringstream os;
+    os << "no hypothesis passed verification (best score " << best_rejected << ", need " << opt.min_score;
+    if (below_support > 0) os << "; " << below_support << " below the support plane";
+    os << ")";
+    out.no_result_reason = os.str();
+  }
+  return out;
+}
+
+}  // namespace bp

@@ -1,0 +1,179 @@
+// 6-DoF pose estimation of one CAD part in a scene segment: point-pair-feature
+// voting (Drost et al. 2010) for coarse poses, point-to-plane ICP refinement,
+// and render-free verification (visible-surface support, free-space penalty).
+// See docs/perception.md for the design and the measured figures.
+//
+// Frames: B robot base (the scene), O part (the model mesh), C camera.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>  // core/mesh.h uses AlignedBox3f / Affine3f
+
+#include "core/cell.h"
+#include "core/image.h"
+#include "core/mesh.h"
+#include "core/pose.h"
+#include "core/status.h"
+
+namespace bp {
+
+struct PoseEstimatorOptions {
+  // --- model tables (built once by Build) ---
+  // PPF sampling distance relative to the model diameter (Drost's tau_d).
+  double ppf_relative_sampling = 0.05;
+  // Alpha / normal angle quantisation of the point pair feature, degrees.
+  double ppf_angle_step_deg = 12.0;
+  // Table buckets (one per quantised feature) keep at most this many model
+  // pairs; bounds the voting cost (see internal/ppf_matcher.h).
+  int ppf_max_bucket_entries = 50;
+  // Spacing of the dense model samples used by ICP, metres.
+  double icp_model_spacing = 0.0008;
+  // Spacing of the model samples used by verification, metres.
+  double verify_model_spacing = 0.002;
+
+  // --- coarse stage ---
+  // Fraction of the subsampled scene points used as reference points, and a cap.
+  double reference_fraction = 0.2;
+  int max_reference_points = 20;
+  // Pose clustering thresholds: translation relative to the diameter, rotation.
+  double cluster_relative_translation = 0.1;
+  double cluster_rotation_deg = 24.0;
+  // Clusters (coarse poses) refined and verified per segment.
+  int max_coarse_poses = 4;
+
+  // --- refinement ---
+  // Fine ICP iterations, most stop early (the coarse pass uses a quarter).
+  int icp_iterations = 30;
+  // The fine ICP pass uses at most this many segment points (strided).
+  int icp_max_points = 1500;
+  // Correspondence distance at the first ICP iteration (relative to the PPF
+  // sampling distance), shrinking to icp_final_distance.
+  double icp_initial_relative_distance = 1.5;
+  double icp_final_distance = 0.002;
+
+  // --- verification ---
+  // A visible model point is supported by a scene point within this distance.
+  double support_distance = 0.0015;
+  // Model points must face the camera by at least this cosine to count as visible.
+  double visible_min_cos = 0.2;
+  // Depth image only: a model point closer to the camera than the measured
+  // surface by more than this lies in free space (evidence against);
+  // farther by more than this it is occluded (no evidence).
+  double free_space_distance = 0.003;
+  double free_space_weight = 1.0;
+  // See SceneView::support_plane_B, metres.
+  double max_support_penetration = 0.003;
+  // Hypotheses below this score are rejected.
+  double min_score = 0.35;
+  // Hypotheses need at least this many visible model points.
+  int min_visible_points = 20;
+  // Two hypotheses are one physical part when their centres are closer than
+  // this fraction of the diameter (the lower score is dropped).
+  double nms_relative_distance = 0.3;
+  // At most this many hypotheses per segment (sorted by score).
+  int max_hypotheses = 4;
+
+  // Returns false with a message if a value is out of range.
+  bool IsValid(std::string* error) const;
+};
+
+// What the estimator sees of one segment. Spans must outlive the call.
+struct SceneView {
+  // Segment points in B (metres). Non-finite points are ignored.
+  std::span<const Eigen::Vector3f> points_B;
+  // Optional normals in B, one per point (any orientation); estimated when empty.
+  std::span<const Eigen::Vector3f> normals_B;
+  // Camera pose in B; its translation is the viewpoint for visibility.
+  Pose X_BC = Pose::Identity();
+  // Optional organized depth image (metres along z of C, NaN = invalid) with
+  // its intrinsics, for the free-space / occlusion test. Null = none.
+  const DepthImage* depth = nullptr;
+  Intrinsics intrinsics;
+  // Optional support plane in B (e.g. the bin floor): (n, d) with unit normal n
+  // pointing to the side where parts are, n . x + d = 0 on the plane. Poses
+  // that sink the part more than max_support_penetration below it are
+  // rejected: a part's visible face lying flush with the floor explains a
+  // floor patch perfectly, and only this physical constraint rules it out.
+  std::optional<Eigen::Vector4d> support_plane_B;
+};
+
+struct PoseTimings {
+  double prepare_ms = 0;  // subsampling, normals
+  double coarse_ms = 0;   // PPF voting + clustering
+  double refine_ms = 0;   // ICP
+  double verify_ms = 0;   // visibility, scoring, NMS
+};
+
+struct PoseHypothesis {
+  Pose X_BO = Pose::Identity();
+  // supported / (visible - occluded) - free_space_weight * violations / (visible - occluded).
+  double score = 0;
+  int visible_points = 0;    // verification model points facing the camera, not self-occluded
+  int occluded_points = 0;   // of those, behind the measured surface (depth image only)
+  int supported_points = 0;  // of those, with a scene point within support_distance
+  int free_space_points = 0; // of those, in front of the measured surface (depth image only)
+  double rms_residual = 0;   // ICP point-to-plane RMS over supporting points, metres
+  int coarse_votes = 0;      // summed PPF votes of the cluster this came from
+  // Indices into SceneView::points_B of the points within support_distance.
+  std::vector<int> supporting_indices;
+};
+
+struct PoseEstimates {
+  std::vector<PoseHypothesis> hypotheses;  // best first; may be empty
+  std::string no_result_reason;            // why hypotheses is empty
+  PoseTimings timings;
+  int scene_points = 0;       // finite input points
+  int sampled_points = 0;     // after subsampling
+};
+
+class PoseEstimator {
+ public:
+  // Samples the model and builds the PPF table and the ICP lookup (tens to
+  // hundreds of ms per part). @returns InvalidArgument for an empty or
+  // degenerate mesh or invalid options.
+  static Result<std::unique_ptr<PoseEstimator>> Build(const TriangleMesh& mesh, const Symmetry& symmetry,
+                                                      const PoseEstimatorOptions& options = {});
+  ~PoseEstimator();
+  PoseEstimator(const PoseEstimator&) = delete;
+  PoseEstimator& operator=(const PoseEstimator&) = delete;
+
+  // Thread-safe (const, no shared mutable state): callers may run segments
+  // concurrently. A degenerate segment (too few finite points, collinear, ...)
+  // gives no hypothesis and a reason, never an error. Errors only for misuse
+  // (normals_B of a different size than points_B).
+  Result<PoseEstimates> Estimate(const SceneView& view) const;
+
+  double diameter() const;         // metres, of the sampled model
+  double sampling_distance() const;  // PPF sampling distance, metres
+  int model_point_count() const;   // PPF model points
+  // Model surface samples in O (verification spacing), e.g. for ADD-S.
+  const std::vector<Eigen::Vector3f>& surface_points_O() const;
+  const Symmetry& symmetry() const;
+
+ private:
+  struct Impl;
+  explicit PoseEstimator(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// Rotation error between two part poses modulo the part's symmetry, radians in
+// [0, pi]: revolute parts compare only the axis direction; discrete parts take
+// the smallest error over the 'order' rotations; 'extra' flips are combined
+// with either.
+double SymmetricRotationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry);
+// Translation error of the part origin, metres, modulo symmetry (the symmetry
+// element that minimises the rotation error is applied; the axis passes
+// through the origin so only 'extra' flips with a translation change it).
+double SymmetricTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry);
+// ADD-S: mean over model points p of min_q |X_a p - X_b q|, metres. Valid for
+// any symmetry (it needs none). points_O e.g. PoseEstimator::surface_points_O().
+double AddS(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b);
+
+}  // namespace bp

@@ -1,0 +1,352 @@
+#include "pipeline/pose_estimator.h"
+
+#include <cmath>
+#include <future>
+#include <limits>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "tests/pipeline/pose_test_util.h"
+
+namespace bp {
+namespace {
+
+using testing::DefaultCamera;
+using testing::Render;
+using testing::RenderedScene;
+using testing::TestCamera;
+
+constexpr double kDeg = M_PI / 180.0;
+
+SceneView ViewOf(const std::vector<Eigen::Vector3f>& pts, const TestCamera& cam) {
+  SceneView v;
+  v.points_B = pts;
+  v.X_BC = cam.X_BC;
+  return v;
+}
+
+// The floor z = 0 as the support plane.
+SceneView OnFloor(SceneView v) {
+  v.support_plane_B = Eigen::Vector4d(0, 0, 1, 0);
+  return v;
+}
+
+struct PartCase {
+  const char* name;
+  TriangleMesh mesh;
+  Symmetry symmetry;
+};
+
+Symmetry BlockSymmetry() {
+  Symmetry s;
+  s.kind = Symmetry::Kind::kDiscrete;
+  s.order = 2;
+  s.extra.push_back(MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3::Zero()));
+  return s;
+}
+
+std::vector<PartCase> TestParts() {
+  return {{"l_bracket", testing::MakeTestLBracket(), Symmetry{}},
+          {"flanged_cylinder", testing::MakeTestFlangedCylinder(), testing::RevoluteZ()},
+          {"block", testing::MakeTestBlock(), BlockSymmetry()}};
+}
+
+// Built once: model tables take a few hundred ms per part.
+const PoseEstimator& Estimator(int part) {
+  static const std::vector<std::unique_ptr<PoseEstimator>> estimators = [] {
+    std::vector<std::unique_ptr<PoseEstimator>> v;
+    for (const PartCase& p : TestParts()) {
+      auto e = PoseEstimator::Build(p.mesh, p.symmetry);
+      EXPECT_TRUE(e.ok()) << e.status().ToString();
+      v.push_back(std::move(e).value());
+    }
+    return v;
+  }();
+  return *estimators[part];
+}
+
+// A floor slab under z = 0 (top face at z = 0).
+TriangleMesh Floor() { return testing::MakeBox({-0.3f, -0.3f, -0.02f}, {0.3f, 0.3f, 0.f}); }
+
+// Lowest z of the mesh at pose X.
+double MinZ(const TriangleMesh& mesh, const Pose& X) {
+  double z = std::numeric_limits<double>::infinity();
+  for (const auto& v : mesh.vertices) z = std::min(z, (X * v.cast<double>()).z());
+  return z;
+}
+
+// Pose with the given rotation, resting on the floor at (x, y).
+Pose Resting(const TriangleMesh& mesh, const Mat3& R, double x, double y) {
+  Pose X = MakePose(R, Vec3(x, y, 0));
+  X.translation().z() -= MinZ(mesh, X);
+  return X;
+}
+
+TEST(PoseEstimator, FindsSinglePartAtKnownPoseWithinHalfMillimetreAndHalfDegree) {
+  const TestCamera cam = DefaultCamera();
+  std::mt19937_64 rng{42};
+  const std::vector<PartCase> parts = TestParts();
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const PartCase& part = parts[k];
+    for (int trial = 0; trial < 4; ++trial) {
+      const Pose X_BO = MakePose(testing::RandomRotation(rng, 60 * kDeg), Vec3(0.01 * trial, -0.02, 0.03));
+      const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0002, 7 + trial);
+      ASSERT_GT(scene.points_B.size(), 300u);
+      auto r = Estimator(k).Estimate(ViewOf(scene.points_B, cam));
+      ASSERT_TRUE(r.ok()) << r.status().ToString();
+      ASSERT_FALSE(r->hypotheses.empty()) << part.name << " trial " << trial << ": " << r->no_result_reason;
+      const PoseHypothesis& h = r->hypotheses.front();
+      EXPECT_LT(SymmetricTranslationError(h.X_BO, X_BO, part.symmetry), 0.0005) << part.name << " trial " << trial;
+      EXPECT_LT(SymmetricRotationError(h.X_BO, X_BO, part.symmetry), 0.5 * kDeg) << part.name << " trial " << trial;
+      EXPECT_GT(h.score, 0.8) << part.name;
+      EXPECT_GT(h.supporting_indices.size(), scene.points_B.size() * 9 / 10) << part.name;
+      EXPECT_TRUE(h.X_BO.matrix().allFinite());
+    }
+  }
+}
+
+TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
+  // The stable resting poses: plane faces seen head-on leave the in-plane
+  // position to the silhouette only.
+  const TestCamera cam = DefaultCamera();
+  const std::vector<PartCase> parts = TestParts();
+  const TriangleMesh floor = Floor();
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const Pose X_BO = Resting(parts[k].mesh, Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), 0.02, 0.01);
+    const RenderedScene scene = Render({{&parts[k].mesh, X_BO}, {&floor, Pose::Identity()}}, cam, 0.0002, 3);
+    const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1});
+    auto r = Estimator(k).Estimate(ViewOf(segment, cam));
+    ASSERT_TRUE(r.ok());
+    ASSERT_FALSE(r->hypotheses.empty()) << parts[k].name << ": " << r->no_result_reason;
+    EXPECT_LT(SymmetricTranslationError(r->hypotheses[0].X_BO, X_BO, parts[k].symmetry), 0.0005) << parts[k].name;
+    EXPECT_LT(SymmetricRotationError(r->hypotheses[0].X_BO, X_BO, parts[k].symmetry), 0.5 * kDeg) << parts[k].name;
+  }
+}
+
+TEST(PoseEstimator, FindsPartWithHalfItsSurfaceHiddenByAnOccluder) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[0];
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.5, Vec3(1, 1, 0).normalized())), Vec3(0.0, 0.0, 0.03));
+  const Eigen::Vector3d centre = X_BO * Vec3(0.045, 0, 0.02);
+  // A plate above the part hiding everything with y < centre.y (the end of
+  // the bracket whose cap faces away from the camera: hiding the other end
+  // would leave a pure extrusion, whose position along y nothing observes).
+  const TriangleMesh plate = testing::MakeBox({-0.2f, -0.2f, 0.15f}, {0.2f, static_cast<float>(centre.y()), 0.16f});
+  const RenderedScene alone = Render({{&part.mesh, X_BO}}, cam, 0.0002, 5);
+  const RenderedScene scene = Render({{&part.mesh, X_BO}, {&plate, Pose::Identity()}}, cam, 0.0002, 5);
+  const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1});
+  const double visible = static_cast<double>(segment.size()) / alone.points_B.size();
+  ASSERT_GT(visible, 0.35);
+  ASSERT_LT(visible, 0.65);
+  for (const bool with_depth : {false, true}) {
+    SceneView view = ViewOf(segment, cam);
+    if (with_depth) {
+      view.depth = &scene.depth;
+      view.intrinsics = cam.K;
+    }
+    auto r = Estimator(0).Estimate(view);
+    ASSERT_TRUE(r.ok());
+    ASSERT_FALSE(r->hypotheses.empty()) << r->no_result_reason;
+    const PoseHypothesis& h = r->hypotheses[0];
+    EXPECT_LT(SymmetricTranslationError(h.X_BO, X_BO, part.symmetry), 0.001);
+    EXPECT_LT(SymmetricRotationError(h.X_BO, X_BO, part.symmetry), 1.0 * kDeg);
+    if (with_depth) {
+      // The occluded half is no evidence against the part.
+      EXPECT_GT(h.occluded_points, h.visible_points / 4);
+      EXPECT_GT(h.score, 0.8);
+    }
+  }
+}
+
+TEST(PoseEstimator, FindsPartInSegmentWithFloorAndClutter) {
+  const TestCamera cam = DefaultCamera();
+  const std::vector<PartCase> parts = TestParts();
+  const TriangleMesh floor = Floor();
+  const TriangleMesh clutter = testing::MakeBox({0.f, 0.f, 0.f}, {0.03f, 0.02f, 0.015f});
+  std::mt19937_64 rng{7};
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const Pose X_BO = Resting(parts[k].mesh, testing::RandomRotation(rng, 40 * kDeg), 0.0, 0.0);
+    const Pose X_BK = MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.035, 0.035, 0.0));
+    const RenderedScene scene =
+        Render({{&parts[k].mesh, X_BO}, {&floor, Pose::Identity()}, {&clutter, X_BK}}, cam, 0.0002, 11);
+    // An under-segmented blob: everything within 7 cm of the part, floor included.
+    std::vector<Eigen::Vector3f> segment;
+    int part_points = 0;
+    for (size_t i = 0; i < scene.points_B.size(); ++i) {
+      if ((scene.points_B[i].cast<double>() - X_BO.translation()).head<2>().norm() < 0.07) {
+        segment.push_back(scene.points_B[i]);
+        part_points += scene.point_label[i] == 1;
+      }
+    }
+    ASSERT_LT(part_points, static_cast<int>(segment.size()) / 2) << "most of the segment is not the part";
+    auto r = Estimator(k).Estimate(OnFloor(ViewOf(segment, cam)));
+    ASSERT_TRUE(r.ok());
+    ASSERT_FALSE(r->hypotheses.empty()) << parts[k].name << ": " << r->no_result_reason;
+    const PoseHypothesis& h = r->hypotheses[0];
+    EXPECT_LT(SymmetricTranslationError(h.X_BO, X_BO, parts[k].symmetry), 0.001) << parts[k].name;
+    EXPECT_LT(SymmetricRotationError(h.X_BO, X_BO, parts[k].symmetry), 1.0 * kDeg) << parts[k].name;
+  }
+}
+
+TEST(PoseEstimator, GivesOneHypothesisPerPartForTwoTouchingParts) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[0];
+  const TriangleMesh floor = Floor();
+  const Pose X_B1 = Resting(part.mesh, Mat3(Eigen::AngleAxisd(0.2, Vec3::UnitZ())), -0.03, -0.025);
+  const Pose X_B2 = Resting(part.mesh, Mat3(Eigen::AngleAxisd(M_PI + 0.1, Vec3::UnitZ())), 0.06, 0.02);
+  const RenderedScene scene =
+      Render({{&part.mesh, X_B1}, {&part.mesh, X_B2}, {&floor, Pose::Identity()}}, cam, 0.0002, 13);
+  const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1, 2});
+  auto r = Estimator(0).Estimate(ViewOf(segment, cam));
+  ASSERT_TRUE(r.ok());
+  ASSERT_EQ(r->hypotheses.size(), 2u) << r->no_result_reason;
+  for (const Pose& truth : {X_B1, X_B2}) {
+    double best_t = 1e9, best_r = 1e9;
+    for (const PoseHypothesis& h : r->hypotheses) {
+      if (SymmetricTranslationError(h.X_BO, truth, part.symmetry) < best_t) {
+        best_t = SymmetricTranslationError(h.X_BO, truth, part.symmetry);
+        best_r = SymmetricRotationError(h.X_BO, truth, part.symmetry);
+      }
+    }
+    EXPECT_LT(best_t, 0.001);
+    EXPECT_LT(best_r, 1.0 * kDeg);
+  }
+}
+
+TEST(PoseEstimator, FloorOnlySegmentGivesNoHypothesis) {
+  const TestCamera cam = DefaultCamera();
+  const TriangleMesh floor = Floor();
+  const RenderedScene scene = Render({{&floor, Pose::Identity()}}, cam, 0.0002, 17);
+  std::vector<Eigen::Vector3f> segment;
+  for (const auto& p : scene.points_B) {
+    if (p.head<2>().norm() < 0.05f) segment.push_back(p);
+  }
+  // Without the plane, a part face flush with the floor would explain the
+  // patch perfectly (see SceneView::support_plane_B).
+  for (int k = 0; k < 3; ++k) {
+    auto r = Estimator(k).Estimate(OnFloor(ViewOf(segment, cam)));
+    ASSERT_TRUE(r.ok());
+    EXPECT_TRUE(r->hypotheses.empty()) << "part " << k << " score " << r->hypotheses[0].score;
+    EXPECT_FALSE(r->no_result_reason.empty());
+  }
+}
+
+TEST(PoseEstimator, DegenerateSegmentsGiveNoHypothesisAndAReason) {
+  const TestCamera cam = DefaultCamera();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<std::vector<Eigen::Vector3f>> cases;
+  cases.push_back({});                                                     // empty
+  cases.push_back({{0, 0, 0}, {0.01f, 0, 0}, {0, 0.01f, 0}});              // 3 points
+  cases.push_back(std::vector<Eigen::Vector3f>(500, Eigen::Vector3f(nan, nan, nan)));  // all NaN
+  std::vector<Eigen::Vector3f> line;
+  for (int i = 0; i < 500; ++i) line.emplace_back(0.0002f * i, 0.0001f * i, 0.01f);
+  cases.push_back(line);  // collinear
+  cases.push_back(std::vector<Eigen::Vector3f>(500, Eigen::Vector3f(0.1f, 0.2f, 0.03f)));  // one point repeated
+  for (size_t c = 0; c < cases.size(); ++c) {
+    for (int k = 0; k < 3; ++k) {
+      auto r = Estimator(k).Estimate(ViewOf(cases[c], cam));
+      ASSERT_TRUE(r.ok()) << "case " << c;
+      EXPECT_TRUE(r->hypotheses.empty()) << "case " << c;
+      EXPECT_FALSE(r->no_result_reason.empty()) << "case " << c;
+    }
+  }
+  // Mismatched normals are a caller's error, reported, not a crash.
+  std::vector<Eigen::Vector3f> normals(2, Eigen::Vector3f::UnitZ());
+  SceneView v = ViewOf(line, cam);
+  v.normals_B = normals;
+  EXPECT_FALSE(Estimator(0).Estimate(v).ok());
+}
+
+TEST(PoseEstimator, IgnoresNaNPointsMixedIntoAValidSegment) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[0];
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3(1, 0, 1).normalized())), Vec3(0, 0, 0.03));
+  const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0002, 19);
+  std::vector<Eigen::Vector3f> segment;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (size_t i = 0; i < scene.points_B.size(); ++i) {
+    segment.push_back(scene.points_B[i]);
+    if (i % 3 == 0) segment.emplace_back(nan, 0.f, nan);
+  }
+  auto r = Estimator(0).Estimate(ViewOf(segment, cam));
+  ASSERT_TRUE(r.ok());
+  ASSERT_FALSE(r->hypotheses.empty()) << r->no_result_reason;
+  EXPECT_LT(SymmetricTranslationError(r->hypotheses[0].X_BO, X_BO, part.symmetry), 0.0005);
+  for (int i : r->hypotheses[0].supporting_indices) EXPECT_TRUE(segment[i].allFinite());
+}
+
+TEST(PoseEstimator, ConcurrentEstimatesMatchSequentialOnes) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[1];
+  std::vector<RenderedScene> scenes;
+  std::mt19937_64 rng{23};
+  for (int i = 0; i < 4; ++i) {
+    scenes.push_back(Render({{&part.mesh, MakePose(testing::RandomRotation(rng, 1.0), Vec3(0, 0, 0.03))}}, cam,
+                            0.0002, 29 + i));
+  }
+  std::vector<Pose> sequential;
+  for (const auto& s : scenes) sequential.push_back(Estimator(1).Estimate(ViewOf(s.points_B, cam))->hypotheses.at(0).X_BO);
+  std::vector<std::future<Pose>> futures;
+  for (const auto& s : scenes) {
+    futures.push_back(std::async(std::launch::async, [&s, &cam] {
+      return Estimator(1).Estimate(ViewOf(s.points_B, cam))->hypotheses.at(0).X_BO;
+    }));
+  }
+  for (size_t i = 0; i < futures.size(); ++i) EXPECT_TRUE(futures[i].get().isApprox(sequential[i], 0.0));
+}
+
+TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
+  EXPECT_FALSE(PoseEstimator::Build(TriangleMesh{}, Symmetry{}).ok());
+  PoseEstimatorOptions o;
+  o.ppf_relative_sampling = 0;
+  EXPECT_FALSE(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, o).ok());
+  TriangleMesh flat;  // zero area
+  flat.vertices = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}};
+  flat.triangles = {{0, 1, 2}};
+  EXPECT_FALSE(PoseEstimator::Build(flat, Symmetry{}).ok());
+}
+
+TEST(SymmetricPoseError, RevolutePartRotatedAboutItsAxisHasZeroError) {
+  const Symmetry s = testing::RevoluteZ();
+  const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized())), Vec3(0.1, 0.2, 0.3));
+  for (double a : {0.3, 1.7, M_PI}) {
+    const Pose Y = X * MakePose(Mat3(Eigen::AngleAxisd(a, Vec3::UnitZ())), Vec3::Zero());
+    EXPECT_NEAR(SymmetricRotationError(X, Y, s), 0.0, 1e-9);
+    EXPECT_NEAR(SymmetricTranslationError(X, Y, s), 0.0, 1e-12);
+    EXPECT_GT(SymmetricRotationError(X, Y, Symmetry{}), a - 1e-9);
+  }
+  // Tilting the axis is an error of the tilt angle.
+  const Pose T = X * MakePose(Mat3(Eigen::AngleAxisd(0.2, Vec3::UnitX()) * Eigen::AngleAxisd(1.0, Vec3::UnitZ())),
+                              Vec3::Zero());
+  EXPECT_NEAR(SymmetricRotationError(X, T, s), 0.2, 1e-9);
+}
+
+TEST(SymmetricPoseError, DiscreteSymmetryTakesTheNearestEquivalentRotation) {
+  Symmetry s;
+  s.kind = Symmetry::Kind::kDiscrete;
+  s.order = 2;
+  const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3(0, 1, 1).normalized())), Vec3(0, 0, 0.1));
+  const auto rz = [](double a) { return MakePose(Mat3(Eigen::AngleAxisd(a, Vec3::UnitZ())), Vec3::Zero()); };
+  EXPECT_NEAR(SymmetricRotationError(X, X * rz(M_PI), s), 0.0, 1e-9);
+  EXPECT_NEAR(SymmetricRotationError(X, X * rz(M_PI / 2), s), M_PI / 2, 1e-9);
+  EXPECT_NEAR(SymmetricRotationError(X, X * rz(M_PI + 0.1), s), 0.1, 1e-9);
+  // An extra flip about x is equivalent too.
+  const Symmetry b = BlockSymmetry();
+  const Pose flip = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3::Zero());
+  EXPECT_NEAR(SymmetricRotationError(X, X * flip * rz(M_PI), b), 0.0, 1e-9);
+  EXPECT_GT(SymmetricRotationError(X, X * flip, s), 3.0);
+}
+
+TEST(SymmetricPoseError, AddSIsZeroForSymmetricPosesAndGrowsWithOffset) {
+  const PoseEstimator& e = Estimator(1);  // revolute
+  const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitX())), Vec3(0, 0, 0.05));
+  const Pose Y = X * MakePose(Mat3(Eigen::AngleAxisd(1.0, Vec3::UnitZ())), Vec3::Zero());
+  EXPECT_LT(AddS(e.surface_points_O(), X, Y), 0.001);  // within the sample spacing
+  Pose Z = X;
+  Z.translation().x() += 0.005;
+  EXPECT_GT(AddS(e.surface_points_O(), X, Z), 0.002);
+}
+
+}  // namespace
+}  // namespace bp
