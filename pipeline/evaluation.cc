@@ -10,6 +10,7 @@
 
 #include "core/mesh.h"
 #include "pipeline/internal/roi_cloud.h"
+#include "pipeline/pose_estimator.h"
 
 namespace bp {
 
@@ -43,34 +44,6 @@ std::vector<Eigen::Vector3f> SampleSurface(const TriangleMesh& mesh, int n, uint
     out.push_back(a + static_cast<float>(s) * (b - a) + static_cast<float>(q) * (c - a));
   }
   return out;
-}
-
-// The symmetry group's elements (poses in O) to try; revolute parts use the
-// axis comparison instead of sampling the continuous rotations.
-std::vector<Pose> SymmetryElements(const Symmetry& sym) {
-  std::vector<Pose> base{Pose::Identity()};
-  if (sym.kind == Symmetry::Kind::kDiscrete && sym.order > 1) {
-    const Vec3 axis = sym.axis.normalized();
-    for (int k = 1; k < sym.order; ++k) {
-      Pose S = Pose::Identity();
-      S.linear() = Eigen::AngleAxisd(2.0 * kPi * k / sym.order, axis).toRotationMatrix();
-      base.push_back(S);
-    }
-  }
-  std::vector<Pose> all = base;
-  for (const Pose& E : sym.extra) {
-    for (const Pose& S : base) all.push_back(S * E);
-  }
-  return all;
-}
-
-double RotationErrorOf(const Pose& X_a, const Pose& X_b, const Symmetry& sym) {
-  if (sym.kind == Symmetry::Kind::kRevolute) {
-    const Vec3 axis = sym.axis.normalized();
-    const Vec3 a = X_a.linear() * axis, b = X_b.linear() * axis;
-    return std::atan2(a.cross(b).norm(), a.dot(b));
-  }
-  return RotationAngle(X_a.linear().transpose() * X_b.linear());
 }
 
 double Percentile(std::vector<double> v, double q) {
@@ -108,39 +81,18 @@ Result<std::vector<EvalPartModel>> LoadEvalModels(const Cell& cell) {
   return out;
 }
 
+// The pose estimator's symmetry-aware errors (pipeline/pose_estimator.h), so
+// that the tool and the estimator's own tests measure the same thing.
 double SymmetryAwareRotationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry) {
-  double best = std::numeric_limits<double>::infinity();
-  for (const Pose& S : SymmetryElements(symmetry)) best = std::min(best, RotationErrorOf(X_BO_a * S, X_BO_b, symmetry));
-  return best;
+  return SymmetricRotationError(X_BO_a, X_BO_b, symmetry);
 }
 
 double SymmetryAwareTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry) {
-  double best = std::numeric_limits<double>::infinity(), dist = 0.0;
-  for (const Pose& S : SymmetryElements(symmetry)) {
-    const Pose X = X_BO_a * S;
-    const double e = RotationErrorOf(X, X_BO_b, symmetry);
-    if (e < best - 1e-12) {
-      best = e;
-      dist = (X.translation() - X_BO_b.translation()).norm();
-    }
-  }
-  return dist;
+  return SymmetricTranslationError(X_BO_a, X_BO_b, symmetry);
 }
 
 double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b) {
-  if (points_O.empty()) return 0.0;
-  const Eigen::Affine3f A = Eigen::Affine3f(X_BO_a.matrix().cast<float>());
-  const Eigen::Affine3f Bf = Eigen::Affine3f(X_BO_b.matrix().cast<float>());
-  std::vector<Eigen::Vector3f> b(points_O.size());
-  for (size_t i = 0; i < points_O.size(); ++i) b[i] = Bf * points_O[i];
-  double sum = 0.0;
-  for (const Eigen::Vector3f& p : points_O) {
-    const Eigen::Vector3f q = A * p;
-    float best = std::numeric_limits<float>::infinity();
-    for (const Eigen::Vector3f& r : b) best = std::min(best, (q - r).squaredNorm());
-    sum += std::sqrt(static_cast<double>(best));
-  }
-  return sum / static_cast<double>(points_O.size());
+  return AddS(points_O, X_BO_a, X_BO_b);
 }
 
 FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth& truth,
