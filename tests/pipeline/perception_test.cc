@@ -126,6 +126,7 @@ TEST_F(PerceptionTest, EmptyBinGivesNoDetectionsAndASmallLargestRegion) {
   EXPECT_TRUE(r.detections.empty());
   EXPECT_FALSE(r.reason.empty());
   EXPECT_LT(r.largest_region_points, 50);
+  EXPECT_LT(r.roi_point_count, 200) << "floor noise above floor_margin";
   EXPECT_EQ(r.roi_point_count, static_cast<int64_t>(r.roi_points_B.size()));
 }
 
