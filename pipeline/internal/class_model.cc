@@ -2,16 +2,10 @@
 
 #include "core/mesh.h"
 
-// The pose estimator lands from another branch; until it is on this branch the
-// pipeline builds without it and reports that no model is available.
-#if __has_include("pipeline/pose_estimator.h")
 #include "pipeline/pose_estimator.h"
-#define BP_HAVE_POSE_ESTIMATOR 1
-#endif
 
 namespace bp::internal {
 
-#ifdef BP_HAVE_POSE_ESTIMATOR
 namespace {
 
 class PpfClassModel final : public ClassModel {
@@ -69,13 +63,5 @@ Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part) {
   }
   return std::unique_ptr<ClassModel>(std::make_unique<PpfClassModel>(part.class_id, std::move(*estimator)));
 }
-
-#else
-
-Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part) {
-  return Status::Unavailable("part '" + part.name + "': this build has no pose estimator");
-}
-
-#endif
 
 }  // namespace bp::internal

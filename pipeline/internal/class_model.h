@@ -49,7 +49,7 @@ class ClassModel {
 };
 
 // Builds the model of one part class (loads the mesh, builds the tables).
-// @returns Unavailable when this build has no pose estimator.
+// @returns the mesh loader's error, or InvalidArgument naming the part.
 Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part);
 
 }  // namespace bp::internal

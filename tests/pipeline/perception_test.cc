@@ -18,10 +18,6 @@
 #include "pipeline/renderer.h"
 #include "pipeline/synthetic_source.h"
 
-#if __has_include("pipeline/pose_estimator.h")
-#define BP_TEST_HAVE_POSE 1
-#endif
-
 namespace bp {
 namespace {
 
@@ -256,8 +252,6 @@ TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
   EXPECT_NEAR(all.precision, 2.0 / 3.0, 1e-12);
 }
 
-#ifdef BP_TEST_HAVE_POSE
-
 TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   // Tilted so that every face constrains the pose (a flat-lying bracket shows
   // its upright only edge-on).
@@ -347,8 +341,6 @@ TEST(PerceptionEval, ShortSyntheticRunMeetsThresholds) {
   EXPECT_LE(all.t_median_mm, 1.0);
   EXPECT_LE(all.r_median_deg, 1.0);
 }
-
-#endif  // BP_TEST_HAVE_POSE
 
 }  // namespace
 }  // namespace bp
