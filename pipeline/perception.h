@@ -50,6 +50,31 @@ struct PerceptionResult {
 
 struct PerceptionOptions {
   int threads = 2;  // size of the oneTBB arena the pipeline creates when the caller has none
+  // Segmentation (docs/perception_pipeline.md): organized-grid region growing.
+  // Neighbouring points join when closer than segment_max_jump (metres) and
+  // their normals differ by less than segment_normal_angle_deg (0 = no normal
+  // condition: depth-continuous connected components).
+  double segment_max_jump = 0.006;
+  double segment_normal_angle_deg = 25.0;
+  // With >= 0, neighbours across a convex crease join whatever their normals
+  // ((n_a - n_b) . (p_a - p_b) >= this * |p_a - p_b|); < 0 = off.
+  double segment_convex_tolerance = -1.0;
+  // Segments with fewer grid points are not sent to the pose estimator.
+  int min_segment_points = 150;
+  // Detections need at least this verification score (the estimator's own
+  // threshold is lower; measured: wrong-class / wrong-pose hypotheses that
+  // survive it mostly score 0.35-0.7, true ones 0.9+).
+  double min_detection_score = 0.7;
+  // Also match each connected region (depth continuity only) that holds two
+  // or more segments, as one more view (parts cut by the normal condition).
+  bool match_regions = true;
+  // The pose estimator sees each segment plus the other segments' points
+  // within this fraction of the largest part diameter of its centroid (0 = the
+  // segment alone).
+  double context_relative_radius = 0.0;
+  // Grid spacing targeted on the bin floor (metres): high-resolution frames are
+  // segmented and matched on every k-th pixel so that the spacing is about this.
+  double grid_spacing = 0.0012;
 };
 
 class Perception {

@@ -29,6 +29,7 @@ struct Command {
 Command RenderCommand();
 Command InfoCommand();
 Command RobotCommand();
+Command EvalCommand();  // eval_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.

@@ -1,0 +1,255 @@
+#include "pipeline/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <random>
+
+#include <Eigen/Geometry>
+
+#include "core/mesh.h"
+#include "pipeline/internal/roi_cloud.h"
+#include "pipeline/pose_estimator.h"
+
+namespace bp {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+std::vector<Eigen::Vector3f> SampleSurface(const TriangleMesh& mesh, int n, uint64_t seed) {
+  std::vector<double> cumulative;
+  cumulative.reserve(mesh.triangles.size());
+  double total = 0.0;
+  for (const auto& t : mesh.triangles) {
+    const Eigen::Vector3f a = mesh.vertices[t[0]], b = mesh.vertices[t[1]], c = mesh.vertices[t[2]];
+    total += 0.5 * static_cast<double>((b - a).cross(c - a).norm());
+    cumulative.push_back(total);
+  }
+  std::vector<Eigen::Vector3f> out;
+  if (!(total > 0.0)) return out;
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (int i = 0; i < n; ++i) {
+    const double r = uni(rng) * total;
+    const size_t k = static_cast<size_t>(std::lower_bound(cumulative.begin(), cumulative.end(), r) - cumulative.begin());
+    const auto& t = mesh.triangles[std::min(k, mesh.triangles.size() - 1)];
+    double s = uni(rng), q = uni(rng);
+    if (s + q > 1.0) {
+      s = 1.0 - s;
+      q = 1.0 - q;
+    }
+    const Eigen::Vector3f a = mesh.vertices[t[0]], b = mesh.vertices[t[1]], c = mesh.vertices[t[2]];
+    out.push_back(a + static_cast<float>(s) * (b - a) + static_cast<float>(q) * (c - a));
+  }
+  return out;
+}
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const double pos = q * static_cast<double>(v.size() - 1);
+  const size_t lo = static_cast<size_t>(std::floor(pos));
+  const size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+const EvalPartModel* FindModel(const std::vector<EvalPartModel>& models, int class_id) {
+  for (const EvalPartModel& m : models) {
+    if (m.class_id == class_id) return &m;
+  }
+  return nullptr;
+}
+
+}  // namespace
+
+Result<std::vector<EvalPartModel>> LoadEvalModels(const Cell& cell) {
+  std::vector<EvalPartModel> out;
+  for (const PartSpec& part : cell.parts) {
+    Result<TriangleMesh> mesh = LoadMesh(part.mesh);
+    if (!mesh.ok()) return mesh.status();
+    EvalPartModel m;
+    m.class_id = part.class_id;
+    m.name = part.name;
+    m.symmetry = part.symmetry;
+    m.diameter = mesh->Diameter();
+    m.points_O = SampleSurface(*mesh, 500, 7 + static_cast<uint64_t>(part.class_id));
+    if (m.points_O.empty()) return Status::InvalidArgument("part '" + part.name + "': mesh has no area");
+    out.push_back(std::move(m));
+  }
+  return out;
+}
+
+// The pose estimator's symmetry-aware errors (pipeline/pose_estimator.h), so
+// that the tool and the estimator's own tests measure the same thing.
+double SymmetryAwareRotationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry) {
+  return SymmetricRotationError(X_BO_a, X_BO_b, symmetry);
+}
+
+double SymmetryAwareTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, const Symmetry& symmetry) {
+  return SymmetricTranslationError(X_BO_a, X_BO_b, symmetry);
+}
+
+double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b) {
+  return AddS(points_O, X_BO_a, X_BO_b);
+}
+
+FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth& truth,
+                              const std::vector<EvalPartModel>& models, const EvalOptions& options) {
+  FrameEvaluation out;
+  out.timings = result.timings;
+  out.total_ms = result.TotalMs();
+  for (const PartTruth& p : truth.parts) {
+    if (p.visible_fraction >= options.min_visible_fraction) ++out.targets[p.class_id];
+  }
+  std::vector<size_t> order(result.detections.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](size_t a, size_t b) { return result.detections[a].score > result.detections[b].score; });
+  std::vector<uint8_t> taken(truth.parts.size(), 0);
+  for (size_t k : order) {
+    const Detection& d = result.detections[k];
+    DetectionOutcome o;
+    o.class_id = d.class_id;
+    const EvalPartModel* model = FindModel(models, d.class_id);
+    if (model != nullptr) {
+      double best = options.match_relative_distance * model->diameter;
+      int best_index = -1;
+      for (size_t g = 0; g < truth.parts.size(); ++g) {
+        const PartTruth& p = truth.parts[g];
+        if (taken[g] || p.class_id != d.class_id) continue;
+        const double dist = (p.X_BO.translation() - d.X_BO.translation()).norm();
+        if (dist < best) {
+          best = dist;
+          best_index = static_cast<int>(g);
+        }
+      }
+      if (best_index >= 0) {
+        const PartTruth& p = truth.parts[static_cast<size_t>(best_index)];
+        taken[static_cast<size_t>(best_index)] = 1;
+        o.truth_instance = p.instance_id;
+        o.target = p.visible_fraction >= options.min_visible_fraction;
+        if (o.target) ++out.targets_found[p.class_id];
+        o.translation_error = SymmetryAwareTranslationError(d.X_BO, p.X_BO, model->symmetry);
+        o.rotation_error = SymmetryAwareRotationError(d.X_BO, p.X_BO, model->symmetry);
+        o.adds = AddSDistance(model->points_O, d.X_BO, p.X_BO);
+        o.adds_ok = o.adds < options.adds_relative * model->diameter;
+      }
+    }
+    out.detections.push_back(o);
+  }
+  return out;
+}
+
+SegmentationFigures EvaluateSegmentation(const Frame& frame, const PerceptionResult& result, const Cell& cell,
+                                         const EvalOptions& options) {
+  SegmentationFigures out;
+  if (!frame.truth || frame.truth->labels.empty() || !frame.organized()) return out;
+  // The crop is deterministic: redo it to learn each ROI point's pixel.
+  internal::RoiCloud roi;
+  internal::CropToRoi(frame, cell.bin.X_BW, internal::MakeRoiBox(cell), &roi);
+  if (roi.points_B.size() != result.segment_of_point.size()) return out;
+  int max_segment = -1;
+  for (int32_t s : result.segment_of_point) max_segment = std::max(max_segment, s);
+  out.segments = max_segment + 1;
+  // counts[segment][instance]
+  std::map<int, std::map<int, int>> by_segment;
+  std::map<int, std::map<int, int>> by_instance;
+  for (size_t i = 0; i < roi.points_B.size(); ++i) {
+    const uint16_t label = frame.truth->labels.data[static_cast<size_t>(roi.pixel_of_point[i])];
+    const int32_t s = result.segment_of_point[i];
+    if (label == 0 || label == GroundTruth::kBinLabel) {
+      if (s >= 0) ++by_segment[s][0];
+      continue;
+    }
+    ++by_instance[label][s];
+    if (s >= 0) ++by_segment[s][label];
+  }
+  for (const PartTruth& p : frame.truth->parts) {
+    if (p.visible_fraction < options.min_visible_fraction) continue;
+    const auto it = by_instance.find(p.instance_id);
+    if (it == by_instance.end()) continue;
+    int total = 0, segmented = 0, best = 0, best_segment = -1;
+    for (const auto& [s, n] : it->second) {
+      total += n;
+      if (s < 0) continue;
+      segmented += n;
+      if (n > best) {
+        best = n;
+        best_segment = s;
+      }
+    }
+    if (total < 50) continue;
+    ++out.parts;
+    if (segmented == 0 || best < 0.8 * segmented) ++out.split;
+    if (best_segment >= 0) {
+      const auto& seg = by_segment[best_segment];
+      int seg_total = 0, other = 0;
+      for (const auto& [inst, n] : seg) {
+        seg_total += n;
+        if (inst != p.instance_id && inst != 0) other = std::max(other, n);
+      }
+      if (other >= 0.2 * seg_total) ++out.merged;
+    }
+  }
+  return out;
+}
+
+EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vector<EvalPartModel>& models) {
+  EvalReport report;
+  report.frames = static_cast<int>(frames.size());
+  const auto figures = [&](const std::string& name, int class_id, bool all) {
+    ClassFigures f;
+    f.name = name;
+    std::vector<double> t, r;
+    int adds_ok = 0;
+    for (const FrameEvaluation& fe : frames) {
+      for (const auto& [c, n] : fe.targets) f.targets += (all || c == class_id) ? n : 0;
+      for (const auto& [c, n] : fe.targets_found) f.found += (all || c == class_id) ? n : 0;
+      for (const DetectionOutcome& o : fe.detections) {
+        if (!all && o.class_id != class_id) continue;
+        ++f.detections;
+        if (o.truth_instance < 0) continue;
+        ++f.true_positives;
+        t.push_back(o.translation_error * 1000.0);
+        r.push_back(o.rotation_error * 180.0 / kPi);
+        adds_ok += o.adds_ok ? 1 : 0;
+      }
+    }
+    f.recall = f.targets > 0 ? static_cast<double>(f.found) / f.targets : 1.0;
+    f.precision = f.detections > 0 ? static_cast<double>(f.true_positives) / f.detections : 1.0;
+    f.t_median_mm = Percentile(t, 0.5);
+    f.t_p95_mm = Percentile(t, 0.95);
+    f.r_median_deg = Percentile(r, 0.5);
+    f.r_p95_deg = Percentile(r, 0.95);
+    f.adds_ok_fraction = f.detections > 0 ? static_cast<double>(adds_ok) / f.detections : 0.0;
+    return f;
+  };
+  for (const EvalPartModel& m : models) report.classes.push_back(figures(m.name, m.class_id, false));
+  report.classes.push_back(figures("all", -1, true));
+
+  std::vector<std::string> stage_names;
+  for (const FrameEvaluation& fe : frames) {
+    for (const StageTiming& st : fe.timings) {
+      if (std::find(stage_names.begin(), stage_names.end(), st.stage) == stage_names.end()) {
+        stage_names.push_back(st.stage);
+      }
+    }
+  }
+  for (const std::string& name : stage_names) {
+    std::vector<double> ms;
+    for (const FrameEvaluation& fe : frames) {
+      double sum = 0.0;
+      for (const StageTiming& st : fe.timings) sum += st.stage == name ? st.ms : 0.0;
+      ms.push_back(sum);
+    }
+    report.stages.push_back({name, Percentile(ms, 0.5), Percentile(ms, 0.95)});
+  }
+  std::vector<double> total;
+  for (const FrameEvaluation& fe : frames) total.push_back(fe.total_ms);
+  report.stages.push_back({"total", Percentile(total, 0.5), Percentile(total, 0.95)});
+  return report;
+}
+
+}  // namespace bp

@@ -1,0 +1,55 @@
+// The seam between the perception pipeline and the pose estimator: one
+// ClassModel per part class turns a segment into verified hypotheses.
+// Private to bp_pipeline.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/cell.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "pipeline/frame.h"
+
+namespace bp::internal {
+
+// What a class model sees of one segment (points and normals in B).
+struct SegmentView {
+  std::span<const Eigen::Vector3f> points_B;
+  std::span<const Eigen::Vector3f> normals_B;  // same size as points_B, or empty
+  const Frame* frame = nullptr;                // for the camera pose and the depth image
+  std::optional<Eigen::Vector4d> floor_plane_B;  // (n, d): n . x + d = 0, n towards the parts
+};
+
+struct ClassHypothesis {
+  Pose X_BO = Pose::Identity();
+  double score = 0.0;
+  double visible_fraction = 0.0;
+  std::vector<int> support;  // indices into SegmentView::points_B
+};
+
+struct ClassEstimate {
+  std::vector<ClassHypothesis> hypotheses;  // verified, best first
+  std::string reason;                       // when empty
+};
+
+// Thread-safe: Estimate is called concurrently for different segments.
+class ClassModel {
+ public:
+  virtual ~ClassModel() = default;
+  virtual int class_id() const = 0;
+  virtual double diameter() const = 0;
+  virtual ClassEstimate Estimate(const SegmentView& view) const = 0;
+};
+
+// Builds the model of one part class (loads the mesh, builds the tables).
+// @returns the mesh loader's error, or InvalidArgument naming the part.
+Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part);
+
+}  // namespace bp::internal

@@ -1,0 +1,458 @@
+#include "pipeline/perception.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <numeric>
+
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include "pipeline/internal/class_model.h"
+#include "pipeline/internal/roi_cloud.h"
+
+namespace bp {
+
+double PerceptionResult::TotalMs() const {
+  double total = 0.0;
+  for (const StageTiming& t : timings) total += t.ms;
+  return total;
+}
+
+namespace {
+
+using internal::ClassModel;
+using internal::RoiCloud;
+using internal::SampleGrid;
+using Clock = std::chrono::steady_clock;
+
+double Ms(Clock::time_point t0, Clock::time_point t1) {
+  return std::chrono::duration<double, std::milli>(t1 - t0).count();
+}
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Points of the floor band (within this height of the floor and facing up) are
+// the bin floor, not parts.
+constexpr float kFloorBand = 0.004f;
+constexpr float kFloorMinNormalZ = 0.95f;
+// Two detections are one physical part when their centres are closer than this
+// fraction of the larger diameter, or when more than kMaxSharedSupport of the
+// weaker one's support is already claimed.
+constexpr double kNmsRelativeDistance = 0.3;
+constexpr double kMaxSharedSupport = 0.5;
+// A segment is matched again on its unclaimed points when at least this
+// fraction of it is left after the first pass.
+constexpr double kResidualFraction = 0.25;
+// Unorganized clouds are grouped by voxel connectivity at this voxel size
+// (fine enough that 5000 points scattered through the bin stay isolated).
+constexpr float kUnorganizedVoxel = 0.003f;
+// Normals use neighbours this far away (in metres on the bin floor).
+constexpr double kNormalBaseline = 0.0025;
+
+struct Candidate {
+  int class_id = 0;
+  double diameter = 0.0;
+  int segment = 0;
+  internal::ClassHypothesis h;
+  std::vector<int32_t> support_roi;  // ROI indices
+};
+
+class PerceptionImpl final : public Perception {
+ public:
+  PerceptionImpl(const Cell& cell, const PerceptionOptions& options,
+                 std::vector<std::unique_ptr<ClassModel>> models, std::map<int, std::string> failures)
+      : cell_(cell), options_(options), models_(std::move(models)), failures_(std::move(failures)),
+        box_(internal::MakeRoiBox(cell)) {}
+
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes) const override;
+
+ private:
+  Cell cell_;
+  PerceptionOptions options_;
+  std::vector<std::unique_ptr<ClassModel>> models_;
+  std::map<int, std::string> failures_;  // class id -> why it has no model
+  internal::RoiBox box_;
+};
+
+Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vector<int>& classes) const {
+  PerceptionResult result;
+  const auto stage = [&result](const char* name, Clock::time_point t0) {
+    const Clock::time_point t1 = Clock::now();
+    result.timings.push_back({name, Ms(t0, t1)});
+    return t1;
+  };
+
+  // Which class models this request uses.
+  std::vector<const ClassModel*> models;
+  std::string model_problems;
+  for (const PartSpec& part : cell_.parts) {
+    if (!classes.empty() && std::find(classes.begin(), classes.end(), part.class_id) == classes.end()) continue;
+    const auto it = std::find_if(models_.begin(), models_.end(),
+                                 [&](const auto& m) { return m->class_id() == part.class_id; });
+    if (it != models_.end()) {
+      models.push_back(it->get());
+    } else if (const auto f = failures_.find(part.class_id); f != failures_.end()) {
+      model_problems += (model_problems.empty() ? "" : "; ") + f->second;
+    }
+  }
+  for (int c : classes) {
+    if (cell_.FindPart(c) == nullptr) {
+      return Status::InvalidArgument("class " + std::to_string(c) + " is not a part of cell '" + cell_.name + "'");
+    }
+  }
+
+  // 1-2. Deproject, to B, crop to the ROI: one pass.
+  Clock::time_point t = Clock::now();
+  RoiCloud roi;
+  internal::CropToRoi(frame, cell_.bin.X_BW, box_, &roi);
+  t = stage("roi", t);
+  // The stages read roi.points_B; it moves into the result on every return.
+  const std::vector<Eigen::Vector3f>& pts = roi.points_B;
+  const auto finish = [&]() -> Result<PerceptionResult> {
+    result.roi_points_B = std::move(roi.points_B);
+    return std::move(result);
+  };
+  result.roi_point_count = static_cast<int64_t>(pts.size());
+  result.segment_of_point.assign(pts.size(), -1);
+  if (roi.valid_points == 0) {
+    result.reason = "frame has no valid points";
+    return finish();
+  }
+  if (pts.empty()) {
+    result.reason = "ROI is empty: none of the frame's " + std::to_string(roi.valid_points) +
+                    " valid points is inside the bin ROI";
+    return finish();
+  }
+
+  const Eigen::Vector3f z_W_in_B = cell_.bin.X_BW.linear().col(2).cast<float>();
+  const float floor_d = static_cast<float>(-cell_.bin.X_BW.translation().dot(cell_.bin.X_BW.linear().col(2)));
+  const Eigen::Vector4d floor_plane_B(z_W_in_B.x(), z_W_in_B.y(), z_W_in_B.z(), floor_d);
+  const Eigen::Vector3f viewpoint_B = frame.X_BC.translation().cast<float>();
+  const float max_jump = static_cast<float>(options_.segment_max_jump);
+
+  // 3. Regions, normals, segments.
+  std::vector<int32_t> region_of_point;  // connected regions (depth continuity only)
+  std::vector<Eigen::Vector3f> seg_points, seg_normals;  // grid samples, grouped by segment
+  std::vector<int32_t> seg_roi_index;                     // ROI index of each grid sample
+  std::vector<std::pair<int32_t, int32_t>> seg_range;     // [begin, end) per segment
+  std::vector<std::vector<int32_t>> region_views;         // see PerceptionOptions::match_regions
+  if (roi.organized()) {
+    // Grid stride from the pixel footprint on the bin floor.
+    const double z_floor = std::abs((frame.X_BC.inverse() * cell_.bin.X_BW.translation()).z());
+    const double footprint = z_floor / frame.intrinsics.fx;
+    const int stride =
+        std::clamp(static_cast<int>(std::lround(options_.grid_spacing / std::max(footprint, 1e-6))), 1, 8);
+    const SampleGrid grid = internal::MakeSampleGrid(roi, stride);
+    const double spacing = footprint * stride;
+    const float grid_jump = std::max(max_jump, static_cast<float>(2.5 * spacing));
+
+    std::vector<int32_t> region_of_cell;
+    internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell);
+    t = stage("regions", t);
+
+    const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
+    std::vector<Eigen::Vector3f> normals;
+    internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
+    t = stage("normals", t);
+
+    // Floor band: near the floor and facing up.
+    std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
+    for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
+      const int32_t i = grid.point_of_cell[c];
+      if (i < 0) continue;
+      const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(i)];
+      const float height = z_W_in_B.dot(p) + floor_d;
+      if (height < kFloorBand && normals[c].allFinite() && std::abs(normals[c].dot(z_W_in_B)) > kFloorMinNormalZ) {
+        excluded[c] = 1;
+      }
+    }
+    std::vector<int32_t> segment_of_cell;
+    const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
+    const int n_regions =
+        internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
+                              static_cast<float>(options_.segment_convex_tolerance));
+    // Keep segments with enough samples, renumbered by size (largest first).
+    std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
+    for (int32_t s : segment_of_cell) {
+      if (s >= 0) ++size[static_cast<size_t>(s)];
+    }
+    std::vector<int32_t> order(static_cast<size_t>(n_regions));
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(), [&](int32_t a, int32_t b) { return size[a] > size[b]; });
+    std::vector<int32_t> renumber(static_cast<size_t>(n_regions), -1);
+    int kept = 0;
+    for (int32_t s : order) {
+      if (size[static_cast<size_t>(s)] < options_.min_segment_points) break;
+      renumber[static_cast<size_t>(s)] = kept++;
+    }
+    for (int32_t& s : segment_of_cell) s = s >= 0 ? renumber[static_cast<size_t>(s)] : -1;
+    // Group the grid samples by segment.
+    std::vector<int32_t> start(static_cast<size_t>(kept) + 1, 0);
+    for (int32_t s : segment_of_cell) {
+      if (s >= 0) ++start[static_cast<size_t>(s) + 1];
+    }
+    std::partial_sum(start.begin(), start.end(), start.begin());
+    seg_points.resize(static_cast<size_t>(start.back()));
+    seg_normals.resize(seg_points.size());
+    seg_roi_index.resize(seg_points.size());
+    std::vector<int32_t> fill(start.begin(), start.end() - 1);
+    std::vector<int32_t> cell_of_sample(seg_points.size());
+    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+      const int32_t s = segment_of_cell[c];
+      if (s < 0) continue;
+      const int32_t k = fill[static_cast<size_t>(s)]++;
+      const int32_t i = grid.point_of_cell[c];
+      seg_points[static_cast<size_t>(k)] = roi.points_B[static_cast<size_t>(i)];
+      seg_normals[static_cast<size_t>(k)] = normals[c];
+      seg_roi_index[static_cast<size_t>(k)] = i;
+      cell_of_sample[static_cast<size_t>(k)] = static_cast<int32_t>(c);
+    }
+    for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
+    if (options_.match_regions) {
+      // Connected regions that hold two or more segments, as extra views.
+      const int32_t n_cc = region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
+      std::vector<int32_t> first_segment(static_cast<size_t>(n_cc), -1);
+      std::vector<uint8_t> multi(static_cast<size_t>(n_cc), 0);
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
+        if (sgm < 0 || r < 0) continue;
+        int32_t& first = first_segment[static_cast<size_t>(r)];
+        if (first < 0) first = sgm;
+        else if (first != sgm) multi[static_cast<size_t>(r)] = 1;
+      }
+      std::vector<int32_t> view_of_region(static_cast<size_t>(n_cc), -1);
+      for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {
+        const int32_t r = region_of_cell[static_cast<size_t>(cell_of_sample[static_cast<size_t>(k)])];
+        if (r < 0 || !multi[static_cast<size_t>(r)]) continue;
+        int32_t& v = view_of_region[static_cast<size_t>(r)];
+        if (v < 0) {
+          v = static_cast<int32_t>(region_views.size());
+          region_views.emplace_back();
+        }
+        region_views[static_cast<size_t>(v)].push_back(k);
+      }
+    }
+    // One pass gives every ROI point its segment and its connected region.
+    internal::SpreadLabels(roi, grid, segment_of_cell, region_of_cell, grid_jump, &result.segment_of_point,
+                           &region_of_point);
+    t = stage("segment", t);
+  } else {
+    // Unorganized clouds: voxel connected components; the estimator estimates normals.
+    const int n = internal::VoxelRegions(pts, kUnorganizedVoxel, &region_of_point);
+    t = stage("regions", t);
+    std::vector<int32_t> size(static_cast<size_t>(n), 0);
+    for (int32_t r : region_of_point) ++size[static_cast<size_t>(r)];
+    std::vector<int32_t> renumber(static_cast<size_t>(n), -1);
+    int kept = 0;
+    for (int r = 0; r < n; ++r) {
+      if (size[static_cast<size_t>(r)] >= options_.min_segment_points) renumber[static_cast<size_t>(r)] = kept++;
+    }
+    std::vector<std::vector<int32_t>> members(static_cast<size_t>(kept));
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const int32_t s = renumber[static_cast<size_t>(region_of_point[i])];
+      result.segment_of_point[i] = s;
+      if (s >= 0) members[static_cast<size_t>(s)].push_back(static_cast<int32_t>(i));
+    }
+    for (const auto& m : members) {
+      const auto begin = static_cast<int32_t>(seg_points.size());
+      for (int32_t i : m) {
+        seg_points.push_back(pts[static_cast<size_t>(i)]);
+        seg_roi_index.push_back(i);
+      }
+      seg_range.emplace_back(begin, static_cast<int32_t>(seg_points.size()));
+    }
+    t = stage("segment", t);
+  }
+
+  // Largest connected region (empty-box rule).
+  {
+    std::vector<int64_t> count;
+    for (int32_t r : region_of_point) {
+      if (r < 0) continue;
+      if (static_cast<size_t>(r) >= count.size()) count.resize(static_cast<size_t>(r) + 1, 0);
+      ++count[static_cast<size_t>(r)];
+    }
+    result.largest_region_points = count.empty() ? 0 : *std::max_element(count.begin(), count.end());
+  }
+
+  if (seg_range.empty()) {
+    result.reason = "no segment of at least " + std::to_string(options_.min_segment_points) +
+                    " points in the ROI (" + std::to_string(result.roi_point_count) + " ROI points, largest region " +
+                    std::to_string(result.largest_region_points) + ")";
+    return finish();
+  }
+  if (models.empty()) {
+    result.reason = model_problems.empty() ? "no part class to look for" : "no pose model: " + model_problems;
+    return finish();
+  }
+
+  // 4. Pose per (segment, class), in parallel on the caller's arena. Each
+  // view is the segment's samples, then (with context_relative_radius > 0)
+  // the other segments' samples near its centroid: a part that self-occlusion
+  // cut into pieces is seen whole from each piece.
+  double max_diameter = 0.0;
+  for (const ClassModel* m : models) max_diameter = std::max(max_diameter, m->diameter());
+  const float context_radius = static_cast<float>(options_.context_relative_radius * max_diameter);
+  std::vector<std::vector<int32_t>> view_of_segment(seg_range.size());
+  tbb::parallel_for(size_t{0}, seg_range.size(), [&](size_t s) {
+    const auto [b, e] = seg_range[s];
+    std::vector<int32_t>& view = view_of_segment[s];
+    for (int32_t k = b; k < e; ++k) view.push_back(k);
+    if (!(context_radius > 0.f)) return;
+    Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
+    for (int32_t k = b; k < e; ++k) centroid += seg_points[static_cast<size_t>(k)];
+    centroid /= static_cast<float>(e - b);
+    const float r2 = context_radius * context_radius;
+    for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {
+      if (k >= b && k < e) continue;
+      if ((seg_points[static_cast<size_t>(k)] - centroid).squaredNorm() < r2) view.push_back(k);
+    }
+  });
+  // Runs every class model on every view (index lists into seg_points).
+  const bool have_normals = !seg_normals.empty();
+  std::string first_reason;
+  int rejected_low_score = 0;
+  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
+    const size_t n_jobs = views.size() * models.size();
+    std::vector<internal::ClassEstimate> estimates(n_jobs);
+    tbb::parallel_for(size_t{0}, n_jobs, [&](size_t job) {
+      const std::vector<int32_t>& index = views[job / models.size()];
+      const ClassModel& model = *models[job % models.size()];
+      std::vector<Eigen::Vector3f> points, normals;
+      points.reserve(index.size());
+      for (int32_t k : index) points.push_back(seg_points[static_cast<size_t>(k)]);
+      if (have_normals) {
+        normals.reserve(index.size());
+        for (int32_t k : index) normals.push_back(seg_normals[static_cast<size_t>(k)]);
+      }
+      internal::SegmentView view;
+      view.points_B = points;
+      view.normals_B = normals;
+      view.frame = &frame;
+      view.floor_plane_B = floor_plane_B;
+      estimates[job] = model.Estimate(view);
+    });
+    std::vector<Candidate> candidates;
+    for (size_t job = 0; job < n_jobs; ++job) {
+      const size_t s = job / models.size();
+      const ClassModel& model = *models[job % models.size()];
+      if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
+      for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
+        if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
+        if (h.score < options_.min_detection_score) {
+          ++rejected_low_score;
+          continue;
+        }
+        Candidate c;
+        c.class_id = model.class_id();
+        c.diameter = model.diameter();
+        c.segment = static_cast<int>(s);
+        c.support_roi.reserve(h.support.size());
+        const std::vector<int32_t>& index = views[s];
+        for (int k : h.support) {
+          if (k >= 0 && static_cast<size_t>(k) < index.size()) {
+            c.support_roi.push_back(seg_roi_index[static_cast<size_t>(index[static_cast<size_t>(k)])]);
+          }
+        }
+        c.h = std::move(h);
+        candidates.push_back(std::move(c));
+      }
+    }
+    return candidates;
+  };
+
+  // 5. One detection per physical part: best score first, across segments and
+  // classes; a candidate is a duplicate when its centre is near an accepted
+  // one or most of its support is already claimed.
+  std::vector<uint8_t> claimed(pts.size(), 0);
+  std::vector<double> accepted_diameter;
+  const auto accept = [&](std::vector<Candidate> candidates) {
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
+    for (Candidate& c : candidates) {
+      bool duplicate = false;
+      for (size_t k = 0; k < result.detections.size(); ++k) {
+        const double dist = (result.detections[k].X_BO.translation() - c.h.X_BO.translation()).norm();
+        if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
+          duplicate = true;
+          break;
+        }
+      }
+      if (!duplicate && !c.support_roi.empty()) {
+        size_t shared = 0;
+        for (int32_t i : c.support_roi) shared += claimed[static_cast<size_t>(i)];
+        duplicate = static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size());
+      }
+      if (duplicate) continue;
+      for (int32_t i : c.support_roi) claimed[static_cast<size_t>(i)] = 1;
+      accepted_diameter.push_back(c.diameter);
+      Detection d;
+      d.class_id = c.class_id;
+      d.X_BO = c.h.X_BO;
+      d.score = c.h.score;
+      d.visible_fraction = c.h.visible_fraction;
+      d.support = std::move(c.support_roi);
+      result.detections.push_back(std::move(d));
+    }
+  };
+
+  for (auto& view : region_views) view_of_segment.push_back(std::move(view));
+  std::vector<Candidate> candidates = estimate(view_of_segment);
+  t = stage("pose", t);
+  accept(std::move(candidates));
+  t = stage("verify", t);
+
+  // Residual pass: segments that a detection explained only in part (touching
+  // parts merged into one segment) are matched again on their unclaimed points.
+  std::vector<std::vector<int32_t>> residual;
+  for (const auto& [b, e] : seg_range) {
+    std::vector<int32_t> left;
+    for (int32_t k = b; k < e; ++k) {
+      if (!claimed[static_cast<size_t>(seg_roi_index[static_cast<size_t>(k)])]) left.push_back(k);
+    }
+    const auto n = static_cast<int32_t>(left.size());
+    if (n < e - b && n >= options_.min_segment_points && n >= kResidualFraction * (e - b)) {
+      residual.push_back(std::move(left));
+    }
+  }
+  if (!residual.empty()) accept(estimate(residual));
+  stage("residual", t);
+  if (result.detections.empty()) {
+    result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +
+                    (rejected_low_score > 0 ? " (" + std::to_string(rejected_low_score) + " below min_detection_score)"
+                                            : std::string()) +
+                    (first_reason.empty() ? "" : " (e.g. " + first_reason + ")");
+  }
+  return finish();
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const PerceptionOptions& options) {
+  if (options.threads < 1) return Status::InvalidArgument("perception: threads must be >= 1");
+  if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
+  if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
+  std::vector<Result<std::unique_ptr<ClassModel>>> built;
+  built.reserve(cell.parts.size());
+  for (size_t i = 0; i < cell.parts.size(); ++i) built.emplace_back(Status::Internal("not built"));
+  tbb::task_arena arena(options.threads);
+  arena.execute([&] {
+    tbb::parallel_for(size_t{0}, cell.parts.size(),
+                      [&](size_t i) { built[i] = internal::BuildClassModel(cell.parts[i]); });
+  });
+  std::vector<std::unique_ptr<ClassModel>> models;
+  std::map<int, std::string> failures;
+  for (size_t i = 0; i < built.size(); ++i) {
+    if (built[i].ok()) {
+      models.push_back(std::move(built[i]).value());
+    } else {
+      failures[cell.parts[i].class_id] = built[i].status().message();
+    }
+  }
+  return std::unique_ptr<Perception>(std::make_unique<PerceptionImpl>(cell, options, std::move(models), std::move(failures)));
+}
+
+}  // namespace bp

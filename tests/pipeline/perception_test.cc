@@ -1,0 +1,346 @@
+// The perception pipeline (pipeline/perception.h) on rendered scenes of the
+// default cell's parts: ROI counts, bad input, segmentation, detections, and a
+// short evaluation run (pipeline/evaluation.h).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <random>
+#include <set>
+
+#include <tbb/task_arena.h>
+
+#include "core/mesh.h"
+#include "core/mesh_gen.h"
+#include "pipeline/evaluation.h"
+#include "pipeline/perception.h"
+#include "pipeline/renderer.h"
+#include "pipeline/synthetic_source.h"
+
+namespace bp {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = kPi / 180.0;
+
+Pose PoseW(double x, double y, double z, double yaw_deg, double roll_deg = 0.0) {
+  return MakePose(Mat3(Eigen::AngleAxisd(yaw_deg * kDeg, Vec3::UnitZ()) *
+                       Eigen::AngleAxisd(roll_deg * kDeg, Vec3::UnitX())),
+                  Vec3(x, y, z));
+}
+
+// Shared, built once: the default cell, its part meshes, a renderer and the pipeline.
+struct Fixture {
+  Cell cell;
+  std::vector<std::shared_ptr<const TriangleMesh>> meshes;  // bin, then the parts by class id
+  std::unique_ptr<DepthRenderer> renderer;
+  std::unique_ptr<Perception> perception;
+  std::vector<EvalPartModel> models;
+
+  static Fixture& Get() {
+    static Fixture* f = [] {
+      auto* fx = new Fixture;
+      fx->cell = *LoadDefaultCell();
+      fx->meshes.push_back(std::make_shared<TriangleMesh>(MakeBinMesh(fx->cell.bin)));
+      for (const PartSpec& p : fx->cell.parts) fx->meshes.push_back(std::make_shared<TriangleMesh>(*LoadMesh(p.mesh)));
+      auto r = MakeOsMesaRenderer();
+      if (r.ok()) fx->renderer = std::move(*r);
+      fx->perception = Perception::Build(fx->cell).value();
+      fx->models = LoadEvalModels(fx->cell).value();
+      return fx;
+    }();
+    return *f;
+  }
+
+  // Renders the bin and parts (class id, X_WO) through camera config 1, with
+  // Gaussian depth noise of sigma metres.
+  Frame Render(const std::vector<std::pair<int, Pose>>& parts_W, double sigma = 0.0003, uint64_t seed = 1) const {
+    RenderScene scene;
+    scene.meshes = meshes;
+    scene.instances.push_back({0, Pose::Identity(), GroundTruth::kBinLabel});
+    Frame frame;
+    frame.X_BC = cell.camera.X_BC;
+    frame.truth = GroundTruth{};
+    for (size_t i = 0; i < parts_W.size(); ++i) {
+      scene.instances.push_back({static_cast<size_t>(parts_W[i].first) + 1, parts_W[i].second,
+                                 static_cast<uint16_t>(i + 1)});
+      PartTruth t;
+      t.instance_id = static_cast<int>(i + 1);
+      t.class_id = parts_W[i].first;
+      t.X_BO = cell.bin.X_BW * parts_W[i].second;
+      t.visible_fraction = 1.0;
+      frame.truth->parts.push_back(t);
+    }
+    const Intrinsics& K = cell.camera.FindConfig(1)->intrinsics;
+    auto out = renderer->Render(scene, K, cell.bin.X_BW.inverse() * cell.camera.X_BC);
+    EXPECT_TRUE(out.ok()) << out.status().ToString();
+    std::mt19937 rng(static_cast<uint32_t>(seed));
+    std::normal_distribution<float> noise(0.f, static_cast<float>(sigma));
+    for (float& z : out->depth.data) {
+      if (std::isfinite(z)) z += noise(rng);
+    }
+    frame.depth = std::move(out->depth);
+    frame.truth->labels = std::move(out->labels);
+    frame.intrinsics = K;
+    return frame;
+  }
+
+  PerceptionResult Run(const Frame& frame, const std::vector<int>& classes = {}) const {
+    tbb::task_arena arena(2);
+    Result<PerceptionResult> r = Status::Internal("not run");
+    arena.execute([&] { r = perception->Run(frame, classes); });
+    EXPECT_TRUE(r.ok()) << r.status().ToString();
+    return r.ok() ? *r : PerceptionResult{};
+  }
+};
+
+class PerceptionTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!Fixture::Get().renderer) GTEST_SKIP() << "no OSMesa renderer";
+  }
+  Fixture& fx() { return Fixture::Get(); }
+};
+
+int32_t NearestPoint(const PerceptionResult& r, const Vec3& p_B) {
+  int32_t best = -1;
+  double best_d = 1e9;
+  for (size_t i = 0; i < r.roi_points_B.size(); ++i) {
+    const double d = (r.roi_points_B[i].cast<double>() - p_B).norm();
+    if (d < best_d) {
+      best_d = d;
+      best = static_cast<int32_t>(i);
+    }
+  }
+  return best;
+}
+
+TEST_F(PerceptionTest, EmptyBinGivesNoDetectionsAndASmallLargestRegion) {
+  const Frame frame = fx().Render({});
+  const PerceptionResult r = fx().Run(frame);
+  EXPECT_TRUE(r.detections.empty());
+  EXPECT_FALSE(r.reason.empty());
+  EXPECT_LT(r.largest_region_points, 50);
+  EXPECT_LT(r.roi_point_count, 200) << "floor noise above floor_margin";
+  EXPECT_EQ(r.roi_point_count, static_cast<int64_t>(r.roi_points_B.size()));
+}
+
+TEST_F(PerceptionTest, AllNanFrameGivesNoDetectionsAndAReason) {
+  Frame frame = fx().Render({});
+  std::fill(frame.depth.data.begin(), frame.depth.data.end(), std::numeric_limits<float>::quiet_NaN());
+  const PerceptionResult r = fx().Run(frame);
+  EXPECT_TRUE(r.detections.empty());
+  EXPECT_EQ(r.roi_point_count, 0);
+  EXPECT_NE(r.reason.find("no valid points"), std::string::npos) << r.reason;
+
+  Frame cloud;
+  cloud.points_C.assign(1000, Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+  const PerceptionResult rc = fx().Run(cloud);
+  EXPECT_TRUE(rc.detections.empty());
+  EXPECT_NE(rc.reason.find("no valid points"), std::string::npos) << rc.reason;
+}
+
+TEST_F(PerceptionTest, PointsOutsideTheRoiGiveAnEmptyRoiReason) {
+  Frame frame;
+  frame.X_BC = fx().cell.camera.X_BC;
+  frame.points_C.assign(500, Eigen::Vector3f(0.f, 0.f, 0.2f));  // 0.85 m above the floor
+  const PerceptionResult r = fx().Run(frame);
+  EXPECT_TRUE(r.detections.empty());
+  EXPECT_EQ(r.roi_point_count, 0);
+  EXPECT_NE(r.reason.find("ROI is empty"), std::string::npos) << r.reason;
+}
+
+// 5000 points scattered uniformly through the ROI, organized (one pixel each)
+// and unorganized: lots of ROI points, no large connected region.
+TEST_F(PerceptionTest, ScatteredNoisePointsDoNotFormALargeRegion) {
+  const Cell& cell = fx().cell;
+  const Intrinsics K = cell.camera.FindConfig(1)->intrinsics;
+  std::mt19937 rng(42);
+  const Vec3 half = 0.5 * cell.bin.inner_size;
+  std::uniform_real_distribution<double> ux(-half.x() + 0.01, half.x() - 0.01), uy(-half.y() + 0.01, half.y() - 0.01),
+      uz(0.005, 0.2);
+  Frame organized;
+  organized.X_BC = cell.camera.X_BC;
+  organized.intrinsics = K;
+  organized.depth = DepthImage(K.width, K.height, std::numeric_limits<float>::quiet_NaN());
+  Frame cloud;
+  cloud.X_BC = cell.camera.X_BC;
+  const Pose X_CW = cell.camera.X_BC.inverse() * cell.bin.X_BW;
+  for (int i = 0; i < 5000; ++i) {
+    const Vec3 p_C = X_CW * Vec3(ux(rng), uy(rng), uz(rng));
+    cloud.points_C.push_back(p_C.cast<float>());
+    const int u = static_cast<int>(std::lround(K.fx * p_C.x() / p_C.z() + K.cx));
+    const int v = static_cast<int>(std::lround(K.fy * p_C.y() / p_C.z() + K.cy));
+    if (u >= 0 && v >= 0 && u < K.width && v < K.height) organized.depth.at(u, v) = static_cast<float>(p_C.z());
+  }
+  for (const Frame* frame : {&organized, &cloud}) {
+    const PerceptionResult r = fx().Run(*frame);
+    EXPECT_GT(r.roi_point_count, 4000);
+    EXPECT_LT(r.largest_region_points, 30);
+    EXPECT_TRUE(r.detections.empty());
+  }
+}
+
+TEST_F(PerceptionTest, StackedPartsFallIntoDifferentSegments) {
+  // A bushing standing on an L bracket's base plate (5 mm thick).
+  const Frame frame = fx().Render({{1, PoseW(-0.05, 0.0, 0.0, 0.0)}, {0, PoseW(0.0, 0.0, 0.005, 0.0)}});
+  const PerceptionResult r = fx().Run(frame);
+  const Pose& X_BW = fx().cell.bin.X_BW;
+  const int32_t on_hub = NearestPoint(r, X_BW * Vec3(0.0, 0.014, 0.045));
+  const int32_t on_base = NearestPoint(r, X_BW * Vec3(-0.038, 0.0, 0.005));
+  ASSERT_GE(on_hub, 0);
+  ASSERT_GE(on_base, 0);
+  EXPECT_GE(r.segment_of_point[static_cast<size_t>(on_hub)], 0);
+  EXPECT_GE(r.segment_of_point[static_cast<size_t>(on_base)], 0);
+  EXPECT_NE(r.segment_of_point[static_cast<size_t>(on_hub)], r.segment_of_point[static_cast<size_t>(on_base)]);
+}
+
+TEST(PerceptionEvaluation, SymmetricPartErrorIsMeasuredModuloItsSymmetry) {
+  Symmetry revolute;
+  revolute.kind = Symmetry::Kind::kRevolute;
+  Symmetry tee;
+  tee.kind = Symmetry::Kind::kDiscrete;
+  tee.order = 2;
+  const Symmetry none;
+  const Pose X = PoseW(0.7, 0.1, 0.05, 20.0, 10.0);
+  const auto about_z = [&](double deg) { return X * PoseW(0, 0, 0, deg); };
+  EXPECT_NEAR(SymmetryAwareRotationError(about_z(70), X, revolute), 0.0, 1e-9);
+  EXPECT_NEAR(SymmetryAwareRotationError(about_z(180), X, tee), 0.0, 1e-9);
+  EXPECT_NEAR(SymmetryAwareRotationError(about_z(90), X, tee), 90 * kDeg, 1e-9);
+  EXPECT_NEAR(SymmetryAwareRotationError(about_z(180), X, none), kPi, 1e-9);
+  // A tilt of the axis is an error for every symmetry.
+  const Pose tilted = X * PoseW(0, 0, 0, 0, 3.0);
+  EXPECT_NEAR(SymmetryAwareRotationError(tilted, X, revolute), 3 * kDeg, 1e-9);
+  EXPECT_NEAR(SymmetryAwareRotationError(tilted, X, tee), 3 * kDeg, 1e-9);
+  Symmetry flip = tee;  // a 180 degree flip about x with a 1 cm offset
+  flip.extra.push_back(MakePose(Mat3(Eigen::AngleAxisd(kPi, Vec3::UnitX())), Vec3(0.0, 0.0, 0.01)));
+  const Pose flipped = X * flip.extra[0];
+  EXPECT_NEAR(SymmetryAwareRotationError(flipped, X, flip), 0.0, 1e-9);
+  EXPECT_GT(SymmetryAwareRotationError(flipped, X, tee), 170 * kDeg);
+}
+
+TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
+  auto cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok());
+  auto models = LoadEvalModels(*cell);
+  ASSERT_TRUE(models.ok()) << models.status().ToString();
+  GroundTruth truth;
+  truth.parts.push_back({1, 0, "flanged_bushing", PoseW(0.7, 0, 0.05, 0), 100, 100, 1.0});
+  truth.parts.push_back({2, 1, "l_bracket", PoseW(0.8, 0, 0.05, 0), 100, 100, 1.0});
+  truth.parts.push_back({3, 2, "pipe_tee", PoseW(0.6, 0, 0.05, 0), 10, 100, 0.1});  // not a target
+  PerceptionResult result;
+  result.detections.push_back({0, PoseW(0.7005, 0, 0.05, 33), 0.9, 1.0, {}});  // revolute: yaw is free
+  result.detections.push_back({2, PoseW(0.8, 0, 0.05, 0), 0.8, 1.0, {}});      // wrong class
+  result.detections.push_back({2, PoseW(0.6, 0, 0.05, 180), 0.7, 1.0, {}});    // tee, symmetric turn
+  const FrameEvaluation fe = EvaluateFrame(result, truth, *models);
+  ASSERT_EQ(fe.detections.size(), 3u);
+  EXPECT_EQ(fe.detections[0].truth_instance, 1);
+  EXPECT_NEAR(fe.detections[0].translation_error, 0.0005, 1e-9);
+  EXPECT_NEAR(fe.detections[0].rotation_error, 0.0, 1e-9);
+  EXPECT_TRUE(fe.detections[0].adds_ok);
+  EXPECT_EQ(fe.detections[1].truth_instance, -1);
+  EXPECT_EQ(fe.detections[2].truth_instance, 3);
+  EXPECT_FALSE(fe.detections[2].target);
+  EXPECT_NEAR(fe.detections[2].rotation_error, 0.0, 1e-9);
+  const EvalReport report = Summarize({fe}, *models);
+  const ClassFigures& all = report.classes.back();
+  EXPECT_EQ(all.name, "all");
+  EXPECT_EQ(all.targets, 2);
+  EXPECT_EQ(all.found, 1);
+  EXPECT_DOUBLE_EQ(all.recall, 0.5);
+  EXPECT_NEAR(all.precision, 2.0 / 3.0, 1e-12);
+}
+
+TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
+  // Tilted so that every face constrains the pose (a flat-lying bracket shows
+  // its upright only edge-on).
+  const Pose X_WO = PoseW(0.03, -0.02, 0.03, 30.0, 25.0);
+  const Frame frame = fx().Render({{1, X_WO}});
+  const PerceptionResult r = fx().Run(frame);
+  ASSERT_EQ(r.detections.size(), 1u) << r.reason;
+  const Detection& d = r.detections[0];
+  EXPECT_EQ(d.class_id, 1);
+  const Pose X_BO = fx().cell.bin.X_BW * X_WO;
+  EXPECT_LT((d.X_BO.translation() - X_BO.translation()).norm(), 0.0005);
+  EXPECT_LT(SymmetryAwareRotationError(d.X_BO, X_BO, fx().cell.parts[1].symmetry), 0.5 * kDeg);
+  EXPECT_GT(d.score, 0.5);
+  EXPECT_GT(d.visible_fraction, 0.8);
+  EXPECT_GT(d.support.size(), 100u);
+  for (int32_t i : d.support) ASSERT_LT(static_cast<size_t>(i), r.roi_points_B.size());
+  std::vector<std::string> stages;
+  for (const StageTiming& t : r.timings) stages.push_back(t.stage);
+  EXPECT_EQ(stages, (std::vector<std::string>{"roi", "regions", "normals", "segment", "pose", "verify", "residual"}));
+}
+
+TEST_F(PerceptionTest, ClassesArgumentRestrictsTheSearch) {
+  const Frame frame = fx().Render({{1, PoseW(0.03, -0.02, 0.0, 30.0)}});
+  const PerceptionResult r = fx().Run(frame, {0, 2});
+  for (const Detection& d : r.detections) EXPECT_NE(d.class_id, 1);
+  tbb::task_arena arena(2);
+  Result<PerceptionResult> bad = Status::Internal("not run");
+  arena.execute([&] { bad = fx().perception->Run(frame, {7}); });
+  EXPECT_EQ(bad.status().code(), Status::Code::kInvalidArgument);
+}
+
+TEST_F(PerceptionTest, SymmetricPartIsFoundModuloItsSymmetry) {
+  // A pipe tee turned 100 degrees about z, branch tilted 60 degrees.
+  const Pose X_WO = PoseW(-0.05, 0.04, 0.04, 100.0, 60.0);
+  const Frame frame = fx().Render({{2, X_WO}});
+  const PerceptionResult r = fx().Run(frame);
+  ASSERT_EQ(r.detections.size(), 1u) << r.reason;
+  const Pose X_BO = fx().cell.bin.X_BW * X_WO;
+  EXPECT_EQ(r.detections[0].class_id, 2);
+  EXPECT_LT(SymmetryAwareTranslationError(r.detections[0].X_BO, X_BO, fx().cell.parts[2].symmetry), 0.0005);
+  EXPECT_LT(SymmetryAwareRotationError(r.detections[0].X_BO, X_BO, fx().cell.parts[2].symmetry), 0.5 * kDeg);
+}
+
+TEST_F(PerceptionTest, SeparatesTwoTouchingParts) {
+  // Two bushings standing side by side, flanges touching (60 mm flanges).
+  const Pose X_W1 = PoseW(0.0, 0.0, 0.0, 0.0), X_W2 = PoseW(0.0601, 0.0, 0.0, 0.0);
+  const Frame frame = fx().Render({{0, X_W1}, {0, X_W2}});
+  const PerceptionResult r = fx().Run(frame);
+  ASSERT_EQ(r.detections.size(), 2u) << r.reason;
+  std::set<int32_t> first(r.detections[0].support.begin(), r.detections[0].support.end());
+  for (int32_t i : r.detections[1].support) EXPECT_EQ(first.count(i), 0u);
+  for (const Pose& X_WO : {X_W1, X_W2}) {
+    const Vec3 t = (fx().cell.bin.X_BW * X_WO).translation();
+    const double best = std::min((r.detections[0].X_BO.translation() - t).norm(),
+                                 (r.detections[1].X_BO.translation() - t).norm());
+    EXPECT_LT(best, 0.001);
+  }
+}
+
+// A short evaluation run on synthetic piles of the default cell (20 parts,
+// default noise, 640x480). Measured on seeds 11-12: recall 0.833, precision
+// 0.935, median 0.036 mm / 0.060 deg (docs/perception_pipeline.md); the
+// thresholds leave about two parts of margin. The targets (0.95 /
+// 0.99) are not met yet, so these pin the current level against regressions.
+TEST(PerceptionEval, ShortSyntheticRunMeetsThresholds) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  std::vector<FrameEvaluation> frames;
+  tbb::task_arena arena(2);
+  for (uint64_t seed : {11u, 12u}) {
+    Cell cell = f.cell;
+    cell.source.seed = seed;
+    auto source = MakeSyntheticSource(cell);
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    auto frame = (*source)->Capture({});
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    Result<PerceptionResult> r = Status::Internal("not run");
+    arena.execute([&] { r = f.perception->Run(*frame); });
+    ASSERT_TRUE(r.ok()) << r.status().ToString();
+    frames.push_back(EvaluateFrame(*r, *frame->truth, f.models));
+  }
+  const EvalReport report = Summarize(frames, f.models);
+  const ClassFigures& all = report.classes.back();
+  EXPECT_GE(all.targets, 20);
+  EXPECT_GE(all.recall, 0.75);
+  EXPECT_GE(all.precision, 0.85);
+  EXPECT_LE(all.t_median_mm, 1.0);
+  EXPECT_LE(all.r_median_deg, 1.0);
+}
+
+}  // namespace
+}  // namespace bp
