@@ -1,12 +1,29 @@
 #!/usr/bin/env bash
-# The main job (README): builds, then renders the default cell and describes
-# what was captured. Later stages extend this into server + simulated robot.
+# The main job (README): builds, starts binpickd on the default cell
+# (synthetic camera, simulate_picks on), and lets the simulated UR robot clear
+# the bin over the DaoAI socket protocol, exactly as the seed robot program
+# does: capture, pick until no object is left, re-capture, and finally the
+# empty-box check. Each pick prints status, pose, remaining count and latency.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/build.sh
-out="${DEMO_OUT:-build/demo}"
-mkdir -p "$out"
-build/bin/binpick render --seed 1 --out "$out"
-for f in "$out"/*.pcd "$out"/*.png; do
-  build/bin/binpick info "$f"
-done
+
+port="${DEMO_PORT:-6969}"
+log="build/demo_binpickd.log"
+fifo="$(mktemp -u)"
+mkfifo "$fifo"
+build/bin/binpickd --bind 127.0.0.1 --daoai-port "$port" --gri-port 0 --gri-official-port 0 \
+  --log-level info >"$fifo" 2>"$log" &
+server=$!
+trap 'kill "$server" 2>/dev/null || true; wait "$server" 2>/dev/null || true; rm -f "$fifo"' EXIT
+
+# binpickd prints exactly one line on stdout when it accepts robots.
+if ! read -r -t 120 ready <"$fifo"; then
+  echo "demo: binpickd did not become ready; its log:" >&2
+  cat "$log" >&2
+  exit 1
+fi
+echo "$ready"
+
+build/bin/binpick robot --host 127.0.0.1 --port "$port" --robot ur --flow pick --task 0 \
+  --max-cycles "${DEMO_MAX_CYCLES:-80}"
