@@ -267,6 +267,8 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   const GraspPlanningModel::Impl::Gripper& gripper = gripper_it->second;
 
   // Candidates.
+  const double compliance =
+      gripper.spec->kind == GripperSpec::Kind::kSuction ? m.options.suction_compliance_deg * M_PI / 180.0 : 0.0;
   for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
     const Detection& det = detections[d];
     if (!wanted(det.class_id)) continue;
@@ -279,7 +281,22 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
       c.X_BT = det.X_BO * g.X_OG;
       c.X_BT_pre = c.X_BT * TranslateZ(-gripper.spec->approach_distance);
       c.tilt_rad = TiltRad(c.X_BT);
+      const bool turn = compliance > 0 && c.tilt_rad > 1e-3;
+      GraspCandidate turned;
+      if (turn) {
+        turned = c;
+        const Vec3 z_T = c.X_BT.linear().col(2);
+        Vec3 axis = z_T.cross(Vec3(0, 0, -1));
+        if (axis.norm() < 1e-9) axis = c.X_BT.linear().col(0);  // upside down: any horizontal axis
+        const double angle = std::min(c.tilt_rad, compliance);
+        turned.X_BT.linear() = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix() * c.X_BT.linear();
+        turned.X_BT_pre = turned.X_BT * TranslateZ(-gripper.spec->approach_distance);
+        turned.X_OG = det.X_BO.inverse() * turned.X_BT;
+        turned.tilt_rad = TiltRad(turned.X_BT);
+        turned.name += "~v";
+      }
       plan.candidates.push_back(std::move(c));
+      if (turn) plan.candidates.push_back(std::move(turned));
     };
     for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
     for (const TaughtGrasp& t : taught) {

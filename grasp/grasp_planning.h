@@ -58,6 +58,11 @@ struct GraspPlanningOptions {
   double approach_step = 0.005;     // m between swept copies of the gripper
   double contact_margin = 0.005;    // m the gripper is lifted for self / point checks
   double octree_resolution = 0.004; // m, voxel edge of the scene-point OcTree
+  // Suction cups comply with a surface up to some angle: each suction
+  // candidate also gets a variant turned about its contact point toward a
+  // vertical approach by min(tilt, suction_compliance_deg) (name + "~v").
+  // 0 disables the variants.
+  double suction_compliance_deg = 20.0;
 };
 
 // A grasp of a part class in the part frame, before symmetry expansion.

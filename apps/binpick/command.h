@@ -28,6 +28,7 @@ struct Command {
 
 Command RenderCommand();
 Command InfoCommand();
+Command ClearCommand();  // clear_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.
