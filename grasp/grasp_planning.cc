@@ -36,7 +36,7 @@ std::string FilterStats::Describe() const {
   for (int r = 0; r < kNumRejectReasons; ++r) {
     if (rejected[r] > 0) os << "; " << ToString(static_cast<RejectReason>(r)) << " " << rejected[r];
   }
-  os << " (" << filter_ms << " ms)";
+  os << " (" << filter_ms << " ms, obstacles " << obstacles_ms << " ms)";
   return os.str();
 }
 
@@ -48,8 +48,75 @@ Pose TranslateZ(double z) {
   return X;
 }
 
-// The gripper swept along its approach: copies at z offsets 0, -step, ..., -distance.
+// The gripper swept along its approach (translated by 0 .. -distance in z).
+//
+// Exact and cheap when every connected component of the gripper mesh has
+// horizontal cross-sections that never shrink toward -z (each contains the
+// ones above it): then the sweep is the component with its lowest vertices
+// moved down by `distance`. Recognised cases: prisms along z (every vertex on
+// the component's lowest or highest z: boxes, cylinders) and solids of
+// revolution about a z axis whose radius does not shrink toward -z (the
+// shipped suction cup: a cup under a wider rod). Otherwise the sweep is the
+// union of copies every `step` (many overlapping triangles, slower queries).
 TriangleMesh SweepAlongApproach(const TriangleMesh& gripper_T, double distance, double step) {
+  const int n = static_cast<int>(gripper_T.vertices.size());
+  std::vector<int> parent(n);
+  for (int i = 0; i < n; ++i) parent[i] = i;
+  auto find = [&parent](int i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  for (const auto& t : gripper_T.triangles) {
+    for (int k = 1; k < 3; ++k) parent[find(t[k])] = find(t[0]);
+  }
+  std::map<int, std::vector<int>> components;
+  for (int i = 0; i < n; ++i) components[find(i)].push_back(i);
+  constexpr double kEps = 1e-6;
+  auto stretchable = [&](const std::vector<int>& vs) {
+    double lo = 1e9, hi = -1e9;
+    Eigen::Vector2d centre = Eigen::Vector2d::Zero();
+    for (int i : vs) {
+      const auto& v = gripper_T.vertices[i];
+      lo = std::min(lo, static_cast<double>(v.z()));
+      hi = std::max(hi, static_cast<double>(v.z()));
+      centre += v.head<2>().cast<double>();
+    }
+    centre /= static_cast<double>(vs.size());
+    bool prism = true;
+    for (int i : vs) {
+      const double z = gripper_T.vertices[i].z();
+      prism = prism && (std::abs(z - lo) < kEps || std::abs(z - hi) < kEps);
+    }
+    if (prism) return true;
+    // Revolved (assumed: sections are discs about the component's centre
+    // axis): the largest radius per z level must not shrink going down.
+    std::map<double, double, std::greater<double>> max_r;  // z (top first) -> radius
+    for (int i : vs) {
+      const auto& v = gripper_T.vertices[i];
+      const double z = std::round(v.z() / kEps) * kEps;
+      double& r = max_r[z];
+      r = std::max(r, (v.head<2>().cast<double>() - centre).norm());
+    }
+    double previous = 0;
+    for (const auto& [z, r] : max_r) {
+      if (r + kEps < previous) return false;
+      previous = r;
+    }
+    return true;
+  };
+  bool stretch = true;
+  for (const auto& [root, vs] : components) stretch = stretch && stretchable(vs);
+  if (stretch) {
+    TriangleMesh out = gripper_T;
+    for (const auto& [root, vs] : components) {
+      float lo = 1e9f;
+      for (int i : vs) lo = std::min(lo, out.vertices[i].z());
+      for (int i : vs) {
+        if (std::abs(out.vertices[i].z() - lo) < kEps) out.vertices[i].z() -= static_cast<float>(distance);
+      }
+    }
+    return out;
+  }
   TriangleMesh out;
   const int copies = std::max(1, static_cast<int>(std::ceil(distance / step - 1e-9))) + 1;
   out.vertices.reserve(gripper_T.vertices.size() * copies);
@@ -306,6 +373,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   }
 
   // Obstacles of this frame, built once.
+  const auto t_obstacles = std::chrono::steady_clock::now();
   FrameObstacles obstacles;
   {
     std::lock_guard lock(m.scene_build_mutex);
@@ -330,6 +398,8 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     if (points.ok()) obstacles.points = *points;
     obstacles.grid = internal::OccupancyGrid(rest, 0.01);
   }
+
+  plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
 
   // Filtering, in parallel over candidates (the caller's arena).
   const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
