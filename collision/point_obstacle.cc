@@ -29,12 +29,16 @@ Result<std::shared_ptr<const PointObstacle>> PointObstacle::FromPoints(
   auto impl = std::make_unique<Impl>();
   size_t n = 0;
   auto octree = std::make_shared<octomap::OcTree>(resolution);
+  // Distinct voxels first: many points share a voxel, and updateNode walks
+  // the tree from the root each time.
+  octomap::KeySet keys;
   for (const Eigen::Vector3f& p : points_W) {
     if (!p.allFinite()) continue;
-    // updateNode on an existing occupied leaf is cheap; keys avoid re-hashing floats.
-    octree->updateNode(octomap::point3d(p.x(), p.y(), p.z()), true, /*lazy_eval=*/true);
+    octomap::OcTreeKey key;
+    if (octree->coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) keys.insert(key);
     ++n;
   }
+  for (const octomap::OcTreeKey& key : keys) octree->updateNode(key, true, /*lazy_eval=*/true);
   if (n > 0) {
     octree->updateInnerOccupancy();
     impl->occupied = octree->getNumLeafNodes();

@@ -168,7 +168,9 @@ void BinPickingPlanner::NotifyHandedOut(const TaskSpec& task, const Grasp& grasp
       instance = state.truth_instance[grasp.instance_id];
     }
   }
-  if (instance < 0) return;
+  // Only picks take a part out of the bin (in-hand and place results do not).
+  const bool pick = task.kind == TaskSpec::Kind::kPick || task.kind == TaskSpec::Kind::kPick2D;
+  if (instance < 0 || !pick) return;
   std::lock_guard lock(source_mutex_);
   source_->NotifyPicked(instance);
 }
