@@ -5,6 +5,7 @@
 #include <iostream>
 #include <string>
 
+#include "comms/modbus_robot_sim.h"
 #include "comms/robot_client.h"
 #include "comms/robot_flows.h"
 #include "core/conventions.h"
@@ -35,6 +36,14 @@ int RunRobotCommand(int argc, char** argv) {
   app.add_option("--max-cycles", flow.max_cycles, "pick: capture cycles at most");
   app.add_option("--poses", flow.manual_poses, "calib-manual / calib-guidance: poses to send");
   app.add_option("--timeout-ms", timeout_ms, "per-response timeout");
+  bool modbus = false;
+  int unit_id = 1;
+  int wait_master_s = 60;
+  app.add_flag("--modbus", modbus,
+               "be a Modbus TCP slave (seed 000 UR Modbus) listening on --host:--port (default "
+               "502) and play the flow through its registers once binpickd connects");
+  app.add_option("--unit-id", unit_id, "--modbus: the slave's unit id");
+  app.add_option("--wait-master", wait_master_s, "--modbus: seconds to wait for the master");
   bool no_empty_check = false;
   app.add_flag("--no-empty-check", no_empty_check, "pick: skip the final empty-box check");
   try {
@@ -56,6 +65,33 @@ int RunRobotCommand(int argc, char** argv) {
   options.version = version;
   options.position_scale = position_scale;
   options.timeout = std::chrono::milliseconds(timeout_ms);
+  if (modbus) {
+    ModbusRobotSimOptions so;
+    so.bind = host;
+    so.port = app.count("--port") ? port : 502;
+    so.unit_id = unit_id;
+    auto sim = ModbusRobotSim::Start(so);
+    if (!sim.ok()) {
+      std::cerr << "binpick robot: " << sim.status().ToString() << "\n";
+      return 2;
+    }
+    std::cout << "robot " << model->name << " Modbus slave listening on " << host << ":"
+              << (*sim)->port() << " (unit " << unit_id << "), waiting for binpickd" << std::endl;
+    if (!(*sim)->WaitForMaster(std::chrono::seconds(wait_master_s))) {
+      std::cerr << "binpick robot: no Modbus master connected within " << wait_master_s << " s\n";
+      return 2;
+    }
+    std::unique_ptr<RobotClient> client = RobotClient::Over((*sim)->Transport(), options);
+    std::cout << "robot " << model->name << " (meta_1 " << static_cast<int>(model->type)
+              << ", version " << version << ") over Modbus, flow " << flow.flow << "\n";
+    Result<FlowSummary> summary = RunFlow(*client, flow, std::cout);
+    client.reset();
+    if (!summary.ok()) {
+      std::cerr << "binpick robot: " << summary.status().ToString() << "\n";
+      return 2;
+    }
+    return summary->ok ? 0 : 1;
+  }
   auto client = RobotClient::Connect(options);
   if (!client.ok()) {
     std::cerr << "binpick robot: " << client.status().ToString() << "\n";

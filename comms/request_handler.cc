@@ -127,6 +127,7 @@ class RequestHandler::Impl {
     GraspQueue queue;
     std::mutex mutex;
     int in_flight = 0;                  // GUARDED_BY(mutex): detections running
+    uint64_t finished = 0;              // GUARDED_BY(mutex): detections finished
     std::vector<std::function<void()>> waiters;  // GUARDED_BY(mutex): pick poses waiting
   };
 
@@ -168,6 +169,15 @@ class RequestHandler::Impl {
     auto it = tasks_.find(task_id);
     return it == tasks_.end() ? -1 : it->second->queue.size();
   }
+
+  TaskState* FindTask(int task_id) const {
+    auto it = tasks_.find(task_id);
+    return it == tasks_.end() ? nullptr : it->second.get();
+  }
+  Result<TaskSnapshot> Snapshot(int task_id) const;
+  Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
+  Status WhenIdle(int task_id, std::function<void()> ready);
+  Result<GraspQueue::Popped> PopGrasp(int task_id);
 
  private:
   // Runs f on the arena (never on the caller's thread). Exceptions must not
@@ -289,6 +299,7 @@ void RequestHandler::Impl::FinishDetection(TaskState& t) {
   std::vector<std::function<void()>> ready;
   {
     std::lock_guard lock(t.mutex);
+    ++t.finished;
     if (--t.in_flight == 0) ready.swap(t.waiters);
   }
   for (auto& w : ready) w();
@@ -679,6 +690,54 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   }
 }
 
+static Status UnknownTask(int task_id) {
+  return Status::NotFound("task " + std::to_string(task_id) + " is not in the cell");
+}
+
+Result<RequestHandler::TaskSnapshot> RequestHandler::Impl::Snapshot(int task_id) const {
+  TaskState* t = FindTask(task_id);
+  if (!t) return UnknownTask(task_id);
+  TaskSnapshot s;
+  {
+    std::lock_guard lock(t->mutex);
+    s.in_flight = t->in_flight;
+    s.finished = t->finished;
+  }
+  if (std::optional<GraspQueue::Summary> last = t->queue.LastPlan()) s.outcome = last->outcome;
+  s.grasps_left = t->queue.size();
+  return s;
+}
+
+Status RequestHandler::Impl::StartDetection(int task_id, const std::optional<Pose>& X_BF) {
+  TaskState* t = FindTask(task_id);
+  if (!t) return UnknownTask(task_id);
+  if (stopping_) return Status::Unavailable("the request handler is shutting down");
+  StartDetection(*t, MakePlanRequest(*t, X_BF), nullptr);
+  return Status::Ok();
+}
+
+Status RequestHandler::Impl::WhenIdle(int task_id, std::function<void()> ready) {
+  TaskState* t = FindTask(task_id);
+  if (!t) return UnknownTask(task_id);
+  {
+    std::lock_guard lock(t->mutex);
+    if (t->in_flight > 0) {
+      t->waiters.push_back(std::move(ready));
+      return Status::Ok();
+    }
+  }
+  ready();
+  return Status::Ok();
+}
+
+Result<GraspQueue::Popped> RequestHandler::Impl::PopGrasp(int task_id) {
+  TaskState* t = FindTask(task_id);
+  if (!t) return UnknownTask(task_id);
+  GraspQueue::Popped p = t->queue.Pop();
+  if (p.grasp) planner_->NotifyHandedOut(t->spec, *p.grasp);
+  return p;
+}
+
 RequestHandler::RequestHandler(Cell cell, std::shared_ptr<GraspPlanner> planner,
                                std::unique_ptr<CalibrationService> calibration,
                                RequestHandlerOptions options)
@@ -707,5 +766,15 @@ void RequestHandler::Shutdown() { impl_->Shutdown(); }
 const Cell& RequestHandler::cell() const { return impl_->cell(); }
 int RequestHandler::camera_config_id() const { return impl_->camera_config_id(); }
 int RequestHandler::QueueSize(int task_id) const { return impl_->QueueSize(task_id); }
+Result<RequestHandler::TaskSnapshot> RequestHandler::Snapshot(int task_id) const {
+  return impl_->Snapshot(task_id);
+}
+Status RequestHandler::StartDetection(int task_id, const std::optional<Pose>& X_BF) {
+  return impl_->StartDetection(task_id, X_BF);
+}
+Status RequestHandler::WhenIdle(int task_id, std::function<void()> ready) {
+  return impl_->WhenIdle(task_id, std::move(ready));
+}
+Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id) { return impl_->PopGrasp(task_id); }
 
 }  // namespace bp

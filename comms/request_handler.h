@@ -27,6 +27,7 @@
 #include "comms/calibration_service.h"
 #include "comms/daoai_message.h"
 #include "core/cell.h"
+#include "grasp/grasp_queue.h"
 #include "grasp/planner.h"
 
 namespace bp {
@@ -77,6 +78,27 @@ class RequestHandler {
   const Cell& cell() const;
   int camera_config_id() const;       // current RC_SWITCH_CONFIG selection
   int QueueSize(int task_id) const;   // grasps left; -1 for an unknown task
+
+  // Task-level operations for the other protocols (the GRI: comms/gri_handler.h).
+  // They drive the same per-task detections and grasp queue as the DaoAI
+  // commands: a grasp popped here is never handed out again by a pick pose.
+  // Thread-safe. @returns NotFound for an unknown task.
+  struct TaskSnapshot {
+    int in_flight = 0;      // detections running
+    uint64_t finished = 0;  // detections finished since start (failed captures included)
+    // Outcome of the last finished detection; nullopt while one runs or before the first.
+    std::optional<PlanResult::Outcome> outcome;
+    int grasps_left = 0;
+  };
+  Result<TaskSnapshot> Snapshot(int task_id) const;
+  // Capture and detect in the background (as RC_DAOAI_CAPTURE_AND_PROCESS_ASYNC).
+  Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
+  // Runs `ready` once the task has no detection in flight: at once on the
+  // caller's thread when idle, else on the worker finishing the last one
+  // (how a DaoAI pick pose waits). Dropped if the handler shuts down first.
+  Status WhenIdle(int task_id, std::function<void()> ready);
+  // Pops the next grasp; the planner is told it was handed out.
+  Result<GraspQueue::Popped> PopGrasp(int task_id);
 
  private:
   class Impl;

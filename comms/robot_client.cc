@@ -54,11 +54,19 @@ Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptio
   return std::unique_ptr<RobotClient>(new RobotClient(fd, options));
 }
 
+std::unique_ptr<RobotClient> RobotClient::Over(std::unique_ptr<RobotTransport> transport,
+                                               const RobotClientOptions& options) {
+  std::unique_ptr<RobotClient> client(new RobotClient(-1, options));
+  client->transport_ = std::move(transport);
+  return client;
+}
+
 RobotClient::~RobotClient() { Close(); }
 
 void RobotClient::Close() {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
+  transport_.reset();
 }
 
 daoai::Request RobotClient::MakeRequest(int32_t command, int32_t payload_1,
@@ -111,15 +119,25 @@ Status RobotClient::ReceiveBytes(uint8_t* data, size_t size) {
 }
 
 Status RobotClient::Send(int32_t command, int32_t payload_1, int32_t payload_2) {
+  if (transport_) return transport_->Write(MakeRequest(command, payload_1, payload_2), false);
   const auto bytes = daoai::EncodeRequest(MakeRequest(command, payload_1, payload_2));
   return SendBytes(bytes.data(), bytes.size());
 }
 
 Result<RobotReply> RobotClient::Receive() {
+  if (transport_) {
+    Result<daoai::Response> raw = transport_->Read(options_.timeout);
+    if (!raw.ok()) return raw.status();
+    return Decode(*raw);
+  }
   std::array<uint8_t, daoai::kResponseSize> bytes{};
   if (Status s = ReceiveBytes(bytes.data(), bytes.size()); !s.ok()) return s;
+  return Decode(daoai::DecodeResponse(bytes));
+}
+
+RobotReply RobotClient::Decode(const daoai::Response& raw) const {
   RobotReply reply;
-  reply.raw = daoai::DecodeResponse(bytes);
+  reply.raw = raw;
   reply.status = reply.raw.status;
   for (int i = 0; i < 6; ++i) reply.payload[i] = FromFixed(reply.raw.payload[i]);
   // recv_daoai_data(): daoai_data[15] is meta_1, daoai_data[16] meta_2.
@@ -144,6 +162,11 @@ Result<RobotReply> RobotClient::Receive() {
 }
 
 Result<RobotReply> RobotClient::Call(int32_t command, int32_t payload_1, int32_t payload_2) {
+  if (transport_) {
+    const Status s = transport_->Write(MakeRequest(command, payload_1, payload_2), true);
+    if (!s.ok()) return s;
+    return Receive();
+  }
   if (Status s = Send(command, payload_1, payload_2); !s.ok()) return s;
   return Receive();
 }

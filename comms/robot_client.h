@@ -29,6 +29,18 @@ struct RobotClientOptions {
   std::chrono::milliseconds timeout{10000};         // per receive
 };
 
+// What carries the robot's requests and the server's responses when not the
+// DaoAI socket: e.g. Modbus registers (comms/modbus_robot_sim.h). The flows
+// run unchanged over any transport.
+class RobotTransport {
+ public:
+  virtual ~RobotTransport() = default;
+  // send_robot_data(); `expects_response`: the robot script reads an answer.
+  virtual Status Write(const daoai::Request& request, bool expects_response) = 0;
+  // recv_daoai_data(): the next response, or Unavailable after `timeout`.
+  virtual Result<daoai::Response> Read(std::chrono::milliseconds timeout) = 0;
+};
+
 // A decoded response with the checks recv_daoai_data() makes.
 struct RobotReply {
   daoai::Response raw;
@@ -42,6 +54,9 @@ class RobotClient {
  public:
   // @returns Unavailable when the server cannot be reached.
   static Result<std::unique_ptr<RobotClient>> Connect(const RobotClientOptions& options);
+  // A client over another transport (options.host / port are not used).
+  static std::unique_ptr<RobotClient> Over(std::unique_ptr<RobotTransport> transport,
+                                           const RobotClientOptions& options);
   ~RobotClient();
   RobotClient(const RobotClient&) = delete;
   RobotClient& operator=(const RobotClient&) = delete;
@@ -61,14 +76,17 @@ class RobotClient {
   // Sends, then reads exactly one 64-byte response.
   Result<RobotReply> Call(int32_t command, int32_t payload_1 = 0, int32_t payload_2 = 0);
 
-  // Raw access for tests: bytes out, bytes in (exact counts, with timeout).
+  // Raw access for tests over the socket: bytes out, bytes in (exact counts,
+  // with timeout).
   Status SendBytes(const uint8_t* data, size_t size);
   Status ReceiveBytes(uint8_t* data, size_t size);
   Result<RobotReply> Receive();
 
  private:
   RobotClient(int fd, RobotClientOptions options) : fd_(fd), options_(std::move(options)) {}
+  RobotReply Decode(const daoai::Response& raw) const;
   int fd_ = -1;
+  std::unique_ptr<RobotTransport> transport_;  // null: the socket fd_
   RobotClientOptions options_;
   Pose X_BF_ = Pose::Identity();
 };

@@ -1,5 +1,6 @@
 // Robot programs of the seeds (000 "通信流程示例", 003 "Robot Program"),
-// played over a RobotClient: the robot simulator behind `binpick robot`.
+// played over a RobotClient (the DaoAI socket, or Modbus registers through a
+// RobotTransport): the robot simulator behind `binpick robot [--modbus]`.
 // Each step prints one line: step, command, status, pose, remaining count,
 // class and round-trip latency.
 #pragma once

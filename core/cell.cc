@@ -687,12 +687,23 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
   r.position_scale = OptNumber(n, "robot", "position_scale", r.position_scale);
   Check(r.position_scale > 0, n["position_scale"], "robot.position_scale", "must be > 0");
   if (const YAML::Node m = n["modbus"]; m.IsDefined()) {
-    ExpectMap(m, "robot.modbus", {"host", "port", "unit_id"});
+    ExpectMap(m, "robot.modbus", {"host", "port", "unit_id", "request_base", "request_flag",
+                                  "response_base", "response_flag", "poll_ms"});
     r.modbus_host = Name(Req(m, "robot.modbus", "host"), "robot.modbus.host");
     r.modbus_port = Port(m, "robot.modbus", "port", r.modbus_port, 1);
     r.modbus_unit_id = OptInt(m, "robot.modbus", "unit_id", r.modbus_unit_id);
     Check(r.modbus_unit_id >= 0 && r.modbus_unit_id <= 255, m["unit_id"], "robot.modbus.unit_id",
           "must be in 0..255");
+    ModbusRegisterMap& map = r.modbus_map;
+    map.request_base = OptInt(m, "robot.modbus", "request_base", map.request_base);
+    map.request_flag = OptInt(m, "robot.modbus", "request_flag", map.request_flag);
+    map.response_base = OptInt(m, "robot.modbus", "response_base", map.response_base);
+    map.response_flag = OptInt(m, "robot.modbus", "response_flag", map.response_flag);
+    const Status valid = ValidateModbusRegisterMap(map);
+    Check(valid.ok(), m, "robot.modbus", valid.message());
+    r.modbus_poll_ms = OptInt(m, "robot.modbus", "poll_ms", r.modbus_poll_ms);
+    Check(r.modbus_poll_ms >= 0 && r.modbus_poll_ms <= 1000, m["poll_ms"], "robot.modbus.poll_ms",
+          "must be in 0..1000");
   }
   if (const YAML::Node w = n["workspace"]; w.IsDefined()) {
     ExpectMap(w, "robot.workspace", {"min", "max"});
@@ -823,6 +834,34 @@ Result<Cell> LoadDefaultCell() {
 
 Result<Cell> LoadCellOrDefault(const std::string& path) {
   return path.empty() ? LoadDefaultCell() : LoadCell(path);
+}
+
+Status ValidateModbusRegisterMap(const ModbusRegisterMap& m) {
+  constexpr int kRequestFields = 12, kResponseFields = 16, kMaxRead = 125;
+  auto in = [](int reg, int base, int count) { return reg >= base && reg < base + count; };
+  auto bad = [](const std::string& why) { return Status::InvalidArgument("modbus register map: " + why); };
+  if (m.request_base < 0 || m.request_base + kRequestFields > 65536) return bad("request_base out of 0..65524");
+  if (m.response_base < 0 || m.response_base + kResponseFields > 65536) return bad("response_base out of 0..65520");
+  if (m.request_flag < 0 || m.request_flag > 65535) return bad("request_flag out of 0..65535");
+  if (m.response_flag < 0 || m.response_flag > 65535) return bad("response_flag out of 0..65535");
+  if (m.request_flag == m.response_flag) return bad("request_flag and response_flag are the same register");
+  if (in(m.request_flag, m.request_base, kRequestFields)) return bad("request_flag lies inside the request registers");
+  if (in(m.response_flag, m.response_base, kResponseFields)) return bad("response_flag lies inside the response registers");
+  if (in(m.response_flag, m.request_base, kRequestFields)) return bad("response_flag lies inside the request registers");
+  // A request flag inside the response registers needs the handshake's marker
+  // on the request's last register: outside the response, or on payload_3..6.
+  const int marker = m.request_base + kRequestFields - 1;
+  if (in(m.request_flag, m.response_base, kResponseFields) &&
+      in(marker, m.response_base, kResponseFields) && !in(marker, m.response_base + 9, 4)) {
+    return bad("request_flag lies inside the response registers, so the request's last register "
+               "(request_base + 11, the handshake's marker) must lie outside them or on "
+               "payload_3..payload_6");
+  }
+  const int lo = std::min({m.request_base, m.request_flag, m.response_base, m.response_flag});
+  const int hi = std::max({m.request_base + kRequestFields - 1, m.request_flag,
+                           m.response_base + kResponseFields - 1, m.response_flag});
+  if (hi - lo + 1 > kMaxRead) return bad("registers span " + std::to_string(hi - lo + 1) + " > 125");
+  return Status::Ok();
 }
 
 std::string Describe(const Cell& cell) {

@@ -156,6 +156,22 @@ struct TaskSpec {
   GraspRanking ranking;
 };
 
+// Where the DaoAI fields live in a robot's Modbus holding registers
+// (docs/protocols.md "Modbus TCP"). Default: seed 000's UR map.
+struct ModbusRegisterMap {
+  int request_base = 128;   // 12 request fields, one int16 register each
+  int request_flag = 144;   // robot sets 1 when a request is complete
+  int response_base = 129;  // 16 response fields
+  int response_flag = 145;  // binpick sets 1 when a response is complete
+};
+// @returns InvalidArgument naming the problem: registers outside 0..65535,
+// a flag inside the block it signals (or the two flags equal), a response
+// flag inside the request block, a request flag inside the response block
+// while request_base + 11 is on a response field other than payload_3..6
+// (no register for the handshake's marker), or a map not within 125
+// consecutive registers (one read must see it all).
+Status ValidateModbusRegisterMap(const ModbusRegisterMap& map);
+
 struct RobotSpec {
   RobotModel model;                 // from robot.type
   int protocol_version = 2;
@@ -163,6 +179,8 @@ struct RobotSpec {
   std::string modbus_host;          // empty: no Modbus master
   int modbus_port = 502;
   int modbus_unit_id = 1;
+  ModbusRegisterMap modbus_map;
+  int modbus_poll_ms = 2;           // request flag poll interval
   // Box in base the flange must stay inside at the grasp and pre-grasp poses
   // (robot.workspace; default: unbounded).
   Eigen::AlignedBox3d workspace{Vec3::Constant(-1e9), Vec3::Constant(1e9)};

@@ -28,6 +28,7 @@ struct Command {
 
 Command RenderCommand();
 Command InfoCommand();
+Command RobotCommand();
 Command ClearCommand();  // clear_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,

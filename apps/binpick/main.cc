@@ -41,8 +41,7 @@ int main(int argc, char** argv) {
   std::string log_level = "warn";
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
 
-  // Later: eval, clear, robot, calib, replay, serve.
-  const std::vector<Command> commands = {RenderCommand(), InfoCommand()};
+  const std::vector<Command> commands = {RenderCommand(), InfoCommand(), RobotCommand()};
   std::function<int()> action;
   for (const Command& command : commands) {
     CLI::App* sub = app.add_subcommand(command.name, command.help);

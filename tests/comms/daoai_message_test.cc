@@ -5,20 +5,12 @@
 #include <random>
 #include <string>
 
+#include "tests/testing/hex.h"
+
 namespace bp::daoai {
 namespace {
 
-std::vector<uint8_t> FromHex(const std::string& hex) {
-  std::vector<uint8_t> out;
-  std::string digits;
-  for (char c : hex) {
-    if (std::isxdigit(static_cast<unsigned char>(c))) digits += c;
-  }
-  for (size_t i = 0; i + 1 < digits.size(); i += 2) {
-    out.push_back(static_cast<uint8_t>(std::stoi(digits.substr(i, 2), nullptr, 16)));
-  }
-  return out;
-}
+using testing::FromHex;
 
 // A UR robot at x=0.5 m, y=-0.25 m, z=0.3 m, rotation vector (pi, 0, 0),
 // asking for the pick pose of task 0 with protocol version 2: exactly what the

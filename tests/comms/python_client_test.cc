@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <thread>
 
 #include "comms/daoai_server.h"
 #include "tests/testing/scripted_planner.h"
@@ -57,6 +58,11 @@ TEST(PythonClient, ClearsTheBinAndSeesItEmpty) {
   EXPECT_NE(config.out.find("SWITCH_CONFIG_FAIL"), std::string::npos) << config.out;
   const ClientRun teach = RunClient(server->port(), "teach --task 0");
   EXPECT_EQ(teach.exit_code, 0) << teach.out;
+  // Teaching has no response: the client may exit before the server has even
+  // read its request, so give the server a moment before stopping it.
+  for (int i = 0; i < 200 && planner->taught().empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
   server->Stop();
   handler.Shutdown();
   EXPECT_EQ(planner->taught().size(), 1u);

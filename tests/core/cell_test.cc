@@ -328,6 +328,11 @@ std::vector<BadCase> BadCases() {
       {"port_reused", "gri_port: 10000", "gri_port: 6969", "endpoints.gri_port", "already used by endpoints.daoai_port"},
       {"modbus_port_invalid", "  protocol_version: 2", "  protocol_version: 2\n  modbus: {host: plc, port: 0}",
        "robot.modbus.port", "outside 1..65535"},
+      {"modbus_flag_in_request", "  protocol_version: 2",
+       "  protocol_version: 2\n  modbus: {host: plc, request_flag: 130}", "robot.modbus",
+       "request_flag lies inside the request registers"},
+      {"modbus_poll_negative", "  protocol_version: 2", "  protocol_version: 2\n  modbus: {host: plc, poll_ms: -1}",
+       "robot.modbus.poll_ms", "must be in 0..1000"},
       {"quat_not_unit", "pose: {xyz: [0.5, 0.0, 1.0], rpy_deg: [180, 0, 0]}",
        "pose: {xyz: [0.5, 0.0, 1.0], quat_wxyz: [0, 2, 0, 0]}", "camera.pose.quat_wxyz", "norm 2 is not 1"},
       {"two_rotation_keys", "pose: {xyz: [0.5, 0.0, 1.0], rpy_deg: [180, 0, 0]}",
@@ -529,6 +534,33 @@ TEST_F(CellFileTest, MalformedHandEyeFileIsRejectedNamingIt) {
   Result<Cell> cell = Load(Mutate(kBaseCell, "  default_config: 1", "  default_config: 1\n  hand_eye_file: calib/hand_eye.yaml"));
   ASSERT_FALSE(cell.ok());
   EXPECT_THAT(cell.status().message(), HasSubstr("hand_eye.yaml:1: pose.xyz: expected a list of 3 numbers"));
+}
+
+TEST_F(CellFileTest, ModbusSectionReadsTheRegisterMapAndPollInterval) {
+  const std::string path = Write(Mutate(kBaseCell, "  protocol_version: 2",
+                                        "  protocol_version: 2\n  modbus: {host: 10.0.0.5, port: 1502, "
+                                        "unit_id: 3, request_base: 1000, request_flag: 1020, "
+                                        "response_base: 1030, response_flag: 1050, poll_ms: 5}"));
+  Result<Cell> cell = LoadCell(path);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  const RobotSpec& r = cell->robot;
+  EXPECT_EQ(r.modbus_host, "10.0.0.5");
+  EXPECT_EQ(r.modbus_port, 1502);
+  EXPECT_EQ(r.modbus_unit_id, 3);
+  EXPECT_EQ(r.modbus_map.request_base, 1000);
+  EXPECT_EQ(r.modbus_map.request_flag, 1020);
+  EXPECT_EQ(r.modbus_map.response_base, 1030);
+  EXPECT_EQ(r.modbus_map.response_flag, 1050);
+  EXPECT_EQ(r.modbus_poll_ms, 5);
+  // Absent keys: seed 000's map.
+  Result<Cell> seed = LoadCell(Write(Mutate(kBaseCell, "  protocol_version: 2",
+                                            "  protocol_version: 2\n  modbus: {host: plc}")));
+  ASSERT_TRUE(seed.ok()) << seed.status().ToString();
+  EXPECT_EQ(seed->robot.modbus_map.request_base, 128);
+  EXPECT_EQ(seed->robot.modbus_map.request_flag, 144);
+  EXPECT_EQ(seed->robot.modbus_map.response_base, 129);
+  EXPECT_EQ(seed->robot.modbus_map.response_flag, 145);
+  EXPECT_EQ(seed->robot.modbus_poll_ms, 2);
 }
 
 TEST_F(CellFileTest, ParseCellResolvesAgainstTheGivenPath) {

@@ -1,0 +1,280 @@
+#include "comms/gri_handler.h"
+
+#include <spdlog/spdlog.h>
+
+#include <utility>
+
+#include "core/conventions.h"
+
+namespace bp {
+namespace {
+
+using gri::Code;
+using gri::Format;
+using gri::JobStatus;
+
+bool ValidPoseFormat(uint8_t pose_format) {
+  return pose_format >= 1 && pose_format <= gri::kMaxPoseFormat;
+}
+
+// The official format numbers quaternion fields w, x, y, z for pose format 1
+// and x, y, z, w for 2; v2 (seed 002) uses x, y, z, w for both.
+QuaternionOrder OrderFor(Format f, uint8_t pose_format) {
+  return f == Format::kOfficial && pose_format == 1 ? QuaternionOrder::kWXYZ
+                                                    : QuaternionOrder::kXYZW;
+}
+
+// X in the request's format and units (official positions always in mm).
+Result<std::array<double, 7>> ToWire(const Pose& X, Format f, uint8_t pose_format) {
+  Result<std::array<double, 7>> v =
+      EncodeGriPose(X, static_cast<GriPoseFormat>(pose_format), OrderFor(f, pose_format));
+  if (!v.ok()) return v.status();
+  if (f == Format::kOfficial) {
+    for (int i = 0; i < 3; ++i) (*v)[i] = X.translation()[i] * 1000.0;
+  }
+  return v;
+}
+
+Result<Pose> FromWire(const gri::Request& r) {
+  std::array<double, 7> v = r.pose;
+  if (r.format == Format::kOfficial) v[0] = v[1] = v[2] = 0.0;  // position decoded below
+  Result<Pose> X = DecodeGriPose(v, static_cast<GriPoseFormat>(r.pose_format),
+                                 OrderFor(r.format, r.pose_format));
+  if (X.ok() && r.format == Format::kOfficial) {
+    X->translation() = Vec3(r.pose[0], r.pose[1], r.pose[2]) / 1000.0;
+  }
+  return X;
+}
+
+bool NeedsJob(uint8_t action) {
+  switch (action) {
+    case gri::kTriggerJobSync:
+    case gri::kTriggerJobAsync:
+    case gri::kGetJobStatus:
+    case gri::kGetNextPose:
+    case gri::kGetRelatedPose:
+      return true;
+    default:
+      return false;
+  }
+}
+
+bool ReturnsPose(uint8_t action) {
+  return action == gri::kTriggerJobSync || action == gri::kGetNextPose ||
+         action == gri::kGetRelatedPose;
+}
+
+// `primary` goes to v2 data_1 / official data_2 (remaining primary poses; the
+// job status for GET_JOB_STATUS; 1 = ready for STATUS), `related` to v2
+// data_2 / official data_3. Official data_1, the node return code, is 0.
+gri::Response Build(const gri::Request& req, Code code,
+                    const std::optional<std::array<double, 7>>& pose = std::nullopt,
+                    int32_t primary = 0, int32_t related = 0) {
+  gri::Response r = GriHandler::ErrorResponse(req, code);
+  if (pose) r.pose = *pose;
+  const size_t slot = req.format == Format::kV2 ? 0 : 1;
+  r.data[slot] = primary;
+  r.data[slot + 1] = related;
+  return r;
+}
+
+}  // namespace
+
+GriHandler::GriHandler(RequestHandler& tasks) : tasks_(tasks) {
+  for (const TaskSpec& t : tasks_.cell().tasks) jobs_.emplace(t.id, Job{});
+}
+
+gri::Response GriHandler::ErrorResponse(const gri::Request& request, gri::Code code) {
+  gri::Response r;
+  r.format = request.format;
+  r.pose_format = request.pose_format;
+  r.action = request.action;
+  r.job_id = request.job_id;
+  r.error_code = gri::WireErrorCode(request.format, code);
+  return r;
+}
+
+std::vector<uint8_t> GriHandler::Serialize(const gri::Response& response) {
+  Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(response);
+  if (bytes.ok()) return std::move(*bytes);
+  spdlog::error(
+      "gri: {} response to action {} job {} does not fit its format ({}); answering "
+      "INTERNAL_ERROR",
+      gri::ToString(response.format), response.action, response.job_id, bytes.status().ToString());
+  gri::Request echo;
+  echo.format = response.format;
+  echo.pose_format = response.pose_format;
+  echo.action = response.action;
+  echo.job_id = response.job_id;
+  bytes = gri::EncodeResponse(ErrorResponse(echo, Code::kInternalError));
+  if (!bytes.ok()) {  // only the job id can still not fit: drop it
+    echo.job_id = 0;
+    bytes = gri::EncodeResponse(ErrorResponse(echo, Code::kInternalError));
+  }
+  return std::move(*bytes);
+}
+
+JobStatus GriHandler::StatusLocked(const RequestHandler::TaskSnapshot& s, const Job& job) const {
+  if (s.in_flight > 0) return JobStatus::kRunning;
+  if (s.finished <= job.consumed) return JobStatus::kInactive;
+  if (!s.outcome) return JobStatus::kRunning;  // a detection started between the reads
+  if (*s.outcome == PlanResult::Outcome::kCaptureFailed) return JobStatus::kFailed;
+  return JobStatus::kDone;
+}
+
+std::optional<JobStatus> GriHandler::JobStatusOf(int job_id) const {
+  Result<RequestHandler::TaskSnapshot> s = tasks_.Snapshot(job_id);
+  if (!s.ok()) return std::nullopt;
+  std::lock_guard lock(mutex_);
+  return StatusLocked(*s, jobs_.at(job_id));
+}
+
+GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_trigger) {
+  return [this, req, after_trigger]() -> gri::Response {
+    std::lock_guard lock(mutex_);
+    const Result<RequestHandler::TaskSnapshot> s = tasks_.Snapshot(req.job_id);
+    if (!s.ok()) return Build(req, Code::kJobDoesNotExist);
+    Job& job = jobs_.at(req.job_id);
+    switch (StatusLocked(*s, job)) {
+      case JobStatus::kRunning:
+        return Build(req, Code::kJobStillRunning);
+      case JobStatus::kInactive:
+        return Build(req, Code::kNoPosesFound);
+      case JobStatus::kFailed:
+        job.consumed = s->finished;
+        spdlog::warn("gri: job {}: the last detection could not capture", req.job_id);
+        return Build(req, Code::kPipelineNotAvailable);
+      case JobStatus::kDone:
+        break;
+    }
+    const Result<GraspQueue::Popped> p = tasks_.PopGrasp(req.job_id);
+    if (!p.ok() || !p->grasp) {
+      job.consumed = s->finished;
+      job.related.clear();
+      job.next_related = 0;
+      if (after_trigger) spdlog::info("gri: job {}: no poses found", req.job_id);
+      return Build(req, Code::kNoPosesFound);
+    }
+    const Grasp& g = *p->grasp;
+    job.related = g.related_X_B;
+    job.related.push_back(g.X_BO);
+    job.next_related = 0;
+    const int left = p->remaining - 1;
+    if (left == 0) job.consumed = s->finished;  // all taken: back to INACTIVE
+    Result<std::array<double, 7>> wire = ToWire(g.X_BT, req.format, req.pose_format);
+    if (!wire.ok()) {
+      spdlog::error("gri: job {}: grasp pose cannot be encoded: {}", req.job_id,
+                    wire.status().ToString());
+      return Build(req, Code::kInternalError);
+    }
+    return Build(req, Code::kOk, *wire, left, static_cast<int32_t>(job.related.size()));
+  };
+}
+
+void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Completion done) {
+  ++client.requests;
+  auto answer = [&done, &req](Code code) { done([r = Build(req, code)] { return r; }); };
+
+  // Every request carries the robot pose: keep it (status, eye-in-hand captures).
+  std::optional<Pose> X_BF;
+  if (ValidPoseFormat(req.pose_format)) {
+    if (Result<Pose> decoded = FromWire(req); decoded.ok()) {
+      X_BF = *decoded;
+      client.X_BF = X_BF;
+      client.pose_time = std::chrono::system_clock::now();
+    } else {
+      spdlog::debug("gri: {} sent an undecodable pose: {}", client.peer,
+                    decoded.status().ToString());
+    }
+  }
+
+  if (NeedsJob(req.action) && !tasks_.Snapshot(req.job_id).ok()) {
+    spdlog::warn("gri: {} named unknown job {} (action {}); answering JOB_DOES_NOT_EXIST",
+                 client.peer, req.job_id, req.action);
+    answer(Code::kJobDoesNotExist);
+    return;
+  }
+  if (ReturnsPose(req.action) && !ValidPoseFormat(req.pose_format)) {
+    spdlog::warn(
+        "gri: {} asked for a pose in pose format {} (action {}); answering "
+        "INVALID_REQUEST_ERROR",
+        client.peer, req.pose_format, req.action);
+    answer(Code::kInvalidRequest);
+    return;
+  }
+  if (NeedsJob(req.action)) client.last_task_id = req.job_id;
+
+  switch (req.action) {
+    case gri::kStatus:
+      done([r = Build(req, Code::kOk, std::nullopt, 1)] { return r; });
+      return;
+
+    case gri::kTriggerJobSync:
+    case gri::kTriggerJobAsync: {
+      {
+        std::lock_guard lock(mutex_);
+        Job& job = jobs_.at(req.job_id);
+        job.related.clear();
+        job.next_related = 0;
+      }
+      if (Status s = tasks_.StartDetection(req.job_id, X_BF); !s.ok()) {
+        spdlog::warn("gri: job {} not started: {}", req.job_id, s.ToString());
+        answer(Code::kInternalError);
+        return;
+      }
+      if (req.action == gri::kTriggerJobAsync) {
+        answer(Code::kOk);
+        return;
+      }
+      // Sync: answer with the first pose once the detection finished.
+      Reply reply = NextPoseReply(req, /*after_trigger=*/true);
+      (void)tasks_.WhenIdle(req.job_id,
+                            [done = std::move(done), reply = std::move(reply)] { done(reply); });
+      return;
+    }
+
+    case gri::kGetJobStatus: {
+      const std::optional<JobStatus> status = JobStatusOf(req.job_id);
+      done([r = Build(req, Code::kOk, std::nullopt, static_cast<int32_t>(*status))] { return r; });
+      return;
+    }
+
+    case gri::kGetNextPose:
+      done(NextPoseReply(req, /*after_trigger=*/false));
+      return;
+
+    case gri::kGetRelatedPose:
+      done([this, req]() -> gri::Response {
+        std::lock_guard lock(mutex_);
+        Job& job = jobs_.at(req.job_id);
+        const int primary = tasks_.QueueSize(req.job_id);
+        if (job.next_related >= job.related.size())
+          return Build(req, Code::kNoRelatedPoses, std::nullopt, primary);
+        const Pose& X_B = job.related[job.next_related++];
+        Result<std::array<double, 7>> wire = ToWire(X_B, req.format, req.pose_format);
+        if (!wire.ok()) {
+          spdlog::error("gri: job {}: related pose cannot be encoded: {}", req.job_id,
+                        wire.status().ToString());
+          return Build(req, Code::kInternalError);
+        }
+        return Build(req, Code::kOk, *wire, primary,
+                     static_cast<int32_t>(job.related.size() - job.next_related));
+      });
+      return;
+
+    case gri::kHecInit:
+    case gri::kHecSetPose:
+    case gri::kHecCalibrate:
+      // Hand-eye calibration over the GRI waits for the calibration module.
+      spdlog::warn("gri: {} sent HEC action {}: hand-eye calibration is not implemented",
+                   client.peer, req.action);
+      answer(Code::kNotImplemented);
+      return;
+
+    default:
+      answer(Code::kInvalidAction);
+      return;
+  }
+}
+
+}  // namespace bp

@@ -1,0 +1,73 @@
+// GRI request semantics (docs/protocols.md, "GRI semantics"), independent of
+// the transport (comms/gri_server.h) and of the wire format: v2 and the
+// official format are served by the same code, only the codes and data slots
+// differ (gri::WireErrorCode, Build below).
+//
+// A GRI job id is a binpick task id. Jobs run on the RequestHandler's tasks:
+// the same detections and the same grasp queue as the DaoAI protocol, so a
+// DaoAI robot and a GRI robot on one task never get the same grasp.
+//
+// Job status (per task, shared by every GRI connection):
+//   RUNNING  a detection is in flight (whoever triggered it);
+//   FAILED   the last detection could not capture, not yet reported;
+//   DONE     the last detection finished and its results are not exhausted;
+//   INACTIVE nothing triggered yet, or the last results were all taken (or
+//            reported empty / failed) through the GRI.
+//
+// Threading: as RequestHandler. HandleAsync never blocks; the Reply is built
+// when the transport is about to write it, which is when a pose is popped: a
+// robot that disconnects (or whose request timed out) loses nothing.
+#pragma once
+
+#include <array>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <vector>
+
+#include "comms/gri_message.h"
+#include "comms/request_handler.h"
+
+namespace bp {
+
+class GriHandler {
+ public:
+  // Builds the response right before it is written. Called at most once.
+  using Reply = std::function<gri::Response()>;
+  // Receives the Reply, inside HandleAsync or later from a detection worker.
+  using Completion = std::function<void(Reply)>;
+
+  // `tasks` must outlive the handler.
+  explicit GriHandler(RequestHandler& tasks);
+  GriHandler(const GriHandler&) = delete;
+  GriHandler& operator=(const GriHandler&) = delete;
+
+  void HandleAsync(const gri::Request& request, ClientContext& client, Completion done);
+
+  // The job status the GRI reports for `job_id`; nullopt for an unknown job.
+  std::optional<gri::JobStatus> JobStatusOf(int job_id) const;
+
+  // An answer carrying only `code`, echoing the request's header and job id.
+  static gri::Response ErrorResponse(const gri::Request& request, gri::Code code);
+  // The response's bytes; a response that does not fit its format (e.g. an
+  // official pose beyond +-2147 mm) is logged and sent as INTERNAL_ERROR
+  // without a pose.
+  static std::vector<uint8_t> Serialize(const gri::Response& response);
+
+ private:
+  struct Job {
+    uint64_t consumed = 0;      // detections finished whose results the GRI used up
+    std::vector<Pose> related;  // of the last primary handed out, in order
+    size_t next_related = 0;
+  };
+  gri::JobStatus StatusLocked(const RequestHandler::TaskSnapshot& s, const Job& job) const;
+  Reply NextPoseReply(const gri::Request& request, bool after_trigger);
+
+  RequestHandler& tasks_;
+  mutable std::mutex mutex_;
+  std::map<int, Job> jobs_;  // GUARDED_BY(mutex_); one per cell task
+};
+
+}  // namespace bp

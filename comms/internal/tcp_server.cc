@@ -1,0 +1,192 @@
+#include "comms/internal/tcp_server.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+
+namespace bp::internal {
+
+Session::Session(SessionArgs args, const char* log_name, std::chrono::milliseconds read_timeout)
+    : socket_(std::move(args.socket)),
+      strand_(std::move(args.strand)),
+      log_name_(log_name),
+      timer_(strand_),
+      gate_(std::move(args.gate)),
+      on_closed_(std::move(args.on_closed)),
+      read_timeout_(read_timeout) {
+  client_.id = args.id;
+  boost::system::error_code ec;
+  const tcp::endpoint peer = socket_.remote_endpoint(ec);
+  client_.peer = ec ? "?" : peer.address().to_string() + ":" + std::to_string(peer.port());
+}
+
+void Session::Start() {
+  boost::system::error_code ec;
+  socket_.set_option(tcp::no_delay(true), ec);
+  spdlog::info("{}: robot connected from {} (connection {})", log_name_, client_.peer, client_.id);
+  asio::dispatch(strand_, [self = shared_from_this()] {
+    self->ArmTimer();
+    self->BeginReading();
+  });
+}
+
+void Session::Close(const char* why) {
+  asio::dispatch(strand_, [self = shared_from_this(), why] { self->DoClose(why); });
+}
+
+void Session::OnReadError(boost::system::error_code ec) {
+  if (ec == asio::error::eof || ec == asio::error::connection_reset) {
+    DoClose(busy_ ? "disconnected with a request in progress" : "disconnected");
+  } else {
+    DoClose(ec.message().c_str());
+  }
+}
+
+void Session::Write(std::vector<uint8_t> bytes, const char* close_reason) {
+  write_buf_ = std::move(bytes);
+  asio::async_write(socket_, asio::buffer(write_buf_),
+                    asio::bind_executor(strand_, [self = shared_from_this(), close_reason](
+                                                     boost::system::error_code ec, size_t) {
+                      if (ec) {
+                        self->DoClose("write failed");
+                      } else if (close_reason) {
+                        self->DoClose(close_reason);
+                      } else {
+                        self->Done();
+                      }
+                    }));
+}
+
+void Session::EndHandle() {
+  in_handle_ = false;
+  if (sync_work_) {
+    std::function<void()> work = std::move(sync_work_);
+    sync_work_ = nullptr;
+    work();
+  }
+}
+
+// The timer is re-armed lazily from the last activity instead of on every
+// message.
+void Session::ArmTimer() {
+  const auto now = std::chrono::steady_clock::now();
+  timer_.expires_at(busy_ ? now + read_timeout_ : last_activity_ + read_timeout_);
+  timer_.async_wait([self = shared_from_this()](boost::system::error_code ec) {
+    if (ec || self->closed_) return;
+    const auto idle = std::chrono::steady_clock::now() - self->last_activity_;
+    if (!self->busy_ && idle >= self->read_timeout_) {
+      spdlog::warn("{}: {} sent no complete request for {} ms; closing", self->log_name_,
+                   self->client_.peer, self->read_timeout_.count());
+      self->DoClose("read timeout");
+      return;
+    }
+    self->ArmTimer();
+  });
+}
+
+void Session::DoClose(const char* why) {
+  if (closed_) return;
+  closed_ = true;
+  spdlog::info("{}: connection {} ({}) closed: {}", log_name_, client_.id, client_.peer, why);
+  boost::system::error_code ec;
+  timer_.cancel();
+  socket_.shutdown(tcp::socket::shutdown_both, ec);
+  socket_.close(ec);
+  OnClosed();
+  if (on_closed_) on_closed_(client_.id);
+}
+
+Listener::Listener(const char* log_name, Factory factory)
+    : log_name_(log_name), factory_(std::move(factory)) {}
+
+Listener::~Listener() {
+  Stop();
+  std::lock_guard lock(gate_->mutex);
+  gate_->open = false;  // from now on, late completions are dropped
+}
+
+Status Listener::Listen(const std::string& bind, const std::vector<int>& ports, int io_threads) {
+  boost::system::error_code ec;
+  const asio::ip::address address = asio::ip::make_address(bind, ec);
+  if (ec)
+    return Status::InvalidArgument(std::string(log_name_) + ": bad bind address '" + bind + "'");
+  for (int port : ports) {
+    if (port < 0 || port > 65535) {
+      return Status::InvalidArgument(std::string(log_name_) + ": bad port " + std::to_string(port));
+    }
+    const tcp::endpoint endpoint(address, static_cast<uint16_t>(port));
+    auto acceptor = std::make_unique<tcp::acceptor>(io_);
+    acceptor->open(endpoint.protocol(), ec);
+    if (!ec) acceptor->set_option(tcp::acceptor::reuse_address(true), ec);
+    if (!ec) acceptor->bind(endpoint, ec);
+    if (!ec) acceptor->listen(asio::socket_base::max_listen_connections, ec);
+    if (ec) {
+      return Status::Unavailable(std::string(log_name_) + ": cannot listen on " + bind + ":" +
+                                 std::to_string(port) + ": " + ec.message());
+    }
+    ports_.push_back(acceptor->local_endpoint(ec).port());
+    acceptors_.push_back(std::move(acceptor));
+  }
+  for (size_t i = 0; i < acceptors_.size(); ++i) Accept(*acceptors_[i], ports_[i]);
+  for (int i = 0; i < std::max(1, io_threads); ++i) {
+    threads_.emplace_back([this] { io_.run(); });
+  }
+  return Status::Ok();
+}
+
+void Listener::Stop() {
+  if (stopped_.exchange(true)) return;
+  asio::post(io_, [this] {
+    boost::system::error_code ec;
+    for (auto& acceptor : acceptors_) acceptor->close(ec);
+    std::vector<std::shared_ptr<Session>> open;
+    {
+      std::lock_guard lock(mutex_);
+      for (auto& [id, weak] : connections_) {
+        if (auto c = weak.lock()) open.push_back(std::move(c));
+      }
+    }
+    for (auto& c : open) c->Close("server stopping");  // may call back into connections_
+  });
+  // run() returns once the closes have completed every pending operation;
+  // completions posted later stay queued and are destroyed with io_.
+  for (auto& t : threads_) t.join();
+  threads_.clear();
+}
+
+size_t Listener::connection_count() const {
+  std::lock_guard lock(mutex_);
+  return connections_.size();
+}
+
+void Listener::Accept(tcp::acceptor& acceptor, int port) {
+  Strand strand = asio::make_strand(io_);
+  acceptor.async_accept(
+      strand, [this, &acceptor, port, strand](boost::system::error_code ec, tcp::socket socket) {
+        if (ec) {
+          if (ec != asio::error::operation_aborted) {
+            spdlog::warn("{}: accept failed: {}", log_name_, ec.message());
+            Accept(acceptor, port);
+          }
+          return;
+        }
+        uint64_t id = 0;
+        {
+          std::lock_guard lock(mutex_);
+          id = ++next_id_;
+        }
+        std::shared_ptr<Session> session = factory_(
+            SessionArgs{std::move(socket), strand, gate_, id, port, [this](uint64_t closed_id) {
+                          std::lock_guard lock(mutex_);
+                          connections_.erase(closed_id);
+                        }});
+        {
+          std::lock_guard lock(mutex_);
+          connections_[id] = session;
+        }
+        session->Start();
+        Accept(acceptor, port);
+      });
+}
+
+}  // namespace bp::internal

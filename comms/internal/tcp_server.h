@@ -1,0 +1,168 @@
+// Connection machinery shared by the socket servers (DaoAI, GRI): a listener
+// on one or more ports with its network threads, and the base of one
+// connection (its strand, the read timeout, closing, writing, and delivering a
+// request handler's completion onto the strand). Private to bp_comms: it is
+// the one place that includes Boost.Asio for them.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+// After <utility>: Asio's awaitable.hpp uses std::exchange without including it.
+#include <boost/asio.hpp>
+
+#include "comms/request_handler.h"
+#include "core/status.h"
+
+namespace bp::internal {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+using Strand = asio::strand<asio::io_context::executor_type>;
+
+// Lets detection workers post completions into the io_context only while it
+// exists: the listener closes the gate (under the mutex) before destroying it.
+struct PostGate {
+  std::mutex mutex;
+  bool open = true;  // GUARDED_BY(mutex)
+};
+
+struct SessionArgs {
+  tcp::socket socket;
+  Strand strand;
+  std::shared_ptr<PostGate> gate;
+  uint64_t id = 0;
+  int local_port = 0;  // the listening port the robot connected to
+  std::function<void(uint64_t)> on_closed;
+};
+
+// One robot connection. Everything below runs on the strand unless noted.
+// The connection is closed when no complete request arrived for read_timeout
+// while no request was in progress (a silent robot, or half a message then
+// silence). Derived classes read, queue and answer requests.
+class Session : public std::enable_shared_from_this<Session> {
+ public:
+  Session(SessionArgs args, const char* log_name, std::chrono::milliseconds read_timeout);
+  virtual ~Session() = default;
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  void Start();                 // any thread
+  void Close(const char* why);  // any thread
+
+ protected:
+  virtual void BeginReading() = 0;
+  // The response written by Write() is out (or there was none): next request.
+  virtual void Done() = 0;
+  virtual void OnClosed() {}
+
+  // A complete request arrived.
+  void MarkActivity() { last_activity_ = std::chrono::steady_clock::now(); }
+  // Closes on a read error with the right log line.
+  void OnReadError(boost::system::error_code ec);
+  // Writes `bytes`; then Done(), or closes with `close_reason` when given.
+  void Write(std::vector<uint8_t> bytes, const char* close_reason = nullptr);
+  void DoClose(const char* why);
+  // Ends the request in progress (after Done's caller wrote the answer).
+  void Finish() {
+    busy_ = false;
+    MarkActivity();
+  }
+
+  // Wraps a handler completion for the request being started: called inside
+  // the handler on this thread, it is kept and run by EndHandle() without a
+  // trip through the io queue; called from a worker, it is posted to the
+  // strand (dropped when the connection or the server is gone).
+  // `on_reply` runs on the strand while the session is alive.
+  template <typename ReplyT>
+  std::function<void(ReplyT)> Completion(std::function<void(const ReplyT&)> on_reply) {
+    std::weak_ptr<Session> weak = weak_from_this();
+    return [weak, gate = gate_, caller = std::this_thread::get_id(),
+            on_reply = std::move(on_reply)](ReplyT reply) {
+      if (std::this_thread::get_id() == caller) {
+        std::shared_ptr<Session> self = weak.lock();
+        if (self && self->in_handle_) {
+          self->sync_work_ = [on_reply, reply = std::move(reply)] { on_reply(reply); };
+          return;
+        }
+      }
+      std::lock_guard lock(gate->mutex);
+      if (!gate->open) return;
+      std::shared_ptr<Session> self = weak.lock();
+      if (!self) return;  // closed and gone: nothing popped
+      asio::post(self->strand_, [self, on_reply, reply = std::move(reply)] {
+        if (!self->closed_) on_reply(reply);  // the robot left: do not pop its grasp
+      });
+    };
+  }
+  void BeginHandle() {
+    busy_ = true;
+    in_handle_ = true;
+  }
+  void EndHandle();
+
+  tcp::socket socket_;
+  Strand strand_;
+  const char* log_name_;
+  ClientContext client_;
+  bool busy_ = false;
+  bool closed_ = false;
+
+ private:
+  void ArmTimer();
+
+  asio::steady_timer timer_;
+  std::shared_ptr<PostGate> gate_;
+  std::function<void(uint64_t)> on_closed_;
+  const std::chrono::milliseconds read_timeout_;
+  std::vector<uint8_t> write_buf_;
+  bool in_handle_ = false;           // inside the handler's HandleAsync
+  std::function<void()> sync_work_;  // completed inside HandleAsync
+  std::chrono::steady_clock::time_point last_activity_ = std::chrono::steady_clock::now();
+};
+
+// Accepts connections on one or more ports and runs the network threads.
+class Listener {
+ public:
+  using Factory = std::function<std::shared_ptr<Session>(SessionArgs)>;
+
+  Listener(const char* log_name, Factory factory);
+  ~Listener();  // Stop(), then late completions are dropped
+  Listener(const Listener&) = delete;
+  Listener& operator=(const Listener&) = delete;
+
+  // Binds every port (0: an ephemeral one) and starts io_threads threads.
+  // @returns InvalidArgument for a bad address or port, Unavailable when a
+  // port cannot be bound.
+  Status Listen(const std::string& bind, const std::vector<int>& ports, int io_threads);
+  const std::vector<int>& ports() const { return ports_; }  // bound, in Listen's order
+  size_t connection_count() const;
+  // Stops accepting, closes every connection and joins the threads. Idempotent.
+  void Stop();
+
+ private:
+  void Accept(tcp::acceptor& acceptor, int port);
+
+  const char* log_name_;
+  Factory factory_;
+  std::shared_ptr<PostGate> gate_ = std::make_shared<PostGate>();
+  asio::io_context io_;
+  std::vector<std::unique_ptr<tcp::acceptor>> acceptors_;
+  std::vector<int> ports_;
+  std::vector<std::thread> threads_;
+  std::atomic<bool> stopped_{false};
+  uint64_t next_id_ = 0;  // io threads, under mutex_
+  mutable std::mutex mutex_;
+  std::unordered_map<uint64_t, std::weak_ptr<Session>> connections_;  // GUARDED_BY(mutex_)
+};
+
+}  // namespace bp::internal

@@ -1,0 +1,271 @@
+#include "comms/modbus_master.h"
+
+#include <modbus.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "comms/modbus_codec.h"
+
+namespace bp {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// The registers one poll reads: every register of the map, [lo, lo + count).
+struct Span {
+  int lo = 0;
+  int count = 0;
+  bool marker = false;  // request flag inside the response registers
+};
+
+Span SpanOf(const ModbusRegisterMap& m) {
+  const int req = static_cast<int>(daoai::kRequestFields);
+  const int rsp = static_cast<int>(daoai::kResponseFields);
+  Span s;
+  s.lo = std::min({m.request_base, m.request_flag, m.response_base, m.response_flag});
+  const int hi = std::max({m.request_base + req - 1, m.request_flag, m.response_base + rsp - 1,
+                           m.response_flag});
+  s.count = hi - s.lo + 1;
+  s.marker = m.request_flag >= m.response_base && m.request_flag < m.response_base + rsp;
+  return s;
+}
+
+void SetTimeout(modbus_t* ctx, std::chrono::milliseconds t) {
+  const auto us = std::chrono::duration_cast<std::chrono::microseconds>(t).count();
+  modbus_set_response_timeout(ctx, static_cast<uint32_t>(us / 1000000),
+                              static_cast<uint32_t>(us % 1000000));
+}
+
+}  // namespace
+
+ModbusMasterOptions ModbusMasterOptionsFromCell(const RobotSpec& robot) {
+  ModbusMasterOptions o;
+  o.host = robot.modbus_host;
+  o.port = robot.modbus_port;
+  o.unit_id = robot.modbus_unit_id;
+  o.map = robot.modbus_map;
+  o.poll_interval = std::chrono::milliseconds(robot.modbus_poll_ms);
+  return o;
+}
+
+class ModbusMaster::Impl {
+ public:
+  Impl(RequestHandler& handler, ModbusMasterOptions options)
+      : handler_(handler), o_(std::move(options)), span_(SpanOf(o_.map)) {}
+  ~Impl() { Stop(); }
+
+  void Start() { thread_ = std::thread([this] { Run(); }); }
+
+  void Stop() {
+    {
+      std::lock_guard lock(mutex_);
+      stopping_ = true;
+    }
+    cv_.notify_all();
+    std::lock_guard join(join_mutex_);
+    if (thread_.joinable()) thread_.join();
+  }
+
+  ModbusMasterStats stats() const {
+    std::lock_guard lock(mutex_);
+    return stats_;
+  }
+  std::string address() const { return o_.host + ":" + std::to_string(o_.port); }
+
+ private:
+  bool stopping() {
+    std::lock_guard lock(mutex_);
+    return stopping_;
+  }
+  // Sleeps up to `d`; @returns false when stopping.
+  bool Sleep(std::chrono::milliseconds d) {
+    std::unique_lock lock(mutex_);
+    if (d.count() > 0) cv_.wait_for(lock, d, [this] { return stopping_; });
+    return !stopping_;
+  }
+  template <typename F>
+  void Count(F f) {
+    std::lock_guard lock(mutex_);
+    f(stats_);
+  }
+
+  void Run() {
+    auto backoff = o_.backoff_min;
+    bool warned = false;
+    while (!stopping()) {
+      // _pi: host names and IPv6 too (getaddrinfo).
+      modbus_t* ctx = modbus_new_tcp_pi(o_.host.c_str(), std::to_string(o_.port).c_str());
+      if (ctx == nullptr) {
+        spdlog::error("modbus: {}: cannot create a context: {}", address(), modbus_strerror(errno));
+        return;
+      }
+      modbus_set_slave(ctx, o_.unit_id);
+      SetTimeout(ctx, o_.timeout);
+      if (modbus_connect(ctx) != 0) {
+        if (!warned) {
+          spdlog::warn("modbus: cannot connect to robot {}: {}; retrying with backoff up to {} ms",
+                       address(), modbus_strerror(errno), o_.backoff_max.count());
+          warned = true;
+        }
+        modbus_free(ctx);
+        if (!Sleep(backoff)) return;
+        backoff = std::min(backoff * 2, o_.backoff_max);
+        continue;
+      }
+      spdlog::info("modbus: connected to robot {} (unit {})", address(), o_.unit_id);
+      warned = false;
+      Count([](ModbusMasterStats& s) { ++s.connects; s.connected = true; });
+      // The backoff restarts only after a connection that answered: a robot
+      // that accepts but never answers (e.g. another unit id) is retried
+      // ever more slowly.
+      if (Serve(ctx)) backoff = o_.backoff_min;
+      Count([](ModbusMasterStats& s) { s.connected = false; });
+      modbus_close(ctx);
+      modbus_free(ctx);
+      if (!Sleep(backoff)) return;
+      backoff = std::min(backoff * 2, o_.backoff_max);
+    }
+  }
+
+  // One connection: polls until an error or Stop. @returns whether the
+  // robot answered at least one read.
+  bool Serve(modbus_t* ctx) {
+    bool answered = false;
+    ClientContext client;
+    client.id = ++connections_;
+    client.peer = "modbus " + address();
+    // What the last response left in the request flag register: unknown at
+    // connect, so assume the ambiguous 1 (see the header).
+    uint16_t stale_flag = 1;
+    std::vector<uint16_t> regs(static_cast<size_t>(span_.count));
+    const ModbusRegisterMap& m = o_.map;
+    auto at = [&](int reg) { return regs[static_cast<size_t>(reg - span_.lo)]; };
+    auto fail = [&](const char* what) {
+      spdlog::warn("modbus: robot {}: {} failed: {}; reconnecting", address(), what,
+                   modbus_strerror(errno));
+    };
+    while (!stopping()) {
+      if (modbus_read_registers(ctx, span_.lo, span_.count, regs.data()) != span_.count) {
+        fail("reading the registers");
+        return answered;
+      }
+      answered = true;
+      const bool flag = at(m.request_flag) == 1;
+      const bool stale = span_.marker && stale_flag == 1 &&
+                         at(m.request_base + modbus::kMarkerField) == modbus::kMarker;
+      if (!flag || stale) {
+        if (!Sleep(o_.poll_interval)) return answered;
+        continue;
+      }
+      std::array<uint16_t, daoai::kRequestFields> fields{};
+      for (size_t i = 0; i < fields.size(); ++i) fields[i] = at(m.request_base + static_cast<int>(i));
+      const daoai::Request request = modbus::DecodeRequest(fields);
+      if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
+        fail("clearing the request flag");
+        return answered;
+      }
+      stale_flag = 0;
+      if (at(m.response_flag) != 0) {
+        // The robot did not read the last response (its program restarted).
+        spdlog::warn("modbus: robot {} sent command {} without reading the previous response; "
+                     "dropping that response", address(), request.command);
+        Count([](ModbusMasterStats& s) { ++s.unread; });
+        if (modbus_write_register(ctx, m.response_flag, 0) != 1) {
+          fail("clearing the unread response flag");
+          return answered;
+        }
+      }
+      Count([](ModbusMasterStats& s) { ++s.requests; });
+
+      const std::optional<daoai::Response> response = handler_.Handle(request, client);
+      if (!response) continue;  // no response for this command
+      std::vector<std::string> saturated;
+      Result<std::array<uint16_t, daoai::kResponseFields>> encoded =
+          modbus::EncodeResponse(*response, &saturated);
+      if (!encoded.ok()) {
+        spdlog::error("modbus: robot {} command {}: {}; refused: answering UNKNOWN_COMMAND "
+                      "(status -1) with pose and payloads 0", address(), request.command,
+                      encoded.status().message());
+        Count([](ModbusMasterStats& s) { ++s.refused; });
+        encoded = modbus::EncodeResponse(modbus::RefusedResponse(*response));
+      } else if (!saturated.empty()) {
+        for (const std::string& line : saturated) {
+          spdlog::debug("modbus: robot {} command {}: {}", address(), request.command, line);
+        }
+        Count([](ModbusMasterStats& s) { ++s.saturated; });
+      }
+      std::array<uint16_t, daoai::kResponseFields> out = *encoded;
+      bool written = true;
+      if (span_.marker) {
+        stale_flag = out[static_cast<size_t>(m.request_flag - m.response_base)];
+      }
+      if (span_.marker && stale_flag == 1) {
+        const int marker = m.request_base + modbus::kMarkerField;
+        if (marker >= m.response_base && marker < m.response_base + static_cast<int>(out.size())) {
+          out[static_cast<size_t>(marker - m.response_base)] = modbus::kMarker;  // seed: payload_4
+        } else {
+          written = modbus_write_register(ctx, marker, modbus::kMarker) == 1;
+        }
+      }
+      written = written && modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()),
+                                                   out.data()) == static_cast<int>(out.size());
+      written = written && modbus_write_register(ctx, m.response_flag, 1) == 1;
+      if (!written) {
+        spdlog::warn("modbus: robot {}: the response to command {} (status {}) was lost: {}; "
+                     "reconnecting", address(), request.command, response->status,
+                     modbus_strerror(errno));
+        Count([](ModbusMasterStats& s) { ++s.lost; });
+        return answered;
+      }
+      Count([](ModbusMasterStats& s) { ++s.responses; });
+    }
+    return answered;
+  }
+
+  RequestHandler& handler_;
+  const ModbusMasterOptions o_;
+  const Span span_;
+  uint64_t connections_ = 0;  // touched by the thread only
+  mutable std::mutex mutex_;
+  std::condition_variable cv_;
+  bool stopping_ = false;     // GUARDED_BY(mutex_)
+  ModbusMasterStats stats_;   // GUARDED_BY(mutex_)
+  std::mutex join_mutex_;      // one Stop() joins
+  std::thread thread_;
+};
+
+Result<std::unique_ptr<ModbusMaster>> ModbusMaster::Start(RequestHandler& handler,
+                                                          ModbusMasterOptions options) {
+  if (options.host.empty()) return Status::InvalidArgument("modbus: robot host is empty");
+  if (options.port < 1 || options.port > 65535) {
+    return Status::InvalidArgument("modbus: robot port " + std::to_string(options.port) +
+                                   " is not in 1..65535");
+  }
+  if (options.unit_id < 0 || options.unit_id > 255) {
+    return Status::InvalidArgument("modbus: unit id " + std::to_string(options.unit_id) +
+                                   " is not in 0..255");
+  }
+  if (options.poll_interval.count() < 0 || options.timeout.count() <= 0 ||
+      options.backoff_min.count() <= 0 || options.backoff_max < options.backoff_min) {
+    return Status::InvalidArgument("modbus: poll interval must be >= 0, timeout and backoff > 0");
+  }
+  if (Status s = ValidateModbusRegisterMap(options.map); !s.ok()) return s;
+  auto impl = std::make_unique<Impl>(handler, std::move(options));
+  impl->Start();
+  return std::unique_ptr<ModbusMaster>(new ModbusMaster(std::move(impl)));
+}
+
+ModbusMaster::ModbusMaster(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+ModbusMaster::~ModbusMaster() { Stop(); }
+void ModbusMaster::Stop() { impl_->Stop(); }
+ModbusMasterStats ModbusMaster::stats() const { return impl_->stats(); }
+std::string ModbusMaster::address() const { return impl_->address(); }
+
+}  // namespace bp

@@ -1,0 +1,94 @@
+// binpick as Modbus TCP master (client) of a robot that is the Modbus slave
+// (seed 000, UR Modbus TCP): one ModbusMaster per robot. It polls the
+// robot's request flag, reads the request registers, feeds the request to the
+// same RequestHandler as the DaoAI socket server and writes the response back
+// into the robot's registers. Register layout, value range and the handshake
+// are in comms/modbus_codec.h and docs/protocols.md "Modbus TCP".
+//
+// Handshake (map: request 128..139 + flag 144, response 129..144 + flag 145),
+// each poll reading every register of the map in one Modbus read:
+//   1. a new request is: request flag == 1, and not (the last response this
+//      master wrote left 1 in the request flag register and the request's
+//      last register, request_base + 11, holds the marker modbus::kMarker).
+//      The request flag can be a response register (seed: 144 is the
+//      response's meta_2, and a version-1 response leaves 1 there); such a
+//      response is written with the marker in request_base + 11 (seed: 139,
+//      the response's payload_4). The robot writes request_base + 11 last
+//      before the flag, with its meta_2 (1 or 2, never the marker), so a
+//      stale 1 is never taken for a request, a half-written request is never
+//      read, and a request is never missed. At connect the master does not
+//      know what its predecessor wrote and assumes the stale 1.
+//   2. the master clears the request flag, then handles the request;
+//   3. for a command with a response: writes marker + response registers,
+//      then the response flag = 1. The robot reads and clears it.
+//   A robot that writes a new request without clearing the response flag
+//   (its program restarted) gets the new request served; the master clears
+//   the stale response flag and logs it.
+//   Commands without a response (pose update, teach, ...) leave the flags at
+//   0: a robot program must not write its next request before the request
+//   flag reads 0 again (the seed's script does not wait; the simulator does).
+//
+// Threading: one thread per master; the RequestHandler's Handle() blocks
+// that thread while a request is processed (requests of one robot are
+// sequential). Every libmodbus call stays on that thread. Stop() is safe
+// from any thread, idempotent, and returns once the thread has ended.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "comms/request_handler.h"
+#include "core/cell.h"
+#include "core/status.h"
+
+namespace bp {
+
+struct ModbusMasterOptions {
+  std::string host = "127.0.0.1";  // the robot (Modbus slave)
+  int port = 502;
+  int unit_id = 1;
+  ModbusRegisterMap map;                         // default: seed 000's
+  std::chrono::milliseconds poll_interval{2};    // between flag reads
+  std::chrono::milliseconds timeout{1000};       // connect and per transaction
+  std::chrono::milliseconds backoff_min{50};     // first reconnect delay
+  std::chrono::milliseconds backoff_max{2000};   // doubling up to this
+};
+
+// From a cell's robot.modbus section (host, port, unit id, map, poll).
+ModbusMasterOptions ModbusMasterOptionsFromCell(const RobotSpec& robot);
+
+struct ModbusMasterStats {
+  uint64_t connects = 0;       // successful connections
+  uint64_t requests = 0;       // requests taken (flag cleared)
+  uint64_t responses = 0;      // responses written with their flag set
+  uint64_t refused = 0;        // responses replaced by RefusedResponse (range)
+  uint64_t saturated = 0;      // responses with a saturated field
+  uint64_t lost = 0;           // responses whose write failed (robot gone)
+  uint64_t unread = 0;         // new requests found over an unread response
+  bool connected = false;
+};
+
+class ModbusMaster {
+ public:
+  // Validates the options (InvalidArgument) and starts the thread; the first
+  // connection is made there (an unreachable robot is retried, not an error).
+  // `handler` must outlive the master.
+  static Result<std::unique_ptr<ModbusMaster>> Start(RequestHandler& handler,
+                                                     ModbusMasterOptions options);
+  ~ModbusMaster();  // Stop()
+  ModbusMaster(const ModbusMaster&) = delete;
+  ModbusMaster& operator=(const ModbusMaster&) = delete;
+
+  void Stop();
+  ModbusMasterStats stats() const;
+  std::string address() const;  // "host:port"
+
+ private:
+  class Impl;
+  explicit ModbusMaster(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace bp

@@ -1,0 +1,590 @@
+// The Modbus TCP transport over real Modbus TCP on loopback: binpick's
+// ModbusMaster against the robot simulator (a libmodbus slave playing the seed
+// 000 UR Modbus script), with the scripted test-double planner.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cstdlib>
+#include <iostream>
+#include <random>
+#include <sstream>
+#include <thread>
+
+#include "comms/modbus_codec.h"
+#include "comms/modbus_master.h"
+#include "comms/modbus_robot_sim.h"
+#include "comms/robot_flows.h"
+#include "tests/testing/scripted_planner.h"
+
+namespace bp {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::MakeTestCell;
+using testing::ScriptedPlanner;
+
+// ---------------------------------------------------------------- codec
+
+TEST(ModbusCodec, RequestFieldsAreInt16TwosComplementInOrder) {
+  daoai::Request r;
+  r.position = {4000, -3000, 32767};
+  r.orientation = {31416, -1, -32768, 0};
+  r.command = daoai::kPickPose;
+  r.payload_1 = 3;
+  r.payload_2 = -2;
+  r.meta_1 = 7;
+  r.meta_2 = 2;
+  const auto regs = modbus::EncodeRequest(r);
+  ASSERT_TRUE(regs.ok());
+  const std::array<uint16_t, 12> golden = {0x0FA0, 0xF448, 0x7FFF, 0x7AB8, 0xFFFF, 0x8000,
+                                           0x0000, 0x0015, 0x0003, 0xFFFE, 0x0007, 0x0002};
+  EXPECT_EQ(*regs, golden);
+  EXPECT_EQ(modbus::DecodeRequest(golden), r);
+}
+
+TEST(ModbusCodec, RequestThatDoesNotFitIsRefusedNotWrapped) {
+  daoai::Request r;
+  r.position[1] = 32768;  // 3.2768 m
+  const auto regs = modbus::EncodeRequest(r);
+  ASSERT_FALSE(regs.ok());
+  EXPECT_EQ(regs.status().code(), Status::Code::kOutOfRange);
+  EXPECT_NE(regs.status().message().find("position y"), std::string::npos);
+}
+
+TEST(ModbusCodec, ResponseRoundTripsAndDecodesNegativeValues) {
+  daoai::Response r;
+  r.position = {5000, -1000, 1000};
+  r.orientation = {0, 0, 15708, 0};
+  r.payload = {20000, 10000, 0, 0, 0, -5};
+  r.status = daoai::kObjectsFound;
+  r.meta_1 = 7;
+  r.meta_2 = 2;
+  const auto regs = modbus::EncodeResponse(r);
+  ASSERT_TRUE(regs.ok());
+  EXPECT_EQ((*regs)[1], 0xFC18);   // -1000
+  EXPECT_EQ((*regs)[12], 0xFFFB);  // payload_6 = -5
+  EXPECT_EQ((*regs)[13], 2);       // status
+  EXPECT_EQ((*regs)[15], 2);       // meta_2: on register 144 in the seed map
+  EXPECT_EQ(modbus::DecodeResponse(*regs), r);
+}
+
+TEST(ModbusCodec, RemainingCountSaturatesOnlyInPickAnswers) {
+  daoai::Response r;
+  r.status = daoai::kObjectsFound;
+  r.payload[0] = 12 * 10000;  // 12 objects remaining
+  std::vector<std::string> saturated;
+  const auto regs = modbus::EncodeResponse(r, &saturated);
+  ASSERT_TRUE(regs.ok());
+  EXPECT_EQ(modbus::FromRegister((*regs)[7]), 32767);
+  ASSERT_EQ(saturated.size(), 1u);
+  EXPECT_NE(saturated[0].find("payload_1"), std::string::npos);
+
+  r.status = daoai::kPrecisionCheckSuccess;  // payload_1 is an error in mm there
+  const auto refused = modbus::EncodeResponse(r);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), Status::Code::kOutOfRange);
+}
+
+TEST(ModbusCodec, PoseOrClassThatDoesNotFitRefusesTheResponse) {
+  daoai::Response r;
+  r.status = daoai::kObjectsFound;
+  r.position[0] = -40000;  // -4 m
+  EXPECT_FALSE(modbus::EncodeResponse(r).ok());
+  r.position[0] = 0;
+  r.payload[1] = 4 * 10000;  // class 4
+  const auto regs = modbus::EncodeResponse(r);
+  ASSERT_FALSE(regs.ok());
+  EXPECT_NE(regs.status().message().find("payload_2"), std::string::npos);
+  r.meta_1 = 7;
+  r.meta_2 = 1;
+  const daoai::Response refused = modbus::RefusedResponse(r);
+  EXPECT_EQ(refused.status, daoai::kUnknownCommand);
+  EXPECT_EQ(refused.position, (std::array<int32_t, 3>{}));
+  EXPECT_EQ(refused.payload, (std::array<int32_t, 6>{}));
+  EXPECT_EQ(refused.meta_1, 7);
+  EXPECT_EQ(refused.meta_2, 1);
+}
+
+TEST(ModbusRegisterMap, SeedMapIsValidAndBrokenMapsAreRejected) {
+  EXPECT_TRUE(ValidateModbusRegisterMap({}).ok());
+  ModbusRegisterMap m;
+  m.request_flag = 130;  // inside the request block
+  EXPECT_FALSE(ValidateModbusRegisterMap(m).ok());
+  m = {};
+  m.response_flag = m.request_flag;
+  EXPECT_FALSE(ValidateModbusRegisterMap(m).ok());
+  m = {};
+  m.request_base = 120;  // flag 144 is meta_2, marker 131 would be the response's position z
+  EXPECT_FALSE(ValidateModbusRegisterMap(m).ok());
+  m.request_base = 130;  // marker 141: payload_6, free
+  m.request_flag = 142;
+  m.response_flag = 150;
+  EXPECT_TRUE(ValidateModbusRegisterMap(m).ok());
+  m = {};
+  m.response_base = 400;  // 128..415: more than one read
+  m.response_flag = 420;
+  EXPECT_FALSE(ValidateModbusRegisterMap(m).ok());
+  m = {};
+  m.response_base = 65530;
+  EXPECT_FALSE(ValidateModbusRegisterMap(m).ok());
+}
+
+// ---------------------------------------------------------------- over TCP
+
+struct RigOptions {
+  int version = 2;
+  ModbusRegisterMap map;
+  std::chrono::milliseconds poll{1};
+  double position_scale = 1.0;
+};
+
+class ModbusRig {
+ public:
+  explicit ModbusRig(RigOptions o = {}) : o_(o) {
+    planner_ = std::make_shared<ScriptedPlanner>();
+    Cell cell = MakeTestCell(o.version);
+    cell.robot.position_scale = o.position_scale;
+    handler_ = std::make_unique<RequestHandler>(cell, planner_,
+                                                std::make_unique<CountingCalibrationService>(4));
+    StartRobot(0);
+    ModbusMasterOptions mo;
+    mo.port = sim_->port();
+    mo.map = o.map;
+    mo.poll_interval = o.poll;
+    mo.timeout = 500ms;
+    mo.backoff_min = 10ms;
+    mo.backoff_max = 50ms;
+    master_ = std::move(ModbusMaster::Start(*handler_, mo).value());
+    EXPECT_TRUE(sim_->WaitForMaster(5s));
+  }
+  ~ModbusRig() {
+    robot_.reset();
+    master_->Stop();
+    handler_->Shutdown();
+    sim_->Stop();
+  }
+
+  // (Re)starts the robot's slave, on `port` (0: ephemeral), with fresh registers.
+  void StartRobot(int port) {
+    robot_.reset();
+    if (sim_) sim_->Stop();
+    ModbusRobotSimOptions so;
+    so.port = port;
+    so.map = o_.map;
+    sim_ = std::move(ModbusRobotSim::Start(so).value());
+    RobotClientOptions ro;
+    ro.version = o_.version;
+    ro.position_scale = o_.position_scale;
+    ro.timeout = 5s;
+    robot_ = RobotClient::Over(sim_->Transport(), ro);
+  }
+
+  FlowSummary Run(FlowOptions f) {
+    Result<FlowSummary> s = RunFlow(*robot_, f, out_);
+    EXPECT_TRUE(s.ok()) << s.status().ToString() << "\n" << out_.str();
+    if (std::getenv("BINPICK_VERBOSE")) std::cout << out_.str();
+    return s.ok() ? *s : FlowSummary{};
+  }
+
+  RigOptions o_;
+  std::shared_ptr<ScriptedPlanner> planner_;
+  std::unique_ptr<RequestHandler> handler_;
+  std::unique_ptr<ModbusRobotSim> sim_;
+  std::unique_ptr<ModbusMaster> master_;
+  std::unique_ptr<RobotClient> robot_;
+  std::ostringstream out_;
+};
+
+class ModbusVersionTest : public ::testing::TestWithParam<int> {};
+
+TEST_P(ModbusVersionTest, PickCycleClearsTheBinThenFindsItEmpty) {
+  RigOptions o;
+  o.version = GetParam();
+  ModbusRig rig(o);
+  ScriptedPlanner::Script pile;
+  pile.grasps = 3;
+  pile.pile = 7;
+  rig.planner_->SetScript(0, pile);
+  FlowOptions f;
+  f.flow = "pick";
+  const FlowSummary s = rig.Run(f);
+  EXPECT_EQ(s.picks, 7) << rig.out_.str();
+  EXPECT_TRUE(s.ok) << rig.out_.str();
+  EXPECT_EQ(s.last_status, daoai::kBoxEmpty);
+  EXPECT_EQ(rig.planner_->handed_out().size(), 7u);
+  EXPECT_NE(rig.out_.str().find("remaining 3 class 0"), std::string::npos) << rig.out_.str();
+  // The robot moved to the grasp the planner made (0.1 mm wire resolution).
+  EXPECT_NE(rig.out_.str().find("pose [0.5000 -0.1000 0.1000"), std::string::npos) << rig.out_.str();
+  EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+  EXPECT_EQ(rig.master_->stats().requests, static_cast<uint64_t>(s.steps));
+}
+
+TEST_P(ModbusVersionTest, AutoCalibrationStartsAndAccumulatesUntilDone) {
+  RigOptions o;
+  o.version = GetParam();
+  ModbusRig rig(o);
+  FlowOptions f;
+  f.flow = "calib-auto";
+  const FlowSummary s = rig.Run(f);
+  EXPECT_TRUE(s.ok) << rig.out_.str();
+  EXPECT_EQ(s.last_status, daoai::kDoneCalibration);
+  EXPECT_EQ(s.steps, 1 + 4) << rig.out_.str();  // start + 4 poses (CountingCalibrationService(4))
+  EXPECT_NE(rig.out_.str().find("MODE_AUTO_CALIBRATION(11) pose"), std::string::npos)
+      << rig.out_.str();
+}
+
+TEST_P(ModbusVersionTest, EmptyBoxCheckAnswersBothWays) {
+  RigOptions o;
+  o.version = GetParam();
+  ModbusRig rig(o);
+  FlowOptions f;
+  f.flow = "empty-check";
+  EXPECT_EQ(rig.Run(f).last_status, daoai::kBoxNotEmpty);
+  ScriptedPlanner::Script empty;
+  empty.pile = 0;
+  rig.planner_->SetScript(0, empty);
+  EXPECT_EQ(rig.Run(f).last_status, daoai::kBoxEmpty);
+}
+
+// Requests without a response between requests with one, 1000 in a row:
+// every request is taken exactly once and every response answers its own
+// request. Version 1 is the hard case: its responses leave 1 (meta_2) in the
+// request flag register 144.
+TEST_P(ModbusVersionTest, HandshakeNeverAnswersTwiceNorMissesOver1000Requests) {
+  RigOptions o;
+  o.version = GetParam();
+  ModbusRig rig(o);
+  std::mt19937 rng{42};
+  int calls = 0, sends = 0;
+  for (int i = 0; i < 1000; ++i) {
+    if (rng() % 5 == 0) {
+      ASSERT_TRUE(rig.robot_->Send(daoai::kNoCommand).ok()) << i;  // pose update
+      ++sends;
+      continue;
+    }
+    const int config = static_cast<int>(rng() % 3) + 1;  // 3 does not exist
+    Result<RobotReply> r = rig.robot_->Call(daoai::kSwitchConfig, config);
+    ASSERT_TRUE(r.ok()) << i << ": " << r.status().ToString();
+    ASSERT_EQ(r->status, config == 3 ? daoai::kSwitchConfigFail : daoai::kSwitchConfigSuccess) << i;
+    EXPECT_EQ(r->raw.meta_2, o.version);
+    // Version 1 leaves 1 in register 144: the handshake's marker rides on payload_4.
+    EXPECT_EQ(r->raw.payload[3], o.version == 1 ? -32768 : 0);
+    if (config != 3) {
+      EXPECT_EQ(rig.handler_->camera_config_id(), config);
+    }
+    ++calls;
+  }
+  // Let the master poll a while longer: a stale flag would show up as a request.
+  std::this_thread::sleep_for(30ms);
+  const ModbusMasterStats m = rig.master_->stats();
+  EXPECT_EQ(m.requests, static_cast<uint64_t>(calls + sends));
+  EXPECT_EQ(m.responses, static_cast<uint64_t>(calls));
+  EXPECT_EQ(m.connects, 1u);
+  const ModbusRobotSimStats r = rig.sim_->stats();
+  EXPECT_EQ(r.responses_read, static_cast<uint64_t>(calls));
+  EXPECT_EQ(r.unexpected_responses, 0u);
+}
+
+INSTANTIATE_TEST_SUITE_P(Versions, ModbusVersionTest, ::testing::Values(1, 2),
+                         [](const auto& info) { return "v" + std::to_string(info.param); });
+
+class ModbusMapTest : public ::testing::TestWithParam<ModbusRegisterMap> {};
+
+TEST_P(ModbusMapTest, PickCycleWorksWithOtherRegisterAddresses) {
+  RigOptions o;
+  o.version = 1;  // meta_2 = 1: the marker matters when the flag is a response register
+  o.map = GetParam();
+  ModbusRig rig(o);
+  ScriptedPlanner::Script pile;
+  pile.pile = 4;
+  rig.planner_->SetScript(0, pile);
+  FlowOptions f;
+  f.flow = "pick";
+  const FlowSummary s = rig.Run(f);
+  EXPECT_EQ(s.picks, 4) << rig.out_.str();
+  EXPECT_TRUE(s.ok) << rig.out_.str();
+  // The seed's registers are untouched.
+  for (int reg = 128; reg <= 145; ++reg) EXPECT_EQ(rig.sim_->ReadRegister(reg), 0) << reg;
+  EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+}
+
+ModbusRegisterMap Map(int request_base, int request_flag, int response_base, int response_flag) {
+  ModbusRegisterMap m;
+  m.request_base = request_base;
+  m.request_flag = request_flag;
+  m.response_base = response_base;
+  m.response_flag = response_flag;
+  return m;
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Maps, ModbusMapTest,
+    ::testing::Values(Map(1000, 1020, 1030, 1050),  // disjoint: flags are their own registers
+                      Map(200, 230, 215, 240),      // flag inside the response, marker apart
+                      Map(0, 15, 0 + 12, 28)),      // requests at 0, response 12..27 holds flag 15
+    [](const auto& info) { return "at" + std::to_string(info.param.request_base) + "_" +
+                                  std::to_string(info.param.response_base); });
+
+TEST(ModbusMaster, RobotRestartingMidRequestIsServedAfterReconnect) {
+  ModbusRig rig;
+  ScriptedPlanner::Script slow;
+  slow.capture_delay = 500ms;  // the restart happens during this capture
+  slow.pile = 2;
+  rig.planner_->SetScript(0, slow);
+  const int port = rig.sim_->port();
+  // The robot asks for a capture; the master takes it (clears the flag) and
+  // the robot restarts while the camera is capturing.
+  ASSERT_TRUE(rig.sim_->SendRobotData(rig.robot_->MakeRequest(daoai::kCaptureAndProcess, 0),
+                                      true, 1s).ok());
+  const auto deadline = std::chrono::steady_clock::now() + 2s;
+  while (rig.sim_->ReadRegister(144) == 1 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  ASSERT_EQ(rig.sim_->ReadRegister(144), 0) << "the master never took the request";
+  rig.StartRobot(port);  // same address, registers back to 0
+  ScriptedPlanner::Script fast;
+  fast.pile = 2;
+  rig.planner_->SetScript(0, fast);
+  ASSERT_TRUE(rig.sim_->WaitForMaster(5s));
+  // The restarted program runs its pick cycle from the start.
+  FlowOptions f;
+  f.flow = "pick";
+  const FlowSummary s = rig.Run(f);
+  EXPECT_EQ(s.picks, 2) << rig.out_.str();
+  EXPECT_TRUE(s.ok) << rig.out_.str();
+  const ModbusMasterStats m = rig.master_->stats();
+  EXPECT_EQ(m.connects, 2u);
+  EXPECT_EQ(m.lost, 1u);  // the answer to the capture before the restart
+  EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+}
+
+TEST(ModbusMaster, ConnectsToARobotThatStartsLater) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  // Find a free port, then leave it free.
+  int port = 0;
+  {
+    auto probe = ModbusRobotSim::Start({});
+    ASSERT_TRUE(probe.ok());
+    port = (*probe)->port();
+  }
+  ModbusMasterOptions mo;
+  mo.port = port;
+  mo.backoff_min = 10ms;
+  mo.backoff_max = 40ms;
+  auto master = ModbusMaster::Start(handler, mo);
+  ASSERT_TRUE(master.ok());
+  std::this_thread::sleep_for(60ms);  // a few refused connects
+  EXPECT_FALSE((*master)->stats().connected);
+  ModbusRobotSimOptions so;
+  so.port = port;
+  auto sim = ModbusRobotSim::Start(so);
+  ASSERT_TRUE(sim.ok());
+  ASSERT_TRUE((*sim)->WaitForMaster(2s));
+  auto robot = RobotClient::Over((*sim)->Transport(), RobotClientOptions{});
+  Result<RobotReply> r = robot->Call(daoai::kSwitchConfig, 2);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  (*master)->Stop();
+  handler.Shutdown();
+}
+
+TEST(ModbusMaster, NewRequestOverAnUnreadResponseIsServed) {
+  ModbusRig rig;
+  ASSERT_TRUE(rig.sim_->SendRobotData(rig.robot_->MakeRequest(daoai::kSwitchConfig, 2), true, 1s).ok());
+  const auto deadline = std::chrono::steady_clock::now() + 2s;
+  while (rig.sim_->ReadRegister(145) == 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  ASSERT_EQ(rig.sim_->ReadRegister(145), 1);
+  // The robot program restarted: it never reads that response and asks again.
+  ASSERT_TRUE(rig.sim_->SendRobotData(rig.robot_->MakeRequest(daoai::kSwitchConfig, 1), true, 1s).ok());
+  const auto served = std::chrono::steady_clock::now() + 2s;
+  while (rig.master_->stats().responses < 2 && std::chrono::steady_clock::now() < served) {
+    std::this_thread::sleep_for(1ms);
+  }
+  ASSERT_EQ(rig.master_->stats().responses, 2u);
+  EXPECT_EQ(rig.master_->stats().unread, 1u);
+  Result<daoai::Response> r = rig.sim_->RecvDaoaiData(1s);
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  EXPECT_EQ(rig.handler_->camera_config_id(), 1);
+}
+
+TEST(ModbusMaster, OverflowSaturatesTheRemainingCountAndRefusesOtherFields) {
+  ModbusRig rig;
+  ScriptedPlanner::Script many;
+  many.grasps = 6;  // 5 remaining after the first pick: 50000 does not fit
+  many.precision_error_mm = 5.0;  // 50000 does not fit either
+  rig.planner_->SetScript(0, many);
+  rig.planner_->SetScript(5, many);
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  EXPECT_EQ(pick->status, daoai::kObjectsFound);
+  EXPECT_DOUBLE_EQ(pick->payload[0], 3.2767);  // "3 or more left": still > 0 for the script
+  ASSERT_TRUE(pick->X_BT.has_value());
+  EXPECT_NEAR(pick->X_BT->translation().x(), 0.5, 1e-4);
+  EXPECT_EQ(rig.master_->stats().saturated, 1u);
+
+  Result<RobotReply> precision = rig.robot_->Call(daoai::kPrecisionCheck, 5);
+  ASSERT_TRUE(precision.ok());
+  EXPECT_EQ(precision->status, daoai::kUnknownCommand);
+  EXPECT_EQ(precision->payload[0], 0.0);
+  EXPECT_EQ(rig.master_->stats().refused, 1u);
+}
+
+TEST(ModbusMaster, PoseThatDoesNotFitIsRefusedSoTheRobotDoesNotMove) {
+  RigOptions o;
+  o.position_scale = 0.001;  // millimetres: 500 mm x MULT does not fit
+  ModbusRig rig(o);
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  EXPECT_EQ(pick->status, daoai::kUnknownCommand);
+  EXPECT_EQ(pick->raw.position, (std::array<int32_t, 3>{}));
+  EXPECT_EQ(pick->payload[0], 0.0);
+  EXPECT_EQ(rig.master_->stats().refused, 1u);
+}
+
+TEST(ModbusMaster, OnlyTheConfiguredUnitIdIsServed) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ModbusRobotSimOptions so;
+  so.unit_id = 3;
+  auto sim = std::move(ModbusRobotSim::Start(so).value());
+  auto robot = RobotClient::Over(sim->Transport(), RobotClientOptions{});
+  robot->set_timeout(300ms);
+  ModbusMasterOptions mo;
+  mo.port = sim->port();
+  mo.timeout = 50ms;
+  mo.unit_id = 1;  // the robot is unit 3: it does not answer
+  auto wrong = std::move(ModbusMaster::Start(handler, mo).value());
+  Result<RobotReply> r = robot->Call(daoai::kSwitchConfig, 2);
+  EXPECT_FALSE(r.ok());
+  wrong->Stop();
+  EXPECT_EQ(wrong->stats().requests, 0u);
+  mo.unit_id = 3;
+  auto right = std::move(ModbusMaster::Start(handler, mo).value());
+  r = robot->Call(daoai::kSwitchConfig, 2);  // the request is still pending: answered
+  ASSERT_TRUE(r.ok()) << r.status().ToString();
+  EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  right->Stop();
+  handler.Shutdown();
+}
+
+TEST(ModbusMaster, RejectsAnInvalidMapAtStart) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ModbusMasterOptions mo;
+  mo.map.request_flag = 131;
+  auto master = ModbusMaster::Start(handler, mo);
+  ASSERT_FALSE(master.ok());
+  EXPECT_EQ(master.status().code(), Status::Code::kInvalidArgument);
+  handler.Shutdown();
+}
+
+// `binpick robot --modbus`: the executable is the slave, this process the master.
+TEST(ModbusRobotCommand, PlaysThePickFlowAsAModbusSlave) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  ScriptedPlanner::Script pile;
+  pile.grasps = 2;
+  pile.pile = 3;
+  planner->SetScript(0, pile);
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  int port = 0;
+  {
+    auto probe = ModbusRobotSim::Start({});  // a free port, left free
+    ASSERT_TRUE(probe.ok());
+    port = (*probe)->port();
+  }
+  ModbusMasterOptions mo;
+  mo.port = port;
+  mo.backoff_min = 10ms;
+  mo.backoff_max = 50ms;
+  auto master = std::move(ModbusMaster::Start(handler, mo).value());
+  const std::string cmd = BINPICK_BINARY_DIR "/bin/binpick-robot --modbus --flow pick --port " +
+                          std::to_string(port) + " --wait-master 10 2>&1";
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  char buf[512];
+  while (fgets(buf, sizeof(buf), p)) out += buf;
+  const int status = pclose(p);
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+  EXPECT_NE(out.find("Modbus slave listening on 127.0.0.1:" + std::to_string(port)),
+            std::string::npos) << out;
+  EXPECT_NE(out.find("OBJECTS_FOUND(2) pose [0.5000 -0.1000 0.1000 | 0.0000 0.0000 1.5708 "
+                     "0.0000] remaining 2 class 0"), std::string::npos) << out;
+  EXPECT_NE(out.find("pick: 10 steps, 3 picks"), std::string::npos) << out;
+  EXPECT_NE(out.find("BOX_EMPTY(41)"), std::string::npos) << out;
+  master->Stop();
+  handler.Shutdown();
+}
+
+// Cross-implementation: the robot is a pymodbus slave (scripts/modbus_robot_sim.py).
+TEST(ModbusMaster, ServesAPymodbusRobotInBothVersions) {
+  if (std::system("/usr/bin/python3 -c 'import pymodbus.server' >/dev/null 2>&1") != 0) {
+    GTEST_SKIP() << "no /usr/bin/python3 with pymodbus (scripts/install_deps.sh)";
+  }
+  for (int version : {1, 2}) {
+    auto planner = std::make_shared<ScriptedPlanner>();
+    RequestHandler handler(MakeTestCell(version), planner, nullptr);
+    int port = 0;
+    {
+      auto probe = ModbusRobotSim::Start({});
+      ASSERT_TRUE(probe.ok());
+      port = (*probe)->port();
+    }
+    ModbusMasterOptions mo;
+    mo.port = port;
+    mo.backoff_min = 20ms;
+    mo.backoff_max = 100ms;
+    auto master = std::move(ModbusMaster::Start(handler, mo).value());
+    const std::string cmd = "/usr/bin/python3 " BINPICK_SOURCE_DIR
+                            "/scripts/modbus_robot_sim.py --count 40 --version " +
+                            std::to_string(version) + " --port " + std::to_string(port) + " 2>&1";
+    std::string out;
+    FILE* p = popen(cmd.c_str(), "r");
+    ASSERT_NE(p, nullptr);
+    char buf[512];
+    while (fgets(buf, sizeof(buf), p)) out += buf;
+    const int status = pclose(p);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+    EXPECT_NE(out.find("40 of 40 answers right"), std::string::npos) << out;
+    master->Stop();
+    EXPECT_EQ(master->stats().requests, 40u) << "version " << version;
+    EXPECT_EQ(master->stats().responses, 40u) << "version " << version;
+    handler.Shutdown();
+  }
+}
+
+// Figure: request -> response latency at the default poll interval (printed,
+// not asserted; every answer is checked).
+TEST(ModbusLatency, MeasuresRequestToResponseAtTheDefaultPollInterval) {
+  RigOptions o;
+  o.poll = ModbusMasterOptions{}.poll_interval;
+  ModbusRig rig(o);
+  std::vector<double> ms;
+  std::mt19937 rng{7};
+  for (int i = 0; i < 200; ++i) {
+    // The robot moves between requests: send at a random phase of the poll.
+    std::this_thread::sleep_for(std::chrono::microseconds(500 + rng() % 3000));
+    const auto t0 = std::chrono::steady_clock::now();
+    Result<RobotReply> r = rig.robot_->Call(daoai::kSwitchConfig, 1 + i % 2);
+    ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    ASSERT_TRUE(r.ok());
+    ASSERT_EQ(r->status, daoai::kSwitchConfigSuccess);
+  }
+  std::sort(ms.begin(), ms.end());
+  std::cout << "modbus request->response (switch config, poll " << o.poll.count()
+            << " ms, 200 requests): median " << ms[ms.size() / 2] << " ms, p99 "
+            << ms[ms.size() * 99 / 100] << " ms, max " << ms.back() << " ms\n";
+}
+
+}  // namespace
+}  // namespace bp
