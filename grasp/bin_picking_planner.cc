@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <cmath>
 #include <filesystem>
 #include <limits>
 #include <utility>
@@ -69,10 +70,36 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   result.largest_region_points = per.largest_region_points;
   result.detections = static_cast<int>(per.detections.size());
 
-  // Match detections to ground truth (synthetic frames only).
+  // Match detections to ground truth (synthetic frames only): the true
+  // instance most of the detection's support points show in the label image
+  // (robust to a wrong pose estimate), else the nearest true part of its class.
   std::vector<int> truth(per.detections.size(), -1);
   if (frame.truth) {
+    const LabelImage& labels = frame.truth->labels;
+    const bool labelled = frame.organized() && labels.width == frame.depth.width && labels.height == frame.depth.height;
+    const Pose X_CB = frame.X_BC.inverse();
     for (size_t d = 0; d < per.detections.size(); ++d) {
+      if (labelled) {
+        std::map<int, int> votes;
+        for (int32_t i : per.detections[d].support) {
+          if (i < 0 || static_cast<size_t>(i) >= per.roi_points_B.size()) continue;
+          const Vec3 p_C = X_CB * per.roi_points_B[i].cast<double>();
+          if (p_C.z() <= 0) continue;
+          const int u = static_cast<int>(std::lround(frame.intrinsics.fx * p_C.x() / p_C.z() + frame.intrinsics.cx));
+          const int v = static_cast<int>(std::lround(frame.intrinsics.fy * p_C.y() / p_C.z() + frame.intrinsics.cy));
+          if (u < 0 || v < 0 || u >= labels.width || v >= labels.height) continue;
+          const uint16_t l = labels.at(u, v);
+          if (l != 0 && l != GroundTruth::kBinLabel) ++votes[l];
+        }
+        int best_votes = 0;
+        for (const auto& [label, n] : votes) {
+          if (n > best_votes) {
+            best_votes = n;
+            truth[d] = label;
+          }
+        }
+        if (truth[d] >= 0) continue;
+      }
       double best = 0.03;  // m: farther than this is not the same part
       for (const PartTruth& t : frame.truth->parts) {
         if (t.class_id != per.detections[d].class_id) continue;

@@ -71,8 +71,9 @@ class BinPickingPlanner final : public GraspPlanner {
   Result<CaptureHandle> Capture(const PlanRequest& request) override;
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override;
   // With a ground-truth frame: tells the source which true instance the
-  // grasp's part is (the nearest true part of its class), so a simulating
-  // source removes it. Remembers the part for teaching.
+  // grasp's part is (the instance most of its support points show in the
+  // label image, else the nearest true part of its class within 3 cm), so a
+  // simulating source removes it. Remembers the part for teaching.
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override;
   // Stores X_OG = X_BO^-1 * X_BT for the part last handed out for the task
   // (else the first part of the task's last plan). NotFound when the task has
