@@ -12,17 +12,9 @@
 #include <string>
 #include <utility>
 
+#include "collision/internal/fcl_access.h"
+
 namespace bp {
-
-// OBBRSS, not AABB: FCL copies and re-transforms AABB models on every query,
-// which is about 100x slower.
-using FclMesh = fcl::BVHModel<fcl::OBBRSSd>;
-
-class CollisionGeometry::Impl {
- public:
-  std::shared_ptr<FclMesh> model;
-  std::vector<Eigen::Vector3d> vertices;
-};
 
 CollisionGeometry::CollisionGeometry(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {
   for (const auto& v : impl_->vertices) bounds_.extend(v);
@@ -77,12 +69,7 @@ Eigen::AlignedBox3d CollisionGeometry::ConservativeWorldBounds(const Pose& X_WG)
 
 namespace {
 
-fcl::Transform3d ToFcl(const Pose& X) {
-  fcl::Transform3d t = fcl::Transform3d::Identity();
-  t.linear() = X.linear();
-  t.translation() = X.translation();
-  return t;
-}
+using internal::ToFcl;
 
 bool NarrowCollides(const FclMesh& a, const fcl::Transform3d& X_WA, const FclMesh& b,
                     const fcl::Transform3d& X_WB) {

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "core/conventions.h"
+#include "grasp/empty_box.h"
 #include "grasp/grasp_queue.h"
 
 namespace bp {
@@ -637,10 +638,8 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
           return;
         }
         const EmptyBoxRule& rule = task->spec.empty_box;
-        const int64_t points = rule.mode == EmptyBoxRule::Mode::kLargestRegion
-                                   ? plan->largest_region_points
-                                   : plan->roi_points;
-        const bool empty = points < rule.threshold_points && plan->detections == 0;
+        const int64_t points = EmptyBoxPoints(rule, plan->roi_points, plan->largest_region_points);
+        const bool empty = IsBoxEmpty(rule, *plan);
         spdlog::info("daoai: task {} empty-box check: {} points (threshold {}), {} detections: {}",
                      task->spec.id, points, rule.threshold_points, plan->detections,
                      empty ? "EMPTY" : "NOT EMPTY");

@@ -610,7 +610,8 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node t = n[i];
     const std::string path = At("tasks", i);
-    ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "place_reference"});
+    ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "place_reference",
+                        "ranking"});
     TaskSpec task;
     task.id = Int(Req(t, path, "id"), Join(path, "id"));
     Check(task.id >= 0, t["id"], Join(path, "id"), "must be >= 0");
@@ -652,12 +653,22 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
     if (const YAML::Node r = t["place_reference"]; r.IsDefined()) {
       task.place_reference = ParsePose(r, Join(path, "place_reference"));
     }
+    if (const YAML::Node r = t["ranking"]; r.IsDefined()) {
+      const std::string rkey = Join(path, "ranking");
+      ExpectMap(r, rkey, {"height", "detection", "tilt"});
+      task.ranking.height = OptNumber(r, rkey, "height", task.ranking.height);
+      task.ranking.detection = OptNumber(r, rkey, "detection", task.ranking.detection);
+      task.ranking.tilt = OptNumber(r, rkey, "tilt", task.ranking.tilt);
+      Check(task.ranking.height >= 0, r["height"], Join(rkey, "height"), "must be >= 0");
+      Check(task.ranking.detection >= 0, r["detection"], Join(rkey, "detection"), "must be >= 0");
+      Check(task.ranking.tilt >= 0, r["tilt"], Join(rkey, "tilt"), "must be >= 0");
+    }
     cell.tasks.push_back(std::move(task));
   }
 }
 
 void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
-  ExpectMap(n, "robot", {"type", "protocol_version", "position_scale", "modbus"});
+  ExpectMap(n, "robot", {"type", "protocol_version", "position_scale", "modbus", "workspace"});
   RobotSpec& r = cell.robot;
   const YAML::Node type = Req(n, "robot", "type");
   const std::string name = Name(type, "robot.type");
@@ -693,6 +704,13 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
     r.modbus_poll_ms = OptInt(m, "robot.modbus", "poll_ms", r.modbus_poll_ms);
     Check(r.modbus_poll_ms >= 0 && r.modbus_poll_ms <= 1000, m["poll_ms"], "robot.modbus.poll_ms",
           "must be in 0..1000");
+  }
+  if (const YAML::Node w = n["workspace"]; w.IsDefined()) {
+    ExpectMap(w, "robot.workspace", {"min", "max"});
+    const Vec3 lo = Vector3(Req(w, "robot.workspace", "min"), "robot.workspace.min");
+    const Vec3 hi = Vector3(Req(w, "robot.workspace", "max"), "robot.workspace.max");
+    Check((lo.array() < hi.array()).all(), w["max"], "robot.workspace.max", "must be > min on every axis");
+    r.workspace = Eigen::AlignedBox3d(lo, hi);
   }
 }
 

@@ -134,6 +134,15 @@ struct EmptyBoxRule {
   Mode mode = Mode::kLargestRegion;
 };
 
+// Weights of the grasp ranking score (docs/cell.md, tasks[].ranking): score =
+// height * (z of the grasp above the bin floor, m / bin height)
+// + detection * (detection score, 0..1) - tilt * (approach tilt / max_tilt).
+struct GraspRanking {
+  double height = 1.0;
+  double detection = 0.5;
+  double tilt = 0.2;
+};
+
 struct TaskSpec {
   enum class Kind { kPick, kPlace, kInHand, kPrecision, kPick2D };
   int id = 0;
@@ -144,6 +153,7 @@ struct TaskSpec {
   EmptyBoxRule empty_box;
   double max_tilt_deg = 45.0;
   Pose place_reference = Pose::Identity();  // kPlace: taught reference
+  GraspRanking ranking;
 };
 
 // Where the DaoAI fields live in a robot's Modbus holding registers
@@ -171,6 +181,9 @@ struct RobotSpec {
   int modbus_unit_id = 1;
   ModbusRegisterMap modbus_map;
   int modbus_poll_ms = 2;           // request flag poll interval
+  // Box in base the flange must stay inside at the grasp and pre-grasp poses
+  // (robot.workspace; default: unbounded).
+  Eigen::AlignedBox3d workspace{Vec3::Constant(-1e9), Vec3::Constant(1e9)};
 };
 
 struct Endpoints {

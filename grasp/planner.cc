@@ -2,6 +2,10 @@
 
 #include "grasp/planner_factory.h"
 
+#include "grasp/bin_picking_planner.h"
+#include "pipeline/capture_source.h"
+#include "pipeline/perception.h"
+
 namespace bp {
 
 std::string_view ToString(PlanResult::Outcome outcome) {
@@ -14,8 +18,15 @@ std::string_view ToString(PlanResult::Outcome outcome) {
   return "?";
 }
 
-Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& /*cell*/) {
-  return Status::Unavailable("perception pipeline not built yet: no grasp planner available");
+Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell) {
+  Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
+  if (!perception.ok()) return perception.status();
+  Result<std::unique_ptr<CaptureSource>> source = MakeCaptureSource(cell);
+  if (!source.ok()) return source.status();
+  auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
+                                           std::move(*source));
+  if (!planner.ok()) return planner.status();
+  return std::unique_ptr<GraspPlanner>(std::move(*planner));
 }
 
 }  // namespace bp

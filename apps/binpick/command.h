@@ -30,6 +30,7 @@ Command RenderCommand();
 Command InfoCommand();
 Command RobotCommand();
 Command EvalCommand();  // eval_cmd.cc
+Command ClearCommand();  // clear_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.

@@ -76,10 +76,14 @@ TEST(RequestHandler, EmptyBoxRuleNeedsFewPointsAndNoDetections) {
   // Largest region: scattered noise (many points, small regions) is empty.
   EXPECT_EQ(check(3, 5000, 1999, 0), daoai::kBoxEmpty);
   EXPECT_EQ(check(3, 5000, 2000, 0), daoai::kBoxNotEmpty);
+  EXPECT_EQ(check(3, 5000, 2001, 0), daoai::kBoxNotEmpty);
   EXPECT_EQ(check(3, 10, 10, 1), daoai::kBoxNotEmpty);  // a detection is never empty
+  EXPECT_EQ(check(3, 1999, 1999, 1), daoai::kBoxNotEmpty);
   // Total: every ROI point counts.
   EXPECT_EQ(check(1, 5000, 1999, 0), daoai::kBoxNotEmpty);
   EXPECT_EQ(check(1, 1999, 1999, 0), daoai::kBoxEmpty);
+  EXPECT_EQ(check(1, 2000, 10, 0), daoai::kBoxNotEmpty);
+  EXPECT_EQ(check(1, 2001, 10, 0), daoai::kBoxNotEmpty);
   // No image: not empty.
   ScriptedPlanner::Script broken;
   broken.capture_fails = true;

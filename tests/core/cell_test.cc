@@ -345,6 +345,15 @@ std::vector<BadCase> BadCases() {
       {"matrix_bad_last_row", "pose: {xyz: [0.5, 0.0, 0.0]}",
        "pose: {matrix: [[1, 0, 0, 0.5], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]}", "bin.pose.matrix[3]",
        "last row"},
+      {"workspace_inverted", "  protocol_version: 2",
+       "  protocol_version: 2\n  workspace: {min: [0, 0, 0], max: [1, -1, 1]}", "robot.workspace.max",
+       "must be > min on every axis"},
+      {"workspace_without_max", "  protocol_version: 2", "  protocol_version: 2\n  workspace: {min: [0, 0, 0]}",
+       "robot.workspace.max", "missing required key"},
+      {"ranking_negative", "name: pick, kind: pick, gripper: suction}",
+       "name: pick, kind: pick, gripper: suction, ranking: {tilt: -1}}", "tasks[0].ranking.tilt", "must be >= 0"},
+      {"ranking_unknown_key", "name: pick, kind: pick, gripper: suction}",
+       "name: pick, kind: pick, gripper: suction, ranking: {hieght: 1}}", "tasks[0].ranking.hieght", "unknown key"},
       {"yaml_syntax_error", "  kind: synthetic", "  kind: [synthetic", "cell.yaml:", "YAML syntax error", C::kCorruption},
   };
 }
@@ -364,6 +373,24 @@ TEST_P(CellValidationTest, RejectsWithFileKeyPathAndReason) {
 
 INSTANTIATE_TEST_SUITE_P(Mutations, CellValidationTest, ::testing::ValuesIn(BadCases()),
                          [](const ::testing::TestParamInfo<BadCase>& info) { return std::string(info.param.label); });
+
+TEST_F(CellFileTest, WorkspaceAndRankingAreParsedAndDefaultToUnboundedAndDefaults) {
+  Result<Cell> plain = LoadCell(Write(kBaseCell));
+  ASSERT_TRUE(plain.ok()) << plain.status().ToString();
+  EXPECT_TRUE(plain->robot.workspace.contains(Vec3(100, -100, 100)));
+  EXPECT_DOUBLE_EQ(plain->tasks[0].ranking.height, 1.0);
+  const std::string text = Mutate(Mutate(kBaseCell, "  protocol_version: 2",
+                                         "  protocol_version: 2\n  workspace: {min: [-1, -1, 0], max: [1, 1, 1.5]}"),
+                                  "name: pick, kind: pick, gripper: suction}",
+                                  "name: pick, kind: pick, gripper: suction, ranking: {height: 2, detection: 0}}");
+  Result<Cell> cell = LoadCell(Write(text));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_TRUE(cell->robot.workspace.contains(Vec3(0.5, 0, 1.0)));
+  EXPECT_FALSE(cell->robot.workspace.contains(Vec3(0.5, 0, 1.6)));
+  EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.height, 2.0);
+  EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.detection, 0.0);
+  EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.tilt, 0.2);
+}
 
 TEST_F(CellFileTest, ErrorMessageStartsWithFileAndLineOfTheOffendingValue) {
   // Line 18 of the base cell is "  kind: synthetic".

@@ -1,0 +1,220 @@
+#include "grasp/bin_picking_planner.h"
+
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <utility>
+
+namespace bp {
+
+std::string DefaultTeachFile(const Cell& cell) {
+  if (cell.path.empty() || cell.path.front() == '<') return {};
+  std::filesystem::path p(cell.path);
+  p.replace_extension(".taught.yaml");
+  return p.string();
+}
+
+Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell& cell,
+                                                                     std::shared_ptr<const Perception> perception,
+                                                                     std::unique_ptr<CaptureSource> source,
+                                                                     BinPickingPlannerOptions options) {
+  if (!perception || !source) return Status::InvalidArgument("grasp planner: perception and source are required");
+  auto model = GraspPlanningModel::Build(cell, options.planning);
+  if (!model.ok()) return model.status();
+  std::string teach_file = options.teach_file.empty() ? DefaultTeachFile(cell) : options.teach_file;
+  if (teach_file == "-") teach_file.clear();
+  auto teach = std::make_unique<TeachStore>(teach_file);
+  if (Status s = teach->Load(); !s.ok()) return s;
+  std::unique_ptr<BinPickingPlanner> planner(new BinPickingPlanner());
+  planner->cell_ = cell;
+  planner->perception_ = std::move(perception);
+  planner->model_ = std::move(*model);
+  planner->teach_ = std::move(teach);
+  planner->source_ = std::move(source);
+  return planner;
+}
+
+BinPickingPlanner::~BinPickingPlanner() = default;
+
+Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
+  CaptureRequest capture;
+  capture.config_id = request.camera_config_id;
+  capture.X_BF = request.X_BF;
+  std::lock_guard lock(source_mutex_);
+  Result<Frame> frame = source_->Capture(capture);
+  if (!frame.ok()) return frame.status();
+  return CaptureHandle(std::make_shared<const CapturedFrame>(std::move(*frame)));
+}
+
+Result<PlanResult> BinPickingPlanner::Plan(const PlanRequest& request, const CapturedScene& scene) {
+  Result<PlanDetail> detail = PlanDetailed(request, scene);
+  if (!detail.ok()) return detail.status();
+  return std::move(detail->result);
+}
+
+Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, const CapturedScene& scene) {
+  const auto* captured = dynamic_cast<const CapturedFrame*>(&scene);
+  if (captured == nullptr) return Status::InvalidArgument("grasp planner: scene was not captured by this planner");
+  const Frame& frame = captured->frame();
+  const TaskSpec& task = request.task;
+  Result<PerceptionResult> perception = perception_->Run(frame, task.part_classes);
+  if (!perception.ok()) return perception.status();
+
+  PlanDetail detail;
+  detail.perception = std::move(*perception);
+  const PerceptionResult& per = detail.perception;
+  PlanResult& result = detail.result;
+  result.roi_points = per.roi_point_count;
+  result.largest_region_points = per.largest_region_points;
+  result.detections = static_cast<int>(per.detections.size());
+
+  // Match detections to ground truth (synthetic frames only): the true
+  // instance most of the detection's support points show in the label image
+  // (robust to a wrong pose estimate), else the nearest true part of its class.
+  std::vector<int> truth(per.detections.size(), -1);
+  if (frame.truth) {
+    const LabelImage& labels = frame.truth->labels;
+    const bool labelled = frame.organized() && labels.width == frame.depth.width && labels.height == frame.depth.height;
+    const Pose X_CB = frame.X_BC.inverse();
+    for (size_t d = 0; d < per.detections.size(); ++d) {
+      if (labelled) {
+        std::map<int, int> votes;
+        for (int32_t i : per.detections[d].support) {
+          if (i < 0 || static_cast<size_t>(i) >= per.roi_points_B.size()) continue;
+          const Vec3 p_C = X_CB * per.roi_points_B[i].cast<double>();
+          if (p_C.z() <= 0) continue;
+          const int u = static_cast<int>(std::lround(frame.intrinsics.fx * p_C.x() / p_C.z() + frame.intrinsics.cx));
+          const int v = static_cast<int>(std::lround(frame.intrinsics.fy * p_C.y() / p_C.z() + frame.intrinsics.cy));
+          if (u < 0 || v < 0 || u >= labels.width || v >= labels.height) continue;
+          const uint16_t l = labels.at(u, v);
+          if (l != 0 && l != GroundTruth::kBinLabel) ++votes[l];
+        }
+        int best_votes = 0;
+        for (const auto& [label, n] : votes) {
+          if (n > best_votes) {
+            best_votes = n;
+            truth[d] = label;
+          }
+        }
+        if (truth[d] >= 0) continue;
+      }
+      double best = 0.03;  // m: farther than this is not the same part
+      for (const PartTruth& t : frame.truth->parts) {
+        if (t.class_id != per.detections[d].class_id) continue;
+        const double dist = (t.X_BO.translation() - per.detections[d].X_BO.translation()).norm();
+        if (dist < best) {
+          best = dist;
+          truth[d] = t.instance_id;
+        }
+      }
+    }
+  }
+
+  if (task.kind == TaskSpec::Kind::kInHand || task.kind == TaskSpec::Kind::kPlace) {
+    // The best-scoring detection is the part in hand / the place area.
+    int best = -1;
+    for (int d = 0; d < static_cast<int>(per.detections.size()); ++d) {
+      if (best < 0 || per.detections[d].score > per.detections[best].score) best = d;
+    }
+    if (best < 0) {
+      result.outcome = PlanResult::Outcome::kNoObjects;
+      result.message = per.reason.empty() ? "nothing detected" : per.reason;
+    } else {
+      const Detection& det = per.detections[best];
+      Grasp g;
+      g.X_BO = det.X_BO;
+      g.instance_id = best;
+      g.class_id = det.class_id;
+      g.score = det.score;
+      if (task.kind == TaskSpec::Kind::kInHand) {
+        if (!request.X_BF) return Status::InvalidArgument("in-hand task " + std::to_string(task.id) + " needs the robot pose");
+        g.name = "in_hand";
+        g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_FO
+      } else {
+        g.name = "place_offset";
+        g.X_BT = det.X_BO * task.place_reference.inverse();  // X_off
+        g.related_X_B.push_back(det.X_BO);
+      }
+      g.X_BT_pre = g.X_BT;
+      result.outcome = PlanResult::Outcome::kGrasps;
+      result.grasps.push_back(std::move(g));
+    }
+  } else {
+    std::vector<TaughtGrasp> taught = teach_->All();
+    detail.plan = PlanGrasps(*model_, task, per, taught);
+    result.outcome = detail.plan.outcome;
+    result.grasps = detail.plan.queue;
+    result.message = detail.plan.stats.Describe();
+    if (result.outcome == PlanResult::Outcome::kNoObjects && !per.reason.empty()) result.message = per.reason;
+  }
+
+  {
+    std::lock_guard lock(state_mutex_);
+    TaskState& state = tasks_[task.id];
+    state.detections.clear();
+    for (const Detection& d : per.detections) {
+      Detection copy;
+      copy.class_id = d.class_id;
+      copy.X_BO = d.X_BO;
+      copy.score = d.score;
+      state.detections.push_back(std::move(copy));
+    }
+    state.truth_instance = std::move(truth);
+    state.held_X_BO.reset();
+    // Until a grasp is handed out, teaching refers to the first part of the queue.
+    if (!result.grasps.empty()) {
+      state.held_X_BO = result.grasps.front().X_BO;
+      state.held_class = result.grasps.front().class_id;
+    } else if (!per.detections.empty()) {
+      state.held_X_BO = per.detections.front().X_BO;
+      state.held_class = per.detections.front().class_id;
+    }
+  }
+  return detail;
+}
+
+int BinPickingPlanner::TruthInstanceOf(int task_id, int detection) const {
+  std::lock_guard lock(state_mutex_);
+  auto it = tasks_.find(task_id);
+  if (it == tasks_.end() || detection < 0 || detection >= static_cast<int>(it->second.truth_instance.size())) {
+    return -1;
+  }
+  return it->second.truth_instance[detection];
+}
+
+void BinPickingPlanner::NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) {
+  int instance = -1;
+  {
+    std::lock_guard lock(state_mutex_);
+    TaskState& state = tasks_[task.id];
+    state.held_X_BO = grasp.X_BO;
+    state.held_class = grasp.class_id;
+    if (grasp.instance_id >= 0 && grasp.instance_id < static_cast<int>(state.truth_instance.size())) {
+      instance = state.truth_instance[grasp.instance_id];
+    }
+  }
+  // Only picks take a part out of the bin (in-hand and place results do not).
+  const bool pick = task.kind == TaskSpec::Kind::kPick || task.kind == TaskSpec::Kind::kPick2D;
+  if (instance < 0 || !pick) return;
+  std::lock_guard lock(source_mutex_);
+  source_->NotifyPicked(instance);
+}
+
+Status BinPickingPlanner::Teach(const TeachRequest& request) {
+  TaughtGrasp g;
+  {
+    std::lock_guard lock(state_mutex_);
+    auto it = tasks_.find(request.task.id);
+    if (it == tasks_.end() || !it->second.held_X_BO) {
+      return Status::NotFound("task " + std::to_string(request.task.id) + " has no detected part to teach on");
+    }
+    g.class_id = it->second.held_class;
+    g.X_OG = it->second.held_X_BO->inverse() * request.X_BT;
+  }
+  g.gripper = request.task.gripper;
+  return teach_->Add(std::move(g));
+}
+
+}  // namespace bp

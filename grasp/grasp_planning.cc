@@ -1,0 +1,488 @@
+#include "grasp/grasp_planning.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <utility>
+
+#include "collision/mesh_collider.h"
+#include "collision/point_obstacle.h"
+#include "core/mesh.h"
+#include "core/mesh_gen.h"
+#include "grasp/internal/occupancy_grid.h"
+
+namespace bp {
+
+std::string_view ToString(RejectReason reason) {
+  switch (reason) {
+    case RejectReason::kTilt: return "tilt";
+    case RejectReason::kWorkspace: return "workspace";
+    case RejectReason::kBin: return "bin";
+    case RejectReason::kPart: return "part";
+    case RejectReason::kSelf: return "self";
+    case RejectReason::kPoints: return "points";
+  }
+  return "?";
+}
+
+std::string FilterStats::Describe() const {
+  std::ostringstream os;
+  os << candidates << " candidates, " << accepted << " collision-free";
+  for (int r = 0; r < kNumRejectReasons; ++r) {
+    if (rejected[r] > 0) os << "; " << ToString(static_cast<RejectReason>(r)) << " " << rejected[r];
+  }
+  os << " (" << filter_ms << " ms, obstacles " << obstacles_ms << " ms)";
+  return os.str();
+}
+
+namespace {
+
+Pose TranslateZ(double z) {
+  Pose X = Pose::Identity();
+  X.translation() = Vec3(0, 0, z);
+  return X;
+}
+
+// The gripper swept along its approach (translated by 0 .. -distance in z).
+//
+// Exact and cheap when every connected component of the gripper mesh has
+// horizontal cross-sections that never shrink toward -z (each contains the
+// ones above it): then the sweep is the component with its lowest vertices
+// moved down by `distance`. Recognised cases: prisms along z (every vertex on
+// the component's lowest or highest z: boxes, cylinders) and solids of
+// revolution about a z axis whose radius does not shrink toward -z (the
+// shipped suction cup: a cup under a wider rod). Otherwise the sweep is the
+// union of copies every `step` (many overlapping triangles, slower queries).
+TriangleMesh SweepAlongApproach(const TriangleMesh& gripper_T, double distance, double step) {
+  const int n = static_cast<int>(gripper_T.vertices.size());
+  std::vector<int> parent(n);
+  for (int i = 0; i < n; ++i) parent[i] = i;
+  auto find = [&parent](int i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  for (const auto& t : gripper_T.triangles) {
+    for (int k = 1; k < 3; ++k) parent[find(t[k])] = find(t[0]);
+  }
+  std::map<int, std::vector<int>> components;
+  for (int i = 0; i < n; ++i) components[find(i)].push_back(i);
+  constexpr double kEps = 1e-6;
+  auto stretchable = [&](const std::vector<int>& vs) {
+    double lo = 1e9, hi = -1e9;
+    Eigen::Vector2d centre = Eigen::Vector2d::Zero();
+    for (int i : vs) {
+      const auto& v = gripper_T.vertices[i];
+      lo = std::min(lo, static_cast<double>(v.z()));
+      hi = std::max(hi, static_cast<double>(v.z()));
+      centre += v.head<2>().cast<double>();
+    }
+    centre /= static_cast<double>(vs.size());
+    bool prism = true;
+    for (int i : vs) {
+      const double z = gripper_T.vertices[i].z();
+      prism = prism && (std::abs(z - lo) < kEps || std::abs(z - hi) < kEps);
+    }
+    if (prism) return true;
+    // Revolved (assumed: sections are discs about the component's centre
+    // axis): the largest radius per z level must not shrink going down.
+    std::map<double, double, std::greater<double>> max_r;  // z (top first) -> radius
+    for (int i : vs) {
+      const auto& v = gripper_T.vertices[i];
+      const double z = std::round(v.z() / kEps) * kEps;
+      double& r = max_r[z];
+      r = std::max(r, (v.head<2>().cast<double>() - centre).norm());
+    }
+    double previous = 0;
+    for (const auto& [z, r] : max_r) {
+      if (r + kEps < previous) return false;
+      previous = r;
+    }
+    return true;
+  };
+  bool stretch = true;
+  for (const auto& [root, vs] : components) stretch = stretch && stretchable(vs);
+  if (stretch) {
+    TriangleMesh out = gripper_T;
+    for (const auto& [root, vs] : components) {
+      float lo = 1e9f;
+      for (int i : vs) lo = std::min(lo, out.vertices[i].z());
+      for (int i : vs) {
+        if (std::abs(out.vertices[i].z() - lo) < kEps) out.vertices[i].z() -= static_cast<float>(distance);
+      }
+    }
+    return out;
+  }
+  TriangleMesh out;
+  const int copies = std::max(1, static_cast<int>(std::ceil(distance / step - 1e-9))) + 1;
+  out.vertices.reserve(gripper_T.vertices.size() * copies);
+  out.triangles.reserve(gripper_T.triangles.size() * copies);
+  for (int k = 0; k < copies; ++k) {
+    const float dz = -static_cast<float>(std::min(distance, k * step));
+    const int base = static_cast<int>(out.vertices.size());
+    for (const auto& v : gripper_T.vertices) out.vertices.push_back(v + Eigen::Vector3f(0, 0, dz));
+    for (const auto& t : gripper_T.triangles) out.triangles.push_back(t + Eigen::Vector3i::Constant(base));
+  }
+  return out;
+}
+
+// Boxes (in T) covering the swept mesh slab by slab along z: tighter than one
+// box for the occupancy pre-filter of a long tilted gripper.
+std::vector<Eigen::AlignedBox3d> SlabBoxes(const TriangleMesh& mesh, int slabs) {
+  Eigen::AlignedBox3d all;
+  for (const auto& v : mesh.vertices) all.extend(v.cast<double>());
+  std::vector<Eigen::AlignedBox3d> boxes(slabs);
+  const double z0 = all.min().z(), dz = std::max(1e-9, all.sizes().z() / slabs);
+  for (const auto& t : mesh.triangles) {
+    Eigen::AlignedBox3d tb;
+    for (int i = 0; i < 3; ++i) tb.extend(mesh.vertices[t[i]].cast<double>());
+    const int lo = std::clamp(static_cast<int>((tb.min().z() - z0) / dz), 0, slabs - 1);
+    const int hi = std::clamp(static_cast<int>((tb.max().z() - z0) / dz), 0, slabs - 1);
+    for (int s = lo; s <= hi; ++s) {
+      Eigen::AlignedBox3d clipped = tb;
+      clipped.min().z() = std::max(tb.min().z(), z0 + s * dz);
+      clipped.max().z() = std::min(tb.max().z(), z0 + (s + 1) * dz);
+      boxes[s].extend(clipped);
+    }
+  }
+  boxes.erase(std::remove_if(boxes.begin(), boxes.end(), [](const auto& b) { return b.isEmpty(); }), boxes.end());
+  return boxes;
+}
+
+Eigen::AlignedBox3d WorldBox(const Eigen::AlignedBox3d& local, const Pose& X_WL) {
+  Eigen::AlignedBox3d box;
+  for (int i = 0; i < 8; ++i) box.extend(X_WL * local.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i)));
+  return box;
+}
+
+}  // namespace
+
+class GraspPlanningModel::Impl {
+ public:
+  struct Gripper {
+    const GripperSpec* spec = nullptr;
+    CollisionGeometryPtr sweep;               // swept along the approach, in T
+    std::vector<Eigen::AlignedBox3d> slabs;   // boxes covering `sweep`, in T
+  };
+  Cell cell;
+  GraspPlanningOptions options;
+  std::map<int, CollisionGeometryPtr> parts;     // by class id, in O
+  CollisionGeometryPtr bin;                      // in W
+  std::map<std::string, Gripper> grippers;       // by name
+  // (class id, gripper) -> expanded cell grasps
+  std::map<std::pair<int, std::string>, std::vector<TaughtGrasp>> cell_grasps;
+  // CollisionScene::Add refreshes cached bounds inside shared geometries.
+  mutable std::mutex scene_build_mutex;
+
+  std::vector<TaughtGrasp> Expand(const TaughtGrasp& g) const {
+    const PartSpec* part = cell.FindPart(g.class_id);
+    std::vector<Mat3> axis_rotations{Mat3::Identity()};
+    if (part != nullptr && part->symmetry.kind != Symmetry::Kind::kNone) {
+      const Vec3 axis = part->symmetry.axis.normalized();
+      const int n = part->symmetry.kind == Symmetry::Kind::kRevolute
+                        ? std::max(1, static_cast<int>(std::lround(360.0 / options.revolute_step_deg)))
+                        : std::max(1, part->symmetry.order);
+      axis_rotations.clear();
+      for (int k = 0; k < n; ++k) axis_rotations.push_back(Eigen::AngleAxisd(2 * M_PI * k / n, axis).toRotationMatrix());
+    }
+    std::vector<Pose> extras{Pose::Identity()};
+    if (part != nullptr) extras.insert(extras.end(), part->symmetry.extra.begin(), part->symmetry.extra.end());
+    std::vector<TaughtGrasp> out;
+    int index = 0;
+    for (const Pose& E : extras) {
+      for (const Mat3& R : axis_rotations) {
+        TaughtGrasp e = g;
+        Pose X_R = Pose::Identity();
+        X_R.linear() = R;
+        e.X_OG = E * X_R * g.X_OG;
+        if (axis_rotations.size() * extras.size() > 1) e.name = g.name + "@" + std::to_string(index);
+        ++index;
+        out.push_back(std::move(e));
+      }
+    }
+    return out;
+  }
+};
+
+GraspPlanningModel::GraspPlanningModel(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+GraspPlanningModel::~GraspPlanningModel() = default;
+const Cell& GraspPlanningModel::cell() const { return impl_->cell; }
+const GraspPlanningOptions& GraspPlanningModel::options() const { return impl_->options; }
+
+std::vector<TaughtGrasp> GraspPlanningModel::Expand(const TaughtGrasp& grasp) const { return impl_->Expand(grasp); }
+
+const std::vector<TaughtGrasp>& GraspPlanningModel::CellGrasps(int class_id, const std::string& gripper) const {
+  static const std::vector<TaughtGrasp> kNone;
+  auto it = impl_->cell_grasps.find({class_id, gripper});
+  return it == impl_->cell_grasps.end() ? kNone : it->second;
+}
+
+Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(const Cell& cell,
+                                                                            const GraspPlanningOptions& options) {
+  if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
+      !(options.contact_margin >= 0)) {
+    return Status::InvalidArgument("grasp planning options: steps and resolution must be > 0");
+  }
+  auto impl = std::make_unique<Impl>();
+  impl->cell = cell;
+  impl->options = options;
+  const Cell& c = impl->cell;
+  for (const PartSpec& part : c.parts) {
+    Result<TriangleMesh> mesh = LoadMesh(part.mesh);
+    if (!mesh.ok()) return mesh.status();
+    auto geometry = CollisionGeometry::FromMesh(*mesh);
+    if (!geometry.ok()) return Status::InvalidArgument("part '" + part.name + "': " + geometry.status().message());
+    impl->parts[part.class_id] = *geometry;
+  }
+  TriangleMesh bin_mesh;
+  if (c.bin.mesh.empty()) {
+    bin_mesh = MakeBinMesh(c.bin);
+  } else {
+    Result<TriangleMesh> loaded = LoadMesh(c.bin.mesh);
+    if (!loaded.ok()) return loaded.status();
+    bin_mesh = std::move(*loaded);
+  }
+  auto bin = CollisionGeometry::FromMesh(bin_mesh);
+  if (!bin.ok()) return Status::InvalidArgument("bin: " + bin.status().message());
+  impl->bin = *bin;
+  for (const GripperSpec& g : c.grippers) {
+    Result<TriangleMesh> mesh = LoadMesh(g.mesh);
+    if (!mesh.ok()) return mesh.status();
+    const TriangleMesh sweep = SweepAlongApproach(*mesh, g.approach_distance, options.approach_step);
+    auto geometry = CollisionGeometry::FromMesh(sweep);
+    if (!geometry.ok()) return Status::InvalidArgument("gripper '" + g.name + "': " + geometry.status().message());
+    Impl::Gripper entry;
+    entry.spec = c.FindGripper(g.name);
+    entry.sweep = *geometry;
+    entry.slabs = SlabBoxes(sweep, 12);
+    impl->grippers[g.name] = std::move(entry);
+  }
+  for (const PartSpec& part : c.parts) {
+    for (const GraspSpec& g : part.grasps) {
+      auto& list = impl->cell_grasps[{part.class_id, g.gripper}];
+      for (TaughtGrasp& e : impl->Expand(TaughtGrasp{part.class_id, g.name, g.gripper, g.X_OG})) {
+        list.push_back(std::move(e));
+      }
+    }
+  }
+  return std::shared_ptr<const GraspPlanningModel>(new GraspPlanningModel(std::move(impl)));
+}
+
+namespace {
+
+struct FrameObstacles {
+  CollisionScene parts;         // detections by index
+  PointObstaclePtr points;      // ROI points no detection explains
+  internal::OccupancyGrid grid; // the same points, for the pre-filter
+};
+
+double TiltRad(const Pose& X_BT) {
+  // Straight down: the tool's +z (into the part) is -z of the base.
+  return std::acos(std::clamp(-X_BT.linear().col(2).z(), -1.0, 1.0));
+}
+
+}  // namespace
+
+std::optional<RejectReason> GraspPlanningModel::CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
+                                                                  std::span<const Detection> parts,
+                                                                  int target) const {
+  const Impl& m = *impl_;
+  auto g = m.grippers.find(gripper);
+  if (g == m.grippers.end()) return RejectReason::kPart;
+  const CollisionGeometry& sweep = *g->second.sweep;
+  if (Collides(sweep, X_BT, *m.bin, m.cell.bin.X_BW)) return RejectReason::kBin;
+  const Pose X_BT_lift = X_BT * TranslateZ(-m.options.contact_margin);
+  for (int i = 0; i < static_cast<int>(parts.size()); ++i) {
+    auto p = m.parts.find(parts[i].class_id);
+    if (p == m.parts.end()) continue;
+    if (i == target) {
+      if (Collides(sweep, X_BT_lift, *p->second, parts[i].X_BO)) return RejectReason::kSelf;
+    } else if (Collides(sweep, X_BT, *p->second, parts[i].X_BO)) {
+      return RejectReason::kPart;
+    }
+  }
+  return std::nullopt;
+}
+
+GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
+                     std::span<const TaughtGrasp> taught) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const GraspPlanningModel::Impl& m = model.impl();
+  const Cell& cell = m.cell;
+  GraspPlan plan;
+
+  auto wanted = [&task](int class_id) {
+    return task.part_classes.empty() ||
+           std::find(task.part_classes.begin(), task.part_classes.end(), class_id) != task.part_classes.end();
+  };
+  const auto& detections = perception.detections;
+  int relevant = 0;
+  for (const Detection& d : detections) relevant += wanted(d.class_id) ? 1 : 0;
+  if (relevant == 0) {
+    plan.outcome = PlanResult::Outcome::kNoObjects;
+    return plan;
+  }
+  auto gripper_it = m.grippers.find(task.gripper);
+  if (gripper_it == m.grippers.end()) {  // cell validation makes this unreachable
+    plan.outcome = PlanResult::Outcome::kNoCollisionFree;
+    return plan;
+  }
+  const GraspPlanningModel::Impl::Gripper& gripper = gripper_it->second;
+
+  // Candidates.
+  const double compliance =
+      gripper.spec->kind == GripperSpec::Kind::kSuction ? m.options.suction_compliance_deg * M_PI / 180.0 : 0.0;
+  for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
+    const Detection& det = detections[d];
+    if (!wanted(det.class_id)) continue;
+    auto add = [&](const TaughtGrasp& g) {
+      GraspCandidate c;
+      c.detection = d;
+      c.class_id = det.class_id;
+      c.name = g.name;
+      c.X_OG = g.X_OG;
+      c.X_BT = det.X_BO * g.X_OG;
+      c.X_BT_pre = c.X_BT * TranslateZ(-gripper.spec->approach_distance);
+      c.tilt_rad = TiltRad(c.X_BT);
+      const bool turn = compliance > 0 && c.tilt_rad > 1e-3;
+      GraspCandidate turned;
+      if (turn) {
+        turned = c;
+        const Vec3 z_T = c.X_BT.linear().col(2);
+        Vec3 axis = z_T.cross(Vec3(0, 0, -1));
+        if (axis.norm() < 1e-9) axis = c.X_BT.linear().col(0);  // upside down: any horizontal axis
+        const double angle = std::min(c.tilt_rad, compliance);
+        turned.X_BT.linear() = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix() * c.X_BT.linear();
+        turned.X_BT_pre = turned.X_BT * TranslateZ(-gripper.spec->approach_distance);
+        turned.X_OG = det.X_BO.inverse() * turned.X_BT;
+        turned.tilt_rad = TiltRad(turned.X_BT);
+        turned.name += "~v";
+      }
+      plan.candidates.push_back(std::move(c));
+      if (turn) plan.candidates.push_back(std::move(turned));
+    };
+    for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
+    for (const TaughtGrasp& t : taught) {
+      if (t.class_id != det.class_id || t.gripper != task.gripper) continue;
+      for (const TaughtGrasp& g : model.Expand(t)) add(g);
+    }
+  }
+
+  // Obstacles of this frame, built once.
+  const auto t_obstacles = std::chrono::steady_clock::now();
+  FrameObstacles obstacles;
+  {
+    std::lock_guard lock(m.scene_build_mutex);
+    for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
+      auto p = m.parts.find(detections[d].class_id);
+      if (p != m.parts.end()) (void)obstacles.parts.Add(d, p->second, detections[d].X_BO);
+    }
+  }
+  {
+    std::vector<uint8_t> explained(perception.roi_points_B.size(), 0);
+    for (const Detection& det : detections) {
+      for (int32_t i : det.support) {
+        if (i >= 0 && static_cast<size_t>(i) < explained.size()) explained[i] = 1;
+      }
+    }
+    std::vector<Eigen::Vector3f> rest;
+    rest.reserve(perception.roi_points_B.size());
+    for (size_t i = 0; i < explained.size(); ++i) {
+      if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
+    }
+    auto points = PointObstacle::FromPoints(rest, m.options.octree_resolution);
+    if (points.ok()) obstacles.points = *points;
+    obstacles.grid = internal::OccupancyGrid(rest, 0.01);
+  }
+
+  plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
+
+  // Filtering, in parallel over candidates (the caller's arena).
+  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
+  const Eigen::AlignedBox3d& workspace = cell.robot.workspace;
+  const Pose X_TF = gripper.spec->X_FT.inverse();
+  const double pad = m.options.octree_resolution;
+  tbb::parallel_for(size_t{0}, plan.candidates.size(), [&](size_t i) {
+    GraspCandidate& c = plan.candidates[i];
+    auto verdict = [&]() -> std::optional<RejectReason> {
+      if (c.tilt_rad > max_tilt + 1e-9) return RejectReason::kTilt;
+      if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
+        return RejectReason::kWorkspace;
+      }
+      const CollisionGeometry& sweep = *gripper.sweep;
+      if (Collides(sweep, c.X_BT, *m.bin, cell.bin.X_BW)) return RejectReason::kBin;
+      const int self[] = {c.detection};
+      if (obstacles.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
+      const Pose X_BT_lift = c.X_BT * TranslateZ(-m.options.contact_margin);
+      const Detection& det = detections[c.detection];
+      if (auto p = m.parts.find(det.class_id); p != m.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
+        return RejectReason::kSelf;
+      }
+      if (obstacles.points) {
+        bool near = false;
+        for (const auto& slab : gripper.slabs) {
+          Eigen::AlignedBox3d box = WorldBox(slab, X_BT_lift);
+          box.min().array() -= pad;
+          box.max().array() += pad;
+          if (obstacles.grid.AnyIn(box)) {
+            near = true;
+            break;
+          }
+        }
+        if (near && obstacles.points->Collides(sweep, X_BT_lift)) return RejectReason::kPoints;
+      }
+      return std::nullopt;
+    };
+    c.rejected = verdict();
+  });
+
+  // Ranking.
+  const Pose X_WB = cell.bin.X_BW.inverse();
+  const double height = std::max(1e-6, cell.bin.inner_size.z());
+  for (GraspCandidate& c : plan.candidates) {
+    ++plan.stats.candidates;
+    if (c.rejected) {
+      ++plan.stats.rejected[static_cast<int>(*c.rejected)];
+      continue;
+    }
+    ++plan.stats.accepted;
+    const double z_W = (X_WB * c.X_BT).translation().z();
+    const double tilt_norm = max_tilt > 0 ? c.tilt_rad / max_tilt : 0.0;
+    c.score = task.ranking.height * (z_W / height) + task.ranking.detection * detections[c.detection].score -
+              task.ranking.tilt * tilt_norm;
+  }
+
+  // One primary grasp per part, parts ordered by their best grasp.
+  std::map<int, std::vector<const GraspCandidate*>> by_part;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (!c.rejected) by_part[c.detection].push_back(&c);
+  }
+  std::vector<std::vector<const GraspCandidate*>> parts;
+  for (auto& [d, list] : by_part) {
+    std::stable_sort(list.begin(), list.end(), [](auto* a, auto* b) { return a->score > b->score; });
+    parts.push_back(std::move(list));
+  }
+  std::stable_sort(parts.begin(), parts.end(), [](const auto& a, const auto& b) { return a[0]->score > b[0]->score; });
+  for (const auto& list : parts) {
+    const GraspCandidate& best = *list[0];
+    Grasp g;
+    g.X_BT = best.X_BT;
+    g.X_BT_pre = best.X_BT_pre;
+    g.X_BO = detections[best.detection].X_BO;
+    g.instance_id = best.detection;
+    g.class_id = best.class_id;
+    g.score = best.score;
+    g.name = best.name;
+    for (size_t k = 1; k < list.size(); ++k) g.related_X_B.push_back(list[k]->X_BT);
+    plan.queue.push_back(std::move(g));
+  }
+  plan.outcome = plan.queue.empty() ? PlanResult::Outcome::kNoCollisionFree : PlanResult::Outcome::kGrasps;
+  plan.stats.filter_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return plan;
+}
+
+}  // namespace bp

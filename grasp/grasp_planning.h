@@ -1,0 +1,148 @@
+// Grasp planning for one frame: candidates from the cell's (and taught) grasps
+// expanded over part symmetries, collision filtering with FCL, ranking, and
+// the queue order (issue 4 §1-3).
+//
+// Frames (STYLE.md): B robot base, W bin, O part, T tool centre point, F
+// flange. The tool's +z points into the part; the pre-grasp pose is
+// X_BT_pre = X_BT * translate(0, 0, -approach_distance).
+//
+// Collision model. The gripper mesh (in T) is swept along the approach: the
+// union of copies at every approach_step from the grasp back to the pre-grasp,
+// one OBBRSS BVH per gripper, built once. Each candidate is checked, cheapest
+// first, for: approach tilt from vertical (task.max_tilt_deg), flange inside
+// robot.workspace at the grasp and the pre-grasp, the swept gripper against
+// the bin, against the other detected parts (meshes at their estimated poses,
+// FCL broadphase), against its own part and against the scene points not
+// explained by any detection (an FCL OcTree built once per frame, behind a
+// dense occupancy-bitmap pre-filter). Its own part and the points are checked
+// with the gripper lifted by contact_margin along -z: the tool touches the part
+// at the grasp point by design, and the points are inflated by a voxel.
+//
+// Thread-safety: GraspPlanningModel is immutable after Build; PlanGrasps may
+// run concurrently. PlanGrasps parallelises over candidates with oneTBB in the
+// calling thread's arena.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "core/cell.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "grasp/grasp.h"
+#include "grasp/planner.h"
+#include "pipeline/perception.h"
+
+namespace bp {
+
+// Why a candidate was rejected, in the order the checks run.
+enum class RejectReason : int {
+  kTilt = 0,   // approach further from vertical than task.max_tilt_deg
+  kWorkspace,  // flange outside robot.workspace at the grasp or pre-grasp
+  kBin,        // swept gripper hits the bin
+  kPart,       // swept gripper hits another detected part
+  kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
+  kPoints,     // lifted swept gripper hits scene points no detection explains
+};
+inline constexpr int kNumRejectReasons = 6;
+std::string_view ToString(RejectReason reason);
+
+struct GraspPlanningOptions {
+  double revolute_step_deg = 15.0;  // samples about a revolute symmetry axis
+  double approach_step = 0.005;     // m between swept copies of the gripper
+  double contact_margin = 0.005;    // m the gripper is lifted for self / point checks
+  double octree_resolution = 0.004; // m, voxel edge of the scene-point OcTree
+  // Suction cups comply with a surface up to some angle: each suction
+  // candidate also gets a variant turned about its contact point toward a
+  // vertical approach by min(tilt, suction_compliance_deg) (name + "~v").
+  // 0 disables the variants.
+  double suction_compliance_deg = 20.0;
+};
+
+// A grasp of a part class in the part frame, before symmetry expansion.
+struct TaughtGrasp {
+  int class_id = 0;
+  std::string name;
+  std::string gripper;
+  Pose X_OG = Pose::Identity();
+};
+
+struct GraspCandidate {
+  int detection = -1;       // index into the detections
+  int class_id = 0;
+  std::string name;         // grasp name (+ "@<symmetry index>" when expanded)
+  Pose X_OG = Pose::Identity();
+  Pose X_BT = Pose::Identity();
+  Pose X_BT_pre = Pose::Identity();
+  double tilt_rad = 0.0;    // approach direction from straight down
+  std::optional<RejectReason> rejected;
+  double score = 0.0;       // ranking score (accepted candidates)
+};
+
+struct FilterStats {
+  int candidates = 0;
+  int accepted = 0;
+  std::array<int, kNumRejectReasons> rejected{};
+  double obstacles_ms = 0.0;  // building this frame's obstacles (part scene, point OcTree)
+  double filter_ms = 0.0;     // the whole PlanGrasps call
+  std::string Describe() const;  // "560 candidates, 120 accepted; tilt 200, bin 12, ..."
+};
+
+struct GraspPlan {
+  PlanResult::Outcome outcome = PlanResult::Outcome::kNoObjects;
+  std::vector<Grasp> queue;                 // one primary grasp per part, best first
+  std::vector<GraspCandidate> candidates;   // every candidate with its verdict
+  FilterStats stats;
+};
+
+// Immutable per-cell data: part, bin and swept gripper geometries, and every
+// part class's cell grasps expanded over its symmetry.
+class GraspPlanningModel {
+ public:
+  // Loads meshes (parts, grippers, bin) of `cell`. @returns the loader's
+  // NotFound / Corruption naming the file, InvalidArgument for empty meshes.
+  static Result<std::shared_ptr<const GraspPlanningModel>> Build(const Cell& cell,
+                                                                  const GraspPlanningOptions& options = {});
+  ~GraspPlanningModel();
+
+  const Cell& cell() const;
+  const GraspPlanningOptions& options() const;
+
+  // `grasp` expanded over the part class's symmetry: X_OG' = E * R_k * X_OG
+  // for E in {I} + symmetry.extra and R_k the k-th axis rotation (revolute:
+  // every revolute_step_deg; discrete: order rotations; none: identity).
+  std::vector<TaughtGrasp> Expand(const TaughtGrasp& grasp) const;
+  // The cell's grasps of `class_id` for `gripper`, expanded.
+  const std::vector<TaughtGrasp>& CellGrasps(int class_id, const std::string& gripper) const;
+
+  // Checks one tool pose against the bin and `parts` (meshes at their poses;
+  // parts[target] is the part being grasped), without points or task limits.
+  // Used to judge a grasp against ground truth. nullopt = collision-free.
+  std::optional<RejectReason> CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
+                                                std::span<const Detection> parts, int target) const;
+
+  class Impl;
+  const Impl& impl() const { return *impl_; }
+
+ private:
+  explicit GraspPlanningModel(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+// Plans grasps for `task` from a perception result: candidates for every
+// detection of the task's part classes (cell grasps plus `taught`, for the
+// task's gripper), filtered, ranked by task.ranking; one primary grasp per
+// part, its other collision-free grasps as related_X_B (best first).
+// Outcome: kNoObjects without detections of the task's classes,
+// kNoCollisionFree when there are some but no grasp survives, else kGrasps.
+// Grasp::instance_id is the detection index.
+GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
+                     std::span<const TaughtGrasp> taught = {});
+
+}  // namespace bp

@@ -1,0 +1,93 @@
+#include "grasp/teach_store.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iomanip>
+#include <sstream>
+
+namespace bp {
+
+TeachStore::TeachStore(std::string path) : path_(std::move(path)) {}
+
+Status TeachStore::Load() {
+  if (path_.empty() || !std::filesystem::exists(path_)) return Status::Ok();
+  std::vector<TaughtGrasp> loaded;
+  try {
+    const YAML::Node root = YAML::LoadFile(path_);
+    const YAML::Node list = root["grasps"];
+    if (list.IsDefined() && !list.IsNull()) {
+      if (!list.IsSequence()) return Status::Corruption(path_ + ": grasps: expected a list");
+      for (size_t i = 0; i < list.size(); ++i) {
+        const YAML::Node n = list[i];
+        TaughtGrasp g;
+        g.class_id = n["class_id"].as<int>();
+        g.name = n["name"].as<std::string>();
+        g.gripper = n["gripper"].as<std::string>();
+        const auto xyz = n["pose"]["xyz"].as<std::vector<double>>();
+        const auto q = n["pose"]["quat_wxyz"].as<std::vector<double>>();
+        if (xyz.size() != 3 || q.size() != 4) {
+          return Status::Corruption(path_ + ": grasps[" + std::to_string(i) + "].pose: need xyz[3] and quat_wxyz[4]");
+        }
+        g.X_OG = MakePose(Quat(q[0], q[1], q[2], q[3]), Vec3(xyz[0], xyz[1], xyz[2]));
+        loaded.push_back(std::move(g));
+      }
+    }
+  } catch (const YAML::Exception& e) {
+    return Status::Corruption(path_ + ": " + e.what());
+  }
+  std::lock_guard lock(mutex_);
+  grasps_ = std::move(loaded);
+  return Status::Ok();
+}
+
+Status TeachStore::Add(TaughtGrasp grasp) {
+  std::lock_guard lock(mutex_);
+  if (grasp.name.empty()) grasp.name = "taught_" + std::to_string(grasps_.size() + 1);
+  grasps_.push_back(std::move(grasp));
+  return WriteLocked();
+}
+
+std::vector<TaughtGrasp> TeachStore::All() const {
+  std::lock_guard lock(mutex_);
+  return grasps_;
+}
+
+Status TeachStore::WriteLocked() const {
+  if (path_.empty()) return Status::Ok();
+  std::ostringstream os;
+  os << std::setprecision(17);
+  os << "# binpick taught grasps (X_OG: tool centre point in the part frame)\ngrasps:\n";
+  for (const TaughtGrasp& g : grasps_) {
+    const Quat q(g.X_OG.linear());
+    const Vec3 t = g.X_OG.translation();
+    os << "  - {class_id: " << g.class_id << ", name: \"" << g.name << "\", gripper: \"" << g.gripper
+       << "\", pose: {xyz: [" << t.x() << ", " << t.y() << ", " << t.z() << "], quat_wxyz: [" << q.w() << ", "
+       << q.x() << ", " << q.y() << ", " << q.z() << "]}}\n";
+  }
+  const std::string text = os.str();
+  const std::string tmp = path_ + ".tmp";
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+  if (fd < 0) return Status::Internal("cannot write taught grasps to '" + tmp + "'");
+  size_t done = 0;
+  while (done < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
+    if (n <= 0) {
+      ::close(fd);
+      return Status::Internal("write failed for '" + tmp + "'");
+    }
+    done += static_cast<size_t>(n);
+  }
+  const bool synced = ::fsync(fd) == 0;
+  ::close(fd);
+  if (!synced || std::rename(tmp.c_str(), path_.c_str()) != 0) {
+    return Status::Internal("cannot replace '" + path_ + "' with '" + tmp + "'");
+  }
+  return Status::Ok();
+}
+
+}  // namespace bp

@@ -1,0 +1,228 @@
+// The real planner on synthetic frames with the ground-truth oracle as its
+// detector (TruthPerception): the empty-box rule, teaching, simulated picks
+// and a short closed-loop clear judged against ground truth.
+#include "grasp/bin_picking_planner.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "grasp/bin_clearing.h"
+#include "grasp/empty_box.h"
+#include "pipeline/synthetic_source.h"
+#include "pipeline/truth_perception.h"
+
+namespace bp {
+namespace {
+
+Cell SyntheticCell(int parts, uint64_t seed) {
+  Result<Cell> cell = LoadDefaultCell();
+  EXPECT_TRUE(cell.ok()) << cell.status().ToString();
+  cell->source.kind = SourceSpec::Kind::kSynthetic;
+  cell->source.num_parts = parts;
+  cell->source.seed = seed;
+  cell->source.simulate_picks = true;
+  return *cell;
+}
+
+std::string TempPath(const std::string& name) {
+  const auto dir = std::filesystem::temp_directory_path() / ("bp_grasp_test_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  return (dir / name).string();
+}
+
+std::unique_ptr<BinPickingPlanner> MakeOraclePlanner(const Cell& cell, const std::string& teach_file = "-") {
+  auto source = MakeSyntheticSource(cell);
+  EXPECT_TRUE(source.ok()) << source.status().ToString();
+  BinPickingPlannerOptions options;
+  options.teach_file = teach_file;
+  auto planner = BinPickingPlanner::Create(cell, std::make_shared<TruthPerception>(cell), std::move(*source), options);
+  EXPECT_TRUE(planner.ok()) << planner.status().ToString();
+  return std::move(*planner);
+}
+
+// ---- the empty-box rule ----------------------------------------------------
+
+TEST(EmptyBoxRule, EmptyBelowTheThresholdOnlyWithoutDetections) {
+  const EmptyBoxRule largest{2000, EmptyBoxRule::Mode::kLargestRegion};
+  EXPECT_TRUE(IsBoxEmpty(largest, 50000, 1999, 0));
+  EXPECT_FALSE(IsBoxEmpty(largest, 50000, 2000, 0));
+  EXPECT_FALSE(IsBoxEmpty(largest, 50000, 2001, 0));
+  EXPECT_FALSE(IsBoxEmpty(largest, 1999, 1999, 1));  // any detection: not empty
+  EXPECT_FALSE(IsBoxEmpty(largest, 0, 0, 1));
+  const EmptyBoxRule total{2000, EmptyBoxRule::Mode::kTotal};
+  EXPECT_TRUE(IsBoxEmpty(total, 1999, 10, 0));
+  EXPECT_FALSE(IsBoxEmpty(total, 2000, 10, 0));
+  EXPECT_FALSE(IsBoxEmpty(total, 2001, 10, 0));
+  EXPECT_FALSE(IsBoxEmpty(total, 1999, 10, 2));
+}
+
+TEST(EmptyBoxRule, ScatteredNoiseHasNoLargeRegionButADenseClusterDoes) {
+  const Cell cell = SyntheticCell(1, 1);
+  const EmptyBoxRule rule{2000, EmptyBoxRule::Mode::kLargestRegion};
+  std::mt19937 rng{42};
+  // 5000 points scattered through the ROI volume.
+  std::uniform_real_distribution<float> x(-0.24f, 0.24f), y(-0.17f, 0.17f), z(0.003f, 0.25f);
+  std::vector<Eigen::Vector3f> noise;
+  for (int i = 0; i < 5000; ++i) noise.push_back(cell.bin.X_BW.cast<float>() * Eigen::Vector3f(x(rng), y(rng), z(rng)));
+  const int64_t largest = LargestRegionPoints(noise, 0.005);
+  EXPECT_LT(largest, 50);
+  EXPECT_TRUE(IsBoxEmpty(rule, static_cast<int64_t>(noise.size()), largest, 0));
+  // A 2001-point patch (2 mm grid on the floor) is one region: not empty; 1999 is empty.
+  auto patch = [](int n) {
+    std::vector<Eigen::Vector3f> p;
+    for (int i = 0; i < n; ++i) p.emplace_back(0.002f * (i % 50), 0.002f * (i / 50), 0.01f);
+    return p;
+  };
+  EXPECT_EQ(LargestRegionPoints(patch(2001), 0.005), 2001);
+  EXPECT_FALSE(IsBoxEmpty(rule, 2001, LargestRegionPoints(patch(2001), 0.005), 0));
+  EXPECT_FALSE(IsBoxEmpty(rule, 2000, LargestRegionPoints(patch(2000), 0.005), 0));
+  EXPECT_TRUE(IsBoxEmpty(rule, 1999, LargestRegionPoints(patch(1999), 0.005), 0));
+  // Noise plus a part's worth of points is not empty.
+  std::vector<Eigen::Vector3f> both = noise;
+  for (const auto& p : patch(2500)) both.push_back(p);
+  EXPECT_FALSE(IsBoxEmpty(rule, static_cast<int64_t>(both.size()), LargestRegionPoints(both, 0.005), 0));
+}
+
+// ---- the planner on synthetic frames ----------------------------------------
+
+TEST(BinPickingPlanner, AnEmptyBinIsNoObjectsAndEmpty) {
+  Cell cell = SyntheticCell(1, 3);
+  cell.source.part_classes = {0};  // one bushing
+  auto planner = MakeOraclePlanner(cell);
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  // Pick the only part, then the bin is empty.
+  auto scene = planner->Capture(request);
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  auto plan = planner->Plan(request, **scene);
+  ASSERT_TRUE(plan.ok());
+  ASSERT_EQ(plan->outcome, PlanResult::Outcome::kGrasps) << plan->message;
+  EXPECT_FALSE(IsBoxEmpty(request.task.empty_box, *plan));
+  planner->NotifyHandedOut(request.task, plan->grasps.front());
+  scene = planner->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  plan = planner->Plan(request, **scene);
+  ASSERT_TRUE(plan.ok());
+  EXPECT_EQ(plan->outcome, PlanResult::Outcome::kNoObjects);
+  EXPECT_EQ(plan->detections, 0);
+  EXPECT_TRUE(IsBoxEmpty(request.task.empty_box, *plan)) << plan->largest_region_points;
+}
+
+TEST(BinPickingPlanner, HandingOutAGraspRemovesThatTruePartFromThePile) {
+  Cell cell = SyntheticCell(6, 5);
+  auto planner = MakeOraclePlanner(cell);
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  auto scene = planner->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  const auto& truth0 = static_cast<const CapturedFrame&>(**scene).frame().truth->parts;
+  auto plan = planner->Plan(request, **scene);
+  ASSERT_TRUE(plan.ok());
+  ASSERT_FALSE(plan->grasps.empty()) << plan->message;
+  const int picked = planner->TruthInstanceOf(0, plan->grasps.front().instance_id);
+  ASSERT_GT(picked, 0);
+  planner->NotifyHandedOut(request.task, plan->grasps.front());
+  auto next = planner->Capture(request);
+  ASSERT_TRUE(next.ok());
+  const auto& truth1 = static_cast<const CapturedFrame&>(**next).frame().truth->parts;
+  EXPECT_EQ(truth1.size() + 1, truth0.size());
+  for (const PartTruth& t : truth1) EXPECT_NE(t.instance_id, picked);
+}
+
+TEST(BinPickingPlanner, ATaughtGraspAppearsOnTheNextDetectionAndSurvivesARestart) {
+  Cell cell = SyntheticCell(4, 7);
+  const std::string file = TempPath("taught.yaml");
+  std::filesystem::remove(file);
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  auto taught_candidates = [&](BinPickingPlanner& p) {
+    auto scene = p.Capture(request);
+    EXPECT_TRUE(scene.ok());
+    auto detail = p.PlanDetailed(request, **scene);
+    EXPECT_TRUE(detail.ok());
+    int n = 0;
+    for (const GraspCandidate& c : detail->plan.candidates) n += c.name.rfind("taught_1", 0) == 0 ? 1 : 0;
+    return std::make_pair(n, detail->result);
+  };
+  {
+    auto planner = MakeOraclePlanner(cell, file);
+    TeachRequest before{request.task, Pose::Identity()};
+    EXPECT_EQ(planner->Teach(before).code(), Status::Code::kNotFound);  // nothing detected yet
+    auto [n0, plan] = taught_candidates(*planner);
+    EXPECT_EQ(n0, 0);
+    ASSERT_FALSE(plan.grasps.empty());
+    // The robot holds the first part with its tool 1 cm off the planned grasp.
+    const Grasp& g = plan.grasps.front();
+    const Pose X_BT = g.X_BT * MakePose(Mat3::Identity(), Vec3(0.01, 0, 0));
+    ASSERT_TRUE(planner->Teach({request.task, X_BT}).ok());
+    ASSERT_TRUE(std::filesystem::exists(file));
+    ASSERT_EQ(planner->teach_store().All().size(), 1u);
+    const TaughtGrasp t = planner->teach_store().All()[0];
+    EXPECT_EQ(t.class_id, g.class_id);
+    EXPECT_TRUE((g.X_BO * t.X_OG).isApprox(X_BT, 1e-9));
+    auto [n1, plan1] = taught_candidates(*planner);
+    EXPECT_GT(n1, 0);
+  }
+  // A new planner loads the file.
+  auto restarted = MakeOraclePlanner(cell, file);
+  ASSERT_EQ(restarted->teach_store().All().size(), 1u);
+  auto [n2, plan2] = taught_candidates(*restarted);
+  EXPECT_GT(n2, 0);
+  std::filesystem::remove(file);
+}
+
+TEST(TeachStore, ReportsACorruptFileByName) {
+  const std::string file = TempPath("corrupt.yaml");
+  {
+    std::ofstream out(file);
+    out << "grasps:\n  - {class_id: zero, name: x}\n";
+  }
+  TeachStore store(file);
+  const Status s = store.Load();
+  EXPECT_EQ(s.code(), Status::Code::kCorruption);
+  EXPECT_NE(s.message().find(file), std::string::npos);
+  std::filesystem::remove(file);
+}
+
+TEST(BinPickingPlanner, InHandAndPlaceTasksReportPosesRelativeToFlangeAndReference) {
+  Cell cell = SyntheticCell(1, 3);
+  auto planner = MakeOraclePlanner(cell);
+  const Pose X_BF = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.5, 0.1, 0.6));
+  TaskSpec in_hand = *cell.FindTask(0);
+  in_hand.kind = TaskSpec::Kind::kInHand;
+  PlanRequest request{in_hand, X_BF, 0};
+  auto scene = planner->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  const Pose X_BO = static_cast<const CapturedFrame&>(**scene).frame().truth->parts.at(0).X_BO;
+  auto plan = planner->Plan(request, **scene);
+  ASSERT_TRUE(plan.ok());
+  ASSERT_EQ(plan->grasps.size(), 1u);
+  EXPECT_TRUE((X_BF * plan->grasps[0].X_BT).isApprox(X_BO, 1e-9));
+  request.X_BF.reset();
+  EXPECT_FALSE(planner->Plan(request, **scene).ok());  // in-hand needs the robot pose
+
+  const TaskSpec place = *cell.FindTask(2);
+  auto placed = planner->Plan({place, std::nullopt, 0}, **scene);
+  ASSERT_TRUE(placed.ok());
+  ASSERT_EQ(placed->grasps.size(), 1u);
+  EXPECT_TRUE((placed->grasps[0].X_BT * place.place_reference).isApprox(X_BO, 1e-9));
+}
+
+TEST(BinClearing, AShortClearHasNoGroundTruthCollisionsAndEndsEmpty) {
+  Cell cell = SyntheticCell(8, 11);
+  auto report = ClearScenes(cell, 11, 2, std::make_shared<TruthPerception>(cell), /*oracle=*/true);
+  ASSERT_TRUE(report.ok()) << report.status().ToString();
+  EXPECT_EQ(report->truth_collisions, 0);
+  EXPECT_EQ(report->unmatched_picks, 0);
+  EXPECT_EQ(report->wrong_empty_answers, 0);
+  EXPECT_GT(report->picks, 0);
+  EXPECT_EQ(report->picks + report->parts_left, report->parts_placed);
+  for (const SceneClearReport& s : report->scenes) {
+    EXPECT_EQ(s.said_empty, s.parts_left == 0) << s.final_outcome;
+    EXPECT_EQ(s.cycles, s.picks + 1);
+  }
+}
+
+}  // namespace
+}  // namespace bp

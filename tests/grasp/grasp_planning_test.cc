@@ -1,0 +1,256 @@
+// Grasp candidates, collision filtering and ranking on hand-built detections
+// (the ground truth is the oracle here: no perception involved).
+#include "grasp/grasp_planning.h"
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "grasp/grasp_queue.h"
+
+namespace bp {
+namespace {
+
+// The default cell's bushing (class 0): origin at the flange's bottom face,
+// hub up to z = 40 mm; hub_top is a straight-down suction grasp on the hub.
+constexpr int kBushing = 0;
+
+const Cell& DefaultCell() {
+  static const Cell cell = [] {
+    Result<Cell> c = LoadDefaultCell();
+    EXPECT_TRUE(c.ok()) << c.status().ToString();
+    return *c;
+  }();
+  return cell;
+}
+
+const GraspPlanningModel& Model() {
+  static const std::shared_ptr<const GraspPlanningModel> model = [] {
+    auto m = GraspPlanningModel::Build(DefaultCell());
+    EXPECT_TRUE(m.ok()) << m.status().ToString();
+    return *m;
+  }();
+  return *model;
+}
+
+TaskSpec PickTask() {
+  TaskSpec t = *DefaultCell().FindTask(0);
+  t.part_classes = {kBushing};
+  return t;
+}
+
+// A bushing standing upright at (x, y) on the bin floor, tilted by tilt_deg about the bin's y axis.
+Detection Bushing(double x_W, double y_W, double z_W = 0.0, double tilt_deg = 0.0) {
+  Detection d;
+  d.class_id = kBushing;
+  d.X_BO = DefaultCell().bin.X_BW *
+           MakePose(Mat3(Eigen::AngleAxisd(tilt_deg * M_PI / 180, Vec3::UnitY())), Vec3(x_W, y_W, z_W));
+  d.score = 0.9;
+  return d;
+}
+
+PerceptionResult Scene(std::vector<Detection> detections) {
+  PerceptionResult p;
+  p.detections = std::move(detections);
+  return p;
+}
+
+// Verdicts of the named grasp (all symmetry copies) of one detection.
+std::vector<std::optional<RejectReason>> Verdicts(const GraspPlan& plan, int detection, const std::string& prefix) {
+  std::vector<std::optional<RejectReason>> v;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (c.detection == detection && c.name.rfind(prefix, 0) == 0) v.push_back(c.rejected);
+  }
+  return v;
+}
+
+int Count(const std::vector<std::optional<RejectReason>>& v, std::optional<RejectReason> r) {
+  return static_cast<int>(std::count(v.begin(), v.end(), r));
+}
+
+TEST(GraspCandidates, RevoluteSymmetryExpandsEveryStepAndDiscreteByOrder) {
+  // Bushing: revolute, 4 suction grasps, 360/15 = 24 copies each.
+  EXPECT_EQ(Model().CellGrasps(0, "suction").size(), 4u * 24u);
+  // L-bracket: no symmetry, 4 grasps.
+  EXPECT_EQ(Model().CellGrasps(1, "suction").size(), 4u);
+  // Pipe tee: discrete order 2, 6 grasps.
+  EXPECT_EQ(Model().CellGrasps(2, "suction").size(), 6u * 2u);
+  EXPECT_TRUE(Model().CellGrasps(0, "parallel").empty());
+  // Copies of a revolute grasp keep its distance to the axis and its height.
+  for (const TaughtGrasp& g : Model().CellGrasps(0, "suction")) {
+    if (g.name.rfind("hub_top@", 0) != 0) continue;
+    EXPECT_NEAR(g.X_OG.translation().head<2>().norm(), 0.012, 1e-9) << g.name;
+    EXPECT_NEAR(g.X_OG.translation().z(), 0.040, 1e-9) << g.name;
+  }
+}
+
+TEST(GraspCandidates, PreGraspBacksOffAlongTheToolAxis) {
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), Scene({Bushing(0, 0)}));
+  ASSERT_FALSE(plan.candidates.empty());
+  for (const GraspCandidate& c : plan.candidates) {
+    const Vec3 back = c.X_BT_pre.translation() - c.X_BT.translation();
+    EXPECT_NEAR(back.norm(), 0.08, 1e-9);
+    EXPECT_NEAR(back.dot(-c.X_BT.linear().col(2)), 0.08, 1e-9);
+  }
+}
+
+TEST(GraspFilter, AcceptsTheTopGraspOfALoneUprightPartAndRejectsTheOthersWithReasons) {
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), Scene({Bushing(0, 0)}));
+  EXPECT_EQ(plan.outcome, PlanResult::Outcome::kGrasps);
+  const auto hub = Verdicts(plan, 0, "hub_top@");
+  EXPECT_EQ(Count(hub, std::nullopt), 24);
+  // Upside-down approach from below (and its copies turned 20 deg by compliance).
+  EXPECT_EQ(Count(Verdicts(plan, 0, "flange_bottom@"), RejectReason::kTilt), 2 * 24);
+  // The cup on the flange overlaps the hub: the grasp cuts into its own part.
+  EXPECT_EQ(Count(Verdicts(plan, 0, "flange_top@"), RejectReason::kSelf), 24);
+  EXPECT_EQ(plan.stats.candidates, static_cast<int>(plan.candidates.size()));
+  int sum = plan.stats.accepted;
+  for (int r : plan.stats.rejected) sum += r;
+  EXPECT_EQ(sum, plan.stats.candidates);
+}
+
+TEST(GraspFilter, RejectsAGraspBlockedByANeighbourAndAcceptsItWithTheNeighbourMoved) {
+  // A second bushing resting across the approach path above the first.
+  const PerceptionResult blocked = Scene({Bushing(0, 0), Bushing(0.012, 0, 0.10, 90)});
+  const GraspPlan a = PlanGrasps(Model(), PickTask(), blocked);
+  const auto hub_a = Verdicts(a, 0, "hub_top@0");
+  ASSERT_EQ(hub_a.size(), 1u);
+  EXPECT_EQ(hub_a[0], RejectReason::kPart);
+  const PerceptionResult moved = Scene({Bushing(0, 0), Bushing(0.15, 0, 0.0, 90)});
+  const GraspPlan b = PlanGrasps(Model(), PickTask(), moved);
+  const auto hub_b = Verdicts(b, 0, "hub_top@0");
+  ASSERT_EQ(hub_b.size(), 1u);
+  EXPECT_EQ(hub_b[0], std::nullopt);
+}
+
+TEST(GraspFilter, RejectsAGraspWhoseApproachHitsTheWallAndAcceptsItAwayFromTheWall) {
+  // Tilted 30 deg toward the +x wall: the gripper column leans over the wall.
+  TaskSpec task = PickTask();
+  GraspPlanningOptions options;
+  options.suction_compliance_deg = 0;  // judge the grasp as defined
+  auto model = GraspPlanningModel::Build(DefaultCell(), options);
+  ASSERT_TRUE(model.ok());
+  const GraspPlan near = PlanGrasps(**model, task, Scene({Bushing(0.20, 0, 0.02, 30)}));
+  const GraspPlan away = PlanGrasps(**model, task, Scene({Bushing(0.0, 0, 0.02, 30)}));
+  EXPECT_EQ(Verdicts(near, 0, "hub_top@0")[0], RejectReason::kBin);
+  EXPECT_EQ(Verdicts(away, 0, "hub_top@0")[0], std::nullopt);
+  EXPECT_EQ(Count(Verdicts(near, 0, "hub_top@"), std::nullopt), 0);
+}
+
+TEST(GraspFilter, RejectsApproachesTiltedPastTheTasksLimit) {
+  GraspPlanningOptions options;
+  options.suction_compliance_deg = 0;
+  auto model = GraspPlanningModel::Build(DefaultCell(), options);
+  ASSERT_TRUE(model.ok());
+  TaskSpec task = PickTask();
+  task.max_tilt_deg = 25;
+  const GraspPlan plan = PlanGrasps(**model, task, Scene({Bushing(0, 0, 0.02, 30)}));
+  EXPECT_EQ(Count(Verdicts(plan, 0, "hub_top@"), RejectReason::kTilt), 24);
+  task.max_tilt_deg = 35;
+  const GraspPlan ok = PlanGrasps(**model, task, Scene({Bushing(0, 0, 0.02, 30)}));
+  EXPECT_EQ(Count(Verdicts(ok, 0, "hub_top@"), std::nullopt), 24);
+}
+
+TEST(GraspFilter, SuctionComplianceTurnsATiltedGraspTowardVertical) {
+  TaskSpec task = PickTask();
+  task.max_tilt_deg = 25;
+  const GraspPlan plan = PlanGrasps(Model(), task, Scene({Bushing(0, 0, 0.02, 30)}));
+  // The 30 deg grasps are turned by 20 deg to 10 deg: within the limit.
+  int turned_ok = 0;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (c.name.rfind("hub_top@", 0) == 0 && c.name.ends_with("~v")) {
+      EXPECT_NEAR(c.tilt_rad * 180 / M_PI, 10.0, 1e-6);
+      turned_ok += c.rejected ? 0 : 1;
+    }
+  }
+  EXPECT_EQ(turned_ok, 24);
+}
+
+TEST(GraspFilter, RejectsFlangePosesOutsideTheWorkspace) {
+  Cell cell = DefaultCell();
+  // The flange is 0.27 m above a straight-down grasp; cap the workspace below it.
+  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(-2, -2, -1), Vec3(2, 2, 0.25));
+  auto model = GraspPlanningModel::Build(cell);
+  ASSERT_TRUE(model.ok());
+  const GraspPlan plan = PlanGrasps(**model, PickTask(), Scene({Bushing(0, 0)}));
+  EXPECT_EQ(Count(Verdicts(plan, 0, "hub_top@"), RejectReason::kWorkspace), 24);
+  EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoCollisionFree);
+}
+
+TEST(GraspFilter, RejectsGraspsThroughUnexplainedScenePointsButIgnoresThePartsOwnPoints) {
+  PerceptionResult scene = Scene({Bushing(0, 0)});
+  const Vec3 top = (DefaultCell().bin.X_BW * Vec3(0, 0, 0.040));
+  std::mt19937 rng{42};
+  std::uniform_real_distribution<float> jitter(-0.015f, 0.015f);
+  // The part's own points on its hub top (its support)...
+  for (int i = 0; i < 300; ++i) {
+    scene.roi_points_B.push_back(top.cast<float>() + Eigen::Vector3f(jitter(rng), jitter(rng), 0));
+    scene.detections[0].support.push_back(i);
+  }
+  GraspPlan own = PlanGrasps(Model(), PickTask(), scene);
+  EXPECT_EQ(Count(Verdicts(own, 0, "hub_top@"), std::nullopt), 24);
+  // ...and a cluster nobody explains 5 cm above it, in the approach path.
+  for (int i = 0; i < 200; ++i) {
+    scene.roi_points_B.push_back((top + Vec3(0, 0, 0.05)).cast<float>() + Eigen::Vector3f(jitter(rng), jitter(rng), 0));
+  }
+  GraspPlan blocked = PlanGrasps(Model(), PickTask(), scene);
+  EXPECT_EQ(Count(Verdicts(blocked, 0, "hub_top@"), RejectReason::kPoints), 24);
+  EXPECT_EQ(blocked.outcome, PlanResult::Outcome::kNoCollisionFree);
+}
+
+TEST(GraspPlan, NoDetectionsIsNoObjectsAndBlockedPartsAreNoCollisionFree) {
+  EXPECT_EQ(PlanGrasps(Model(), PickTask(), Scene({})).outcome, PlanResult::Outcome::kNoObjects);
+  // A part of a class the task does not pick counts as no object.
+  Detection bracket = Bushing(0, 0);
+  bracket.class_id = 1;
+  EXPECT_EQ(PlanGrasps(Model(), PickTask(), Scene({bracket})).outcome, PlanResult::Outcome::kNoObjects);
+  // Tilted 60 deg with a 5 deg limit: detected, nothing reachable.
+  TaskSpec strict = PickTask();
+  strict.max_tilt_deg = 5;
+  const GraspPlan plan = PlanGrasps(Model(), strict, Scene({Bushing(0, 0, 0.04, 60)}));
+  EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoCollisionFree);
+  EXPECT_TRUE(plan.queue.empty());
+}
+
+TEST(GraspPlan, QueuesOnePrimaryGraspPerPartHighestFirstWithTheRestAsRelatedPoses) {
+  const PerceptionResult scene = Scene({Bushing(-0.1, 0), Bushing(0.1, 0.05, 0.03), Bushing(0.1, -0.1)});
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), scene);
+  ASSERT_EQ(plan.queue.size(), 3u);
+  EXPECT_EQ(plan.queue[0].instance_id, 1);  // the highest part first
+  for (size_t i = 1; i < plan.queue.size(); ++i) EXPECT_GE(plan.queue[i - 1].score, plan.queue[i].score);
+  for (const Grasp& g : plan.queue) {
+    EXPECT_EQ(g.related_X_B.size(), 23u);  // the other collision-free hub_top copies
+    EXPECT_TRUE(g.X_BO.isApprox(scene.detections[g.instance_id].X_BO));
+  }
+  // Remaining counts run down to 1, then 0.
+  GraspQueue queue;
+  PlanResult result;
+  result.outcome = plan.outcome;
+  result.grasps = plan.queue;
+  queue.Replace(result);
+  std::vector<int> remaining;
+  for (int i = 0; i < 4; ++i) remaining.push_back(queue.Pop().remaining);
+  EXPECT_EQ(remaining, (std::vector<int>{3, 2, 1, 0}));
+}
+
+TEST(GraspPlan, RankingWeightsDecideTheOrder) {
+  // A higher part with a worse detection score against a lower, better-seen one.
+  Detection high = Bushing(-0.1, 0, 0.05), low = Bushing(0.1, 0);
+  high.score = 0.1;
+  low.score = 1.0;
+  TaskSpec task = PickTask();
+  task.ranking = {1.0, 0.0, 0.0};
+  EXPECT_EQ(PlanGrasps(Model(), task, Scene({high, low})).queue[0].instance_id, 0);
+  task.ranking = {0.0, 1.0, 0.0};
+  EXPECT_EQ(PlanGrasps(Model(), task, Scene({high, low})).queue[0].instance_id, 1);
+}
+
+TEST(GraspPlan, TaughtGraspsJoinTheCandidatesExpandedOverSymmetry) {
+  TaughtGrasp taught{kBushing, "taught_1", "suction",
+                     MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.0, 0.010, 0.040))};
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), Scene({Bushing(0, 0)}), std::span(&taught, 1));
+  EXPECT_EQ(Count(Verdicts(plan, 0, "taught_1@"), std::nullopt), 24);
+}
+
+}  // namespace
+}  // namespace bp
