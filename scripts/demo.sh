@@ -25,5 +25,17 @@ if ! read -r -t 120 ready <"$fifo"; then
 fi
 echo "$ready"
 
+# Exit codes of the robot program: 0 bin cleared and EMPTY, 1 the program
+# ended without an empty bin, 2 connection / protocol error.
+rc=0
 build/bin/binpick robot --host 127.0.0.1 --port "$port" --robot ur --flow pick --task 0 \
-  --max-cycles "${DEMO_MAX_CYCLES:-80}"
+  --max-cycles "${DEMO_MAX_CYCLES:-80}" || rc=$?
+case "$rc" in
+  0) echo "demo: bin cleared, empty-box check answered EMPTY" ;;
+  1) echo "demo: the robot program ended with parts left in the bin (see the last lines above):" \
+          "binpick found no collision-free grasp for them (known gap: L-brackets standing on edge" \
+          "offer no face to the suction cup); binpickd log: $log"
+     exit 1 ;;
+  *) echo "demo: robot connection or protocol error; binpickd log: $log" >&2
+     exit "$rc" ;;
+esac
