@@ -52,6 +52,18 @@ constexpr float kUnorganizedVoxel = 0.003f;
 // Normals use neighbours this far away (in metres on the bin floor).
 constexpr double kNormalBaseline = 0.0025;
 
+// How badly a view's principal extents (largest first) match a model's: a
+// view of one part is at most as large as the part along each axis, so excess
+// costs much; a smaller view (occlusion, one face) costs a little.
+double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model) {
+  double cost = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    const double d = static_cast<double>(view[i]) - static_cast<double>(model[i]);
+    cost += d > 0.0 ? 4.0 * d : -d;
+  }
+  return cost;
+}
+
 struct Candidate {
   int class_id = 0;
   double diameter = 0.0;
@@ -315,30 +327,79 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   const bool have_normals = !seg_normals.empty();
   std::string first_reason;
   int rejected_low_score = 0;
+  const auto gather = [&](const std::vector<int32_t>& index, std::vector<Eigen::Vector3f>* points,
+                          std::vector<Eigen::Vector3f>* normals) {
+    points->reserve(index.size());
+    for (int32_t k : index) points->push_back(seg_points[static_cast<size_t>(k)]);
+    if (have_normals) {
+      normals->reserve(index.size());
+      for (int32_t k : index) normals->push_back(seg_normals[static_cast<size_t>(k)]);
+    }
+  };
   const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
-    const size_t n_jobs = views.size() * models.size();
-    std::vector<internal::ClassEstimate> estimates(n_jobs);
-    tbb::parallel_for(size_t{0}, n_jobs, [&](size_t job) {
-      const std::vector<int32_t>& index = views[job / models.size()];
-      const ClassModel& model = *models[job % models.size()];
-      std::vector<Eigen::Vector3f> points, normals;
-      points.reserve(index.size());
-      for (int32_t k : index) points.push_back(seg_points[static_cast<size_t>(k)]);
-      if (have_normals) {
-        normals.reserve(index.size());
-        for (int32_t k : index) normals.push_back(seg_normals[static_cast<size_t>(k)]);
+    // Per view: the classes that can fit it (SegmentFitsClass), ordered by
+    // how well the view's principal extents match each model's.
+    const size_t n_models = models.size();
+    std::vector<std::vector<int>> order(views.size());
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
+      std::vector<Eigen::Vector3f> points;
+      for (int32_t k : views[v]) points.push_back(seg_points[static_cast<size_t>(k)]);
+      const Eigen::Vector3f e = internal::PrincipalExtents(points);
+      // A view that no class fits holds several parts (merged segment,
+      // region view): every class may find one of them in it.
+      bool any_fits = !options_.class_prefilter;
+      for (size_t m = 0; m < n_models && !any_fits; ++m) any_fits = internal::SegmentFitsClass(e, models[m]->diameter());
+      std::vector<std::pair<double, int>> ranked;
+      for (size_t m = 0; m < n_models; ++m) {
+        if (any_fits && options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) continue;
+        ranked.emplace_back(ExtentMismatch(e, models[m]->extents()), static_cast<int>(m));
       }
-      internal::SegmentView view;
-      view.points_B = points;
-      view.normals_B = normals;
-      view.frame = &frame;
-      view.floor_plane_B = floor_plane_B;
-      estimates[job] = model.Estimate(view);
+      if (options_.early_exit_score > 0.0) std::stable_sort(ranked.begin(), ranked.end());
+      for (const auto& [cost, m] : ranked) order[v].push_back(m);
     });
+    // Jobs (view, model); round 0 runs each view's first class, round 1 the
+    // others for views whose first class gave no confident detection.
+    std::vector<std::pair<size_t, int>> jobs_done;
+    std::vector<internal::ClassEstimate> estimates;
+    const auto run = [&](const std::vector<std::pair<size_t, int>>& jobs) {
+      const size_t base = estimates.size();
+      estimates.resize(base + jobs.size());
+      tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t j) {
+        std::vector<Eigen::Vector3f> points, normals;
+        gather(views[jobs[j].first], &points, &normals);
+        internal::SegmentView view;
+        view.points_B = points;
+        view.normals_B = normals;
+        view.frame = &frame;
+        view.floor_plane_B = floor_plane_B;
+        estimates[base + j] = models[static_cast<size_t>(jobs[j].second)]->Estimate(view);
+      });
+      jobs_done.insert(jobs_done.end(), jobs.begin(), jobs.end());
+    };
+    const bool early_exit = options_.early_exit_score > 0.0;
+    std::vector<std::pair<size_t, int>> jobs;
+    for (size_t v = 0; v < views.size(); ++v) {
+      for (size_t r = 0; r < order[v].size() && (r == 0 || !early_exit); ++r) jobs.emplace_back(v, order[v][r]);
+    }
+    run(jobs);
+    if (early_exit) {
+      jobs.clear();
+      for (size_t j = 0; j < jobs_done.size(); ++j) {
+        const size_t v = jobs_done[j].first;
+        const auto& hs = estimates[j].hypotheses;
+        const bool confident =
+            !hs.empty() && hs.front().score >= options_.early_exit_score &&
+            static_cast<double>(hs.front().support.size()) >= options_.early_exit_support * static_cast<double>(views[v].size());
+        if (confident) continue;
+        for (size_t r = 1; r < order[v].size(); ++r) jobs.emplace_back(v, order[v][r]);
+      }
+      run(jobs);
+    }
+    const size_t n_jobs = jobs_done.size();
     std::vector<Candidate> candidates;
     for (size_t job = 0; job < n_jobs; ++job) {
-      const size_t s = job / models.size();
-      const ClassModel& model = *models[job % models.size()];
+      const size_t s = jobs_done[job].first;
+      const ClassModel& model = *models[static_cast<size_t>(jobs_done[job].second)];
       if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
       for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
         if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;

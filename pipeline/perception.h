@@ -72,6 +72,16 @@ struct PerceptionOptions {
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).
   double context_relative_radius = 0.0;
+  // Skip a class for a view whose extent along its first principal axis
+  // exceeds the class's diameter (plus noise tolerance): it cannot be one
+  // instance of it.
+  bool class_prefilter = true;
+  // Classes are tried per view in order of extent match; the others are
+  // skipped when the first one's best hypothesis scores at least this and its
+  // support holds at least early_exit_support of the view's points. 0 = run
+  // every class on every view.
+  double early_exit_score = 0.0;
+  double early_exit_support = 0.6;
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;
