@@ -336,7 +336,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       for (int32_t k : index) normals->push_back(seg_normals[static_cast<size_t>(k)]);
     }
   };
-  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
+  // views[first_region_view..] are region views (see match_regions).
+  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view) {
     // Per view: the classes that can fit it (SegmentFitsClass), ordered by
     // how well the view's principal extents match each model's.
     const size_t n_models = models.size();
@@ -349,6 +350,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       // region view): every class may find one of them in it.
       bool any_fits = !options_.class_prefilter;
       for (size_t m = 0; m < n_models && !any_fits; ++m) any_fits = internal::SegmentFitsClass(e, models[m]->diameter());
+      // A region view exists to join the pieces of one part: one that no
+      // class fits only repeats its segments' work.
+      if (!any_fits && v >= first_region_view) return;
       std::vector<std::pair<double, int>> ranked;
       for (size_t m = 0; m < n_models; ++m) {
         if (any_fits && options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) continue;
@@ -460,8 +464,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
   };
 
+  const size_t first_region_view = view_of_segment.size();
   for (auto& view : region_views) view_of_segment.push_back(std::move(view));
-  std::vector<Candidate> candidates = estimate(view_of_segment);
+  std::vector<Candidate> candidates = estimate(view_of_segment, first_region_view);
   t = stage("pose", t);
   accept(std::move(candidates));
   t = stage("verify", t);
@@ -479,7 +484,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       residual.push_back(std::move(left));
     }
   }
-  if (!residual.empty()) accept(estimate(residual));
+  if (!residual.empty()) accept(estimate(residual, residual.size()));
   stage("residual", t);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +
