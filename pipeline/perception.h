@@ -80,7 +80,7 @@ struct PerceptionOptions {
   // skipped when the first one's best hypothesis scores at least this and its
   // support holds at least early_exit_support of the view's points. 0 = run
   // every class on every view.
-  double early_exit_score = 0.0;
+  double early_exit_score = 0.85;
   double early_exit_support = 0.6;
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
