@@ -342,20 +342,25 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     // how well the view's principal extents match each model's.
     const size_t n_models = models.size();
     std::vector<std::vector<int>> order(views.size());
+    // Classes too small for the view: it is not one instance of them, but a
+    // merged segment of several may hold one; tried last, only when no class
+    // that fits found anything.
+    std::vector<std::vector<int>> too_small(views.size());
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points;
       for (int32_t k : views[v]) points.push_back(seg_points[static_cast<size_t>(k)]);
       const Eigen::Vector3f e = internal::PrincipalExtents(points);
-      // A view that no class fits holds several parts (merged segment,
-      // region view): every class may find one of them in it.
-      bool any_fits = !options_.class_prefilter;
+      bool any_fits = false;
       for (size_t m = 0; m < n_models && !any_fits; ++m) any_fits = internal::SegmentFitsClass(e, models[m]->diameter());
       // A region view exists to join the pieces of one part: one that no
       // class fits only repeats its segments' work.
-      if (!any_fits && v >= first_region_view) return;
+      if (options_.class_prefilter && !any_fits && v >= first_region_view) return;
       std::vector<std::pair<double, int>> ranked;
       for (size_t m = 0; m < n_models; ++m) {
-        if (any_fits && options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) continue;
+        if (options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) {
+          too_small[v].push_back(static_cast<int>(m));
+          continue;
+        }
         ranked.emplace_back(ExtentMismatch(e, models[m]->extents()), static_cast<int>(m));
       }
       if (options_.early_exit_score > 0.0) std::stable_sort(ranked.begin(), ranked.end());
@@ -396,6 +401,18 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
             static_cast<double>(hs.front().support.size()) >= options_.early_exit_support * static_cast<double>(views[v].size());
         if (confident) continue;
         for (size_t r = 1; r < order[v].size(); ++r) jobs.emplace_back(v, order[v][r]);
+      }
+      run(jobs);
+    }
+    {
+      std::vector<uint8_t> found(views.size(), 0);
+      for (size_t j = 0; j < jobs_done.size(); ++j) {
+        for (const auto& h : estimates[j].hypotheses) found[jobs_done[j].first] |= h.score >= options_.min_detection_score;
+      }
+      jobs.clear();
+      for (size_t v = 0; v < views.size(); ++v) {
+        if (found[v]) continue;
+        for (int m : too_small[v]) jobs.emplace_back(v, m);
       }
       run(jobs);
     }
