@@ -369,6 +369,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     // Jobs (view, model); round 0 runs each view's first class, round 1 the
     // others for views whose first class gave no confident detection.
     std::vector<std::pair<size_t, int>> jobs_done;
+    size_t first_too_small_job = 0;
     std::vector<internal::ClassEstimate> estimates;
     const auto run = [&](const std::vector<std::pair<size_t, int>>& jobs) {
       const size_t base = estimates.size();
@@ -410,6 +411,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         for (const auto& h : estimates[j].hypotheses) found[jobs_done[j].first] |= h.score >= options_.min_detection_score;
       }
       jobs.clear();
+      first_too_small_job = jobs_done.size();
       for (size_t v = 0; v < views.size(); ++v) {
         if (found[v]) continue;
         for (int m : too_small[v]) jobs.emplace_back(v, m);
@@ -424,7 +426,12 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
       for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
         if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
-        if (h.score < options_.min_detection_score) {
+        // A class too small for the view must explain its part of it well
+        // (measured: otherwise bushings are fitted onto bracket plates).
+        const double min_score = job >= first_too_small_job
+                                     ? std::max(options_.min_detection_score, options_.too_small_class_min_score)
+                                     : options_.min_detection_score;
+        if (h.score < min_score) {
           ++rejected_low_score;
           continue;
         }

@@ -82,6 +82,9 @@ struct PerceptionOptions {
   // every class on every view.
   double early_exit_score = 0.85;
   double early_exit_support = 0.6;
+  // Detections of a class too small for the view (tried last, when no class
+  // that fits found anything: merged segments) need at least this score.
+  double too_small_class_min_score = 0.85;
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;
