@@ -366,57 +366,63 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       if (options_.early_exit_score > 0.0) std::stable_sort(ranked.begin(), ranked.end());
       for (const auto& [cost, m] : ranked) order[v].push_back(m);
     });
-    // Jobs (view, model); round 0 runs each view's first class, round 1 the
-    // others for views whose first class gave no confident detection.
-    std::vector<std::pair<size_t, int>> jobs_done;
-    size_t first_too_small_job = 0;
-    std::vector<internal::ClassEstimate> estimates;
-    const auto run = [&](const std::vector<std::pair<size_t, int>>& jobs) {
-      const size_t base = estimates.size();
-      estimates.resize(base + jobs.size());
-      tbb::parallel_for(size_t{0}, jobs.size(), [&](size_t j) {
-        std::vector<Eigen::Vector3f> points, normals;
-        gather(views[jobs[j].first], &points, &normals);
-        internal::SegmentView view;
-        view.points_B = points;
-        view.normals_B = normals;
-        view.frame = &frame;
-        view.floor_plane_B = floor_plane_B;
-        estimates[base + j] = models[static_cast<size_t>(jobs[j].second)]->Estimate(view);
-      });
-      jobs_done.insert(jobs_done.end(), jobs.begin(), jobs.end());
+    // Per view (in parallel, no barrier between views): the first class;
+    // the other fitting ones (in parallel) unless it gave a confident
+    // detection; then, when none found anything, the classes too small.
+    struct Job {
+      int model = 0;
+      bool too_small = false;
+      internal::ClassEstimate estimate;
     };
+    std::vector<std::vector<Job>> per_view(views.size());
     const bool early_exit = options_.early_exit_score > 0.0;
-    std::vector<std::pair<size_t, int>> jobs;
-    for (size_t v = 0; v < views.size(); ++v) {
-      for (size_t r = 0; r < order[v].size() && (r == 0 || !early_exit); ++r) jobs.emplace_back(v, order[v][r]);
-    }
-    run(jobs);
-    if (early_exit) {
-      jobs.clear();
-      for (size_t j = 0; j < jobs_done.size(); ++j) {
-        const size_t v = jobs_done[j].first;
-        const auto& hs = estimates[j].hypotheses;
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
+      std::vector<Eigen::Vector3f> points, normals;
+      gather(views[v], &points, &normals);
+      internal::SegmentView view;
+      view.points_B = points;
+      view.normals_B = normals;
+      view.frame = &frame;
+      view.floor_plane_B = floor_plane_B;
+      std::vector<Job>& done = per_view[v];
+      // Runs classes ms[from, to) in parallel.
+      const auto run = [&](const std::vector<int>& ms, size_t from, size_t to, bool too_small) {
+        to = std::min(to, ms.size());
+        if (from >= to) return;
+        const size_t base = done.size();
+        done.resize(base + to - from);
+        tbb::parallel_for(from, to, [&](size_t r) {
+          Job& job = done[base + r - from];
+          job.model = ms[r];
+          job.too_small = too_small;
+          job.estimate = models[static_cast<size_t>(ms[r])]->Estimate(view);
+        });
+      };
+      if (early_exit && !order[v].empty()) {
+        run(order[v], 0, 1, false);
+        const auto& hs = done.front().estimate.hypotheses;
         const bool confident =
             !hs.empty() && hs.front().score >= options_.early_exit_score &&
             static_cast<double>(hs.front().support.size()) >= options_.early_exit_support * static_cast<double>(views[v].size());
-        if (confident) continue;
-        for (size_t r = 1; r < order[v].size(); ++r) jobs.emplace_back(v, order[v][r]);
+        if (!confident) run(order[v], 1, order[v].size(), false);
+      } else {
+        run(order[v], 0, order[v].size(), false);
       }
-      run(jobs);
-    }
-    {
-      std::vector<uint8_t> found(views.size(), 0);
-      for (size_t j = 0; j < jobs_done.size(); ++j) {
-        for (const auto& h : estimates[j].hypotheses) found[jobs_done[j].first] |= h.score >= options_.min_detection_score;
+      bool found = false;
+      for (const Job& job : done) {
+        for (const auto& h : job.estimate.hypotheses) found |= h.score >= options_.min_detection_score;
       }
-      jobs.clear();
-      first_too_small_job = jobs_done.size();
-      for (size_t v = 0; v < views.size(); ++v) {
-        if (found[v]) continue;
-        for (int m : too_small[v]) jobs.emplace_back(v, m);
+      if (!found) run(too_small[v], 0, too_small[v].size(), true);
+    });
+    std::vector<std::pair<size_t, int>> jobs_done;
+    std::vector<uint8_t> too_small_job;
+    std::vector<internal::ClassEstimate> estimates;
+    for (size_t v = 0; v < views.size(); ++v) {
+      for (Job& job : per_view[v]) {
+        jobs_done.emplace_back(v, job.model);
+        too_small_job.push_back(job.too_small ? 1 : 0);
+        estimates.push_back(std::move(job.estimate));
       }
-      run(jobs);
     }
     const size_t n_jobs = jobs_done.size();
     std::vector<Candidate> candidates;
@@ -428,7 +434,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
         // A class too small for the view must explain its part of it well
         // (measured: otherwise bushings are fitted onto bracket plates).
-        const double min_score = job >= first_too_small_job
+        const double min_score = too_small_job[job]
                                      ? std::max(options_.min_detection_score, options_.too_small_class_min_score)
                                      : options_.min_detection_score;
         if (h.score < min_score) {
