@@ -72,9 +72,11 @@ struct PerceptionOptions {
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).
   double context_relative_radius = 0.0;
-  // Skip a class for a view whose extent along its first principal axis
-  // exceeds the class's diameter (plus noise tolerance): it cannot be one
-  // instance of it.
+  // A class is "too small" for a view whose extent along its first principal
+  // axis exceeds the class's diameter (plus noise tolerance): the view is not
+  // one instance of it. Such classes are tried last, only when no class that
+  // fits found a detection (a merged segment may hold one), and need
+  // too_small_class_min_score. Region views no class fits are skipped.
   bool class_prefilter = true;
   // Classes are tried per view in order of extent match; the others are
   // skipped when the first one's best hypothesis scores at least this and its
