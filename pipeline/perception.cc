@@ -52,6 +52,18 @@ constexpr float kUnorganizedVoxel = 0.003f;
 // Normals use neighbours this far away (in metres on the bin floor).
 constexpr double kNormalBaseline = 0.0025;
 
+// How badly a view's principal extents (largest first) match a model's: a
+// view of one part is at most as large as the part along each axis, so excess
+// costs much; a smaller view (occlusion, one face) costs a little.
+double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model) {
+  double cost = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    const double d = static_cast<double>(view[i]) - static_cast<double>(model[i]);
+    cost += d > 0.0 ? 4.0 * d : -d;
+  }
+  return cost;
+}
+
 struct Candidate {
   int class_id = 0;
   double diameter = 0.0;
@@ -315,34 +327,117 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   const bool have_normals = !seg_normals.empty();
   std::string first_reason;
   int rejected_low_score = 0;
-  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views) {
-    const size_t n_jobs = views.size() * models.size();
-    std::vector<internal::ClassEstimate> estimates(n_jobs);
-    tbb::parallel_for(size_t{0}, n_jobs, [&](size_t job) {
-      const std::vector<int32_t>& index = views[job / models.size()];
-      const ClassModel& model = *models[job % models.size()];
-      std::vector<Eigen::Vector3f> points, normals;
-      points.reserve(index.size());
-      for (int32_t k : index) points.push_back(seg_points[static_cast<size_t>(k)]);
-      if (have_normals) {
-        normals.reserve(index.size());
-        for (int32_t k : index) normals.push_back(seg_normals[static_cast<size_t>(k)]);
+  const auto gather = [&](const std::vector<int32_t>& index, std::vector<Eigen::Vector3f>* points,
+                          std::vector<Eigen::Vector3f>* normals) {
+    points->reserve(index.size());
+    for (int32_t k : index) points->push_back(seg_points[static_cast<size_t>(k)]);
+    if (have_normals) {
+      normals->reserve(index.size());
+      for (int32_t k : index) normals->push_back(seg_normals[static_cast<size_t>(k)]);
+    }
+  };
+  // views[first_region_view..] are region views (see match_regions).
+  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view) {
+    // Per view: the classes that can fit it (SegmentFitsClass), ordered by
+    // how well the view's principal extents match each model's.
+    const size_t n_models = models.size();
+    std::vector<std::vector<int>> order(views.size());
+    // Classes too small for the view: it is not one instance of them, but a
+    // merged segment of several may hold one; tried last, only when no class
+    // that fits found anything.
+    std::vector<std::vector<int>> too_small(views.size());
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
+      std::vector<Eigen::Vector3f> points;
+      for (int32_t k : views[v]) points.push_back(seg_points[static_cast<size_t>(k)]);
+      const Eigen::Vector3f e = internal::PrincipalExtents(points);
+      bool any_fits = false;
+      for (size_t m = 0; m < n_models && !any_fits; ++m) any_fits = internal::SegmentFitsClass(e, models[m]->diameter());
+      // A region view exists to join the pieces of one part: one that no
+      // class fits only repeats its segments' work.
+      if (options_.class_prefilter && !any_fits && v >= first_region_view) return;
+      std::vector<std::pair<double, int>> ranked;
+      for (size_t m = 0; m < n_models; ++m) {
+        if (options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) {
+          too_small[v].push_back(static_cast<int>(m));
+          continue;
+        }
+        ranked.emplace_back(ExtentMismatch(e, models[m]->extents()), static_cast<int>(m));
       }
+      if (options_.early_exit_score > 0.0) std::stable_sort(ranked.begin(), ranked.end());
+      for (const auto& [cost, m] : ranked) order[v].push_back(m);
+    });
+    // Per view (in parallel, no barrier between views): the first class;
+    // the other fitting ones (in parallel) unless it gave a confident
+    // detection; then, when none found anything, the classes too small.
+    struct Job {
+      int model = 0;
+      bool too_small = false;
+      internal::ClassEstimate estimate;
+    };
+    std::vector<std::vector<Job>> per_view(views.size());
+    const bool early_exit = options_.early_exit_score > 0.0;
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
+      std::vector<Eigen::Vector3f> points, normals;
+      gather(views[v], &points, &normals);
       internal::SegmentView view;
       view.points_B = points;
       view.normals_B = normals;
       view.frame = &frame;
       view.floor_plane_B = floor_plane_B;
-      estimates[job] = model.Estimate(view);
+      std::vector<Job>& done = per_view[v];
+      // Runs classes ms[from, to) in parallel.
+      const auto run = [&](const std::vector<int>& ms, size_t from, size_t to, bool too_small) {
+        to = std::min(to, ms.size());
+        if (from >= to) return;
+        const size_t base = done.size();
+        done.resize(base + to - from);
+        tbb::parallel_for(from, to, [&](size_t r) {
+          Job& job = done[base + r - from];
+          job.model = ms[r];
+          job.too_small = too_small;
+          job.estimate = models[static_cast<size_t>(ms[r])]->Estimate(view);
+        });
+      };
+      if (early_exit && !order[v].empty()) {
+        run(order[v], 0, 1, false);
+        const auto& hs = done.front().estimate.hypotheses;
+        const bool confident =
+            !hs.empty() && hs.front().score >= options_.early_exit_score &&
+            static_cast<double>(hs.front().support.size()) >= options_.early_exit_support * static_cast<double>(views[v].size());
+        if (!confident) run(order[v], 1, order[v].size(), false);
+      } else {
+        run(order[v], 0, order[v].size(), false);
+      }
+      bool found = false;
+      for (const Job& job : done) {
+        for (const auto& h : job.estimate.hypotheses) found |= h.score >= options_.min_detection_score;
+      }
+      if (!found) run(too_small[v], 0, too_small[v].size(), true);
     });
+    std::vector<std::pair<size_t, int>> jobs_done;
+    std::vector<uint8_t> too_small_job;
+    std::vector<internal::ClassEstimate> estimates;
+    for (size_t v = 0; v < views.size(); ++v) {
+      for (Job& job : per_view[v]) {
+        jobs_done.emplace_back(v, job.model);
+        too_small_job.push_back(job.too_small ? 1 : 0);
+        estimates.push_back(std::move(job.estimate));
+      }
+    }
+    const size_t n_jobs = jobs_done.size();
     std::vector<Candidate> candidates;
     for (size_t job = 0; job < n_jobs; ++job) {
-      const size_t s = job / models.size();
-      const ClassModel& model = *models[job % models.size()];
+      const size_t s = jobs_done[job].first;
+      const ClassModel& model = *models[static_cast<size_t>(jobs_done[job].second)];
       if (estimates[job].hypotheses.empty() && first_reason.empty()) first_reason = estimates[job].reason;
       for (internal::ClassHypothesis& h : estimates[job].hypotheses) {
         if (!h.X_BO.matrix().allFinite() || !std::isfinite(h.score)) continue;
-        if (h.score < options_.min_detection_score) {
+        // A class too small for the view must explain its part of it well
+        // (measured: otherwise bushings are fitted onto bracket plates).
+        const double min_score = too_small_job[job]
+                                     ? std::max(options_.min_detection_score, options_.too_small_class_min_score)
+                                     : options_.min_detection_score;
+        if (h.score < min_score) {
           ++rejected_low_score;
           continue;
         }
@@ -399,8 +494,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
   };
 
+  const size_t first_region_view = view_of_segment.size();
   for (auto& view : region_views) view_of_segment.push_back(std::move(view));
-  std::vector<Candidate> candidates = estimate(view_of_segment);
+  std::vector<Candidate> candidates = estimate(view_of_segment, first_region_view);
   t = stage("pose", t);
   accept(std::move(candidates));
   t = stage("verify", t);
@@ -418,7 +514,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       residual.push_back(std::move(left));
     }
   }
-  if (!residual.empty()) accept(estimate(residual));
+  if (!residual.empty()) accept(estimate(residual, residual.size()));
   stage("residual", t);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +

@@ -72,6 +72,21 @@ struct PerceptionOptions {
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).
   double context_relative_radius = 0.0;
+  // A class is "too small" for a view whose extent along its first principal
+  // axis exceeds the class's diameter (plus noise tolerance): the view is not
+  // one instance of it. Such classes are tried last, only when no class that
+  // fits found a detection (a merged segment may hold one), and need
+  // too_small_class_min_score. Region views no class fits are skipped.
+  bool class_prefilter = true;
+  // Classes are tried per view in order of extent match; the others are
+  // skipped when the first one's best hypothesis scores at least this and its
+  // support holds at least early_exit_support of the view's points. 0 = run
+  // every class on every view.
+  double early_exit_score = 0.85;
+  double early_exit_support = 0.6;
+  // Detections of a class too small for the view (tried last, when no class
+  // that fits found anything: merged segments) need at least this score.
+  double too_small_class_min_score = 0.85;
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;

@@ -1,5 +1,10 @@
 #include "pipeline/internal/class_model.h"
 
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+
 #include "core/mesh.h"
 
 #include "pipeline/pose_estimator.h"
@@ -11,9 +16,11 @@ namespace {
 class PpfClassModel final : public ClassModel {
  public:
   PpfClassModel(int class_id, std::unique_ptr<PoseEstimator> estimator)
-      : class_id_(class_id), estimator_(std::move(estimator)) {}
+      : class_id_(class_id), estimator_(std::move(estimator)),
+        extents_(PrincipalExtents(estimator_->surface_points_O())) {}
   int class_id() const override { return class_id_; }
   double diameter() const override { return estimator_->diameter(); }
+  Eigen::Vector3f extents() const override { return extents_; }
 
   ClassEstimate Estimate(const SegmentView& view) const override {
     SceneView scene;
@@ -50,9 +57,49 @@ class PpfClassModel final : public ClassModel {
  private:
   int class_id_;
   std::unique_ptr<PoseEstimator> estimator_;
+  Eigen::Vector3f extents_;
 };
 
+// Absolute and relative slack of SegmentFitsClass: depth noise and normal-
+// estimation outliers at the segment border (a few mm at most).
+constexpr double kFitToleranceAbs = 0.004;
+constexpr double kFitToleranceRel = 0.05;
+
 }  // namespace
+
+Eigen::Vector3f PrincipalExtents(std::span<const Eigen::Vector3f> points) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  int n = 0;
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    mean += p.cast<double>();
+    ++n;
+  }
+  if (n < 2) return Eigen::Vector3f::Zero();
+  mean /= n;
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    const Eigen::Vector3d d = p.cast<double>() - mean;
+    cov += d * d.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+  const Eigen::Matrix3d axes = eig.eigenvectors();  // ascending eigenvalues
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e30), hi = Eigen::Vector3d::Constant(-1e30);
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    const Eigen::Vector3d q = axes.transpose() * (p.cast<double>() - mean);
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  Eigen::Vector3d e = hi - lo;
+  std::sort(e.data(), e.data() + 3, [](double a, double b) { return a > b; });
+  return e.cast<float>();
+}
+
+bool SegmentFitsClass(const Eigen::Vector3f& segment_extents, double model_diameter) {
+  return segment_extents.x() <= model_diameter * (1.0 + kFitToleranceRel) + kFitToleranceAbs;
+}
 
 Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part) {
   Result<TriangleMesh> mesh = LoadMesh(part.mesh);

@@ -45,8 +45,20 @@ class ClassModel {
   virtual ~ClassModel() = default;
   virtual int class_id() const = 0;
   virtual double diameter() const = 0;
+  // Extents of the model surface along its principal axes, metres, largest first.
+  virtual Eigen::Vector3f extents() const = 0;
   virtual ClassEstimate Estimate(const SegmentView& view) const = 0;
 };
+
+// Extents of points along their principal axes (PCA), largest first, metres.
+// The largest is a lower bound of the set's diameter (max pairwise distance).
+// Non-finite points are ignored; fewer than 2 points give zero.
+Eigen::Vector3f PrincipalExtents(std::span<const Eigen::Vector3f> points);
+
+// Pre-filter: false when the segment cannot be (part of) one instance of the
+// class, i.e. its extent along its first principal axis (a lower bound of its
+// diameter) exceeds the model's diameter plus a tolerance for sensor noise.
+bool SegmentFitsClass(const Eigen::Vector3f& segment_extents, double model_diameter);
 
 // Builds the model of one part class (loads the mesh, builds the tables).
 // @returns the mesh loader's error, or InvalidArgument naming the part.
