@@ -32,9 +32,10 @@ build/bin/binpick robot --host 127.0.0.1 --port "$port" --robot ur --flow pick -
   --max-cycles "${DEMO_MAX_CYCLES:-80}" || rc=$?
 case "$rc" in
   0) echo "demo: bin cleared, empty-box check answered EMPTY" ;;
-  1) echo "demo: the robot program ended with parts left in the bin (see the last lines above):" \
-          "binpick found no collision-free grasp for them (known gap: L-brackets standing on edge" \
-          "offer no face to the suction cup); binpickd log: $log"
+  1) echo "demo: the robot program ended with parts left in the bin. The last pick answer says why:" \
+          "NO_OBJECT_FOUND(3) = perception found none of them, NO_COLLISION_FREE_POSE(4) = found but no" \
+          "safe grasp (known gaps: L-brackets standing on edge; binpick clear reports which parts stay)." \
+          "binpickd log: $log"
      exit 1 ;;
   *) echo "demo: robot connection or protocol error; binpickd log: $log" >&2
      exit "$rc" ;;
