@@ -18,6 +18,7 @@
 #include "comms/modbus_master.h"
 #include "comms/modbus_robot_sim.h"
 #include "comms/robot_flows.h"
+#include "tests/testing/run_command.h"
 #include "tests/testing/scripted_planner.h"
 
 namespace bp {
@@ -508,14 +509,9 @@ TEST(ModbusRobotCommand, PlaysThePickFlowAsAModbusSlave) {
   mo.backoff_max = 50ms;
   auto master = std::move(ModbusMaster::Start(handler, mo).value());
   const std::string cmd = BINPICK_BINARY_DIR "/bin/binpick-robot --modbus --flow pick --port " +
-                          std::to_string(port) + " --wait-master 10 2>&1";
-  std::string out;
-  FILE* p = popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
-  char buf[512];
-  while (fgets(buf, sizeof(buf), p)) out += buf;
-  const int status = pclose(p);
-  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+                          std::to_string(port) + " --wait-master 10";
+  const auto [exit_code, out] = test::RunCommand(cmd);
+  EXPECT_EQ(exit_code, 0) << out;
   EXPECT_NE(out.find("Modbus slave listening on 127.0.0.1:" + std::to_string(port)),
             std::string::npos) << out;
   EXPECT_NE(out.find("OBJECTS_FOUND(2) pose [0.5000 -0.1000 0.1000 | 0.0000 0.0000 1.5708 "
@@ -547,14 +543,9 @@ TEST(ModbusMaster, ServesAPymodbusRobotInBothVersions) {
     auto master = std::move(ModbusMaster::Start(handler, mo).value());
     const std::string cmd = "/usr/bin/python3 " BINPICK_SOURCE_DIR
                             "/scripts/modbus_robot_sim.py --count 40 --version " +
-                            std::to_string(version) + " --port " + std::to_string(port) + " 2>&1";
-    std::string out;
-    FILE* p = popen(cmd.c_str(), "r");
-    ASSERT_NE(p, nullptr);
-    char buf[512];
-    while (fgets(buf, sizeof(buf), p)) out += buf;
-    const int status = pclose(p);
-    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << out;
+                            std::to_string(version) + " --port " + std::to_string(port);
+    const auto [exit_code, out] = test::RunCommand(cmd);
+    EXPECT_EQ(exit_code, 0) << out;
     EXPECT_NE(out.find("40 of 40 answers right"), std::string::npos) << out;
     master->Stop();
     EXPECT_EQ(master->stats().requests, 40u) << "version " << version;

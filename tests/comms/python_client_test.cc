@@ -8,6 +8,7 @@
 #include <thread>
 
 #include "comms/daoai_server.h"
+#include "tests/testing/run_command.h"
 #include "tests/testing/scripted_planner.h"
 
 namespace bp {
@@ -16,22 +17,9 @@ namespace {
 using testing::MakeTestCell;
 using testing::ScriptedPlanner;
 
-struct ClientRun {
-  int exit_code = -1;
-  std::string out;
-};
-
-ClientRun RunClient(int port, const std::string& args) {
-  const std::string cmd = "/usr/bin/python3 " BINPICK_SOURCE_DIR "/scripts/binpick_client.py --port " +
-                          std::to_string(port) + " " + args + " 2>&1";
-  ClientRun r;
-  FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return r;
-  char buf[512];
-  while (fgets(buf, sizeof(buf), p)) r.out += buf;
-  const int status = pclose(p);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+test::CommandRun RunClient(int port, const std::string& args) {
+  return test::RunCommand("/usr/bin/python3 " BINPICK_SOURCE_DIR "/scripts/binpick_client.py --port " +
+                             std::to_string(port) + " " + args);
 }
 
 TEST(PythonClient, ClearsTheBinAndSeesItEmpty) {
@@ -46,17 +34,17 @@ TEST(PythonClient, ClearsTheBinAndSeesItEmpty) {
   options.port = 0;
   auto server = std::move(DaoaiServer::Start(handler, options).value());
 
-  const ClientRun pick = RunClient(server->port(), "pick --task 0");
+  const test::CommandRun pick = RunClient(server->port(), "pick --task 0");
   EXPECT_EQ(pick.exit_code, 0) << pick.out;
   EXPECT_NE(pick.out.find("OBJECTS_FOUND remaining=3 class=0 position=(0.5, -0.1, 0.1)"),
             std::string::npos) << pick.out;
   EXPECT_NE(pick.out.find("picks: 4"), std::string::npos) << pick.out;
   EXPECT_NE(pick.out.find("BOX_EMPTY"), std::string::npos) << pick.out;
 
-  const ClientRun config = RunClient(server->port(), "switch-config --config 7");
+  const test::CommandRun config = RunClient(server->port(), "switch-config --config 7");
   EXPECT_EQ(config.exit_code, 1) << config.out;
   EXPECT_NE(config.out.find("SWITCH_CONFIG_FAIL"), std::string::npos) << config.out;
-  const ClientRun teach = RunClient(server->port(), "teach --task 0");
+  const test::CommandRun teach = RunClient(server->port(), "teach --task 0");
   EXPECT_EQ(teach.exit_code, 0) << teach.out;
   // Teaching has no response: the client may exit before the server has even
   // read its request, so give the server a moment before stopping it.

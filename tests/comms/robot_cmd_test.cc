@@ -6,6 +6,7 @@
 #include <string>
 
 #include "comms/daoai_server.h"
+#include "tests/testing/run_command.h"
 #include "tests/testing/scripted_planner.h"
 
 namespace bp {
@@ -14,21 +15,8 @@ namespace {
 using testing::MakeTestCell;
 using testing::ScriptedPlanner;
 
-struct CommandRun {
-  int exit_code = -1;
-  std::string out;
-};
-
-CommandRun RunRobot(const std::string& args) {
-  const std::string cmd = BINPICK_BINARY_DIR "/bin/binpick-robot " + args + " 2>&1";
-  CommandRun r;
-  FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return r;
-  char buf[512];
-  while (fgets(buf, sizeof(buf), p)) r.out += buf;
-  const int status = pclose(p);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+test::CommandRun RunRobot(const std::string& args) {
+  return test::RunCommand(BINPICK_BINARY_DIR "/bin/binpick-robot " + args);
 }
 
 TEST(RobotCommand, ClearsTheBinPrintingEachPickAndExitsZero) {
@@ -43,7 +31,7 @@ TEST(RobotCommand, ClearsTheBinPrintingEachPickAndExitsZero) {
   auto server = std::move(DaoaiServer::Start(handler, options).value());
   const std::string port = " --port " + std::to_string(server->port());
 
-  const CommandRun pick = RunRobot("--flow pick" + port);
+  const test::CommandRun pick = RunRobot("--flow pick" + port);
   EXPECT_EQ(pick.exit_code, 0) << pick.out;
   EXPECT_NE(pick.out.find("OBJECTS_FOUND(2) pose [0.5000 -0.1000 0.1000 | 0.0000 0.0000 1.5708 "
                           "0.0000] remaining 2 class 0"),
@@ -52,7 +40,7 @@ TEST(RobotCommand, ClearsTheBinPrintingEachPickAndExitsZero) {
   EXPECT_NE(pick.out.find("BOX_EMPTY(41)"), std::string::npos) << pick.out;
 
   // A version-1 robot against a version-2 cell: the script's popup is shown.
-  const CommandRun v1 = RunRobot("--flow switch-config --config 2 --protocol-version 1" + port);
+  const test::CommandRun v1 = RunRobot("--flow switch-config --config 2 --protocol-version 1" + port);
   EXPECT_EQ(v1.exit_code, 0) << v1.out;
   EXPECT_NE(v1.out.find("popup: the DaoAI interface version (2) does not match"),
             std::string::npos) << v1.out;

@@ -1,5 +1,4 @@
 // Runs the built binpick binary (build/bin/binpick) as a user would.
-#include <sys/wait.h>
 
 #include <cmath>
 #include <cstdio>
@@ -12,6 +11,7 @@
 
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
+#include "tests/testing/run_command.h"
 
 namespace bp {
 namespace {
@@ -19,26 +19,10 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
 
-struct RunResult {
-  int exit_code = -1;
-  std::string output;  // stdout and stderr
-};
-
-RunResult RunBinpick(const std::string& args) {
+test::CommandRun RunBinpick(const std::string& args) {
   const std::string binary = std::string(BINPICK_BINARY_DIR) + "/bin/binpick";
-  RunResult r;
-  if (!fs::exists(binary)) {
-    r.output = "binpick binary not built: " + binary;
-    return r;
-  }
-  FILE* pipe = popen((binary + " " + args + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  char buf[4096];
-  size_t n = 0;
-  while ((n = fread(buf, 1, sizeof(buf), pipe)) > 0) r.output.append(buf, n);
-  const int status = pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+  if (!fs::exists(binary)) return {-1, "binpick binary not built: " + binary};
+  return test::RunCommand(binary + " " + args);
 }
 
 std::string FreshDir() {
@@ -50,16 +34,16 @@ std::string FreshDir() {
 }
 
 TEST(BinpickCli, HelpListsSubcommands) {
-  const RunResult r = RunBinpick("--help");
-  EXPECT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("render"));
-  EXPECT_THAT(r.output, HasSubstr("info"));
+  const test::CommandRun r = RunBinpick("--help");
+  EXPECT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("render"));
+  EXPECT_THAT(r.out, HasSubstr("info"));
 }
 
 TEST(BinpickCli, UnknownSubcommandPrintsUsageAndFails) {
-  const RunResult r = RunBinpick("frobnicate");
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("render"));  // usage lists the real subcommands
+  const test::CommandRun r = RunBinpick("frobnicate");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("render"));  // usage lists the real subcommands
 }
 
 TEST(BinpickCli, InfoOnTruncatedCloudFailsWithBadInputNamingTheFile) {
@@ -67,16 +51,16 @@ TEST(BinpickCli, InfoOnTruncatedCloudFailsWithBadInputNamingTheFile) {
   const std::string path = dir + "/broken_cloud.pcd";
   std::ofstream(path) << "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
                          "WIDTH 100\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\nxyz";
-  const RunResult r = RunBinpick("info " + path);
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("broken_cloud.pcd"));
-  EXPECT_THAT(r.output, HasSubstr("truncated"));
+  const test::CommandRun r = RunBinpick("info " + path);
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("broken_cloud.pcd"));
+  EXPECT_THAT(r.out, HasSubstr("truncated"));
 }
 
 TEST(BinpickCli, InfoOnMissingFileFailsWithBadInput) {
-  const RunResult r = RunBinpick("info /nonexistent/nothing.pcd");
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("nothing.pcd"));
+  const test::CommandRun r = RunBinpick("info /nonexistent/nothing.pcd");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("nothing.pcd"));
 }
 
 std::string ReadAll(const std::string& path) {
@@ -86,9 +70,9 @@ std::string ReadAll(const std::string& path) {
 
 TEST(BinpickCli, RenderWritesAFrameThatLoadsBackWithItsTruth) {
   const std::string dir = FreshDir();
-  const RunResult r = RunBinpick("render --seed 5 --out " + dir + "/a");
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("parts placed"));
+  const test::CommandRun r = RunBinpick("render --seed 5 --out " + dir + "/a");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("parts placed"));
   Result<Frame> depth = LoadFrameFile(dir + "/a/depth.png");
   ASSERT_TRUE(depth.ok()) << depth.status().ToString();
   ASSERT_TRUE(depth->organized());
@@ -125,19 +109,19 @@ TEST(BinpickCli, RenderWritesAFrameThatLoadsBackWithItsTruth) {
 }
 
 TEST(BinpickCli, RenderWithUnknownConfigFailsWithBadInput) {
-  const RunResult r = RunBinpick("render --seed 1 --config 99 --out " + FreshDir() + "/x");
-  EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("99"));
+  const test::CommandRun r = RunBinpick("render --seed 1 --config 99 --out " + FreshDir() + "/x");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("99"));
 }
 
 TEST(BinpickCli, InfoDescribesMeshesAndCells) {
   const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets";
-  RunResult r = RunBinpick("info " + assets + "/parts/pipe_tee.ply");
-  EXPECT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("triangle mesh"));
+  test::CommandRun r = RunBinpick("info " + assets + "/parts/pipe_tee.ply");
+  EXPECT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("triangle mesh"));
   r = RunBinpick("info " + assets + "/cells/default.yaml");
-  EXPECT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("pipe_tee"));
+  EXPECT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("pipe_tee"));
 }
 
 TEST(BinpickCli, InfoDescribesAnOrganizedDepthFrame) {
@@ -151,11 +135,11 @@ TEST(BinpickCli, InfoDescribesAnOrganizedDepthFrame) {
   f.depth = DepthImage(8, 6, 1.25f);
   f.depth.at(0, 0) = 0.75f;
   ASSERT_TRUE(WriteDepthPng(f, dir + "/depth.png").ok());
-  const RunResult r = RunBinpick("info " + dir + "/depth.png");
-  EXPECT_EQ(r.exit_code, 0) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("organized 8x6"));
-  EXPECT_THAT(r.output, HasSubstr("48 valid of 48"));
-  EXPECT_THAT(r.output, HasSubstr("0.7500 .. 1.2500 m"));
+  const test::CommandRun r = RunBinpick("info " + dir + "/depth.png");
+  EXPECT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("organized 8x6"));
+  EXPECT_THAT(r.out, HasSubstr("48 valid of 48"));
+  EXPECT_THAT(r.out, HasSubstr("0.7500 .. 1.2500 m"));
 }
 
 }  // namespace
