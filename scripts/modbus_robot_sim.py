@@ -87,6 +87,10 @@ def main():
             print(f"request {i}: status {status} meta_2 {meta_2}", flush=True)
     print(f"pymodbus robot: {args.count - bad} of {args.count} answers right "
           f"(version {args.version})", flush=True)
+    # The robot sees the last response flag in its own registers as soon as the
+    # server applied the master's write, before the server acknowledged it:
+    # stay up briefly so that acknowledgement reaches the master.
+    time.sleep(0.3)
     os._exit(0 if bad == 0 else 1)  # the server thread does not stop by itself
 
 
