@@ -1,5 +1,7 @@
 // Runs the built binpick binary (build/bin/binpick) as a user would.
 
+#include <unistd.h>
+
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -27,7 +29,8 @@ test::CommandRun RunBinpick(const std::string& args) {
 
 std::string FreshDir() {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() / "binpick_tests" / (std::string("cli.") + info->name());
+  const fs::path dir = fs::temp_directory_path() / ("binpick_tests." + std::to_string(::getpid())) /
+                       (std::string("cli.") + info->name());
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir.string();

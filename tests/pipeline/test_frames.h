@@ -2,6 +2,8 @@
 // built in code (no renderer).
 #pragma once
 
+#include <unistd.h>
+
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -74,7 +76,9 @@ inline Frame PlaneWithBox(uint32_t seed = 42) {
 // A fresh empty directory per test.
 inline std::string FreshDir(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "binpick_tests" /
+  // Per process too, so concurrent test runs on one machine do not share it.
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                    ("binpick_tests." + std::to_string(::getpid())) /
                                     (std::string(info->test_suite_name()) + "." + info->name() + "." + name);
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
