@@ -117,16 +117,26 @@ bool PickPoseOk(const RobotReply& r) {
   return r.payload[0] > 0;
 }
 
+// seed 003 daoai_capture_and_process(): move to the detection pose and
+// capture for `task`. @returns false (and marks the flow failed) when the
+// server did not acknowledge the capture.
+Result<bool> CaptureAtDetectionPose(RobotClient& robot, Runner& run, int task) {
+  robot.SetPose(DetectionPose());
+  Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, task);
+  if (!cap.ok()) return cap.status();
+  if (cap->status != daoai::kDetection) {
+    run.summary().ok = false;  // popup("DaoAI Image Capture Failed.")
+    return false;
+  }
+  return true;
+}
+
 Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
   for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
-    robot.SetPose(DetectionPose());
-    Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, o.task_id);
-    if (!cap.ok()) return cap.status();
-    if (cap->status != daoai::kDetection) {
-      s.ok = false;  // popup("DaoAI Image Capture Failed.")
-      return Status::Ok();
-    }
+    Result<bool> captured = CaptureAtDetectionPose(robot, run, o.task_id);
+    if (!captured.ok()) return captured.status();
+    if (!*captured) return Status::Ok();
     int picked = 0;
     for (;;) {
       Result<RobotReply> pick = run.Call(daoai::kPickPose, o.task_id);
@@ -150,25 +160,17 @@ Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
 Status PickPlaceFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
   for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
-    robot.SetPose(DetectionPose());
-    Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, o.task_id);
-    if (!cap.ok()) return cap.status();
-    if (cap->status != daoai::kDetection) {
-      s.ok = false;
-      return Status::Ok();
-    }
+    Result<bool> captured = CaptureAtDetectionPose(robot, run, o.task_id);
+    if (!captured.ok()) return captured.status();
+    if (!*captured) return Status::Ok();
     Result<RobotReply> pick = run.Call(daoai::kPickPose, o.task_id);
     if (!pick.ok()) return pick.status();
     if (!PickPoseOk(*pick)) return Status::Ok();
     ++s.picks;
     if (pick->X_BT) robot.SetPose(*pick->X_BT);
-    robot.SetPose(DetectionPose());
-    Result<RobotReply> cap2 = run.Call(daoai::kCaptureAndProcess, o.place_task_id);
-    if (!cap2.ok()) return cap2.status();
-    if (cap2->status != daoai::kDetection) {
-      s.ok = false;
-      return Status::Ok();
-    }
+    captured = CaptureAtDetectionPose(robot, run, o.place_task_id);
+    if (!captured.ok()) return captured.status();
+    if (!*captured) return Status::Ok();
     Result<RobotReply> place = run.Call(daoai::kPickPose, o.place_task_id);
     if (!place.ok()) return place.status();
     if (place->status != daoai::kDropOffPose) {

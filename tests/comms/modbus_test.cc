@@ -24,6 +24,12 @@
 namespace bp {
 namespace {
 
+// A loopback port that was free a moment ago (a slave bound it, then closed).
+int FreeLoopbackPort() {
+  auto probe = ModbusRobotSim::Start({});
+  return probe.ok() ? (*probe)->port() : 0;
+}
+
 using namespace std::chrono_literals;
 using testing::MakeTestCell;
 using testing::ScriptedPlanner;
@@ -367,12 +373,8 @@ TEST(ModbusMaster, ConnectsToARobotThatStartsLater) {
   auto planner = std::make_shared<ScriptedPlanner>();
   RequestHandler handler(MakeTestCell(), planner, nullptr);
   // Find a free port, then leave it free.
-  int port = 0;
-  {
-    auto probe = ModbusRobotSim::Start({});
-    ASSERT_TRUE(probe.ok());
-    port = (*probe)->port();
-  }
+  const int port = FreeLoopbackPort();
+  ASSERT_GT(port, 0);
   ModbusMasterOptions mo;
   mo.port = port;
   mo.backoff_min = 10ms;
@@ -497,12 +499,8 @@ TEST(ModbusRobotCommand, PlaysThePickFlowAsAModbusSlave) {
   pile.pile = 3;
   planner->SetScript(0, pile);
   RequestHandler handler(MakeTestCell(), planner, nullptr);
-  int port = 0;
-  {
-    auto probe = ModbusRobotSim::Start({});  // a free port, left free
-    ASSERT_TRUE(probe.ok());
-    port = (*probe)->port();
-  }
+  const int port = FreeLoopbackPort();
+  ASSERT_GT(port, 0);
   ModbusMasterOptions mo;
   mo.port = port;
   mo.backoff_min = 10ms;
@@ -530,12 +528,8 @@ TEST(ModbusMaster, ServesAPymodbusRobotInBothVersions) {
   for (int version : {1, 2}) {
     auto planner = std::make_shared<ScriptedPlanner>();
     RequestHandler handler(MakeTestCell(version), planner, nullptr);
-    int port = 0;
-    {
-      auto probe = ModbusRobotSim::Start({});
-      ASSERT_TRUE(probe.ok());
-      port = (*probe)->port();
-    }
+    const int port = FreeLoopbackPort();
+    ASSERT_GT(port, 0);
     ModbusMasterOptions mo;
     mo.port = port;
     mo.backoff_min = 20ms;
