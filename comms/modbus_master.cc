@@ -141,11 +141,12 @@ class ModbusMaster::Impl {
     ClientContext client;
     client.id = ++connections_;
     client.peer = "modbus " + address();
-    // What the last response left in the request flag register: unknown at
-    // connect, so assume the ambiguous 1 (see the header).
-    uint16_t stale_flag = 1;
+    // The last request taken had no response: a request flag of 1 with the
+    // marker in place is then the robot's own late flag write (see below).
+    bool taken_without_response = false;
     std::vector<uint16_t> regs(static_cast<size_t>(span_.count));
     const ModbusRegisterMap& m = o_.map;
+    const int marker_reg = m.request_base + modbus::kMarkerField;
     auto at = [&](int reg) { return regs[static_cast<size_t>(reg - span_.lo)]; };
     auto fail = [&](const char* what) {
       spdlog::warn("modbus: robot {}: {} failed: {}; reconnecting", address(), what,
@@ -158,20 +159,39 @@ class ModbusMaster::Impl {
       }
       answered = true;
       const bool flag = at(m.request_flag) == 1;
-      const bool stale = span_.marker && stale_flag == 1 &&
-                         at(m.request_base + modbus::kMarkerField) == modbus::kMarker;
-      if (!flag || stale) {
+      const bool marked = span_.marker && at(marker_reg) == modbus::kMarker;
+      if (flag && marked && taken_without_response) {
+        // The robot wrote its flag (1 over the stale 1 of a version-1
+        // response) after this master had already taken the request and
+        // cleared it. The robot now waits for 0 before its next request, so
+        // clearing cannot erase a new one.
+        if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
+          fail("clearing a late request flag");
+          return answered;
+        }
+        taken_without_response = false;
+        continue;
+      }
+      if (!flag || marked) {
         if (!Sleep(o_.poll_interval)) return answered;
         continue;
       }
       std::array<uint16_t, daoai::kRequestFields> fields{};
       for (size_t i = 0; i < fields.size(); ++i) fields[i] = at(m.request_base + static_cast<int>(i));
       const daoai::Request request = modbus::DecodeRequest(fields);
+      // Taken: the marker goes back first, then the flag is cleared. When the
+      // request flag is a response register, the flag may have read 1 before
+      // the robot wrote it (a version-1 response left 1 there); the robot's
+      // flag write can then land after the clear, and the marker keeps that
+      // late 1 from being taken for a second request.
+      if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
+        fail("marking the request taken");
+        return answered;
+      }
       if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
         fail("clearing the request flag");
         return answered;
       }
-      stale_flag = 0;
       if (at(m.response_flag) != 0) {
         // The robot did not read the last response (its program restarted).
         spdlog::warn("modbus: robot {} sent command {} without reading the previous response; "
@@ -185,6 +205,7 @@ class ModbusMaster::Impl {
       Count([](ModbusMasterStats& s) { ++s.requests; });
 
       const std::optional<daoai::Response> response = handler_.Handle(request, client);
+      taken_without_response = !response.has_value();
       if (!response) continue;  // no response for this command
       std::vector<std::string> saturated;
       Result<std::array<uint16_t, daoai::kResponseFields>> encoded =
@@ -203,16 +224,13 @@ class ModbusMaster::Impl {
       }
       std::array<uint16_t, daoai::kResponseFields> out = *encoded;
       bool written = true;
-      if (span_.marker) {
-        stale_flag = out[static_cast<size_t>(m.request_flag - m.response_base)];
-      }
-      if (span_.marker && stale_flag == 1) {
-        const int marker = m.request_base + modbus::kMarkerField;
-        if (marker >= m.response_base && marker < m.response_base + static_cast<int>(out.size())) {
-          out[static_cast<size_t>(marker - m.response_base)] = modbus::kMarker;  // seed: payload_4
-        } else {
-          written = modbus_write_register(ctx, marker, modbus::kMarker) == 1;
-        }
+      if (span_.marker && out[static_cast<size_t>(m.request_flag - m.response_base)] == 1 &&
+          marker_reg >= m.response_base &&
+          marker_reg < m.response_base + static_cast<int>(out.size())) {
+        // The response leaves 1 in the request flag: it also keeps the marker
+        // (seed: in payload_4). A marker outside the response is still there
+        // from the take.
+        out[static_cast<size_t>(marker_reg - m.response_base)] = modbus::kMarker;
       }
       written = written && modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()),
                                                    out.data()) == static_cast<int>(out.size());

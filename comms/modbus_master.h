@@ -7,26 +7,32 @@
 //
 // Handshake (map: request 128..139 + flag 144, response 129..144 + flag 145),
 // each poll reading every register of the map in one Modbus read:
-//   1. a new request is: request flag == 1, and not (the last response this
-//      master wrote left 1 in the request flag register and the request's
-//      last register, request_base + 11, holds the marker modbus::kMarker).
-//      The request flag can be a response register (seed: 144 is the
-//      response's meta_2, and a version-1 response leaves 1 there); such a
-//      response is written with the marker in request_base + 11 (seed: 139,
-//      the response's payload_4). The robot writes request_base + 11 last
-//      before the flag, with its meta_2 (1 or 2, never the marker), so a
-//      stale 1 is never taken for a request, a half-written request is never
-//      read, and a request is never missed. At connect the master does not
-//      know what its predecessor wrote and assumes the stale 1.
-//   2. the master clears the request flag, then handles the request;
-//   3. for a command with a response: writes marker + response registers,
-//      then the response flag = 1. The robot reads and clears it.
+//   1. a new request is: request flag == 1, and register request_base + 11
+//      does not hold the marker modbus::kMarker. The request flag can be a
+//      response register (seed: 144 is the response's meta_2, and a version-1
+//      response leaves 1 there), and a 1 written over a 1 cannot be seen. So
+//      whenever the request flag is a response register the master keeps the
+//      marker in request_base + 11 while no request is pending: it writes it
+//      when it takes a request, and with any response that leaves 1 in the
+//      flag (seed: the response's payload_4). The robot writes
+//      request_base + 11 last before the flag, with its meta_2 (1 or 2, never
+//      the marker), so a stale 1 is never taken for a request, a half-written
+//      request is never read, and a request is never missed.
+//   2. the master writes the marker, clears the request flag, then handles
+//      the request. The robot's own flag write may land after that clear
+//      (the flag already read 1): the marker makes that late 1 stale, and
+//      after a command without a response, where the robot waits for the
+//      flag to read 0, the master clears it again.
+//   3. for a command with a response: writes the response registers (with
+//      the marker when they leave 1 in the request flag), then the response
+//      flag = 1. The robot reads and clears it.
 //   A robot that writes a new request without clearing the response flag
 //   (its program restarted) gets the new request served; the master clears
 //   the stale response flag and logs it.
-//   Commands without a response (pose update, teach, ...) leave the flags at
-//   0: a robot program must not write its next request before the request
-//   flag reads 0 again (the seed's script does not wait; the simulator does).
+//   Commands without a response (pose update, teach, ...) leave the response
+//   flag at 0: a robot program must not write its next request before the
+//   request flag reads 0 again (the seed's script does not wait; the
+//   simulator does).
 //
 // Threading: one thread per master; the RequestHandler's Handle() blocks
 // that thread while a request is processed (requests of one robot are

@@ -92,16 +92,20 @@ class ModbusRobotSim::Impl {
       if (!taken) return Status::Unavailable("the master did not take the previous request");
     }
     if (stopping_) return Status::Unavailable("robot stopped");
+    // Waiting from the first register on: a master polling faster than the
+    // robot writes takes the request as soon as its last register is there,
+    // and may answer before the flag write below.
+    outstanding_ = expects_response;
+    awaiting_take_ = !expects_response;
     // Register by register, as write_port_register does; the master may poll
     // in between (it sees the flag last).
     for (size_t i = 0; i < regs->size(); ++i) {
       SetReg(o_.map.request_base + static_cast<int>(i), (*regs)[i]);
       lock.unlock();
+      if (o_.write_interval.count() > 0) std::this_thread::sleep_for(o_.write_interval);
       lock.lock();
       if (stopping_) return Status::Unavailable("robot stopped");
     }
-    outstanding_ = expects_response;
-    awaiting_take_ = !expects_response;
     SetReg(o_.map.request_flag, 1);
     ++stats_.requests_sent;
     return Status::Ok();

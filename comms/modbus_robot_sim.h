@@ -35,6 +35,9 @@ struct ModbusRobotSimOptions {
   int port = 0;        // 0: an ephemeral port (see port())
   int unit_id = 1;     // requests for another unit are ignored (0xFF is accepted)
   ModbusRegisterMap map;
+  // Between two register writes of a request (a UR script writes one
+  // register per controller cycle, 8 ms at 125 Hz). 0: back to back.
+  std::chrono::microseconds write_interval{0};
 };
 
 struct ModbusRobotSimStats {
