@@ -1,7 +1,5 @@
 #include "grasp/teach_store.h"
 
-#include <fcntl.h>
-#include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
 #include <cstdio>
@@ -9,6 +7,8 @@
 #include <fstream>
 #include <iomanip>
 #include <sstream>
+
+#include "core/atomic_file.h"
 
 namespace bp {
 
@@ -69,25 +69,9 @@ Status TeachStore::WriteLocked() const {
        << "\", pose: {xyz: [" << t.x() << ", " << t.y() << ", " << t.z() << "], quat_wxyz: [" << q.w() << ", "
        << q.x() << ", " << q.y() << ", " << q.z() << "]}}\n";
   }
-  const std::string text = os.str();
-  const std::string tmp = path_ + ".tmp";
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-  if (fd < 0) return Status::Internal("cannot write taught grasps to '" + tmp + "'");
-  size_t done = 0;
-  while (done < text.size()) {
-    const ssize_t n = ::write(fd, text.data() + done, text.size() - done);
-    if (n <= 0) {
-      ::close(fd);
-      return Status::Internal("write failed for '" + tmp + "'");
-    }
-    done += static_cast<size_t>(n);
-  }
-  const bool synced = ::fsync(fd) == 0;
-  ::close(fd);
-  if (!synced || std::rename(tmp.c_str(), path_.c_str()) != 0) {
-    return Status::Internal("cannot replace '" + path_ + "' with '" + tmp + "'");
-  }
-  return Status::Ok();
+  AtomicWriteOptions w;
+  w.mode = 0644;
+  return WriteFileAtomic(path_, os.str(), w);
 }
 
 }  // namespace bp

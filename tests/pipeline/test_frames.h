@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include "pipeline/frame.h"
+#include "tests/testing/files.h"
 
 namespace bp::testing {
 
@@ -71,27 +72,6 @@ inline Frame PlaneWithBox(uint32_t seed = 42) {
   truth.parts = {a, b};
   f.truth = truth;
   return f;
-}
-
-// A fresh empty directory per test.
-inline std::string FreshDir(const std::string& name) {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  // Per process too, so concurrent test runs on one machine do not share it.
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
-                                    ("binpick_tests." + std::to_string(::getpid())) /
-                                    (std::string(info->test_suite_name()) + "." + info->name() + "." + name);
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir.string();
-}
-
-inline void WriteText(const std::string& path, const std::string& text) {
-  std::ofstream(path, std::ios::binary) << text;
-}
-
-inline std::string ReadBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
 // Keeps the first `fraction` of a file's bytes.
