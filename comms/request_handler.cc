@@ -163,6 +163,10 @@ class RequestHandler::Impl {
 
   void HandleAsync(const Request& req, ClientContext& client, Completion done);
 
+  void AddObserver(std::shared_ptr<ServerObserver> observer) {
+    observers_.push_back(std::move(observer));
+  }
+
   const Cell& cell() const { return cell_; }
   int camera_config_id() const { return camera_config_id_.load(); }
   int QueueSize(int task_id) const {
@@ -250,6 +254,37 @@ class RequestHandler::Impl {
   int pending_ = 0;  // GUARDED_BY(pending_mutex_)
   tbb::task_arena arena_;
   SerialJobs serial_;  // calibration steps and teaching, in request order
+  std::vector<std::shared_ptr<ServerObserver>> observers_;  // fixed before serving
+
+  void NotifyDetection(const DetectionEvent& e) const {
+    for (const auto& o : observers_) o->OnDetection(e);
+  }
+  // Wraps `done` so that observers see the response its Reply builds.
+  Completion Observed(const Request& req, const ClientContext& client,
+                      std::shared_ptr<AnswerEvent>& event, Completion done) const {
+    if (observers_.empty()) return done;
+    event = std::make_shared<AnswerEvent>();
+    event->client_id = client.id;
+    event->peer = client.peer;
+    event->X_BF = client.X_BF;
+    event->request = req;
+    return [this, event, done = std::move(done)](Reply reply) {
+      if (!reply) {
+        done(std::move(reply));
+        return;
+      }
+      done([this, event, reply = std::move(reply)]() -> std::optional<Response> {
+        std::optional<Response> r = reply();
+        if (r) {
+          AnswerEvent e = *event;
+          e.response = *r;
+          e.time = std::chrono::system_clock::now();
+          for (const auto& o : observers_) o->OnAnswer(e);
+        }
+        return r;
+      });
+    };
+  }
 };
 
 void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request,
@@ -261,14 +296,23 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
   }
   Spawn([this, &t, plan_request = std::move(plan_request), on_captured = std::move(on_captured)] {
     const auto t0 = std::chrono::steady_clock::now();
+    DetectionEvent event;
+    event.task_id = t.spec.id;
+    event.request = plan_request;
+    event.time = std::chrono::system_clock::now();
     Result<CaptureHandle> scene = Status::Unavailable("not captured");
     {
       std::lock_guard lock(capture_mutex_);
       scene = planner_->Capture(plan_request);
     }
+    const auto t1 = std::chrono::steady_clock::now();
+    event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
     if (!scene.ok() || !*scene) {
       spdlog::warn("daoai: task {} capture failed: {}", t.spec.id,
                    scene.ok() ? "planner returned no scene" : scene.status().ToString());
+      event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
+      event.plan_status = event.capture_status;
+      NotifyDetection(event);
       PlanResult failed;
       failed.outcome = PlanResult::Outcome::kCaptureFailed;
       t.queue.Replace(std::move(failed));
@@ -286,10 +330,18 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
                     plan.status().ToString());
       result.outcome = PlanResult::Outcome::kNoObjects;
     }
-    const auto ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0);
+    const auto t2 = std::chrono::steady_clock::now();
+    const auto ms = std::chrono::duration<double, std::milli>(t2 - t0);
     spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
                  t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
                  ms.count());
+    if (!observers_.empty()) {
+      event.scene = *scene;
+      event.plan_status = plan.status();
+      if (plan.ok()) event.plan = result;
+      event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+      NotifyDetection(event);
+    }
     t.queue.Replace(std::move(result));
     FinishDetection(t);
   });
@@ -489,6 +541,8 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
                                        Completion done) {
   ++client.requests;
   if (stopping_) return;  // shutting down: completions are dropped
+  std::shared_ptr<AnswerEvent> answer_event;
+  done = Observed(req, client, answer_event, std::move(done));
 
   // meta_2 selects the protocol version; anything else is garbage (or a
   // misaligned stream): answer UNKNOWN_COMMAND.
@@ -525,6 +579,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     X_BF = *decoded;
     client.X_BF = X_BF;
     client.pose_time = std::chrono::system_clock::now();
+    if (answer_event) answer_event->X_BF = X_BF;
   } else {
     spdlog::debug("daoai: {} sent an undecodable pose: {}", client.peer,
                   decoded.status().ToString());
@@ -618,10 +673,25 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     case daoai::kCheckEmptyBox: {
       PlanRequest plan_request = MakePlanRequest(*task, X_BF);
       Spawn([this, task, plan_request = std::move(plan_request), done = std::move(done)] {
+        const auto t0 = std::chrono::steady_clock::now();
+        DetectionEvent event;
+        event.task_id = task->spec.id;
+        event.request = plan_request;
+        event.time = std::chrono::system_clock::now();
         Result<CaptureHandle> scene = Status::Unavailable("not captured");
         {
           std::lock_guard lock(capture_mutex_);
           scene = planner_->Capture(plan_request);
+        }
+        const auto t1 = std::chrono::steady_clock::now();
+        event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+        if (scene.ok() && *scene) event.scene = *scene;
+        event.capture_status = !scene.ok() ? scene.status()
+                               : *scene    ? Status::Ok()
+                                           : Status::Internal("planner returned no scene");
+        if (!event.capture_status.ok()) {
+          event.plan_status = event.capture_status;
+          NotifyDetection(event);
         }
         if (!scene.ok() || !*scene) {
           // No image, no evidence that the box is empty: say not empty.
@@ -631,6 +701,13 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
           return;
         }
         Result<PlanResult> plan = planner_->Plan(plan_request, **scene);
+        if (!observers_.empty()) {
+          event.plan_status = plan.status();
+          if (plan.ok()) event.plan = *plan;
+          event.plan_ms = std::chrono::duration<double, std::milli>(
+                              std::chrono::steady_clock::now() - t1).count();
+          NotifyDetection(event);
+        }
         if (!plan.ok()) {
           spdlog::warn("daoai: task {} empty-box check failed: {}; answering BOX_NOT_EMPTY",
                        task->spec.id, plan.status().ToString());
@@ -745,6 +822,10 @@ RequestHandler::RequestHandler(Cell cell, std::shared_ptr<GraspPlanner> planner,
                                    options)) {}
 
 RequestHandler::~RequestHandler() = default;
+
+void RequestHandler::AddObserver(std::shared_ptr<ServerObserver> observer) {
+  if (observer) impl_->AddObserver(std::move(observer));
+}
 
 void RequestHandler::HandleAsync(const Request& request, ClientContext& client, Completion done) {
   impl_->HandleAsync(request, client, std::move(done));

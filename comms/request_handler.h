@@ -26,6 +26,7 @@
 
 #include "comms/calibration_service.h"
 #include "comms/daoai_message.h"
+#include "comms/server_observer.h"
 #include "core/cell.h"
 #include "grasp/grasp_queue.h"
 #include "grasp/planner.h"
@@ -66,6 +67,10 @@ class RequestHandler {
   ~RequestHandler();  // Shutdown()
   RequestHandler(const RequestHandler&) = delete;
   RequestHandler& operator=(const RequestHandler&) = delete;
+
+  // Observers see every detection and every response (comms/server_observer.h).
+  // Add them before the first request; they live as long as the handler.
+  void AddObserver(std::shared_ptr<ServerObserver> observer);
 
   void HandleAsync(const daoai::Request& request, ClientContext& client, Completion done);
   // Blocking convenience for transports with their own threads (Modbus) and

@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -69,6 +70,8 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   result.roi_points = per.roi_point_count;
   result.largest_region_points = per.largest_region_points;
   result.detections = static_cast<int>(per.detections.size());
+  for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
+  for (const StageTiming& st : per.timings) result.stages.push_back({st.stage, st.ms});
 
   // Match detections to ground truth (synthetic frames only): the true
   // instance most of the detection's support points show in the label image
@@ -143,7 +146,10 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
     }
   } else {
     std::vector<TaughtGrasp> taught = teach_->All();
+    const auto t0 = std::chrono::steady_clock::now();
     detail.plan = PlanGrasps(*model_, task, per, taught);
+    result.stages.push_back(
+        {"grasps", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count()});
     result.outcome = detail.plan.outcome;
     result.grasps = detail.plan.queue;
     result.message = detail.plan.stats.Describe();

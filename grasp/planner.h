@@ -45,6 +45,19 @@ class CapturedScene {
 };
 using CaptureHandle = std::shared_ptr<const CapturedScene>;
 
+// A part instance the perception found (with or without a grasp).
+struct DetectedPart {
+  int class_id = 0;
+  Pose X_BO = Pose::Identity();  // part in robot base
+  double score = 0.0;
+};
+
+// Wall time of one pipeline stage ("roi", "segment", "pose", "grasps", ...).
+struct StageTime {
+  std::string stage;
+  double ms = 0.0;
+};
+
 struct PlanResult {
   enum class Outcome {
     kGrasps,            // objects detected, at least one collision-free grasp
@@ -57,6 +70,8 @@ struct PlanResult {
   int64_t roi_points = 0;             // valid points inside the task's ROI
   int64_t largest_region_points = 0;  // points of the largest connected region in the ROI
   int detections = 0;                 // part instances detected (with or without grasps)
+  std::vector<DetectedPart> parts;    // those instances (planners may leave it empty)
+  std::vector<StageTime> stages;      // per-stage latency of this plan, in order
   std::string message;                // human-readable detail for logs
 };
 std::string_view ToString(PlanResult::Outcome outcome);

@@ -2,6 +2,9 @@
 // with the scripted test-double planner.
 #include "comms/request_handler.h"
 
+#include <mutex>
+#include <vector>
+
 #include <gtest/gtest.h>
 
 #include "tests/testing/scripted_planner.h"
@@ -150,6 +153,73 @@ TEST(RequestHandler, AnUndecodablePoseIsNeverUsedNorReplacedByAStaleOne) {
   EXPECT_EQ(handler.Handle(bad, client)->status, daoai::kUnknownCommand);
   handler.Shutdown();
   EXPECT_TRUE(planner->taught().empty());
+}
+
+}  // namespace
+}  // namespace bp
+
+namespace bp {
+namespace {
+
+// Collects what the handler tells its observers.
+class CollectingObserver final : public ServerObserver {
+ public:
+  void OnDetection(const DetectionEvent& e) override {
+    std::lock_guard lock(mutex_);
+    detections.push_back(e);
+  }
+  void OnAnswer(const AnswerEvent& e) override {
+    std::lock_guard lock(mutex_);
+    answers.push_back(e);
+  }
+  std::mutex mutex_;
+  std::vector<DetectionEvent> detections;
+  std::vector<AnswerEvent> answers;
+};
+
+TEST(RequestHandlerObserver, SeesEveryDetectionAndEveryResponseButNoSilentCommand) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  auto observer = std::make_shared<CollectingObserver>();
+  handler.AddObserver(observer);
+  ClientContext client;
+  client.id = 7;
+  client.peer = "10.0.0.2:5000";
+  ScriptedPlanner::Script s;
+  s.grasps = 2;
+  planner->SetScript(0, s);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(pick);
+  EXPECT_FALSE(handler.Handle(Req(daoai::kNoCommand, 0), client));  // pose update: silent
+  ScriptedPlanner::Script fail;
+  fail.capture_fails = true;
+  planner->SetScript(0, fail);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kCaptureFail);
+  handler.Shutdown();
+
+  std::lock_guard lock(observer->mutex_);
+  ASSERT_EQ(observer->detections.size(), 2u);
+  const DetectionEvent& ok = observer->detections[0];
+  EXPECT_EQ(ok.task_id, 0);
+  EXPECT_TRUE(ok.scene);
+  ASSERT_TRUE(ok.plan);
+  EXPECT_EQ(ok.plan->grasps.size(), 2u);
+  EXPECT_TRUE(ok.plan_status.ok());
+  const DetectionEvent& failed = observer->detections[1];
+  EXPECT_FALSE(failed.scene);
+  EXPECT_FALSE(failed.capture_status.ok());
+  EXPECT_FALSE(failed.plan);
+
+  ASSERT_EQ(observer->answers.size(), 3u);  // 20, 21, 20: not the pose update
+  EXPECT_EQ(observer->answers[0].response.status, daoai::kDetection);
+  EXPECT_EQ(observer->answers[1].request.command, daoai::kPickPose);
+  EXPECT_EQ(observer->answers[1].response.position, pick->position);
+  EXPECT_EQ(observer->answers[1].client_id, 7u);
+  EXPECT_EQ(observer->answers[1].peer, "10.0.0.2:5000");
+  ASSERT_TRUE(observer->answers[1].X_BF);
+  EXPECT_NEAR(observer->answers[1].X_BF->translation().x(), 0.5, 1e-9);
+  EXPECT_EQ(observer->answers[2].response.status, daoai::kCaptureFail);
 }
 
 }  // namespace

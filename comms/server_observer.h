@@ -1,0 +1,54 @@
+// What the server tells observers (recorder, status page, metrics): every
+// detection (capture + plan) and every response written to a robot.
+//
+// Threading: OnDetection runs on the detection worker that ran it, OnAnswer
+// on the transport's thread right after the response is built (before it is
+// written). Both can run concurrently from several threads; observers
+// synchronize themselves and must return quickly (no blocking I/O on the
+// caller's thread: queue it). Exceptions must not escape.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "comms/daoai_message.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "grasp/planner.h"
+
+namespace bp {
+
+struct DetectionEvent {
+  int task_id = 0;
+  PlanRequest request;
+  // The capture; null when it failed (capture_status says why). A
+  // BinPickingPlanner's scene is a CapturedFrame (grasp/bin_picking_planner.h).
+  CaptureHandle scene;
+  Status capture_status;
+  // The plan; nullopt when the capture or the planner failed (plan_status).
+  std::optional<PlanResult> plan;
+  Status plan_status;
+  double capture_ms = 0.0;
+  double plan_ms = 0.0;
+  std::chrono::system_clock::time_point time{};  // capture start
+};
+
+struct AnswerEvent {
+  uint64_t client_id = 0;
+  std::string peer;             // "ip:port" or "modbus host:port"
+  std::optional<Pose> X_BF;     // the robot's last pose on that connection
+  daoai::Request request;
+  daoai::Response response;
+  std::chrono::system_clock::time_point time{};
+};
+
+class ServerObserver {
+ public:
+  virtual ~ServerObserver() = default;
+  virtual void OnDetection(const DetectionEvent& /*event*/) {}
+  virtual void OnAnswer(const AnswerEvent& /*event*/) {}
+};
+
+}  // namespace bp
