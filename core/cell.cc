@@ -254,6 +254,10 @@ class Parser {
     return v;
   }
   Pose ParsePose(const YAML::Node& n, const std::string& key) const;
+  // A simple polygon of >= 3 [x, y] points (m) with non-zero area, returned
+  // counter-clockwise.
+  std::vector<Eigen::Vector2d> Polygon(const YAML::Node& n, const std::string& key) const;
+  Flat2DSpec ParseFlat2D(const YAML::Node& n, const std::string& path, const Cell& cell) const;
 
   // ---- paths --------------------------------------------------------------
   std::string Resolve(const std::string& p) const {
@@ -403,7 +407,7 @@ CameraConfig Parser::ParseCameraConfig(const YAML::Node& n, const std::string& p
 
 void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
   const std::string path = "camera";
-  ExpectMap(n, path, {"mount", "pose", "hand_eye_file", "default_config", "configs"});
+  ExpectMap(n, path, {"mount", "pose", "hand_eye_file", "plane_calibration_file", "default_config", "configs"});
   CameraSpec& cam = cell.camera;
   if (const YAML::Node m = n["mount"]; m.IsDefined()) {
     cam.eye_in_hand = Enum<bool>(m, "camera.mount", "mount", {{"eye_to_hand", false}, {"eye_in_hand", true}});
@@ -412,6 +416,9 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
   // The camera pose: from the hand-eye file when it exists, else from `pose`.
   std::optional<Pose> pose;
   if (const YAML::Node p = n["pose"]; p.IsDefined()) pose = ParsePose(p, "camera.pose");
+  if (const YAML::Node f = n["plane_calibration_file"]; f.IsDefined()) {
+    cam.plane_calibration_file = Resolve(Name(f, "camera.plane_calibration_file"));
+  }
   if (const YAML::Node h = n["hand_eye_file"]; h.IsDefined()) {
     cam.hand_eye_file = Resolve(Name(h, "camera.hand_eye_file"));
     std::error_code ec;
@@ -521,7 +528,7 @@ void Parser::ParseGrippers(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node g = n[i];
     const std::string path = At("grippers", i);
-    ExpectMap(g, path, {"name", "kind", "mesh", "tcp", "approach_distance", "opening"});
+    ExpectMap(g, path, {"name", "kind", "mesh", "tcp", "approach_distance", "opening", "footprint"});
     GripperSpec spec;
     spec.name = Name(Req(g, path, "name"), Join(path, "name"));
     Check(cell.FindGripper(spec.name) == nullptr, g["name"], Join(path, "name"),
@@ -539,6 +546,7 @@ void Parser::ParseGrippers(const YAML::Node& n, Cell& cell) const {
       Check(spec.opening > 0, g["opening"].IsDefined() ? g["opening"] : g, Join(path, "opening"),
             "a parallel_jaw gripper needs an opening > 0 (m)");
     }
+    if (const YAML::Node f = g["footprint"]; f.IsDefined()) spec.footprint = Polygon(f, Join(path, "footprint"));
     cell.grippers.push_back(std::move(spec));
   }
 }
@@ -575,7 +583,7 @@ void Parser::ParseParts(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node p = n[i];
     const std::string path = At("parts", i);
-    ExpectMap(p, path, {"class_id", "name", "mesh", "symmetry", "grasps"});
+    ExpectMap(p, path, {"class_id", "name", "mesh", "symmetry", "grasps", "flat_2d"});
     PartSpec part;
     part.class_id = Int(Req(p, path, "class_id"), Join(path, "class_id"));
     Check(part.class_id >= 0, p["class_id"], Join(path, "class_id"), "must be >= 0");
@@ -600,8 +608,90 @@ void Parser::ParseParts(const YAML::Node& n, Cell& cell) const {
         part.grasps.push_back(std::move(grasp));
       }
     }
+    if (const YAML::Node f = p["flat_2d"]; f.IsDefined()) part.flat_2d = ParseFlat2D(f, Join(path, "flat_2d"), cell);
     cell.parts.push_back(std::move(part));
   }
+}
+
+namespace {
+double SignedArea(const std::vector<Eigen::Vector2d>& poly) {
+  double a = 0;
+  for (size_t i = 0; i < poly.size(); ++i) {
+    const Eigen::Vector2d& p = poly[i];
+    const Eigen::Vector2d& q = poly[(i + 1) % poly.size()];
+    a += p.x() * q.y() - q.x() * p.y();
+  }
+  return a / 2;
+}
+double Cross2(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& c) {
+  return (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
+}
+bool SegmentsCross(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& c,
+                   const Eigen::Vector2d& d) {
+  return Cross2(a, b, c) * Cross2(a, b, d) < 0 && Cross2(c, d, a) * Cross2(c, d, b) < 0;
+}
+bool InsidePolygon(const std::vector<Eigen::Vector2d>& poly, const Eigen::Vector2d& p) {
+  bool in = false;
+  for (size_t i = 0, j = poly.size() - 1; i < poly.size(); j = i++) {
+    const Eigen::Vector2d& a = poly[i];
+    const Eigen::Vector2d& b = poly[j];
+    if ((a.y() > p.y()) != (b.y() > p.y()) &&
+        p.x() < (b.x() - a.x()) * (p.y() - a.y()) / (b.y() - a.y()) + a.x()) {
+      in = !in;
+    }
+  }
+  return in;
+}
+}  // namespace
+
+std::vector<Eigen::Vector2d> Parser::Polygon(const YAML::Node& n, const std::string& key) const {
+  ExpectSeq(n, key);
+  Check(n.size() >= 3, n, key, "a polygon needs at least 3 [x, y] points, got " + std::to_string(n.size()));
+  std::vector<Eigen::Vector2d> poly;
+  for (size_t i = 0; i < n.size(); ++i) {
+    const std::vector<double> v = Numbers(n[i], At(key, i), 2);
+    poly.emplace_back(v[0], v[1]);
+  }
+  const size_t m = poly.size();
+  for (size_t i = 0; i < m; ++i) {
+    for (size_t j = i + 2; j < m; ++j) {
+      if (i == 0 && j == m - 1) continue;  // adjacent through the closing edge
+      Check(!SegmentsCross(poly[i], poly[(i + 1) % m], poly[j], poly[(j + 1) % m]), n, key,
+            "edges " + std::to_string(i) + " and " + std::to_string(j) + " cross (not a simple polygon)");
+    }
+  }
+  const double area = SignedArea(poly);
+  Check(std::abs(area) > 1e-10, n, key, "polygon has no area");
+  if (area < 0) std::reverse(poly.begin(), poly.end());
+  return poly;
+}
+
+Flat2DSpec Parser::ParseFlat2D(const YAML::Node& n, const std::string& path, const Cell& cell) const {
+  ExpectMap(n, path, {"outline", "thickness", "grasps"});
+  Flat2DSpec f;
+  f.outline = Polygon(Req(n, path, "outline"), Join(path, "outline"));
+  f.thickness = Number(Req(n, path, "thickness"), Join(path, "thickness"));
+  Check(f.thickness > 0, n["thickness"], Join(path, "thickness"), "must be > 0 (m)");
+  const std::string gpath = Join(path, "grasps");
+  const YAML::Node gs = Req(n, path, "grasps");
+  ExpectSeq(gs, gpath);
+  Check(gs.size() > 0, gs, gpath, "at least one 2D grasp is required");
+  for (size_t j = 0; j < gs.size(); ++j) {
+    const YAML::Node g = gs[j];
+    const std::string key = At(gpath, j);
+    ExpectMap(g, key, {"name", "gripper", "xy", "angle_deg"});
+    Grasp2DSpec grasp;
+    grasp.name = Name(Req(g, key, "name"), Join(key, "name"));
+    grasp.gripper = Name(Req(g, key, "gripper"), Join(key, "gripper"));
+    Check(cell.FindGripper(grasp.gripper) != nullptr, g["gripper"], Join(key, "gripper"),
+          "unknown gripper '" + grasp.gripper + "' (not in grippers)");
+    const std::vector<double> xy = Numbers(Req(g, key, "xy"), Join(key, "xy"), 2);
+    grasp.xy = Eigen::Vector2d(xy[0], xy[1]);
+    Check(InsidePolygon(f.outline, grasp.xy), g["xy"], Join(key, "xy"), "grasp point is outside the outline");
+    grasp.angle = OptNumber(g, key, "angle_deg", 0.0) * M_PI / 180.0;
+    f.grasps.push_back(std::move(grasp));
+  }
+  return f;
 }
 
 void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
@@ -662,6 +752,25 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
       Check(task.ranking.height >= 0, r["height"], Join(rkey, "height"), "must be >= 0");
       Check(task.ranking.detection >= 0, r["detection"], Join(rkey, "detection"), "must be >= 0");
       Check(task.ranking.tilt >= 0, r["tilt"], Join(rkey, "tilt"), "must be >= 0");
+    }
+    if (task.kind == TaskSpec::Kind::kPick2D) {
+      Check(!cell.FindGripper(task.gripper)->footprint.empty(), t["gripper"], Join(path, "gripper"),
+            "a pick_2d task's gripper needs a footprint (grippers[].footprint)");
+      bool any = false;
+      for (const PartSpec& part : cell.parts) {
+        const bool listed = task.part_classes.empty() ||
+                            std::find(task.part_classes.begin(), task.part_classes.end(), part.class_id) !=
+                                task.part_classes.end();
+        if (!listed) continue;
+        const bool usable = part.flat_2d &&
+                            std::any_of(part.flat_2d->grasps.begin(), part.flat_2d->grasps.end(),
+                                        [&](const Grasp2DSpec& g) { return g.gripper == task.gripper; });
+        Check(usable || task.part_classes.empty(), t["parts"], Join(path, "parts"),
+              "part class " + std::to_string(part.class_id) + " has no flat_2d grasp for gripper '" +
+                  task.gripper + "'");
+        any = any || usable;
+      }
+      Check(any, t, path, "a pick_2d task needs a part with a flat_2d grasp for gripper '" + task.gripper + "'");
     }
     cell.tasks.push_back(std::move(task));
   }

@@ -64,6 +64,9 @@ struct CameraSpec {
   // syntax as the cell), which overrides X_BC (eye-to-hand) or X_FC
   // (eye-in-hand); when it does not exist yet, the cell's `pose` is used.
   std::string hand_eye_file;
+  // Optional 2D (plane) calibration file, resolved; written by the 2D auto
+  // calibration (RC 11/12) and read at start-up by 2D tasks (twod/).
+  std::string plane_calibration_file;
   std::vector<CameraConfig> configs;  // at least one
   int default_config = 1;
   const CameraConfig* FindConfig(int id) const;
@@ -110,12 +113,31 @@ struct GraspSpec {
   Pose X_OG = Pose::Identity();  // grasp (tool centre point) in the part frame; tool z approaches
 };
 
+// A 2D grasp (parts[].flat_2d.grasps[j]): the tool centre point at `xy` in the
+// part's 2D frame, the tool turned by `angle` about the plane normal.
+struct Grasp2DSpec {
+  std::string name;
+  std::string gripper;
+  Eigen::Vector2d xy = Eigen::Vector2d::Zero();  // m
+  double angle = 0.0;                            // rad
+};
+
+// How a part lies flat in a 2D task, seen from above: its outline in the part
+// frame (origin on the plane, z the plane normal; counter-clockwise, m), its
+// thickness above the plane, and its 2D grasps.
+struct Flat2DSpec {
+  std::vector<Eigen::Vector2d> outline;
+  double thickness = 0.0;
+  std::vector<Grasp2DSpec> grasps;
+};
+
 struct PartSpec {
   int class_id = 0;
   std::string name;
   std::string mesh;  // resolved to an absolute path by the loader
   Symmetry symmetry;
   std::vector<GraspSpec> grasps;
+  std::optional<Flat2DSpec> flat_2d;  // parts[].flat_2d: the part in 2D tasks
 };
 
 struct GripperSpec {
@@ -126,6 +148,9 @@ struct GripperSpec {
   Pose X_FT = Pose::Identity();    // tool centre point in flange
   double approach_distance = 0.1;  // pre-grasp offset along -z of the tool (m)
   double opening = 0.0;            // parallel jaw: max opening (m)
+  // Top view of the gripper in the tool frame (x, y in m) for 2D collision
+  // checks (grippers[].footprint); empty = no 2D footprint.
+  std::vector<Eigen::Vector2d> footprint;
 };
 
 struct EmptyBoxRule {
