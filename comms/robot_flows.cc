@@ -40,6 +40,13 @@ Pose DetectionPose() {
   return MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.4, -0.3, 0.6));
 }
 
+// 2D flows (seed 000 send_robot_data_2d / recv_daoai_data_2d): the robot
+// sends and receives its tool pose in its plane frame P. Its capture / centre
+// pose: 0.3 m above the plane origin, tool pointing down.
+Pose PlaneCentrePose() {
+  return MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.0, 0.0, 0.3));
+}
+
 class Runner {
  public:
   Runner(RobotClient& robot, std::ostream& out) : robot_(robot), out_(out) {}
@@ -144,10 +151,49 @@ Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
       if (!PickPoseOk(*pick)) break;
       ++picked;
       ++s.picks;
+      if (pick->X_BT) s.pick_poses.push_back(*pick->X_BT);
       if (pick->X_BT) robot.SetPose(*pick->X_BT);  // MoveL pick_pose
       robot.SetPose(DetectionPose());              // MoveL detection_pose
     }
     if (picked == 0) break;  // nothing more to pick from this bin
+  }
+  if (o.check_empty) {
+    Result<RobotReply> empty = run.Call(daoai::kCheckEmptyBox, o.task_id);
+    if (!empty.ok()) return empty.status();
+    s.ok = empty->status == daoai::kBoxEmpty;
+  }
+  return Status::Ok();
+}
+
+// seed 000 daoai_capture_and_process_2d() + daoai_get_picking_pose_2d(): as
+// the pick flow, every pose in the plane frame; recv_daoai_data_2d() keeps
+// the robot's current z (daoai_tcp_pose[2] = cur_pose[2]).
+Status Pick2DFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
+  FlowSummary& s = run.summary();
+  for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
+    robot.SetPose(PlaneCentrePose());
+    Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, o.task_id);
+    if (!cap.ok()) return cap.status();
+    if (cap->status != daoai::kDetection) {
+      s.ok = false;  // popup("DaoAI Image Capture Failed.")
+      return Status::Ok();
+    }
+    int picked = 0;
+    for (;;) {
+      Result<RobotReply> pick = run.Call(daoai::kPickPose, o.task_id);
+      if (!pick.ok()) return pick.status();
+      if (!PickPoseOk(*pick)) break;
+      ++picked;
+      ++s.picks;
+      if (pick->X_BT) {
+        s.pick_poses.push_back(*pick->X_BT);
+        Pose X_PT = *pick->X_BT;
+        X_PT.translation().z() = robot.pose().translation().z();  // the robot overwrites z
+        robot.SetPose(X_PT);
+      }
+      robot.SetPose(PlaneCentrePose());
+    }
+    if (picked == 0) break;
   }
   if (o.check_empty) {
     Result<RobotReply> empty = run.Call(daoai::kCheckEmptyBox, o.task_id);
@@ -220,7 +266,10 @@ Status AutoCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o
   const int32_t acc_cmd = two_d ? daoai::kAutoAccumulate2DPose : daoai::kAutoAccumulatePose;
   const int32_t mode = two_d ? daoai::kMode2DAutoCalibration : daoai::kModeAutoCalibration;
   const int32_t done = two_d ? daoai::kDone2DAutoCalibration : daoai::kDoneCalibration;
-  robot.SetPose(DetectionPose());  // MoveJ center_pose
+  // 2D: the tool-mounted marker touches the plane (z = 0 in P).
+  Pose centre = PlaneCentrePose();
+  centre.translation().z() = 0.0;
+  robot.SetPose(two_d ? centre : DetectionPose());  // MoveJ center_pose
   Result<RobotReply> start = run.Call(start_cmd);
   if (!start.ok()) return start.status();
   if (start->status != mode) {
@@ -270,7 +319,7 @@ Status GuidanceCalibrationFlow(RobotClient& robot, Runner& run, const FlowOption
 const std::vector<std::string>& FlowNames() {
   static const std::vector<std::string> kNames = {
       "pick",        "pick-place",    "calib-manual", "calib-auto", "calib-auto-2d",
-      "calib-guidance", "empty-check", "teach",      "switch-config", "precision"};
+      "calib-guidance", "empty-check", "teach",      "switch-config", "precision", "pick-2d"};
   return kNames;
 }
 
@@ -280,6 +329,8 @@ Result<FlowSummary> RunFlow(RobotClient& robot, const FlowOptions& o, std::ostre
   Status st;
   if (o.flow == "pick") {
     st = PickFlow(robot, run, o);
+  } else if (o.flow == "pick-2d") {
+    st = Pick2DFlow(robot, run, o);
   } else if (o.flow == "pick-place") {
     st = PickPlaceFlow(robot, run, o);
   } else if (o.flow == "calib-manual") {

@@ -30,6 +30,7 @@ struct FlowSummary {
   int last_status = 0;
   bool ok = true;             // the flow ended the way its robot program expects
   std::vector<double> latencies_ms;
+  std::vector<Pose> pick_poses;  // every pick pose received, in order (pick, pick-2d)
 };
 
 const std::vector<std::string>& FlowNames();
