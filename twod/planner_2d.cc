@@ -171,27 +171,45 @@ Result<double> TaskKindPlanner::CheckPrecision(const PlanRequest& request) {
   return p->CheckPrecision(request);
 }
 
-Result<std::unique_ptr<GraspPlanner>> WithPlane2DPlanner(const Cell& cell, std::unique_ptr<GraspPlanner> planner_3d,
-                                                         std::shared_ptr<PlaneCamera> camera,
-                                                         std::shared_ptr<PlaneCalibrationStore> store) {
-  const bool any_2d = std::any_of(cell.tasks.begin(), cell.tasks.end(),
-                                  [](const TaskSpec& t) { return t.kind == TaskSpec::Kind::kPick2D; });
-  if (!any_2d) return planner_3d;
+bool HasPick2DTask(const Cell& cell) {
+  return std::any_of(cell.tasks.begin(), cell.tasks.end(),
+                     [](const TaskSpec& t) { return t.kind == TaskSpec::Kind::kPick2D; });
+}
+
+bool OnlyPick2DTasks(const Cell& cell) {
+  return std::all_of(cell.tasks.begin(), cell.tasks.end(),
+                     [](const TaskSpec& t) { return t.kind == TaskSpec::Kind::kPick2D; });
+}
+
+Result<Plane2DSetup> MakePlane2DSetup(const Cell& cell) {
+  Result<std::unique_ptr<SyntheticPlaneCamera>> camera = SyntheticPlaneCamera::Create(cell);
+  if (!camera.ok()) return camera.status();
+  if (Status s = (*camera)->Scatter(cell.source.num_parts, cell.source.seed, cell.source.part_classes); !s.ok()) {
+    return s;
+  }
+  Plane2DSetup setup;
+  setup.camera = std::shared_ptr<PlaneCamera>(std::move(*camera));
+  setup.store = std::make_shared<PlaneCalibrationStore>();
   if (!cell.camera.plane_calibration_file.empty()) {
     Result<PlaneCalibration> loaded = LoadPlaneCalibration(cell.camera.plane_calibration_file);
     if (loaded.ok()) {
       spdlog::info("2D calibration {}: {} points, residual {:.3f} mm rms", cell.camera.plane_calibration_file,
                    loaded->points, loaded->residual_rms_mm);
-      store->Set(std::move(*loaded));
+      setup.store->Set(std::move(*loaded));
     } else if (loaded.status().code() == Status::Code::kNotFound) {
-      spdlog::warn("2D calibration {} does not exist yet: pick_2d tasks answer no objects until RC 11/12 ran",
+      spdlog::warn("2D calibration {} does not exist yet: pick_2d tasks find no objects until RC 11/12 ran",
                    cell.camera.plane_calibration_file);
     } else {
       return loaded.status();
     }
   }
-  auto planner_2d = std::make_unique<Plane2DPlanner>(cell, std::move(camera), std::move(store));
-  return std::unique_ptr<GraspPlanner>(std::make_unique<TaskKindPlanner>(std::move(planner_3d), std::move(planner_2d)));
+  return setup;
+}
+
+std::unique_ptr<GraspPlanner> WithPlane2DPlanner(const Cell& cell, std::unique_ptr<GraspPlanner> planner_3d,
+                                                 const Plane2DSetup& setup) {
+  return std::make_unique<TaskKindPlanner>(std::move(planner_3d),
+                                           std::make_unique<Plane2DPlanner>(cell, setup.camera, setup.store));
 }
 
 }  // namespace bp

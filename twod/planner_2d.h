@@ -73,12 +73,20 @@ class TaskKindPlanner final : public GraspPlanner {
   std::unique_ptr<GraspPlanner> planner_2d_;
 };
 
-// binpickd's wiring: when the cell has a pick_2d task, wraps `planner_3d` in
-// a TaskKindPlanner with a Plane2DPlanner on a synthetic camera (the only 2D
-// camera today) and the calibration loaded from camera.plane_calibration_file
-// into `store`; otherwise returns planner_3d unchanged.
-Result<std::unique_ptr<GraspPlanner>> WithPlane2DPlanner(const Cell& cell, std::unique_ptr<GraspPlanner> planner_3d,
-                                                         std::shared_ptr<PlaneCamera> camera,
-                                                         std::shared_ptr<PlaneCalibrationStore> store);
+// binpickd's wiring of 2D tasks.
+bool HasPick2DTask(const Cell& cell);
+bool OnlyPick2DTasks(const Cell& cell);
+struct Plane2DSetup {
+  std::shared_ptr<PlaneCamera> camera;            // shared by the planner and the calibration
+  std::shared_ptr<PlaneCalibrationStore> store;   // the calibration both use
+};
+// A synthetic top-view camera scattered with source.num_parts parts
+// (source.seed), and the calibration from camera.plane_calibration_file when
+// that file exists. @returns its error when the file exists but is invalid.
+Result<Plane2DSetup> MakePlane2DSetup(const Cell& cell);
+// A TaskKindPlanner: pick_2d tasks to a Plane2DPlanner on `setup`, the rest
+// to `planner_3d` (may be null when every task is pick_2d).
+std::unique_ptr<GraspPlanner> WithPlane2DPlanner(const Cell& cell, std::unique_ptr<GraspPlanner> planner_3d,
+                                                 const Plane2DSetup& setup);
 
 }  // namespace bp

@@ -26,10 +26,12 @@
 
 #include "comms/daoai_server.h"
 #include "comms/modbus_master.h"
+#include "comms/plane_calibration_service.h"
 #include "comms/gri_server.h"
 #include "comms/request_handler.h"
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
+#include "twod/planner_2d.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -78,10 +80,25 @@ int main(int argc, char** argv) {
     std::cerr << "binpickd: " << cell.status().ToString() << "\n";
     return 2;
   }
-  bp::Result<std::unique_ptr<bp::GraspPlanner>> planner = bp::MakePlanner(*cell);
+  // A cell of pick_2d tasks only needs no 3D planner.
+  bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
+      bp::OnlyPick2DTasks(*cell) ? std::unique_ptr<bp::GraspPlanner>() : bp::MakePlanner(*cell);
   if (!planner.ok()) {
     std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
     return 3;
+  }
+  // 2D tasks (twod/): their planner by task kind, RC 11/12 on the plane calibration.
+  std::unique_ptr<bp::CalibrationService> calibration;
+  if (bp::HasPick2DTask(*cell)) {
+    bp::Result<bp::Plane2DSetup> two_d = bp::MakePlane2DSetup(*cell);
+    if (!two_d.ok()) {
+      std::cerr << "binpickd: cannot start: " << two_d.status().ToString() << "\n";
+      return 3;
+    }
+    planner = bp::WithPlane2DPlanner(*cell, std::move(*planner), *two_d);
+    bp::PlaneCalibrationOptions plane_options;
+    plane_options.file = cell->camera.plane_calibration_file;
+    calibration = std::make_unique<bp::PlaneCalibrationService>(two_d->camera, two_d->store, plane_options);
   }
 
   // oneTBB caps its workers at cores - 1; the detection arena asks for
@@ -94,7 +111,7 @@ int main(int argc, char** argv) {
   bp::RequestHandlerOptions handler_options;
   handler_options.detection_threads = detection_threads;
   bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
-                             nullptr, handler_options);
+                             std::move(calibration), handler_options);
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);
