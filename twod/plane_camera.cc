@@ -156,7 +156,9 @@ Result<PlaneImage> SyntheticPlaneCamera::Capture(const PlaneCaptureRequest& requ
   };
   if (request.marker_X_PT) {
     // The calibration runs on a cleared plane: only the marker disc.
-    const Vec3 c = request.marker_X_PT->translation();
+    std::mt19937_64 robot_rng(cell_.source.seed * 7919ULL + capture);
+    std::normal_distribution<double> error(0.0, options_.robot_sigma);
+    const Vec3 c = request.marker_X_PT->translation() + Vec3(error(robot_rng), error(robot_rng), 0.0);
     std::vector<Vec3> disc;
     for (int k = 0; k < 96; ++k) {
       const double a = 2 * M_PI * k / 96;

@@ -66,6 +66,9 @@ struct SyntheticPlaneOptions {
   double noise_sigma = 2.0;         // grey levels
   int supersample = 4;              // anti-aliasing factor per axis
   double marker_radius = 0.008;     // m, a white disc at the tool centre point
+  // The robot's positioning error: the marker lands this far (sigma per
+  // axis, m) from the pose the robot reports (UR-class repeatability).
+  double robot_sigma = 0.00003;
   uint8_t background = 40, top = 200, side = 140, marker = 235;
   double min_gap = 0.006;           // m between scattered parts' outlines (bounding circles)
 };

@@ -63,7 +63,7 @@ class TwoDFlowTest : public ::testing::Test {
   std::ostringstream out_;
 };
 
-TEST_F(TwoDFlowTest, AutoCalibrationWalksTheGridAndPersistsASubTenthMillimetreFit) {
+TEST_F(TwoDFlowTest, AutoCalibrationWalksTheGridAndPersistsAFitWithinTwoTenthsOfAMillimetre) {
   Start(testing::LoadTwodCell());
   const FlowSummary s = Run("calib-auto-2d");
   EXPECT_TRUE(s.ok) << out_.str();
