@@ -93,6 +93,12 @@ TEST(PlaneCalibration, RejectsCollinearPoints) {
   EXPECT_EQ(FitPlaneCalibration(K, px, xy).status().code(), Status::Code::kInvalidArgument);
 }
 
+// Scenes per method: 4 in the suite; BINPICK_TWOD_SCENES=N measures more.
+int Scenes() {
+  const char* n = std::getenv("BINPICK_TWOD_SCENES");
+  return n ? std::max(1, std::atoi(n)) : 4;
+}
+
 struct Errors {
   int truths = 0, matched = 0, wrong_class = 0;
   double max_mm = 0, max_deg = 0, sum_mm = 0, sum_deg = 0;
@@ -142,7 +148,7 @@ Errors Measure(const Cell& cell, Match2DMethod method, int scenes) {
 
 TEST(Detector2D, RotatedTemplateFindsEveryPartWithinHalfAMillimetreAndHalfADegree) {
   const Cell cell = LoadTwodCell();
-  const Errors e = Measure(cell, Match2DMethod::kRotatedTemplate, 4);
+  const Errors e = Measure(cell, Match2DMethod::kRotatedTemplate, Scenes());
   EXPECT_EQ(e.matched, e.truths);
   EXPECT_EQ(e.wrong_class, 0);
   EXPECT_LE(e.max_mm, 0.5);
@@ -151,7 +157,7 @@ TEST(Detector2D, RotatedTemplateFindsEveryPartWithinHalfAMillimetreAndHalfADegre
 
 TEST(Detector2D, ContoursAndMomentsFindEveryPartWithinHalfAMillimetreAndHalfADegree) {
   const Cell cell = LoadTwodCell();
-  const Errors e = Measure(cell, Match2DMethod::kMoments, 4);
+  const Errors e = Measure(cell, Match2DMethod::kMoments, Scenes());
   EXPECT_EQ(e.matched, e.truths);
   EXPECT_EQ(e.wrong_class, 0);
   EXPECT_LE(e.max_mm, 0.5);
