@@ -238,6 +238,57 @@ TEST(Plane2DPlanner, WithoutCalibrationThePlannerReportsUnavailable) {
   EXPECT_EQ(planner.Plan(request, *scene).status().code(), Status::Code::kUnavailable);
 }
 
+// A 3D planner double that counts its calls and captures nothing.
+class Counting3DPlanner final : public GraspPlanner {
+ public:
+  struct Scene final : CapturedScene {
+    std::string Describe() const override { return "3d"; }
+  };
+  Result<CaptureHandle> Capture(const PlanRequest&) override {
+    ++captures;
+    return CaptureHandle(std::make_shared<const Scene>());
+  }
+  Result<PlanResult> Plan(const PlanRequest&, const CapturedScene& scene) override {
+    ++plans;
+    EXPECT_NE(dynamic_cast<const Scene*>(&scene), nullptr);
+    return PlanResult{};
+  }
+  int captures = 0, plans = 0;
+};
+
+TEST(TaskKindPlanner, RoutesPick2DTasksToThe2DPlannerAndTheRestTo3D) {
+  Cell cell = LoadTwodCell();
+  TaskSpec pick3d;
+  pick3d.id = 7;
+  pick3d.kind = TaskSpec::Kind::kPick;
+  pick3d.gripper = "suction";
+  cell.tasks.push_back(pick3d);
+  std::shared_ptr<SyntheticPlaneCamera> camera = std::move(SyntheticPlaneCamera::Create(cell).value());
+  ASSERT_TRUE(camera->Scatter(3, 2).ok());
+  auto store = std::make_shared<PlaneCalibrationStore>();
+  store->Set(CalibrateWithMarker(*camera, 3, 3).value());
+  auto counting = std::make_unique<Counting3DPlanner>();
+  Counting3DPlanner* three_d = counting.get();
+  TaskKindPlanner planner(std::move(counting), std::make_unique<Plane2DPlanner>(cell, camera, store));
+
+  PlanRequest r2;
+  r2.task = *cell.FindTask(0);
+  const CaptureHandle s2 = planner.Capture(r2).value();
+  const PlanResult p2 = planner.Plan(r2, *s2).value();
+  EXPECT_EQ(p2.detections, 3);
+  EXPECT_EQ(three_d->captures, 0);
+
+  PlanRequest r3;
+  r3.task = *cell.FindTask(7);
+  const CaptureHandle s3 = planner.Capture(r3).value();
+  EXPECT_TRUE(planner.Plan(r3, *s3).ok());
+  EXPECT_EQ(three_d->captures, 1);
+  EXPECT_EQ(three_d->plans, 1);
+  // Without a 3D planner, 3D tasks are Unavailable.
+  TaskKindPlanner only_2d(nullptr, std::make_unique<Plane2DPlanner>(cell, camera, store));
+  EXPECT_EQ(only_2d.Capture(r3).status().code(), Status::Code::kUnavailable);
+}
+
 TEST(PlanePose, IsATurnAboutThePlaneNormalWithTheToolPointingDown) {
   const Pose X = PlanePose({0.1, -0.2, 0.7}, 0.004);
   EXPECT_NEAR((X.linear().col(2) - Vec3(0, 0, -1)).norm(), 0, 1e-12);
