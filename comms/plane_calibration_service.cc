@@ -23,6 +23,7 @@ Pose PlaneCalibrationService::GridPose(size_t i) const {
 Status PlaneCalibrationService::Start(CalibrationKind kind, const Pose& X_PT) {
   if (kind != CalibrationKind::kAuto2D) return Status::Unavailable("the 2D calibration service handles RC 11/12 only");
   running_ = true;
+  last_.reset();
   X_PT_centre_ = X_PT;
   pixels_.clear();
   plane_xy_.clear();
@@ -47,6 +48,13 @@ Result<CalibrationStep> PlaneCalibrationService::Accumulate(CalibrationKind kind
     step.next_X_BF = GridPose(pixels_.size() - 1);
     return step;
   }
+  // Fit now so that a failed fit is answered as a failed step, not as DONE.
+  running_ = false;
+  Result<PlaneCalibration> fit = FitPlaneCalibration(camera_->intrinsics(), pixels_, plane_xy_);
+  if (!fit.ok()) return fit.status();
+  spdlog::info("2D calibration: {} points, residual {:.3f} mm rms, {:.3f} mm max", fit->points,
+               fit->residual_rms_mm, fit->residual_max_mm);
+  last_ = *fit;
   step.done = true;
   return step;
 }
@@ -54,13 +62,9 @@ Result<CalibrationStep> PlaneCalibrationService::Accumulate(CalibrationKind kind
 Status PlaneCalibrationService::Finish(CalibrationKind kind) {
   if (kind != CalibrationKind::kAuto2D) return Status::Unavailable("the 2D calibration service handles RC 11/12 only");
   running_ = false;
-  Result<PlaneCalibration> fit = FitPlaneCalibration(camera_->intrinsics(), pixels_, plane_xy_);
-  if (!fit.ok()) return fit.status();
-  spdlog::info("2D calibration: {} points, residual {:.3f} mm rms, {:.3f} mm max", fit->points,
-               fit->residual_rms_mm, fit->residual_max_mm);
-  last_ = *fit;
-  store_->Set(*fit);
-  if (!options_.file.empty()) return SavePlaneCalibration(*fit, options_.file);
+  if (!last_) return Status::InvalidArgument("2D calibration: finished before the grid was complete");
+  store_->Set(*last_);
+  if (!options_.file.empty()) return SavePlaneCalibration(*last_, options_.file);
   return Status::Ok();
 }
 

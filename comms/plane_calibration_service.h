@@ -7,8 +7,9 @@
 // Accumulate captures the marker at the pose the robot sent (X_PT, tool in
 // the plane) and proposes the next grid point (same orientation and z); after
 // the last point it fits the image -> plane calibration
-// (twod/plane_calibration.h), publishes it to the store, writes it atomically
-// (keeping a .bak) and reports done.
+// (twod/plane_calibration.h) and reports done (a failed fit is an error, so
+// the robot is not told DONE); Finish publishes it to the store and writes it
+// atomically (keeping a .bak).
 //
 // Thread-safety: the request handler serializes the calls.
 #pragma once
@@ -39,7 +40,7 @@ class PlaneCalibrationService final : public CalibrationService {
   Result<CalibrationStep> Accumulate(CalibrationKind kind, const Pose& X_PT) override;
   Status Finish(CalibrationKind kind) override;
 
-  // The last fit (also in the store), for reports and tests.
+  // The last successful fit of this calibration run, for reports and tests.
   const std::optional<PlaneCalibration>& last() const { return last_; }
 
  private:

@@ -41,7 +41,8 @@ class Plane2DPlanner final : public GraspPlanner {
                  std::shared_ptr<PlaneCalibrationStore> calibration, Detector2DOptions options = {});
 
   Result<CaptureHandle> Capture(const PlanRequest& request) override;
-  // @returns FailedPrecondition-like Unavailable when no 2D calibration exists.
+  // @returns Unavailable when there is no 2D calibration yet (the server then
+  // answers no objects).
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override;
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override;
 

@@ -150,5 +150,27 @@ TEST(PlaneCalibrationService, HandlesOnlyThe2DKind) {
   EXPECT_FALSE(service.Accumulate(CalibrationKind::kAuto2D, Pose::Identity()).ok());  // not started
 }
 
+TEST(PlaneCalibrationService, ACollinearGridFailsTheLastStepInsteadOfReportingDone) {
+  const Cell cell = testing::LoadTwodCell();
+  std::shared_ptr<SyntheticPlaneCamera> camera = std::move(SyntheticPlaneCamera::Create(cell).value());
+  auto store = std::make_shared<PlaneCalibrationStore>();
+  PlaneCalibrationOptions options;
+  options.grid_x = 5;
+  options.grid_y = 1;  // every point on the line y = 0
+  PlaneCalibrationService service(camera, store, options);
+  Pose X = Pose::Identity();
+  ASSERT_TRUE(service.Start(CalibrationKind::kAuto2D, X).ok());
+  for (int i = 0; i < 5; ++i) {
+    Result<CalibrationStep> step = service.Accumulate(CalibrationKind::kAuto2D, X);
+    ASSERT_TRUE(step.ok()) << step.status().ToString();
+    ASSERT_FALSE(step->done);
+    X = *step->next_X_BF;
+  }
+  Result<CalibrationStep> last = service.Accumulate(CalibrationKind::kAuto2D, X);
+  EXPECT_EQ(last.status().code(), Status::Code::kInvalidArgument) << last.status().ToString();
+  EXPECT_FALSE(service.Finish(CalibrationKind::kAuto2D).ok());
+  EXPECT_EQ(store->Get(), nullptr);
+}
+
 }  // namespace
 }  // namespace bp
