@@ -11,6 +11,8 @@
 #include <sstream>
 
 #include "comms/daoai_server.h"
+#include "comms/modbus_master.h"
+#include "comms/modbus_robot_sim.h"
 #include "comms/plane_calibration_service.h"
 #include "comms/robot_flows.h"
 #include "tests/testing/files.h"
@@ -138,6 +140,46 @@ TEST_F(TwoDFlowTest, PickBeforeCalibrationFindsNoObject) {
   ASSERT_TRUE(camera_->Scatter(3, 1).ok());
   ASSERT_EQ(robot_->Call(daoai::kCaptureAndProcess, 0).value().status, daoai::kDetection);
   EXPECT_EQ(robot_->Call(daoai::kPickPose, 0).value().status, daoai::kNoObjectFound);
+}
+
+// The same 2D flows with the robot as a Modbus TCP slave (seed 000's UR
+// registers) and binpick as master.
+TEST(TwoDModbus, CalibrationAndPickFlowsRunOverTheRegisters) {
+  using namespace std::chrono_literals;
+  const Cell cell = testing::LoadTwodCell();
+  std::shared_ptr<SyntheticPlaneCamera> camera = std::move(SyntheticPlaneCamera::Create(cell).value());
+  auto store = std::make_shared<PlaneCalibrationStore>();
+  RequestHandler handler(cell,
+                         std::make_shared<TaskKindPlanner>(nullptr, std::make_unique<Plane2DPlanner>(cell, camera, store)),
+                         std::make_unique<PlaneCalibrationService>(camera, store, PlaneCalibrationOptions{}));
+  auto sim = std::move(ModbusRobotSim::Start({}).value());
+  ModbusMasterOptions mo;
+  mo.port = sim->port();
+  mo.timeout = 500ms;
+  auto master = std::move(ModbusMaster::Start(handler, mo).value());
+  ASSERT_TRUE(sim->WaitForMaster(5s));
+  RobotClientOptions ro;
+  ro.timeout = 10s;
+  auto robot = RobotClient::Over(sim->Transport(), ro);
+  std::ostringstream out;
+  FlowOptions f;
+  f.flow = "calib-auto-2d";
+  Result<FlowSummary> calib = RunFlow(*robot, f, out);
+  ASSERT_TRUE(calib.ok()) << calib.status().ToString();
+  EXPECT_TRUE(calib->ok) << out.str();
+  ASSERT_NE(store->Get(), nullptr);
+  EXPECT_LE(store->Get()->residual_rms_mm, 0.2);
+  ASSERT_TRUE(camera->Scatter(4, 5).ok());
+  f.flow = "pick-2d";
+  Result<FlowSummary> pick = RunFlow(*robot, f, out);
+  ASSERT_TRUE(pick.ok()) << pick.status().ToString();
+  EXPECT_TRUE(pick->ok) << out.str();
+  EXPECT_EQ(pick->picks, 4) << out.str();
+  if (std::getenv("BINPICK_VERBOSE")) std::cout << out.str();
+  robot.reset();
+  master->Stop();
+  handler.Shutdown();
+  sim->Stop();
 }
 
 TEST(PlaneCalibrationService, HandlesOnlyThe2DKind) {
