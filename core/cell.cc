@@ -413,10 +413,11 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
   // The camera pose: from the hand-eye file when it exists, else from `pose`.
   std::optional<Pose> pose;
   if (const YAML::Node p = n["pose"]; p.IsDefined()) pose = ParsePose(p, "camera.pose");
-  YAML::Node h = n["hand_eye_file"];
-  if (!h.IsDefined() && cell.calibration && file_ != kEmbeddedPath) {
-    h = YAML::Node(file_ + ".calibration.yaml");  // the calibration section's default result file
-  }
+  const YAML::Node given = n["hand_eye_file"];
+  // With a calibration section, the result file defaults to "<cell file>.calibration.yaml".
+  const YAML::Node h = given.IsDefined() || !cell.calibration || file_ == kEmbeddedPath
+                           ? given
+                           : YAML::Node(file_ + ".calibration.yaml");
   if (h.IsDefined()) {
     cam.hand_eye_file = Resolve(Name(h, "camera.hand_eye_file"));
     std::error_code ec;

@@ -24,6 +24,9 @@
 #include <string>
 #include <vector>
 
+#include "calib/calibration_camera.h"
+#include "calib/hand_eye_service.h"
+#include "calib/precision_check.h"
 #include "comms/daoai_server.h"
 #include "comms/modbus_master.h"
 #include "comms/gri_server.h"
@@ -93,8 +96,21 @@ int main(int argc, char** argv) {
 
   bp::RequestHandlerOptions handler_options;
   handler_options.detection_threads = detection_threads;
-  bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
-                             nullptr, handler_options);
+  // Hand-eye calibration and the precision check (RC 50) when the cell has a
+  // calibration section: the simulated calibration camera, the solved pose
+  // shared by both (loaded from camera.hand_eye_file by the cell loader).
+  std::shared_ptr<bp::GraspPlanner> grasp_planner(std::move(*planner));
+  std::unique_ptr<bp::CalibrationService> calibration;
+  if (cell->calibration) {
+    auto camera = std::make_shared<bp::SimulatedCalibrationCamera>(cell->camera, *cell->calibration);
+    auto hand_eye = std::make_shared<bp::HandEyeState>(cell->camera.eye_in_hand ? cell->camera.X_FC
+                                                                                : cell->camera.X_BC);
+    bp::HandEyeServiceOptions calib_options;
+    calib_options.result_file = cell->camera.hand_eye_file;
+    calibration = std::make_unique<bp::HandEyeCalibrationService>(*cell, camera, hand_eye, nullptr, calib_options);
+    grasp_planner = std::make_shared<bp::PrecisionCheckPlanner>(grasp_planner, *cell, camera, hand_eye);
+  }
+  bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);
