@@ -21,6 +21,9 @@ inline Cell CalibCell(bool eye_in_hand) {
     // Board fixed on the table, facing up (its z down, into the table).
     s.target_pose = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.5, 0.2, 0.05));
     s.precision_target = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.5, 0.2, 0.05));
+    // Robot poses on the DaoAI wire are floor(10000 * value): 0.1 mm and
+    // 1e-4 rad steps, which an eye-in-hand solve feels directly; 15 poses.
+    s.auto_poses = 15;
   }
   return c;
 }
