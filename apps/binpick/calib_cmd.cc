@@ -6,7 +6,10 @@
 // and its error against the cell's true transform (calibration.true_pose).
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <future>
+#include <vector>
 #include <iostream>
 #include <memory>
 #include <sstream>
@@ -14,6 +17,7 @@
 #include "apps/binpick/command.h"
 #include "calib/calibration_camera.h"
 #include "calib/hand_eye_service.h"
+#include "calib/precision_check.h"
 #include "comms/daoai_server.h"
 #include "comms/request_handler.h"
 #include "comms/robot_client.h"
@@ -39,6 +43,7 @@ struct Args {
   int version = 2;
   std::string result_file;
   bool verbose = false;
+  int precision_checks = 0;
 };
 
 int Run(const Args& a) {
@@ -56,7 +61,8 @@ int Run(const Args& a) {
   so.result_file = a.result_file.empty() ? cell->camera.hand_eye_file : a.result_file;
   auto service = std::make_unique<HandEyeCalibrationService>(*cell, camera, state, nullptr, so);
   HandEyeCalibrationService* svc = service.get();
-  RequestHandler handler(*cell, std::make_shared<NoPartsPlanner>(), std::move(service));
+  auto planner = std::make_shared<PrecisionCheckPlanner>(std::make_shared<NoPartsPlanner>(), *cell, camera, state);
+  RequestHandler handler(*cell, planner, std::move(service));
   DaoaiServerOptions server_options;
   server_options.port = 0;
   Result<std::unique_ptr<DaoaiServer>> server = DaoaiServer::Start(handler, server_options);
@@ -77,8 +83,34 @@ int Run(const Args& a) {
   Result<FlowSummary> summary = RunFlow(**robot, fo, steps);
   if (a.verbose) std::cout << steps.str();
   if (!summary.ok()) return Fail("calib", summary.status());
+  // Version 2's last calibration step has no answer: a round trip (RC 69,
+  // the current camera config) makes sure the server has read it, and
+  // RunCalibration that the solve has run.
+  (void)(*robot)->Call(daoai::kSwitchConfig, cell->camera.default_config);
+  {
+    std::promise<void> solved;
+    handler.RunCalibration([&solved](CalibrationService&) { solved.set_value(); });
+    solved.get_future().wait();
+  }
+  // Precision checks (RC 50) after the calibration: the first defines the
+  // reference, the others measure against it (pure repeatability).
+  std::vector<double> checks;
+  int precision_task = cell->tasks.front().id;
+  for (const TaskSpec& t : cell->tasks) {
+    if (t.kind == TaskSpec::Kind::kPrecision) precision_task = t.id;
+  }
+  for (int i = 0; i <= a.precision_checks && a.precision_checks > 0; ++i) {
+    (*robot)->SetPose(fo.calib_start_X_BF.value());
+    Result<RobotReply> r = (*robot)->Call(daoai::kPrecisionCheck, precision_task);
+    if (!r.ok()) return Fail("calib", r.status());
+    if (r->status != daoai::kPrecisionCheckSuccess) {
+      std::cerr << "binpick calib: precision check answered " << r->status << "\n";
+      return kExitFailure;
+    }
+    if (i > 0) checks.push_back(r->payload[0]);
+  }
   (*robot)->Close();
-  handler.Shutdown();  // the last step (and the solve) has run
+  handler.Shutdown();
 
   const std::optional<HandEyeSolution> sol = svc->last_solution();
   if (!sol) {
@@ -96,6 +128,15 @@ int Run(const Args& a) {
   std::printf("error vs true %s: %.4f mm, %.5f deg (the cell's nominal pose was %.3f mm, %.4f deg off)\n", frame,
               TranslationErrorMm(sol->X, truth), RotationErrorDeg(sol->X, truth), TranslationErrorMm(before, truth),
               RotationErrorDeg(before, truth));
+  if (!checks.empty()) {
+    double sum = 0, worst = 0;
+    for (double c : checks) {
+      sum += c;
+      worst = std::max(worst, c);
+    }
+    std::printf("precision check (task %d): %zu checks after the defining one: mean %.4f mm, max %.4f mm\n",
+                precision_task, checks.size(), sum / checks.size(), worst);
+  }
   std::printf("result: %s\n", so.result_file.empty() ? "(not saved: no camera.hand_eye_file)" : so.result_file.c_str());
   return kExitOk;
 }
@@ -111,6 +152,8 @@ Command CalibCommand() {
             sub.add_option("--version", a->version, "DaoAI protocol version of the robot (1 or 2)")
                 ->check(CLI::IsMember({1, 2}));
             sub.add_option("--result", a->result_file, "result file (default: the cell's camera.hand_eye_file)");
+            sub.add_option("--precision-checks", a->precision_checks,
+                           "then run N precision checks (RC 50) and print their errors (repeatability)");
             sub.add_flag("--verbose", a->verbose, "print every protocol step and the server log");
             return [a] { return Run(*a); };
           }};
