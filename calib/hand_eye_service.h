@@ -69,6 +69,8 @@ class HandEyeCalibrationService final : public CalibrationService {
   // GRI HEC_SET_POSE: the view at X_BF replaces the one in `slot`.
   Result<CalibrationStep> AccumulateInSlot(CalibrationKind kind, int slot, const Pose& X_BF) override;
 
+  // For tests and the CLI, read while no step runs (after RequestHandler::
+  // RunCalibration drained the sequence, or after Shutdown).
   std::optional<HandEyeSolution> last_solution() const { return last_; }
   size_t poses() const { return samples_.size(); }
   // The poses an auto calibration plans around X_BF, given the board centre
