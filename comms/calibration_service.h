@@ -1,7 +1,7 @@
 // Hand-eye calibration as the DaoAI commands drive it. The request handler
 // owns the mode state machine (which command is valid when, which status to
-// answer); a CalibrationService does the work of each step. The solver comes
-// with the calibration issue; CountingCalibrationService only accumulates.
+// answer); a CalibrationService does the work of each step. The real one is
+// calib/hand_eye_service.h; CountingCalibrationService only accumulates.
 //
 // Thread-safety: the request handler serializes all calls (one calibration at
 // a time per server).
@@ -38,6 +38,11 @@ class CalibrationService {
   virtual Result<CalibrationStep> Accumulate(CalibrationKind kind, const Pose& X_BF) = 0;
   // Ends the calibration (solving it when the service can).
   virtual Status Finish(CalibrationKind kind) = 0;
+  // GRI HEC_SET_POSE: as Accumulate, the view replacing the one stored in
+  // `slot` (default: a plain Accumulate).
+  virtual Result<CalibrationStep> AccumulateInSlot(CalibrationKind kind, int /*slot*/, const Pose& X_BF) {
+    return Accumulate(kind, X_BF);
+  }
 };
 
 // Accumulates robot poses without capturing or solving: auto / 2D / guidance

@@ -265,14 +265,81 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
     case gri::kHecInit:
     case gri::kHecSetPose:
     case gri::kHecCalibrate:
-      // Hand-eye calibration over the GRI waits for the calibration module.
-      spdlog::warn("gri: {} sent HEC action {}: hand-eye calibration is not implemented",
-                   client.peer, req.action);
-      answer(Code::kNotImplemented);
+      HandEye(req, X_BF, std::move(done));
       return;
 
     default:
       answer(Code::kInvalidAction);
+      return;
+  }
+}
+
+// Hand-eye calibration (docs/protocols.md "GRI semantics"): HEC_INIT starts a
+// calibration (data_1: the pipeline, logged), HEC_SET_POSE captures the board
+// at the request's robot pose into slot data_2, HEC_CALIBRATE solves. The
+// steps run on the request handler's calibration sequence.
+void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_BF, Completion done) {
+  auto reply = [done](const gri::Request& r, Code code) { done([resp = Build(r, code)] { return resp; }); };
+  if (!tasks_.cell().calibration) {
+    spdlog::warn("gri: HEC action {}: the cell has no calibration section", req.action);
+    reply(req, Code::kHecConfigError);
+    return;
+  }
+  constexpr int kMaxSlot = 8;  // 0-7 (documentation) or 1-8 (its reference client)
+  switch (req.action) {
+    case gri::kHecInit:
+      tasks_.RunCalibration([this, req, X_BF, reply](CalibrationService& calib) {
+        const Status s = calib.Start(CalibrationKind::kManual, X_BF.value_or(Pose::Identity()));
+        {
+          std::lock_guard lock(mutex_);
+          hec_started_ = s.ok();
+        }
+        if (!s.ok()) spdlog::error("gri: HEC_INIT (pipeline {}) failed: {}", req.data[0], s.ToString());
+        else spdlog::info("gri: HEC_INIT: hand-eye calibration for pipeline {} started", req.data[0]);
+        reply(req, s.ok() ? Code::kOk : Code::kHecInitError);
+      });
+      return;
+    case gri::kHecSetPose: {
+      const int slot = req.data[1];
+      if (!X_BF || slot < 0 || slot > kMaxSlot) {
+        spdlog::warn("gri: HEC_SET_POSE with {} (slot {})", X_BF ? "a pose" : "no usable pose", slot);
+        reply(req, Code::kHecSetPoseError);
+        return;
+      }
+      tasks_.RunCalibration([this, req, slot, X_BF = *X_BF, reply](CalibrationService& calib) {
+        bool started;
+        {
+          std::lock_guard lock(mutex_);
+          started = hec_started_;
+        }
+        if (!started) {
+          reply(req, Code::kHecInitError);
+          return;
+        }
+        Result<CalibrationStep> step = calib.AccumulateInSlot(CalibrationKind::kManual, slot, X_BF);
+        if (!step.ok()) spdlog::warn("gri: HEC_SET_POSE slot {}: {}", slot, step.status().ToString());
+        reply(req, step.ok() ? Code::kOk : Code::kHecSetPoseError);
+      });
+      return;
+    }
+    default:  // kHecCalibrate
+      tasks_.RunCalibration([this, req, reply](CalibrationService& calib) {
+        bool started;
+        {
+          std::lock_guard lock(mutex_);
+          started = hec_started_;
+          hec_started_ = false;
+        }
+        if (!started) {
+          reply(req, Code::kHecInitError);
+          return;
+        }
+        const Status s = calib.Finish(CalibrationKind::kManual);
+        if (!s.ok()) spdlog::error("gri: HEC_CALIBRATE: {}", s.ToString());
+        reply(req, s.ok() ? Code::kOk
+                   : s.code() == Status::Code::kInvalidArgument ? Code::kHecInsufficientDetection
+                                                                : Code::kHecCalibrateError);
+      });
       return;
   }
 }

@@ -64,10 +64,12 @@ class GriHandler {
   };
   gri::JobStatus StatusLocked(const RequestHandler::TaskSnapshot& s, const Job& job) const;
   Reply NextPoseReply(const gri::Request& request, bool after_trigger);
+  void HandEye(const gri::Request& request, const std::optional<Pose>& X_BF, Completion done);
 
   RequestHandler& tasks_;
   mutable std::mutex mutex_;
   std::map<int, Job> jobs_;  // GUARDED_BY(mutex_); one per cell task
+  bool hec_started_ = false;  // GUARDED_BY(mutex_); HEC_INIT done, HEC_CALIBRATE not yet
 };
 
 }  // namespace bp

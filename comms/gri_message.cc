@@ -175,6 +175,11 @@ int32_t WireErrorCode(Format f, Code c) {
     case Code::kNoRelatedPoses: return v2 ? 14 : 2;
     case Code::kJobStillRunning: return v2 ? 16 : 4;
     case Code::kNotImplemented: return v2 ? 100 : -14;
+    case Code::kHecConfigError: return v2 ? 17 : -14;
+    case Code::kHecInitError: return v2 ? 18 : -15;
+    case Code::kHecSetPoseError: return v2 ? 19 : -16;
+    case Code::kHecCalibrateError: return v2 ? 20 : -17;
+    case Code::kHecInsufficientDetection: return v2 ? 21 : -18;
   }
   // clang-format on
   return v2 ? 1 : -1;

@@ -91,6 +91,11 @@ enum class Code {
   kNoRelatedPoses,  // v2: NO_ASSOCIATED_OBJECTS
   kJobStillRunning,
   kNotImplemented,  // official: HEC_CONFIG_ERROR (it has no NOT_IMPLEMENTED)
+  kHecConfigError,            // v2 17 / official -14
+  kHecInitError,              // 18 / -15
+  kHecSetPoseError,           // 19 / -16
+  kHecCalibrateError,         // 20 / -17
+  kHecInsufficientDetection,  // 21 / -18
 };
 // v2: int8 codes of seed 002; official: int16, negative errors, positive warnings.
 int32_t WireErrorCode(Format f, Code c);

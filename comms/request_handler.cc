@@ -182,6 +182,12 @@ class RequestHandler::Impl {
   Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
   Status WhenIdle(int task_id, std::function<void()> ready);
   Result<GraspQueue::Popped> PopGrasp(int task_id);
+  void RunCalibration(std::function<void(CalibrationService&)> job) {
+    serial_.Post([this, job = std::move(job)] {
+      calibration_mode_.reset();
+      job(*calibration_);
+    });
+  }
 
  private:
   // Runs f on the arena (never on the caller's thread). Exceptions must not
@@ -856,6 +862,10 @@ Status RequestHandler::StartDetection(int task_id, const std::optional<Pose>& X_
 Status RequestHandler::WhenIdle(int task_id, std::function<void()> ready) {
   return impl_->WhenIdle(task_id, std::move(ready));
 }
+void RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job) {
+  impl_->RunCalibration(std::move(job));
+}
+
 Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id) { return impl_->PopGrasp(task_id); }
 
 }  // namespace bp

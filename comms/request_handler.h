@@ -104,6 +104,10 @@ class RequestHandler {
   Status WhenIdle(int task_id, std::function<void()> ready);
   // Pops the next grasp; the planner is told it was handed out.
   Result<GraspQueue::Popped> PopGrasp(int task_id);
+  // Runs `job` with the calibration service after every calibration step
+  // already posted, on the same sequence (the GRI's HEC actions). It ends any
+  // DaoAI calibration mode (one calibration at a time). Dropped at shutdown.
+  void RunCalibration(std::function<void(CalibrationService&)> job);
 
  private:
   class Impl;

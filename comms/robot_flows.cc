@@ -230,7 +230,8 @@ Status PickPlaceFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
 
 Status ManualCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
-  robot.SetPose(DetectionPose());
+  const Pose start_pose = o.calib_start_X_BF.value_or(DetectionPose());
+  robot.SetPose(start_pose);
   Result<RobotReply> start = run.Call(daoai::kStartManualCalibration);
   if (!start.ok()) return start.status();
   if (start->status != daoai::kModeCalibration) {
@@ -238,9 +239,13 @@ Status ManualCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions&
     return Status::Ok();
   }
   for (int i = 0; i < o.manual_poses; ++i) {
-    // MoveJ Waypoint_i: small, deterministic offsets around the detection pose.
-    Pose X = DetectionPose();
-    X.translation() += Vec3(0.02 * (i % 3 - 1), 0.02 * (i / 3 - 1), 0.0);
+    // MoveJ Waypoint_i: deterministic turns of the flange about different
+    // axes (a hand-eye calibration needs rotations) and small offsets.
+    static const Vec3 kAxes[] = {Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1), Vec3(1, 1, 0), Vec3(1, -1, 0),
+                                 Vec3(0, 1, 1), Vec3(1, 0, -1), Vec3(1, 1, 1), Vec3(-1, 1, 1)};
+    const double angle = (i % 2 == 0 ? 1.0 : -1.0) * (i == 0 ? 0.0 : 10.0 + 2.0 * (i % 3)) * M_PI / 180.0;
+    const Pose X = start_pose * MakePose(Mat3(Eigen::AngleAxisd(angle, kAxes[i % 9].normalized())),
+                                         Vec3(0.01 * (i % 3 - 1), 0.01 * (i / 3 % 3 - 1), 0.0));
     robot.SetPose(X);
     Result<RobotReply> acc = run.Call(daoai::kManualAccumulatePose);
     if (!acc.ok()) return acc.status();
@@ -269,7 +274,7 @@ Status AutoCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o
   // 2D: the tool-mounted marker touches the plane (z = 0 in P).
   Pose centre = PlaneCentrePose();
   centre.translation().z() = 0.0;
-  robot.SetPose(two_d ? centre : DetectionPose());  // MoveJ center_pose
+  robot.SetPose(o.calib_start_X_BF.value_or(two_d ? centre : DetectionPose()));  // MoveJ center_pose
   Result<RobotReply> start = run.Call(start_cmd);
   if (!start.ok()) return start.status();
   if (start->status != mode) {
@@ -292,7 +297,7 @@ Status AutoCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o
 
 Status GuidanceCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
-  robot.SetPose(DetectionPose());
+  robot.SetPose(o.calib_start_X_BF.value_or(DetectionPose()));
   if (robot.options().version != 1) {
     // Version 2 (seed 000): daoai_guidance_accumulate_calibration() sends
     // and reads nothing; the robot program sends one pose per waypoint.

@@ -5,6 +5,7 @@
 // class and round-trip latency.
 #pragma once
 
+#include <optional>
 #include <ostream>
 #include <string>
 #include <vector>
@@ -22,6 +23,8 @@ struct FlowOptions {
   int max_poses = 50;         // calibrations: poses before giving up
   int manual_poses = 9;       // calib-manual: waypoints (seed: Waypoint_1..9)
   bool check_empty = true;    // pick: finish with the empty-box check
+  // Calibrations: the pose they start from (default: the detection pose).
+  std::optional<Pose> calib_start_X_BF;
 };
 
 struct FlowSummary {

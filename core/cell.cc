@@ -288,6 +288,7 @@ class Parser {
   void ParseTasks(const YAML::Node& n, Cell& cell) const;
   void ParseRobot(const YAML::Node& n, Cell& cell) const;
   void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
+  void ParseCalibration(const YAML::Node& n, const YAML::Node& camera, Cell& cell) const;
 
   std::string file_;
   fs::path base_dir_;
@@ -419,7 +420,12 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
   if (const YAML::Node f = n["plane_calibration_file"]; f.IsDefined()) {
     cam.plane_calibration_file = Resolve(Name(f, "camera.plane_calibration_file"));
   }
-  if (const YAML::Node h = n["hand_eye_file"]; h.IsDefined()) {
+  const YAML::Node given = n["hand_eye_file"];
+  // With a calibration section, the result file defaults to "<cell file>.calibration.yaml".
+  const YAML::Node h = given.IsDefined() || !cell.calibration || file_ == kEmbeddedPath
+                           ? given
+                           : YAML::Node(file_ + ".calibration.yaml");
+  if (h.IsDefined()) {
     cam.hand_eye_file = Resolve(Name(h, "camera.hand_eye_file"));
     std::error_code ec;
     if (fs::exists(cam.hand_eye_file, ec)) {
@@ -457,6 +463,48 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
     Fail(n["default_config"], "camera.default_config",
          "config id " + std::to_string(cam.default_config) + " is not among camera.configs");
   }
+}
+
+void Parser::ParseCalibration(const YAML::Node& n, const YAML::Node& camera, Cell& cell) const {
+  const std::string path = "calibration";
+  ExpectMap(n, path, {"target", "true_pose", "target_pose", "image_noise", "blur_sigma", "seed", "min_poses",
+                      "auto_poses", "precision_target"});
+  CalibrationSpec c;
+  const YAML::Node t = Req(n, path, "target");
+  ExpectMap(t, "calibration.target", {"type", "squares", "square_size"});
+  if (const YAML::Node ty = t["type"]; ty.IsDefined()) {
+    Enum<int>(ty, "calibration.target.type", "calibration target", {{"checkerboard", 0}});
+  }
+  const std::vector<int> sq = Ints(Req(t, "calibration.target", "squares"), "calibration.target.squares");
+  Check(sq.size() == 2, t["squares"], "calibration.target.squares", "expected [cols, rows] of inner corners");
+  Check(sq[0] >= 3 && sq[1] >= 3 && sq[0] <= 30 && sq[1] <= 30 && (sq[0] + sq[1]) % 2 == 1, t["squares"],
+        "calibration.target.squares",
+        "inner corners must be 3..30 each, one count even and one odd (a board that cannot be read upside down)");
+  c.cols = sq[0];
+  c.rows = sq[1];
+  c.square_size = Number(Req(t, "calibration.target", "square_size"), "calibration.target.square_size");
+  Check(c.square_size > 0.001 && c.square_size < 0.5, t["square_size"], "calibration.target.square_size",
+        "must be within 0.001..0.5 m");
+  if (const YAML::Node p = n["true_pose"]; p.IsDefined()) {
+    c.true_pose = ParsePose(p, "calibration.true_pose");
+  } else {
+    c.true_pose = ParsePose(Req(camera, "camera", "pose"), "camera.pose");
+  }
+  c.target_pose = ParsePose(Req(n, path, "target_pose"), "calibration.target_pose");
+  c.image_noise = OptNumber(n, path, "image_noise", c.image_noise);
+  Check(c.image_noise >= 0 && c.image_noise <= 50, n["image_noise"], "calibration.image_noise", "must be within 0..50");
+  c.blur_sigma = OptNumber(n, path, "blur_sigma", c.blur_sigma);
+  Check(c.blur_sigma >= 0 && c.blur_sigma <= 5, n["blur_sigma"], "calibration.blur_sigma", "must be within 0..5 px");
+  if (const YAML::Node s = n["seed"]; s.IsDefined()) c.seed = Uint64(s, "calibration.seed");
+  c.min_poses = OptInt(n, path, "min_poses", c.min_poses);
+  Check(c.min_poses >= 3, n["min_poses"], "calibration.min_poses", "must be at least 3");
+  c.auto_poses = OptInt(n, path, "auto_poses", c.auto_poses);
+  Check(c.auto_poses >= c.min_poses && c.auto_poses <= 15, n["auto_poses"], "calibration.auto_poses",
+        "must be within min_poses..15");
+  if (const YAML::Node p = n["precision_target"]; p.IsDefined()) {
+    c.precision_target = ParsePose(p, "calibration.precision_target");
+  }
+  cell.calibration = c;
 }
 
 Pose Parser::ParseHandEye(const YAML::Node& root) {
@@ -846,7 +894,8 @@ Cell Parser::ParseCell(const YAML::Node& root) {
   if (!root.IsDefined() || root.IsNull()) Fail(root, "", "the cell file is empty");
   if (!root.IsMap()) Fail(root, "", "expected a map of sections at the top level, got " + What(root));
   ExpectMap(root, "",
-            {"name", "camera", "source", "bin", "roi", "parts", "grippers", "tasks", "robot", "endpoints"});
+            {"name", "camera", "source", "bin", "roi", "parts", "grippers", "tasks", "robot", "endpoints",
+             "calibration"});
   Cell cell;
   cell.path = file_;
   cell.base_dir = base_dir_.string();
@@ -855,6 +904,7 @@ Cell Parser::ParseCell(const YAML::Node& root) {
   // tasks refer to grippers, the source and tasks to part classes.
   ParseGrippers(Req(root, "", "grippers"), cell);
   ParseParts(Req(root, "", "parts"), cell);
+  if (const YAML::Node c = root["calibration"]; c.IsDefined()) ParseCalibration(c, Req(root, "", "camera"), cell);
   ParseCamera(Req(root, "", "camera"), cell);
   if (const YAML::Node s = root["source"]; s.IsDefined()) ParseSource(s, cell);
   else ParseSource(YAML::Node(YAML::NodeType::Map), cell);

@@ -219,6 +219,32 @@ struct Endpoints {
   int http_port = 0;
 };
 
+// The hand-eye calibration target and its simulator (docs/cell.md,
+// `calibration`). The solver sees only images and robot poses: true_pose and
+// target_pose are read by the simulated camera alone.
+struct CalibrationSpec {
+  // Checkerboard: inner corners per row (cols) and per column (rows), square
+  // edge in metres. Board frame T: origin at the first inner corner, x along
+  // a row, y down the columns, z into the board (OpenCV).
+  int cols = 9;
+  int rows = 6;
+  double square_size = 0.02;
+  // Simulator: the true hand-eye transform (X_BC eye-to-hand, X_FC
+  // eye-in-hand; default: the cell's nominal camera.pose) and the board
+  // (X_FT on the flange eye-to-hand, X_BT fixed in the base eye-in-hand).
+  Pose true_pose = Pose::Identity();
+  Pose target_pose = Pose::Identity();
+  double image_noise = 2.0;  // grey-level sigma of the gaussian image noise
+  double blur_sigma = 0.8;   // pixels
+  uint64_t seed = 1;         // image noise seed (each view draws the next numbers)
+  // Solver: poses a solve needs (>= 3) and poses an auto calibration plans (<= 15).
+  int min_poses = 6;
+  int auto_poses = 12;
+  // Precision check (RC 50): a board of the same kind fixed in the base at
+  // X_BP, in view of the camera at the check's robot pose.
+  Pose precision_target = Pose::Identity();
+};
+
 struct Cell {
   std::string path;       // file it was loaded from ("<embedded default>" if none)
   std::string base_dir;   // relative paths in the file resolve against this
@@ -232,6 +258,9 @@ struct Cell {
   std::vector<TaskSpec> tasks;
   RobotSpec robot;
   Endpoints endpoints;
+  // Present with a `calibration` section; then camera.hand_eye_file defaults
+  // to "<cell file>.calibration.yaml" (none for the embedded default cell).
+  std::optional<CalibrationSpec> calibration;
 
   const PartSpec* FindPart(int class_id) const;
   const GripperSpec* FindGripper(const std::string& name) const;

@@ -24,10 +24,13 @@
 #include <string>
 #include <vector>
 
+#include "calib/calibration_camera.h"
+#include "calib/hand_eye_service.h"
+#include "calib/precision_check.h"
 #include "comms/daoai_server.h"
+#include "comms/gri_server.h"
 #include "comms/modbus_master.h"
 #include "comms/plane_calibration_service.h"
-#include "comms/gri_server.h"
 #include "comms/request_handler.h"
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
@@ -110,8 +113,24 @@ int main(int argc, char** argv) {
 
   bp::RequestHandlerOptions handler_options;
   handler_options.detection_threads = detection_threads;
-  bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
-                             std::move(calibration), handler_options);
+  // Hand-eye calibration and the precision check (RC 50) when the cell has a
+  // calibration section: the simulated calibration camera, the solved pose
+  // shared by both (loaded from camera.hand_eye_file by the cell loader). The
+  // 2D plane calibration, if any, serves RC 11/12 through it.
+  std::shared_ptr<bp::GraspPlanner> grasp_planner(std::move(*planner));
+  if (cell->calibration) {
+    auto camera = std::make_shared<bp::SimulatedCalibrationCamera>(cell->camera, *cell->calibration);
+    auto hand_eye = std::make_shared<bp::HandEyeState>(cell->camera.eye_in_hand ? cell->camera.X_FC
+                                                                                : cell->camera.X_BC);
+    bp::HandEyeServiceOptions calib_options;
+    calib_options.result_file = cell->camera.hand_eye_file;
+    calibration = std::make_unique<bp::HandEyeCalibrationService>(*cell, camera, hand_eye, std::move(calibration),
+                                                                  calib_options);
+    if (grasp_planner) {
+      grasp_planner = std::make_shared<bp::PrecisionCheckPlanner>(grasp_planner, *cell, camera, hand_eye);
+    }
+  }
+  bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);

@@ -270,12 +270,12 @@ TEST_P(GriServerTest, FailedCaptureMakesTheJobFailedUntilReported) {
   EXPECT_EQ(JobStatus(Ask(*robot, gri::kGetJobStatus, 1)), kInactive);
 }
 
-TEST_P(GriServerTest, HandEyeCalibrationActionsAreNotImplementedYet) {
+TEST_P(GriServerTest, HandEyeActionsOnACellWithoutCalibrationAreAConfigError) {
   auto robot = Connect();
   for (uint8_t action : {gri::kHecInit, gri::kHecSetPose, gri::kHecCalibrate}) {
     gri::Request req = Make(action, 0, 2);
     req.data = {0, action == gri::kHecSetPose ? 1 : 0, 0, 0};  // pipeline 0, slot 1
-    EXPECT_EQ(Ask(*robot, req).error_code, Code(gri::Code::kNotImplemented));
+    EXPECT_EQ(Ask(*robot, req).error_code, Code(gri::Code::kHecConfigError));  // 17 / -14
   }
 }
 

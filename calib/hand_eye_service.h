@@ -1,0 +1,101 @@
+// The hand-eye calibration the DaoAI commands (1/2/4/6/7/10) and the GRI
+// (HEC_*) drive: each step captures the board, detects it (sub-pixel corners,
+// solvePnP) and stores it with the robot pose; Finish solves (calib/hand_eye.h),
+// writes the result file atomically and makes the new camera pose current.
+//
+// Thread-safety: as CalibrationService (the request handler serializes the
+// calls); HandEyeState is shared with readers on other threads.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "calib/calibration_camera.h"
+#include "calib/hand_eye.h"
+#include "comms/calibration_service.h"
+#include "core/atomic_file.h"
+#include "core/cell.h"
+
+namespace bp {
+
+// The hand-eye transform in use (X_BC eye-to-hand, X_FC eye-in-hand):
+// written by the calibration service after a solve, read by the precision
+// check. Thread-safe.
+class HandEyeState {
+ public:
+  explicit HandEyeState(const Pose& X) : X_(X) {}
+  Pose Get() const {
+    std::lock_guard lock(mutex_);
+    return X_;
+  }
+  void Set(const Pose& X) {
+    std::lock_guard lock(mutex_);
+    X_ = X;
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  Pose X_;  // GUARDED_BY(mutex_)
+};
+
+struct HandEyeServiceOptions {
+  // Where Finish writes the result (the cell's camera.hand_eye_file); empty:
+  // the result is used but not persisted.
+  std::string result_file;
+  // keep_backup is always set; before_rename is for crash tests.
+  AtomicWriteOptions write;
+};
+
+class HandEyeCalibrationService final : public CalibrationService {
+ public:
+  // `cell` must have a calibration section. `auto2d`, when given, serves
+  // CalibrationKind::kAuto2D (else such calls answer Unavailable).
+  HandEyeCalibrationService(const Cell& cell, std::shared_ptr<CalibrationCamera> camera,
+                            std::shared_ptr<HandEyeState> state, std::unique_ptr<CalibrationService> auto2d = nullptr,
+                            HandEyeServiceOptions options = {});
+
+  Status Start(CalibrationKind kind, const Pose& X_BF) override;
+  // NotFound (manual) when the board is not seen; auto answers good = false
+  // and the next planned pose; guidance answers good = false with the reason.
+  Result<CalibrationStep> Accumulate(CalibrationKind kind, const Pose& X_BF) override;
+  // Solves, persists and makes the result current. InvalidArgument with
+  // too few (or too similar) poses: the previous calibration stays in use
+  // and on disk.
+  Status Finish(CalibrationKind kind) override;
+  // GRI HEC_SET_POSE: the view at X_BF replaces the one in `slot`.
+  Result<CalibrationStep> AccumulateInSlot(CalibrationKind kind, int slot, const Pose& X_BF) override;
+
+  // For tests and the CLI, read while no step runs (after RequestHandler::
+  // RunCalibration drained the sequence, or after Shutdown).
+  std::optional<HandEyeSolution> last_solution() const { return last_; }
+  size_t poses() const { return samples_.size(); }
+  // The poses an auto calibration plans around X_BF, given the board centre
+  // p_B (base frame) and the camera position c_B: rotations of the robot
+  // about p_B, about axes across and along the view.
+  static std::vector<Pose> PlanAround(const Pose& X_BF, const Vec3& p_B, const Vec3& c_B, int count);
+
+ private:
+  // Captures and detects at X_BF; NotFound / OutOfRange when the board is not seen.
+  Result<HandEyeSample> Observe(const Pose& X_BF);
+  Status Persist(const HandEyeSolution& solution) const;
+
+  const Cell cell_;
+  const CalibrationSpec spec_;
+  std::shared_ptr<CalibrationCamera> camera_;
+  std::shared_ptr<HandEyeState> state_;
+  std::unique_ptr<CalibrationService> auto2d_;
+  HandEyeServiceOptions options_;
+
+  std::map<int, HandEyeSample> samples_;  // by slot; accumulated poses get slots from 1000
+  int next_slot_ = 1000;
+  std::vector<Pose> plan_;  // auto: poses still to visit, next first
+  size_t plan_next_ = 0;
+  bool planned_ = false;
+  std::optional<HandEyeSolution> last_;
+};
+
+}  // namespace bp
