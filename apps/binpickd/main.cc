@@ -5,10 +5,13 @@
 //            [--modbus-robot HOST:PORT]...  (Modbus master per robot slave;
 //             default: the cell's robot.modbus, if any)
 //            [--gri-port N] [--gri-official-port N] [--gri-timeout S]
+//            [--http-port N] [--http-bind ADDR]  (status page, JSON API and
+//             /metrics: docs/status_page.md; port 0 or absent disables)
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
 //   binpickd ready: daoai 127.0.0.1:6969; gri v2 127.0.0.1:10000, official 127.0.0.1:7100
+// with "; http 127.0.0.1:8080" appended when the status page is on.
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -16,6 +19,7 @@
 
 #include <algorithm>
 #include <csignal>
+#include <functional>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -30,6 +34,9 @@
 #include "comms/request_handler.h"
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
+#include "web/metrics.h"
+#include "web/status_server.h"
+#include "web/status_state.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -44,6 +51,8 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   std::vector<std::string> modbus_robots;
   std::optional<int> modbus_poll_ms;
+  int http_port = 0;
+  std::string http_bind = "127.0.0.1";
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -61,9 +70,15 @@ int main(int argc, char** argv) {
                  "cell's robot.modbus)");
   app.add_option("--modbus-poll-ms", modbus_poll_ms,
                  "Modbus request flag poll interval (default: the cell's robot.modbus.poll_ms)");
+  app.add_option("--http-port", http_port,
+                 "status page, JSON API and /metrics port; 0 disables (default), -1 ephemeral");
+  app.add_option("--http-bind", http_bind, "status page listen address");
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
+  // Status page state and metrics exist before anything logs or serves.
+  bp::MetricsRegistry metrics;
+  std::shared_ptr<bp::StatusState> status;
   spdlog::set_level(spdlog::level::from_str(log_level));
 
   // Block the stop signals before any thread starts; main waits for them.
@@ -77,6 +92,10 @@ int main(int argc, char** argv) {
   if (!cell.ok()) {
     std::cerr << "binpickd: " << cell.status().ToString() << "\n";
     return 2;
+  }
+  if (http_port != 0) {
+    status = std::make_shared<bp::StatusState>(*cell, metrics);
+    spdlog::default_logger()->sinks().push_back(status->LogSink());
   }
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner = bp::MakePlanner(*cell);
   if (!planner.ok()) {
@@ -95,6 +114,10 @@ int main(int argc, char** argv) {
   handler_options.detection_threads = detection_threads;
   bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
                              nullptr, handler_options);
+  if (status) {
+    status->SetQueueProbe([&handler](int task_id) { return handler.QueueSize(task_id); });
+    handler.AddObserver(status);
+  }
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);
@@ -170,12 +193,64 @@ int main(int argc, char** argv) {
   } else {
     ready += "disabled";
   }
+  std::unique_ptr<bp::StatusServer> http;
+  if (status) {
+    // Transport counters are read at scrape time.
+    auto transport = [&metrics](const std::string& name, std::function<bp::TransportStats()> read) {
+      const bp::MetricLabels server{{"server", name}};
+      metrics.AddGaugeCallback("binpick_connections", "Robot connections open.", server,
+                               [read] { return static_cast<double>(read().open); });
+      metrics.AddCounterCallback("binpick_connections_accepted_total", "Robot connections accepted.",
+                                 server, [read] { return static_cast<double>(read().accepted); });
+      metrics.AddCounterCallback("binpick_protocol_errors_total",
+                                 "Requests rejected as unframeable, undecodable or over the queue limit.",
+                                 server, [read] { return static_cast<double>(read().protocol_errors); });
+      metrics.AddCounterCallback("binpick_read_timeouts_total",
+                                 "Robot connections closed for silence.", server,
+                                 [read] { return static_cast<double>(read().read_timeouts); });
+    };
+    if (server) transport("daoai", [&server] { return server->stats(); });
+    if (gri_server) transport("gri", [&gri_server] { return gri_server->stats(); });
+    for (auto& master : masters) {
+      const bp::ModbusMaster* m = master.get();
+      const bp::MetricLabels robot{{"robot", m->address()}};
+      metrics.AddGaugeCallback("binpick_modbus_connected", "1 while the robot's Modbus slave is connected.",
+                               robot, [m] { return m->stats().connected ? 1.0 : 0.0; });
+      metrics.AddCounterCallback("binpick_modbus_connects_total", "Modbus connections made.", robot,
+                                 [m] { return static_cast<double>(m->stats().connects); });
+      metrics.AddCounterCallback("binpick_modbus_requests_total", "Modbus requests taken.", robot,
+                                 [m] { return static_cast<double>(m->stats().requests); });
+      metrics.AddCounterCallback(
+          "binpick_modbus_protocol_errors_total",
+          "Modbus responses refused (out of range), saturated, lost, or requests over an unread response.",
+          robot, [m] {
+            const bp::ModbusMasterStats st = m->stats();
+            return static_cast<double>(st.refused + st.saturated + st.lost + st.unread);
+          });
+    }
+    for (const bp::TaskSpec& task : cell->tasks) {
+      metrics.AddGaugeCallback("binpick_queue_grasps", "Grasps left in the task's queue.",
+                               {{"task", std::to_string(task.id)}},
+                               [&handler, id = task.id] { return handler.QueueSize(id); });
+    }
+    bp::StatusServerOptions http_options;
+    http_options.bind = http_bind;
+    http_options.port = http_port < 0 ? 0 : http_port;
+    auto started = bp::StatusServer::Start(*status, metrics, http_options);
+    if (!started.ok()) {
+      std::cerr << "binpickd: " << started.status().ToString() << "\n";
+      return 2;
+    }
+    http = std::move(*started);
+    ready += "; http " + http->address();
+  }
   spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
   std::cout << ready << std::endl;
 
   int signal = 0;
   sigwait(&stop_signals, &signal);
   spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
+  if (http) http->Stop();
   if (server) server->Stop();
   for (auto& master : masters) master->Stop();
   if (gri_server) gri_server->Stop();
