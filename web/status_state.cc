@@ -363,6 +363,8 @@ class StatusState::Impl {
     return j.dump(-1, ' ', false, json::error_handler_t::replace);
   }
 
+  // Encoding a VGA PNG takes tens of ms: the last image of each kind is kept
+  // until a new detection or a grasp handed out changes the overlay.
   std::optional<std::vector<uint8_t>> RenderPng(internal::OverlayImage which) const {
     Detection d;
     {
@@ -377,7 +379,14 @@ class StatusState::Impl {
       const int total = static_cast<int>(d.grasps.size());
       served = total - std::clamp(queue_size_(d.task_id), 0, total);
     }
-    return internal::RenderOverlayPng(captured->frame(), which, d.parts, d.grasps, served);
+    const size_t slot = which == internal::OverlayImage::kDepth ? 0 : 1;
+    std::lock_guard cache_lock(png_mutex_);  // HTTP thread only: never contended by robots
+    PngCache& cached = png_cache_[slot];
+    if (cached.png && cached.seq == d.seq && cached.served == served) return cached.png;
+    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, d.grasps, served);
+    cached.seq = d.seq;
+    cached.served = served;
+    return cached.png;
   }
 
   struct Detection {
@@ -422,6 +431,14 @@ class StatusState::Impl {
   std::shared_ptr<ErrorSink> sink_;
   std::function<int(int)> queue_size_;  // set before serving
   CalibrationProbe calibration_probe_;  // set before serving
+
+  struct PngCache {
+    uint64_t seq = 0;
+    int served = -1;
+    std::optional<std::vector<uint8_t>> png;
+  };
+  mutable std::mutex png_mutex_;
+  mutable PngCache png_cache_[2];  // GUARDED_BY(png_mutex_): depth, intensity
 
   mutable std::mutex mutex_;
   Detection last_;                        // GUARDED_BY(mutex_)

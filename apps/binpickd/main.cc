@@ -19,7 +19,6 @@
 
 #include <algorithm>
 #include <csignal>
-#include <functional>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -35,6 +34,7 @@
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
 #include "web/metrics.h"
+#include "web/server_metrics.h"
 #include "web/status_server.h"
 #include "web/status_state.h"
 
@@ -195,44 +195,13 @@ int main(int argc, char** argv) {
   }
   std::unique_ptr<bp::StatusServer> http;
   if (status) {
-    // Transport counters are read at scrape time.
-    auto transport = [&metrics](const std::string& name, std::function<bp::TransportStats()> read) {
-      const bp::MetricLabels server{{"server", name}};
-      metrics.AddGaugeCallback("binpick_connections", "Robot connections open.", server,
-                               [read] { return static_cast<double>(read().open); });
-      metrics.AddCounterCallback("binpick_connections_accepted_total", "Robot connections accepted.",
-                                 server, [read] { return static_cast<double>(read().accepted); });
-      metrics.AddCounterCallback("binpick_protocol_errors_total",
-                                 "Requests rejected as unframeable, undecodable or over the queue limit.",
-                                 server, [read] { return static_cast<double>(read().protocol_errors); });
-      metrics.AddCounterCallback("binpick_read_timeouts_total",
-                                 "Robot connections closed for silence.", server,
-                                 [read] { return static_cast<double>(read().read_timeouts); });
-    };
-    if (server) transport("daoai", [&server] { return server->stats(); });
-    if (gri_server) transport("gri", [&gri_server] { return gri_server->stats(); });
-    for (auto& master : masters) {
-      const bp::ModbusMaster* m = master.get();
-      const bp::MetricLabels robot{{"robot", m->address()}};
-      metrics.AddGaugeCallback("binpick_modbus_connected", "1 while the robot's Modbus slave is connected.",
-                               robot, [m] { return m->stats().connected ? 1.0 : 0.0; });
-      metrics.AddCounterCallback("binpick_modbus_connects_total", "Modbus connections made.", robot,
-                                 [m] { return static_cast<double>(m->stats().connects); });
-      metrics.AddCounterCallback("binpick_modbus_requests_total", "Modbus requests taken.", robot,
-                                 [m] { return static_cast<double>(m->stats().requests); });
-      metrics.AddCounterCallback(
-          "binpick_modbus_protocol_errors_total",
-          "Modbus responses refused (out of range), saturated, lost, or requests over an unread response.",
-          robot, [m] {
-            const bp::ModbusMasterStats st = m->stats();
-            return static_cast<double>(st.refused + st.saturated + st.lost + st.unread);
-          });
+    // Read from the servers at scrape time; the HTTP server stops first.
+    if (server) bp::AddTransportMetrics(metrics, "daoai", [&server] { return server->stats(); });
+    if (gri_server) {
+      bp::AddTransportMetrics(metrics, "gri", [&gri_server] { return gri_server->stats(); });
     }
-    for (const bp::TaskSpec& task : cell->tasks) {
-      metrics.AddGaugeCallback("binpick_queue_grasps", "Grasps left in the task's queue.",
-                               {{"task", std::to_string(task.id)}},
-                               [&handler, id = task.id] { return handler.QueueSize(id); });
-    }
+    for (const auto& master : masters) bp::AddModbusMetrics(metrics, *master);
+    bp::AddQueueMetrics(metrics, handler);
     bp::StatusServerOptions http_options;
     http_options.bind = http_bind;
     http_options.port = http_port < 0 ? 0 : http_port;

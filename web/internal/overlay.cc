@@ -76,9 +76,10 @@ std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, Overlay
   for (const DetectedPart& part : parts) {
     const auto p = Project(frame, X_CB, part.X_BO.translation());
     if (!p) continue;
-    cv::circle(canvas, *p, 9 * scale, cv::Scalar(255, 255, 255), scale, cv::LINE_AA);
+    const cv::Scalar magenta(255, 0, 255);
+    cv::circle(canvas, *p, 9 * scale, magenta, scale, cv::LINE_AA);
     cv::putText(canvas, "c" + std::to_string(part.class_id), *p + cv::Point(10 * scale, -6 * scale),
-                cv::FONT_HERSHEY_SIMPLEX, 0.35 * scale, cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+                cv::FONT_HERSHEY_SIMPLEX, 0.35 * scale, magenta, 1, cv::LINE_AA);
   }
   for (size_t i = 0; i < grasps.size(); ++i) {
     const Grasp& g = grasps[i];

@@ -14,7 +14,7 @@ namespace bp::internal {
 
 enum class OverlayImage { kDepth, kIntensity };
 
-// Parts: a circle at each part origin, labelled with its class id. Grasps:
+// Parts: a magenta circle at each part origin, labelled with its class id. Grasps:
 // the queue order number at each tool centre point with the approach line
 // from the pre-grasp; the first `served` grasps (already handed out) in grey,
 // the next one in green, the rest in yellow.
