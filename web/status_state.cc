@@ -246,12 +246,16 @@ class StatusState::Impl {
     std::map<std::string, Robot> robots;
     Calibration calibration;
     uint64_t detections = 0;
+    std::function<int(int)> queue_size;
+    CalibrationProbe calibration_probe;
     {
       std::lock_guard lock(mutex_);
       d = last_;
       robots = robots_;
       calibration = calibration_;
       detections = detections_;
+      queue_size = queue_size_;
+      calibration_probe = calibration_probe_;
     }
     d.scene.reset();
     const Clock::time_point now = Clock::now();
@@ -264,7 +268,7 @@ class StatusState::Impl {
     json tasks = json::array();
     for (const auto& [id, name] : tasks_) {
       json t = {{"id", id}, {"name", name}};
-      if (queue_size_) t["queue_size"] = queue_size_(id);
+      if (queue_size) t["queue_size"] = queue_size(id);
       tasks.push_back(t);
     }
     j["tasks"] = tasks;
@@ -302,7 +306,7 @@ class StatusState::Impl {
       // were handed out (GraspQueue pops from the front).
       const int total = static_cast<int>(d.grasps.size());
       int left = total;
-      if (queue_size_) left = std::clamp(queue_size_(d.task_id), 0, total);
+      if (queue_size) left = std::clamp(queue_size(d.task_id), 0, total);
       served = total - left;
       json grasps = json::array();
       for (int i = 0; i < total; ++i) {
@@ -339,8 +343,8 @@ class StatusState::Impl {
     j["robots"] = rl;
 
     json cal = json::array();
-    if (calibration_probe_) {
-      for (const auto& [k, v] : calibration_probe_()) cal.push_back({{"name", k}, {"value", v}});
+    if (calibration_probe) {
+      for (const auto& [k, v] : calibration_probe()) cal.push_back({{"name", k}, {"value", v}});
     } else {
       cal.push_back({{"name", "mode"}, {"value", calibration.mode}});
       cal.push_back({{"name", "poses accumulated"}, {"value", std::to_string(calibration.poses)}});
@@ -367,17 +371,19 @@ class StatusState::Impl {
   // until a new detection or a grasp handed out changes the overlay.
   std::optional<std::vector<uint8_t>> RenderPng(internal::OverlayImage which) const {
     Detection d;
+    std::function<int(int)> queue_size;
     {
       std::lock_guard lock(mutex_);
       if (!last_.scene) return std::nullopt;
       d = last_;
+      queue_size = queue_size_;
     }
     const auto* captured = dynamic_cast<const CapturedFrame*>(d.scene.get());
     if (!captured) return std::nullopt;
     int served = 0;
-    if (queue_size_) {
+    if (queue_size) {
       const int total = static_cast<int>(d.grasps.size());
-      served = total - std::clamp(queue_size_(d.task_id), 0, total);
+      served = total - std::clamp(queue_size(d.task_id), 0, total);
     }
     const size_t slot = which == internal::OverlayImage::kDepth ? 0 : 1;
     std::lock_guard cache_lock(png_mutex_);  // HTTP thread only: never contended by robots
@@ -429,8 +435,6 @@ class StatusState::Impl {
   std::vector<std::pair<int, std::string>> tasks_;
   std::map<int, std::string> part_names_;
   std::shared_ptr<ErrorSink> sink_;
-  std::function<int(int)> queue_size_;  // set before serving
-  CalibrationProbe calibration_probe_;  // set before serving
 
   struct PngCache {
     uint64_t seq = 0;
@@ -441,6 +445,8 @@ class StatusState::Impl {
   mutable PngCache png_cache_[2];  // GUARDED_BY(png_mutex_): depth, intensity
 
   mutable std::mutex mutex_;
+  std::function<int(int)> queue_size_;    // GUARDED_BY(mutex_); called outside it
+  CalibrationProbe calibration_probe_;    // GUARDED_BY(mutex_); called outside it
   Detection last_;                        // GUARDED_BY(mutex_)
   uint64_t detections_ = 0;               // GUARDED_BY(mutex_)
   std::map<std::string, Robot> robots_;   // GUARDED_BY(mutex_), by peer
@@ -467,9 +473,11 @@ void StatusState::OnAnswer(const AnswerEvent& event) {
 }
 
 void StatusState::SetQueueProbe(std::function<int(int)> queue_size) {
+  std::lock_guard lock(impl_->mutex_);
   impl_->queue_size_ = std::move(queue_size);
 }
 void StatusState::SetCalibrationProbe(CalibrationProbe probe) {
+  std::lock_guard lock(impl_->mutex_);
   impl_->calibration_probe_ = std::move(probe);
 }
 std::shared_ptr<spdlog::sinks::sink> StatusState::LogSink() { return impl_->sink_; }

@@ -50,12 +50,12 @@ class StatusState final : public ServerObserver {
   void OnAnswer(const AnswerEvent& event) override;
 
   // Grasps left in a task's queue (RequestHandler::QueueSize), so the page
-  // can mark the grasps already handed out. Set before serving.
+  // can mark the grasps already handed out. Thread-safe; called on the HTTP thread.
   void SetQueueProbe(std::function<int(int task_id)> queue_size);
   // Calibration hook: rows (name, value) shown under "Calibration", replacing
   // what the state infers from answers (mode, poses accumulated, last status).
-  // The calibration engine sets it once it has a state to show. Set before
-  // serving; called on the HTTP thread.
+  // The calibration engine sets it once it has a state to show. Thread-safe;
+  // called on the HTTP thread, so it must be quick and thread-safe itself.
   using CalibrationProbe = std::function<std::vector<std::pair<std::string, std::string>>()>;
   void SetCalibrationProbe(CalibrationProbe probe);
   // A sink keeping the last max_errors warnings and errors (and counting

@@ -139,6 +139,34 @@ TEST(StatusServer, JsonApiShowsTheQueueRobotsAndStages) {
   EXPECT_EQ(j["calibration"][0]["value"], "none");
 }
 
+TEST(StatusServer, ShowsTheCalibrationStateSeenInAnswersOrTheProbes) {
+  Stack s;
+  ClientContext robot;
+  auto row = [&](const json& j, const std::string& name) -> std::string {
+    for (const json& r : j["calibration"]) {
+      if (r["name"] == name) return r["value"];
+    }
+    return "<missing>";
+  };
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kStartAutoCalibration), robot)->status,
+            daoai::kModeAutoCalibration);
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kAutoAccumulatePose), robot)->status,
+            daoai::kModeAutoCalibration);
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kAutoAccumulatePose), robot)->status,
+            daoai::kModeAutoCalibration);
+  json j = GetJson(s.port(), "/api/status");
+  EXPECT_EQ(row(j, "mode"), "auto");
+  EXPECT_EQ(row(j, "poses accumulated"), "2");
+  EXPECT_EQ(row(j, "calibrations completed"), "0");
+  // The calibration engine's own rows replace the inferred ones.
+  s.status->SetCalibrationProbe([] {
+    return std::vector<std::pair<std::string, std::string>>{{"X_BC residual (mm)", "0.41"}};
+  });
+  j = GetJson(s.port(), "/api/status");
+  ASSERT_EQ(j["calibration"].size(), 1u);
+  EXPECT_EQ(row(j, "X_BC residual (mm)"), "0.41");
+}
+
 // PNG: signature, then IHDR with width and height (big-endian).
 void ExpectPng(const std::string& body, uint32_t width, uint32_t height) {
   ASSERT_GT(body.size(), 33u);
