@@ -171,17 +171,22 @@ class StatusState::Impl {
     d.plan_status = e.plan_status.ok() ? "" : e.plan_status.ToString();
     d.scene = e.scene;
     d.X_BF = e.request.X_BF;
+    d.queued = e.queued;
+    if (e.queued) {
+      // What the task's queue was refilled with (nothing when the capture failed).
+      queue_.seq = d.seq;
+      queue_.task_id = e.task_id;
+      queue_.grasps = e.plan ? e.plan->grasps : std::vector<Grasp>{};
+    }
     if (e.plan) {
       d.stages = e.plan->stages;
       d.parts = e.plan->parts;
-      d.grasps = e.plan->grasps;
       d.detections = e.plan->detections;
       d.roi_points = e.plan->roi_points;
       d.message = e.plan->message;
     } else {
       d.stages.clear();
       d.parts.clear();
-      d.grasps.clear();
       d.detections = 0;
       d.roi_points = 0;
       d.message.clear();
@@ -243,6 +248,7 @@ class StatusState::Impl {
   std::string StatusJson() const {
     // Copy under the lock; build JSON outside it.
     Detection d;
+    Queue queue;
     std::map<std::string, Robot> robots;
     Calibration calibration;
     uint64_t detections = 0;
@@ -251,6 +257,7 @@ class StatusState::Impl {
     {
       std::lock_guard lock(mutex_);
       d = last_;
+      queue = queue_;
       robots = robots_;
       calibration = calibration_;
       detections = detections_;
@@ -273,10 +280,10 @@ class StatusState::Impl {
     }
     j["tasks"] = tasks;
 
-    int served = 0;
     if (detections > 0) {
       json det;
       det["seq"] = d.seq;
+      det["queued"] = d.queued;
       det["task"] = d.task_id;
       det["time"] = IsoTime(d.time);
       det["outcome"] = d.outcome;
@@ -301,16 +308,20 @@ class StatusState::Impl {
       }
       det["parts"] = parts;
       j["detection"] = det;
+    } else {
+      j["detection"] = nullptr;
+    }
 
-      // The queue: the latest plan's grasps; those before the grasps left
-      // were handed out (GraspQueue pops from the front).
-      const int total = static_cast<int>(d.grasps.size());
+    // The queue: the grasps of the last plan that refilled a queue; those
+    // before the grasps left were handed out (GraspQueue pops from the front).
+    if (queue.seq > 0) {
+      const int total = static_cast<int>(queue.grasps.size());
       int left = total;
-      if (queue_size) left = std::clamp(queue_size(d.task_id), 0, total);
-      served = total - left;
+      if (queue_size) left = std::clamp(queue_size(queue.task_id), 0, total);
+      const int served = total - left;
       json grasps = json::array();
       for (int i = 0; i < total; ++i) {
-        const Grasp& g = d.grasps[static_cast<size_t>(i)];
+        const Grasp& g = queue.grasps[static_cast<size_t>(i)];
         json gj = PoseJson(g.X_BT);
         gj["index"] = i + 1;
         gj["class_id"] = g.class_id;
@@ -322,9 +333,9 @@ class StatusState::Impl {
         gj["state"] = i < served ? "served" : i == served ? "next" : "queued";
         grasps.push_back(gj);
       }
-      j["queue"] = {{"task", d.task_id}, {"total", total}, {"remaining", left}, {"grasps", grasps}};
+      j["queue"] = {{"seq", queue.seq}, {"task", queue.task_id}, {"total", total},
+                    {"remaining", left}, {"grasps", grasps}};
     } else {
-      j["detection"] = nullptr;
       j["queue"] = nullptr;
     }
 
@@ -371,25 +382,29 @@ class StatusState::Impl {
   // until a new detection or a grasp handed out changes the overlay.
   std::optional<std::vector<uint8_t>> RenderPng(internal::OverlayImage which) const {
     Detection d;
+    std::vector<Grasp> grasps;  // drawn when this capture refilled the queue
+    int task_id = 0;
     std::function<int(int)> queue_size;
     {
       std::lock_guard lock(mutex_);
       if (!last_.scene) return std::nullopt;
       d = last_;
+      if (queue_.seq == d.seq) grasps = queue_.grasps;
+      task_id = queue_.task_id;
       queue_size = queue_size_;
     }
     const auto* captured = dynamic_cast<const CapturedFrame*>(d.scene.get());
     if (!captured) return std::nullopt;
     int served = 0;
     if (queue_size) {
-      const int total = static_cast<int>(d.grasps.size());
-      served = total - std::clamp(queue_size(d.task_id), 0, total);
+      const int total = static_cast<int>(grasps.size());
+      served = total - std::clamp(queue_size(task_id), 0, total);
     }
     const size_t slot = which == internal::OverlayImage::kDepth ? 0 : 1;
     std::lock_guard cache_lock(png_mutex_);  // HTTP thread only: never contended by robots
     PngCache& cached = png_cache_[slot];
     if (cached.png && cached.seq == d.seq && cached.served == served) return cached.png;
-    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, d.grasps, served);
+    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, grasps, served);
     cached.seq = d.seq;
     cached.served = served;
     return cached.png;
@@ -405,9 +420,14 @@ class StatusState::Impl {
     std::optional<Pose> X_BF;
     std::vector<StageTime> stages;
     std::vector<DetectedPart> parts;
-    std::vector<Grasp> grasps;
+    bool queued = true;
     int detections = 0;
     int64_t roi_points = 0;
+  };
+  struct Queue {
+    uint64_t seq = 0;  // the detection that refilled it; 0: none yet
+    int task_id = 0;
+    std::vector<Grasp> grasps;
   };
   struct Robot {
     uint64_t client_id = 0;
@@ -448,6 +468,7 @@ class StatusState::Impl {
   std::function<int(int)> queue_size_;    // GUARDED_BY(mutex_); called outside it
   CalibrationProbe calibration_probe_;    // GUARDED_BY(mutex_); called outside it
   Detection last_;                        // GUARDED_BY(mutex_)
+  Queue queue_;                           // GUARDED_BY(mutex_)
   uint64_t detections_ = 0;               // GUARDED_BY(mutex_)
   std::map<std::string, Robot> robots_;   // GUARDED_BY(mutex_), by peer
   Calibration calibration_;               // GUARDED_BY(mutex_)

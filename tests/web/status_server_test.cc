@@ -92,6 +92,7 @@ TEST(StatusServer, JsonApiShowsTheQueueRobotsAndStages) {
   ASSERT_EQ(pick->status, daoai::kObjectsFound);
 
   json j = GetJson(s.port(), "/api/status?x=1");
+  EXPECT_EQ(j["detection"]["queued"], true);
   EXPECT_EQ(j["cell"], "test");
   EXPECT_EQ(j["detection"]["task"], 1);
   EXPECT_EQ(j["detection"]["outcome"], "grasps");
@@ -137,6 +138,17 @@ TEST(StatusServer, JsonApiShowsTheQueueRobotsAndStages) {
   EXPECT_NEAR(r["pose"]["position_m"][2].get<double>(), robot.X_BF->translation().z(), 1e-12);
   EXPECT_EQ(j["calibration"][0]["name"], "mode");
   EXPECT_EQ(j["calibration"][0]["value"], "none");
+
+  // An empty-box check is the latest detection but leaves the queue alone.
+  s.script->SetScript(1, Grasps(2));
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kCheckEmptyBox, 1), robot)->status, daoai::kBoxNotEmpty);
+  j = GetJson(s.port(), "/api/status");
+  EXPECT_EQ(j["detection"]["seq"], 2);
+  EXPECT_EQ(j["detection"]["queued"], false);
+  EXPECT_EQ(j["detection"]["parts"].size(), 2u);
+  EXPECT_EQ(j["queue"]["seq"], 1);
+  EXPECT_EQ(j["queue"]["total"], 4);
+  EXPECT_EQ(j["queue"]["remaining"], 3);
 }
 
 TEST(StatusServer, ShowsTheCalibrationStateSeenInAnswersOrTheProbes) {
