@@ -4,6 +4,7 @@
 #include <spdlog/sinks/base_sink.h>
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <cmath>
 #include <ctime>
 #include <deque>
@@ -70,22 +71,23 @@ struct LogEntry {
   std::string message;
 };
 
-// Keeps the last N warnings and errors.
+// Keeps the last N warnings and errors and counts them. Owns its counts (the
+// registry reads them through a callback), so a logger that outlives the
+// registry never touches freed memory.
 class ErrorSink final : public spdlog::sinks::base_sink<std::mutex> {
  public:
-  ErrorSink(size_t max, Counter& warnings, Counter& errors)
-      : max_(max), warnings_(warnings), errors_(errors) {
-    set_level(spdlog::level::warn);
-  }
+  explicit ErrorSink(size_t max) : max_(max) { set_level(spdlog::level::warn); }
   std::vector<LogEntry> Entries() {
     std::lock_guard lock(mutex_);
     return {entries_.begin(), entries_.end()};
   }
+  double warnings() const { return static_cast<double>(warnings_.load(std::memory_order_relaxed)); }
+  double errors() const { return static_cast<double>(errors_.load(std::memory_order_relaxed)); }
 
  protected:
   void sink_it_(const spdlog::details::log_msg& msg) override {
     if (msg.level < spdlog::level::warn) return;
-    (msg.level == spdlog::level::warn ? warnings_ : errors_).Inc();
+    (msg.level == spdlog::level::warn ? warnings_ : errors_).fetch_add(1, std::memory_order_relaxed);
     LogEntry e;
     e.time = msg.time;
     e.level = std::string(spdlog::level::to_string_view(msg.level).data(),
@@ -99,8 +101,7 @@ class ErrorSink final : public spdlog::sinks::base_sink<std::mutex> {
 
  private:
   const size_t max_;
-  Counter& warnings_;
-  Counter& errors_;
+  std::atomic<uint64_t> warnings_{0}, errors_{0};
   std::deque<LogEntry> entries_;  // GUARDED_BY(base_sink::mutex_)
 };
 
@@ -125,12 +126,12 @@ class StatusState::Impl {
     cell_name_ = cell.name;
     for (const TaskSpec& t : cell.tasks) tasks_.emplace_back(t.id, t.name);
     for (const PartSpec& p : cell.parts) part_names_[p.class_id] = p.name;
-    sink_ = std::make_shared<ErrorSink>(
-        options.max_errors,
-        metrics.GetCounter("binpick_log_messages_total", "Log messages by level (warnings and up).",
-                           {{"level", "warning"}}),
-        metrics.GetCounter("binpick_log_messages_total", "Log messages by level (warnings and up).",
-                           {{"level", "error"}}));
+    sink_ = std::make_shared<ErrorSink>(options.max_errors);
+    const char* help = "Log messages by level (warnings and up).";
+    metrics.AddCounterCallback("binpick_log_messages_total", help, {{"level", "warning"}},
+                               [sink = sink_] { return sink->warnings(); });
+    metrics.AddCounterCallback("binpick_log_messages_total", help, {{"level", "error"}},
+                               [sink = sink_] { return sink->errors(); });
   }
 
   void OnDetection(const DetectionEvent& e) {
