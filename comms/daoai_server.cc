@@ -50,6 +50,7 @@ class Connection final : public Session {
     if (queued_.size() >= max_queued_) {
       spdlog::warn("daoai: {} sent more than {} requests without waiting for answers", client_.peer,
                    max_queued_);
+      CountProtocolError();
       DoClose("request queue overflow");
       return;
     }
@@ -108,6 +109,7 @@ class DaoaiServer::Impl {
   int port() const { return listener_.ports().at(0); }
   std::string address() const { return options_.bind + ":" + std::to_string(port()); }
   size_t connection_count() const { return listener_.connection_count(); }
+  TransportStats stats() const { return listener_.stats(); }
 
  private:
   const DaoaiServerOptions options_;
@@ -127,6 +129,7 @@ DaoaiServer::~DaoaiServer() = default;
 int DaoaiServer::port() const { return impl_->port(); }
 std::string DaoaiServer::address() const { return impl_->address(); }
 size_t DaoaiServer::connection_count() const { return impl_->connection_count(); }
+TransportStats DaoaiServer::stats() const { return impl_->stats(); }
 void DaoaiServer::Stop() { impl_->Stop(); }
 
 }  // namespace bp

@@ -20,6 +20,7 @@
 #include <string>
 
 #include "comms/request_handler.h"
+#include "comms/transport_stats.h"
 #include "core/status.h"
 
 namespace bp {
@@ -46,6 +47,7 @@ class DaoaiServer {
   int port() const;              // the bound port (the ephemeral one for port 0)
   std::string address() const;   // "127.0.0.1:6969"
   size_t connection_count() const;
+  TransportStats stats() const;  // thread-safe
   // Stops accepting, closes every connection and joins the network threads.
   // Replies still being computed are dropped (their grasps stay queued).
   // Idempotent.

@@ -102,6 +102,7 @@ class Connection final : public Session {
       item.request = *decoded;
     } else {
       spdlog::warn("gri: {}: {}", client_.peer, decoded.status().message());
+      CountProtocolError();
       item.request = Echo();
       item.error = gri::CodeFor(fault);
     }
@@ -111,6 +112,7 @@ class Connection final : public Session {
   // The stream cannot be re-synchronised: answer, stop reading, close.
   void Reject(gri::Code code, const std::string& why) {
     spdlog::warn("gri: {} sent garbage ({}); answering and closing", client_.peer, why);
+    CountProtocolError();
     Item item;
     item.request = Echo();
     item.error = code;
@@ -137,6 +139,7 @@ class Connection final : public Session {
     if (queued_.size() >= options_.max_queued_requests) {
       spdlog::warn("gri: {} sent more than {} requests without waiting for answers", client_.peer,
                    options_.max_queued_requests);
+      CountProtocolError();
       DoClose("request queue overflow");
       return false;
     }
@@ -255,6 +258,7 @@ class GriServer::Impl {
 
   void Stop() { listener_.Stop(); }
   size_t connection_count() const { return listener_.connection_count(); }
+  TransportStats stats() const { return listener_.stats(); }
 
  private:
   gri::Format FormatOfPort(int port) const {
@@ -284,6 +288,7 @@ int GriServer::v2_port() const { return impl_->PortOf(gri::Format::kV2); }
 int GriServer::official_port() const { return impl_->PortOf(gri::Format::kOfficial); }
 std::string GriServer::Describe() const { return impl_->Describe(); }
 size_t GriServer::connection_count() const { return impl_->connection_count(); }
+TransportStats GriServer::stats() const { return impl_->stats(); }
 void GriServer::Stop() { impl_->Stop(); }
 
 }  // namespace bp

@@ -30,6 +30,7 @@
 #include <string>
 
 #include "comms/gri_handler.h"
+#include "comms/transport_stats.h"
 #include "core/status.h"
 
 namespace bp {
@@ -60,6 +61,7 @@ class GriServer {
   int official_port() const;     // bound port; 0 when disabled
   std::string Describe() const;  // "v2 127.0.0.1:10000, official 127.0.0.1:7100"
   size_t connection_count() const;
+  TransportStats stats() const;  // thread-safe
   void Stop();  // idempotent
 
  private:

@@ -684,6 +684,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         event.task_id = task->spec.id;
         event.request = plan_request;
         event.time = std::chrono::system_clock::now();
+        event.queued = false;  // the empty-box check leaves the queue alone
         Result<CaptureHandle> scene = Status::Unavailable("not captured");
         {
           std::lock_guard lock(capture_mutex_);

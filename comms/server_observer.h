@@ -33,6 +33,9 @@ struct DetectionEvent {
   double capture_ms = 0.0;
   double plan_ms = 0.0;
   std::chrono::system_clock::time_point time{};  // capture start
+  // False when the plan did not refill the task's grasp queue (an empty-box
+  // check, RC 40): its grasps were never offered to a robot.
+  bool queued = true;
 };
 
 struct AnswerEvent {

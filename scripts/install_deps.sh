@@ -10,6 +10,8 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   libyaml-cpp-dev libspdlog-dev libcli11-dev nlohmann-json3-dev
   python3 python3-pymodbus python3-serial python3-serial-asyncio python3-numpy
+  python3-prometheus-client  # tests: the reference /metrics parser
+  chromium                   # tests: the status page in a headless browser
 )
 
 missing=()

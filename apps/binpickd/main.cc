@@ -5,10 +5,13 @@
 //            [--modbus-robot HOST:PORT]...  (Modbus master per robot slave;
 //             default: the cell's robot.modbus, if any)
 //            [--gri-port N] [--gri-official-port N] [--gri-timeout S]
+//            [--http-port N] [--http-bind ADDR]  (status page, JSON API and
+//             /metrics: docs/status_page.md; port 0 or absent disables)
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
 //   binpickd ready: daoai 127.0.0.1:6969; gri v2 127.0.0.1:10000, official 127.0.0.1:7100
+// with "; http 127.0.0.1:8080" appended when the status page is on.
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -35,6 +38,10 @@
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
 #include "twod/planner_2d.h"
+#include "web/metrics.h"
+#include "web/server_metrics.h"
+#include "web/status_server.h"
+#include "web/status_state.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -49,6 +56,8 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   std::vector<std::string> modbus_robots;
   std::optional<int> modbus_poll_ms;
+  int http_port = 0;
+  std::string http_bind = "127.0.0.1";
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -66,9 +75,15 @@ int main(int argc, char** argv) {
                  "cell's robot.modbus)");
   app.add_option("--modbus-poll-ms", modbus_poll_ms,
                  "Modbus request flag poll interval (default: the cell's robot.modbus.poll_ms)");
+  app.add_option("--http-port", http_port,
+                 "status page, JSON API and /metrics port; 0 disables (default), -1 ephemeral");
+  app.add_option("--http-bind", http_bind, "status page listen address");
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
+  // Status page state and metrics exist before anything logs or serves.
+  bp::MetricsRegistry metrics;
+  std::shared_ptr<bp::StatusState> status;
   spdlog::set_level(spdlog::level::from_str(log_level));
 
   // Block the stop signals before any thread starts; main waits for them.
@@ -82,6 +97,10 @@ int main(int argc, char** argv) {
   if (!cell.ok()) {
     std::cerr << "binpickd: " << cell.status().ToString() << "\n";
     return 2;
+  }
+  if (http_port != 0) {
+    status = std::make_shared<bp::StatusState>(*cell, metrics);
+    spdlog::default_logger()->sinks().push_back(status->LogSink());
   }
   // A cell of pick_2d tasks only needs no 3D planner.
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
@@ -131,6 +150,10 @@ int main(int argc, char** argv) {
     }
   }
   bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);
+  if (status) {
+    status->SetQueueProbe([&handler](int task_id) { return handler.QueueSize(task_id); });
+    handler.AddObserver(status);
+  }
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);
@@ -206,12 +229,33 @@ int main(int argc, char** argv) {
   } else {
     ready += "disabled";
   }
+  std::unique_ptr<bp::StatusServer> http;
+  if (status) {
+    // Read from the servers at scrape time; the HTTP server stops first.
+    if (server) bp::AddTransportMetrics(metrics, "daoai", [&server] { return server->stats(); });
+    if (gri_server) {
+      bp::AddTransportMetrics(metrics, "gri", [&gri_server] { return gri_server->stats(); });
+    }
+    for (const auto& master : masters) bp::AddModbusMetrics(metrics, *master);
+    bp::AddQueueMetrics(metrics, handler);
+    bp::StatusServerOptions http_options;
+    http_options.bind = http_bind;
+    http_options.port = http_port < 0 ? 0 : http_port;
+    auto started = bp::StatusServer::Start(*status, metrics, http_options);
+    if (!started.ok()) {
+      std::cerr << "binpickd: " << started.status().ToString() << "\n";
+      return 2;
+    }
+    http = std::move(*started);
+    ready += "; http " + http->address();
+  }
   spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
   std::cout << ready << std::endl;
 
   int signal = 0;
   sigwait(&stop_signals, &signal);
   spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
+  if (http) http->Stop();
   if (server) server->Stop();
   for (auto& master : masters) master->Stop();
   if (gri_server) gri_server->Stop();

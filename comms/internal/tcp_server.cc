@@ -13,6 +13,7 @@ Session::Session(SessionArgs args, const char* log_name, std::chrono::millisecon
       timer_(strand_),
       gate_(std::move(args.gate)),
       on_closed_(std::move(args.on_closed)),
+      counters_(args.counters ? std::move(args.counters) : std::make_shared<TransportCounters>()),
       read_timeout_(read_timeout) {
   client_.id = args.id;
   boost::system::error_code ec;
@@ -77,6 +78,7 @@ void Session::ArmTimer() {
     if (!self->busy_ && idle >= self->read_timeout_) {
       spdlog::warn("{}: {} sent no complete request for {} ms; closing", self->log_name_,
                    self->client_.peer, self->read_timeout_.count());
+      self->counters_->read_timeouts.fetch_add(1, std::memory_order_relaxed);
       self->DoClose("read timeout");
       return;
     }
@@ -159,6 +161,15 @@ size_t Listener::connection_count() const {
   return connections_.size();
 }
 
+TransportStats Listener::stats() const {
+  TransportStats s;
+  s.accepted = counters_->accepted.load(std::memory_order_relaxed);
+  s.open = connection_count();
+  s.read_timeouts = counters_->read_timeouts.load(std::memory_order_relaxed);
+  s.protocol_errors = counters_->protocol_errors.load(std::memory_order_relaxed);
+  return s;
+}
+
 void Listener::Accept(tcp::acceptor& acceptor, int port) {
   Strand strand = asio::make_strand(io_);
   acceptor.async_accept(
@@ -179,7 +190,8 @@ void Listener::Accept(tcp::acceptor& acceptor, int port) {
             SessionArgs{std::move(socket), strand, gate_, id, port, [this](uint64_t closed_id) {
                           std::lock_guard lock(mutex_);
                           connections_.erase(closed_id);
-                        }});
+                        }, counters_});
+        counters_->accepted.fetch_add(1, std::memory_order_relaxed);
         {
           std::lock_guard lock(mutex_);
           connections_[id] = session;

@@ -21,6 +21,7 @@
 #include <boost/asio.hpp>
 
 #include "comms/request_handler.h"
+#include "comms/transport_stats.h"
 #include "core/status.h"
 
 namespace bp::internal {
@@ -36,6 +37,13 @@ struct PostGate {
   bool open = true;  // GUARDED_BY(mutex)
 };
 
+// Totals a listener and its sessions count (TransportStats); any thread.
+struct TransportCounters {
+  std::atomic<uint64_t> accepted{0};
+  std::atomic<uint64_t> read_timeouts{0};
+  std::atomic<uint64_t> protocol_errors{0};
+};
+
 struct SessionArgs {
   tcp::socket socket;
   Strand strand;
@@ -43,6 +51,7 @@ struct SessionArgs {
   uint64_t id = 0;
   int local_port = 0;  // the listening port the robot connected to
   std::function<void(uint64_t)> on_closed;
+  std::shared_ptr<TransportCounters> counters;
 };
 
 // One robot connection. Everything below runs on the strand unless noted.
@@ -72,6 +81,8 @@ class Session : public std::enable_shared_from_this<Session> {
   // Writes `bytes`; then Done(), or closes with `close_reason` when given.
   void Write(std::vector<uint8_t> bytes, const char* close_reason = nullptr);
   void DoClose(const char* why);
+  // The robot broke the protocol (counted in TransportStats::protocol_errors).
+  void CountProtocolError() { counters_->protocol_errors.fetch_add(1, std::memory_order_relaxed); }
   // Ends the request in progress (after Done's caller wrote the answer).
   void Finish() {
     busy_ = false;
@@ -123,6 +134,7 @@ class Session : public std::enable_shared_from_this<Session> {
   asio::steady_timer timer_;
   std::shared_ptr<PostGate> gate_;
   std::function<void(uint64_t)> on_closed_;
+  std::shared_ptr<TransportCounters> counters_;
   const std::chrono::milliseconds read_timeout_;
   std::vector<uint8_t> write_buf_;
   bool in_handle_ = false;           // inside the handler's HandleAsync
@@ -146,6 +158,7 @@ class Listener {
   Status Listen(const std::string& bind, const std::vector<int>& ports, int io_threads);
   const std::vector<int>& ports() const { return ports_; }  // bound, in Listen's order
   size_t connection_count() const;
+  TransportStats stats() const;
   // Stops accepting, closes every connection and joins the threads. Idempotent.
   void Stop();
 
@@ -155,6 +168,7 @@ class Listener {
   const char* log_name_;
   Factory factory_;
   std::shared_ptr<PostGate> gate_ = std::make_shared<PostGate>();
+  std::shared_ptr<TransportCounters> counters_ = std::make_shared<TransportCounters>();
   asio::io_context io_;
   std::vector<std::unique_ptr<tcp::acceptor>> acceptors_;
   std::vector<int> ports_;

@@ -1,0 +1,149 @@
+// binpickd itself with --http-port: the real server on the embedded default
+// cell (synthetic pile, real perception), a simulated robot picking through
+// the DaoAI socket, then the JSON API, /metrics and the page in Chromium
+// checked against what the robot was told.
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <regex>
+
+#include "tests/testing/files.h"
+#include "tests/testing/run_command.h"
+#include "tests/web/web_test_util.h"
+
+namespace bp {
+namespace {
+
+using json = nlohmann::json;
+
+int FreePort() {
+  boost::asio::io_context io;
+  boost::asio::ip::tcp::acceptor a(io, {boost::asio::ip::make_address("127.0.0.1"), 0});
+  return a.local_endpoint().port();
+}
+
+// binpickd as a child process; stdout (the ready line) through a pipe.
+class Daemon {
+ public:
+  Daemon(const std::vector<std::string>& args, const std::string& log) {
+    int fds[2];
+    if (pipe(fds) != 0) return;
+    pid_ = fork();
+    if (pid_ == 0) {
+      dup2(fds[1], 1);
+      const int err = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (err >= 0) dup2(err, 2);
+      close(fds[0]);
+      std::vector<char*> argv;
+      for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+      argv.push_back(nullptr);
+      execv(argv[0], argv.data());
+      _exit(127);
+    }
+    close(fds[1]);
+    out_ = fds[0];
+  }
+  ~Daemon() {
+    if (pid_ > 0) {
+      kill(pid_, SIGKILL);
+      waitpid(pid_, nullptr, 0);
+    }
+    if (out_ >= 0) close(out_);
+  }
+  // The ready line, or "" after timeout_ms.
+  std::string ReadyLine(int timeout_ms) {
+    std::string line;
+    pollfd p{out_, POLLIN, 0};
+    while (line.find('\n') == std::string::npos && poll(&p, 1, timeout_ms) > 0) {
+      char c;
+      if (read(out_, &c, 1) != 1) break;
+      line += c;
+    }
+    return line;
+  }
+  // SIGTERM, then the exit code (-1 if it did not exit normally).
+  int Stop() {
+    kill(pid_, SIGTERM);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  int out_ = -1;
+};
+
+TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
+  const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+  const std::string dir = testing::FreshDir("binpickd");
+  const int daoai_port = FreePort();
+  Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
+                 "--gri-official-port", "0", "--http-port", "-1"},
+                dir + "/binpickd.log");
+  const std::string ready = daemon.ReadyLine(60000);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
+      << ready << testing::ReadBytes(dir + "/binpickd.log");
+  const int http = std::stoi(m[1]);
+
+  const test::CommandRun robot =
+      test::RunCommand(bin + "binpick-robot --port " + std::to_string(daoai_port) +
+                       " --flow pick --max-cycles 1 --no-empty-check");
+  ASSERT_EQ(robot.exit_code, 0) << robot.out;
+  ASSERT_TRUE(std::regex_search(robot.out, m, std::regex(R"((\d+) picks)"))) << robot.out;
+  const int picks = std::stoi(m[1]);
+  ASSERT_GT(picks, 0);
+
+  const webtest::HttpResult status = webtest::HttpRequest(http, "/api/status");
+  ASSERT_EQ(status.status, 200) << status.error;
+  const json j = json::parse(status.body);
+  EXPECT_EQ(j["cell"], "default");
+  EXPECT_EQ(j["detection"]["outcome"], "grasps");
+  EXPECT_FALSE(j["detection"]["stages"].empty());
+  EXPECT_EQ(j["queue"]["total"], picks);  // one capture, every grasp picked
+  EXPECT_EQ(j["queue"]["remaining"], 0);
+  ASSERT_EQ(j["robots"].size(), 1u);
+  EXPECT_FALSE(j["robots"][0]["pose"].is_null());
+
+  const webtest::HttpResult depth = webtest::HttpRequest(http, "/api/image/depth.png");
+  EXPECT_EQ(depth.status, 200);
+  EXPECT_EQ(depth.body.substr(0, 8), std::string("\x89PNG\r\n\x1a\n", 8));
+
+  const webtest::HttpResult metrics = webtest::HttpRequest(http, "/metrics");
+  std::map<std::string, double> s;
+  const auto problems = webtest::CheckPrometheusText(metrics.body, &s);
+  EXPECT_TRUE(problems.empty()) << ::testing::PrintToString(problems);
+  EXPECT_EQ(s["binpick_grasps_served_total{status=\"2\"}"], picks);
+  EXPECT_EQ(s["binpick_captures_total{result=\"ok\"}"], 1.0);
+  EXPECT_EQ(s["binpick_connections_accepted_total{server=\"daoai\"}"], 1.0);
+  EXPECT_EQ(s["binpick_queue_grasps{task=\"0\"}"], 0.0);
+
+  if (std::filesystem::exists("/usr/bin/chromium")) {
+    const test::CommandRun dom = test::RunCommand(
+        "{ /usr/bin/chromium --headless --disable-gpu --no-sandbox --no-first-run "
+        "--disable-dev-shm-usage --user-data-dir=" + dir + "/profile --virtual-time-budget=3000 "
+        "--dump-dom http://127.0.0.1:" + std::to_string(http) + "/ 2>" + dir + "/chromium.log; }");
+    ASSERT_EQ(dom.exit_code, 0);
+    size_t served = 0;
+    for (size_t at = dom.out.find("<tr class=\"grasp served\""); at != std::string::npos;
+         at = dom.out.find("<tr class=\"grasp served\"", at + 1)) {
+      ++served;
+    }
+    EXPECT_EQ(served, static_cast<size_t>(picks)) << dom.out;
+  } else {
+    std::cout << "chromium absent: the page was not loaded in a browser here\n";
+  }
+  EXPECT_EQ(daemon.Stop(), 0);
+}
+
+}  // namespace
+}  // namespace bp

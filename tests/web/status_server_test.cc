@@ -1,0 +1,343 @@
+// The status page's HTTP server over real loopback connections, fed by a
+// RequestHandler driving a scripted planner with real frames.
+#include "web/status_server.h"
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <spdlog/sinks/base_sink.h>
+#include <spdlog/spdlog.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <thread>
+
+#include "comms/request_handler.h"
+#include "tests/testing/files.h"
+#include "tests/testing/run_command.h"
+#include "tests/web/web_test_util.h"
+#include "web/status_state.h"
+
+namespace bp {
+namespace {
+
+testing::ScriptedPlanner::Script Grasps(int n) {
+  testing::ScriptedPlanner::Script s;
+  s.grasps = n;
+  return s;
+}
+
+using json = nlohmann::json;
+namespace http = boost::beast::http;
+
+daoai::Request Req(int32_t command, int32_t task = 0) {
+  daoai::Request r;
+  r.command = command;
+  r.payload_1 = task;
+  r.meta_1 = static_cast<int32_t>(RobotType::kUR);
+  r.meta_2 = 2;  // protocol version
+  // Some robot pose; the handler scales it to metres (ClientContext::X_BF).
+  r.position = {3000, 2000, 5000};
+  return r;
+}
+
+// One binpickd-like stack in process: handler, status state, HTTP server.
+struct Stack {
+  std::shared_ptr<testing::ScriptedPlanner> script = std::make_shared<testing::ScriptedPlanner>();
+  MetricsRegistry metrics;
+  std::shared_ptr<StatusState> status;
+  std::unique_ptr<RequestHandler> handler;
+  std::unique_ptr<StatusServer> server;
+
+  explicit Stack(StatusServerOptions options = {}) {
+    const Cell cell = testing::MakeTestCell();
+    status = std::make_shared<StatusState>(cell, metrics);
+    handler = std::make_unique<RequestHandler>(cell, std::make_shared<webtest::FramePlanner>(script),
+                                               nullptr);
+    status->SetQueueProbe([h = handler.get()](int task) { return h->QueueSize(task); });
+    handler->AddObserver(status);
+    options.port = 0;
+    auto started = StatusServer::Start(*status, metrics, options);
+    EXPECT_TRUE(started.ok()) << started.status().ToString();
+    server = std::move(*started);
+  }
+  ~Stack() {
+    server->Stop();
+    handler->Shutdown();
+  }
+  int port() const { return server->port(); }
+};
+
+json GetJson(int port, const std::string& target) {
+  const webtest::HttpResult r = webtest::HttpRequest(port, target);
+  EXPECT_EQ(r.error, "");
+  EXPECT_EQ(r.status, 200);
+  EXPECT_EQ(r.content_type, "application/json");
+  return json::parse(r.body);
+}
+
+TEST(StatusServer, JsonApiShowsTheQueueRobotsAndStages) {
+  Stack s;
+  json before = GetJson(s.port(), "/api/status");
+  EXPECT_TRUE(before["queue"].is_null());
+  EXPECT_TRUE(before["detection"].is_null());
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/image/depth.png").status, 404);
+
+  ClientContext robot;
+  robot.id = 7;
+  robot.peer = "10.0.0.5:40000";
+  s.script->SetScript(1, Grasps(4));
+  ASSERT_TRUE(s.handler->Handle(Req(daoai::kCaptureAndProcess, 1), robot).has_value());
+  const auto pick = s.handler->Handle(Req(daoai::kPickPose, 1), robot);
+  ASSERT_TRUE(pick.has_value());
+  ASSERT_EQ(pick->status, daoai::kObjectsFound);
+
+  json j = GetJson(s.port(), "/api/status?x=1");
+  EXPECT_EQ(j["detection"]["queued"], true);
+  EXPECT_EQ(j["cell"], "test");
+  EXPECT_EQ(j["detection"]["task"], 1);
+  EXPECT_EQ(j["detection"]["outcome"], "grasps");
+  EXPECT_EQ(j["detection"]["parts"].size(), 4u);
+  ASSERT_EQ(j["detection"]["stages"].size(), 4u);
+  EXPECT_EQ(j["detection"]["stages"][2]["stage"], "pose");
+  EXPECT_EQ(j["detection"]["stages"][2]["ms"], 12.5);
+  const json& q = j["queue"];
+  EXPECT_EQ(q["task"], 1);
+  EXPECT_EQ(q["total"], 4);
+  EXPECT_EQ(q["remaining"], 3);
+  ASSERT_EQ(q["grasps"].size(), 4u);
+  EXPECT_EQ(q["grasps"][0]["state"], "served");
+  EXPECT_EQ(q["grasps"][1]["state"], "next");
+  EXPECT_EQ(q["grasps"][3]["state"], "queued");
+  for (int i = 0; i < 4; ++i) {
+    const Vec3 t = testing::ScriptedPlanner::GraspPose(1, i).translation();
+    const json& p = q["grasps"][i]["position_m"];
+    EXPECT_NEAR(p[0].get<double>(), t.x(), 1e-12);
+    EXPECT_NEAR(p[1].get<double>(), t.y(), 1e-12);
+    EXPECT_NEAR(p[2].get<double>(), t.z(), 1e-12);
+    EXPECT_EQ(q["grasps"][i]["instance_id"], i);
+  }
+  // Tasks with their live queue sizes.
+  bool found = false;
+  for (const json& t : j["tasks"]) {
+    if (t["id"] == 1) {
+      EXPECT_EQ(t["queue_size"], 3);
+      found = true;
+    }
+  }
+  EXPECT_TRUE(found);
+  // The robot, with the pose it sent last.
+  ASSERT_EQ(j["robots"].size(), 1u);
+  const json& r = j["robots"][0];
+  EXPECT_EQ(r["peer"], "10.0.0.5:40000");
+  EXPECT_EQ(r["client_id"], 7);
+  EXPECT_EQ(r["answers"], 2);
+  EXPECT_EQ(r["last_command"], daoai::kPickPose);
+  EXPECT_EQ(r["last_status"], daoai::kObjectsFound);
+  ASSERT_TRUE(robot.X_BF.has_value());
+  EXPECT_NEAR(r["pose"]["position_m"][0].get<double>(), robot.X_BF->translation().x(), 1e-12);
+  EXPECT_NEAR(r["pose"]["position_m"][2].get<double>(), robot.X_BF->translation().z(), 1e-12);
+  EXPECT_EQ(j["calibration"][0]["name"], "mode");
+  EXPECT_EQ(j["calibration"][0]["value"], "none");
+
+  // An empty-box check is the latest detection but leaves the queue alone.
+  s.script->SetScript(1, Grasps(2));
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kCheckEmptyBox, 1), robot)->status, daoai::kBoxNotEmpty);
+  j = GetJson(s.port(), "/api/status");
+  EXPECT_EQ(j["detection"]["seq"], 2);
+  EXPECT_EQ(j["detection"]["queued"], false);
+  EXPECT_EQ(j["detection"]["parts"].size(), 2u);
+  EXPECT_EQ(j["queue"]["seq"], 1);
+  EXPECT_EQ(j["queue"]["total"], 4);
+  EXPECT_EQ(j["queue"]["remaining"], 3);
+}
+
+TEST(StatusServer, ShowsTheCalibrationStateSeenInAnswersOrTheProbes) {
+  Stack s;
+  ClientContext robot;
+  auto row = [&](const json& j, const std::string& name) -> std::string {
+    for (const json& r : j["calibration"]) {
+      if (r["name"] == name) return r["value"];
+    }
+    return "<missing>";
+  };
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kStartAutoCalibration), robot)->status,
+            daoai::kModeAutoCalibration);
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kAutoAccumulatePose), robot)->status,
+            daoai::kModeAutoCalibration);
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kAutoAccumulatePose), robot)->status,
+            daoai::kModeAutoCalibration);
+  json j = GetJson(s.port(), "/api/status");
+  EXPECT_EQ(row(j, "mode"), "auto");
+  EXPECT_EQ(row(j, "poses accumulated"), "2");
+  EXPECT_EQ(row(j, "calibrations completed"), "0");
+  // The calibration engine's own rows replace the inferred ones.
+  s.status->SetCalibrationProbe([] {
+    return std::vector<std::pair<std::string, std::string>>{{"X_BC residual (mm)", "0.41"}};
+  });
+  j = GetJson(s.port(), "/api/status");
+  ASSERT_EQ(j["calibration"].size(), 1u);
+  EXPECT_EQ(row(j, "X_BC residual (mm)"), "0.41");
+}
+
+// PNG: signature, then IHDR with width and height (big-endian).
+void ExpectPng(const std::string& body, uint32_t width, uint32_t height) {
+  ASSERT_GT(body.size(), 33u);
+  EXPECT_EQ(body.substr(0, 8), std::string("\x89PNG\r\n\x1a\n", 8));
+  EXPECT_EQ(body.substr(12, 4), "IHDR");
+  auto be32 = [&](size_t at) {
+    return (uint32_t(uint8_t(body[at])) << 24) | (uint32_t(uint8_t(body[at + 1])) << 16) |
+           (uint32_t(uint8_t(body[at + 2])) << 8) | uint32_t(uint8_t(body[at + 3]));
+  };
+  EXPECT_EQ(be32(16), width);
+  EXPECT_EQ(be32(20), height);
+}
+
+TEST(StatusServer, ServesDepthAndIntensityPngsOfTheLatestCapture) {
+  Stack s;
+  ClientContext robot;
+  s.script->SetScript(0, Grasps(2));
+  ASSERT_TRUE(s.handler->Handle(Req(daoai::kCaptureAndProcess, 0), robot).has_value());
+  s.handler->Handle(Req(daoai::kPickPose, 0), robot);  // waits for the plan
+  for (const char* name : {"/api/image/depth.png", "/api/image/intensity.png"}) {
+    const webtest::HttpResult r = webtest::HttpRequest(s.port(), name);
+    ASSERT_EQ(r.status, 200) << name;
+    EXPECT_EQ(r.content_type, "image/png");
+    ExpectPng(r.body, 160, 120);
+  }
+  // The overlay is drawn: the intensity image with marks differs from one
+  // without (no detected parts, no grasps).
+  const auto marked = s.status->RenderIntensityPng();
+  ASSERT_TRUE(marked.has_value());
+  s.script->SetScript(0, Grasps(0));
+  ASSERT_TRUE(s.handler->Handle(Req(daoai::kCaptureAndProcess, 0), robot).has_value());
+  s.handler->Handle(Req(daoai::kPickPose, 0), robot);
+  const auto plain = s.status->RenderIntensityPng();
+  ASSERT_TRUE(plain.has_value());
+  EXPECT_NE(*marked, *plain);
+}
+
+TEST(StatusServer, BadRequestsGet4xxAndTheServerKeepsServing) {
+  StatusServerOptions options;
+  options.max_request_bytes = 4096;
+  options.idle_timeout = std::chrono::milliseconds(300);
+  Stack s(options);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/nope").status, 404);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::post).status, 405);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::delete_).status, 405);
+  const webtest::HttpResult head = webtest::HttpRequest(s.port(), "/api/status", http::verb::head);
+  EXPECT_EQ(head.status, 200);
+  EXPECT_EQ(head.body, "");
+
+  EXPECT_EQ(webtest::RawExchange(s.port(), "garbage\r\n\r\n").substr(0, 12), "HTTP/1.1 400");
+  EXPECT_EQ(webtest::RawExchange(s.port(), "GET / HTTP/1.1\r\nX: " + std::string(10000, 'a') +
+                                               "\r\n\r\n")
+                .substr(0, 12),
+            "HTTP/1.1 413");
+  EXPECT_EQ(webtest::RawExchange(s.port(), "POST /api/status HTTP/1.1\r\nContent-Length: 100000\r\n\r\n")
+                .substr(0, 12),
+            "HTTP/1.1 413");
+  // Half a request, then silence: closed after the idle timeout, no answer.
+  EXPECT_EQ(webtest::RawExchange(s.port(), "GET /api/sta"), "");
+  EXPECT_EQ(GetJson(s.port(), "/api/status")["cell"], "test");
+}
+
+TEST(StatusServer, RefusesConnectionsOverTheLimitWith503) {
+  StatusServerOptions options;
+  options.max_connections = 2;
+  Stack s(options);
+  boost::asio::io_context io;
+  std::vector<std::unique_ptr<boost::asio::ip::tcp::socket>> idle;
+  for (int i = 0; i < 2; ++i) {
+    idle.push_back(std::make_unique<boost::asio::ip::tcp::socket>(io));
+    idle.back()->connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<uint16_t>(s.port())});
+  }
+  // The server accepts in connection order: these two come first.
+  const webtest::HttpResult refused = webtest::HttpRequest(s.port(), "/api/status");
+  EXPECT_EQ(refused.status, 503);
+  idle.clear();  // the idle browsers leave
+  json j;
+  for (int i = 0; i < 200; ++i) {
+    const webtest::HttpResult r = webtest::HttpRequest(s.port(), "/api/status");
+    if (r.status == 200) {
+      j = json::parse(r.body);
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(j["cell"], "test");
+}
+
+TEST(StatusServer, KeepsTheLastWarningsAndErrors) {
+  Stack s;
+  auto logger = std::make_shared<spdlog::logger>("web_test", s.status->LogSink());
+  logger->info("not kept");
+  logger->warn("camera {} is slow", 3);
+  logger->error("capture failed");
+  const json j = GetJson(s.port(), "/api/status");
+  ASSERT_EQ(j["errors"].size(), 2u);
+  EXPECT_EQ(j["errors"][0]["level"], "warning");
+  EXPECT_EQ(j["errors"][0]["message"], "camera 3 is slow");
+  EXPECT_EQ(j["errors"][1]["level"], "error");
+  EXPECT_EQ(j["errors"][1]["logger"], "web_test");
+  std::map<std::string, double> samples;
+  webtest::CheckPrometheusText(webtest::HttpRequest(s.port(), "/metrics").body, &samples);
+  EXPECT_EQ(samples["binpick_log_messages_total{level=\"warning\"}"], 1.0);
+  EXPECT_EQ(samples["binpick_log_messages_total{level=\"error\"}"], 1.0);
+}
+
+TEST(StatusServer, MetricsParseAsPrometheusTextAndCountWhatHappened) {
+  Stack s;
+  ClientContext robot;
+  s.script->SetScript(0, Grasps(2));
+  testing::ScriptedPlanner::Script fails;
+  fails.capture_fails = true;
+  s.script->SetScript(3, fails);
+  ASSERT_TRUE(s.handler->Handle(Req(daoai::kCaptureAndProcess, 0), robot).has_value());
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kPickPose, 0), robot)->status, daoai::kObjectsFound);
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kPickPose, 0), robot)->status, daoai::kObjectsFound);
+  const int32_t third = s.handler->Handle(Req(daoai::kPickPose, 0), robot)->status;
+  EXPECT_NE(third, daoai::kObjectsFound);
+  s.handler->Handle(Req(daoai::kCaptureAndProcess, 3), robot);
+  s.handler->Handle(Req(daoai::kPickPose, 3), robot);
+
+  const webtest::HttpResult r = webtest::HttpRequest(s.port(), "/metrics");
+  ASSERT_EQ(r.status, 200);
+  EXPECT_EQ(r.content_type, "text/plain; version=0.0.4; charset=utf-8");
+  std::map<std::string, double> m;
+  const std::vector<std::string> problems = webtest::CheckPrometheusText(r.body, &m);
+  EXPECT_TRUE(problems.empty()) << ::testing::PrintToString(problems) << "\n" << r.body;
+  EXPECT_EQ(m["binpick_captures_total{result=\"ok\"}"], 1.0);
+  EXPECT_EQ(m["binpick_captures_total{result=\"failed\"}"], 1.0);
+  EXPECT_EQ(m["binpick_detections_total{task=\"0\",outcome=\"grasps\"}"], 1.0);
+  EXPECT_EQ(m["binpick_detections_total{task=\"3\",outcome=\"capture_failed\"}"], 1.0);
+  EXPECT_EQ(m["binpick_grasps_planned_total{task=\"0\"}"], 2.0);
+  EXPECT_EQ(m["binpick_parts_detected_total{task=\"0\"}"], 2.0);
+  EXPECT_EQ(m["binpick_grasps_served_total{status=\"2\"}"], 2.0);
+  EXPECT_EQ(m["binpick_grasps_served_total{status=\"" + std::to_string(third) + "\"}"] >= 1.0, true);
+  EXPECT_EQ(m["binpick_responses_total{command=\"20\",status=\"5\"}"], 1.0);
+  EXPECT_EQ(m["binpick_stage_seconds_count{stage=\"pose\"}"], 1.0);
+  EXPECT_NEAR(m["binpick_stage_seconds_sum{stage=\"pose\"}"], 0.0125, 1e-15);
+  EXPECT_EQ(m["binpick_stage_seconds_bucket{stage=\"pose\",le=\"0.01\"}"], 0.0);
+  EXPECT_EQ(m["binpick_stage_seconds_bucket{stage=\"pose\",le=\"0.025\"}"], 1.0);
+  EXPECT_EQ(m["binpick_capture_seconds_count"], 2.0);
+  EXPECT_EQ(m["binpick_plan_seconds_count"], 1.0);
+
+  // The reference parser, where Debian's python3-prometheus-client is installed.
+  if (test::RunCommand("/usr/bin/python3 -c 'import prometheus_client'").exit_code == 0) {
+    const std::string dir = testing::FreshDir("web_metrics");
+    const std::string file = dir + "/metrics.txt";
+    std::ofstream(file) << r.body;
+    const test::CommandRun py = test::RunCommand(
+        "/usr/bin/python3 -c 'import sys\n"
+        "from prometheus_client.parser import text_string_to_metric_families as p\n"
+        "fams = list(p(open(sys.argv[1]).read()))\n"
+        "print(len(fams), sum(len(f.samples) for f in fams))' " + file);
+    EXPECT_EQ(py.exit_code, 0) << py.out;
+    EXPECT_NE(py.out.find(' '), std::string::npos) << py.out;
+  } else {
+    std::cout << "python3-prometheus-client absent: only the built-in checker ran\n";
+  }
+}
+
+}  // namespace
+}  // namespace bp
