@@ -317,6 +317,7 @@ class Recorder::Impl {
   }
 
   void WriteCapture(const DetectionEvent& e) {
+    if (options_.before_write) options_.before_write();
     if (!Writable()) return CountFailedCapture();
     const auto* captured = dynamic_cast<const CapturedFrame*>(e.scene.get());
     const Frame* frame = captured ? &captured->frame() : nullptr;

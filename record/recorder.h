@@ -28,6 +28,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -52,6 +53,8 @@ struct RecorderOptions {
   int queue_answers = 4096;
   std::chrono::milliseconds retry_after{30000};  // pause after a write failure
   std::string version = BinpickVersion();
+  // Tests only: runs on the writer thread before each capture is written.
+  std::function<void()> before_write;
 };
 
 // From the cell's `recording:` section.

@@ -31,6 +31,7 @@ Command InfoCommand();
 Command RobotCommand();
 Command EvalCommand();  // eval_cmd.cc
 Command ClearCommand();  // clear_cmd.cc
+Command ReplayCommand();  // replay_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.

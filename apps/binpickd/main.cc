@@ -5,6 +5,8 @@
 //            [--modbus-robot HOST:PORT]...  (Modbus master per robot slave;
 //             default: the cell's robot.modbus, if any)
 //            [--gri-port N] [--gri-official-port N] [--gri-timeout S]
+//            [--source synthetic|files:DIR|replay:DIR]  (default: the cell's source)
+//            [--no-record] [--record-dir DIR] [--record-max-mb N]  (default: the cell's recording)
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
@@ -30,6 +32,7 @@
 #include "comms/request_handler.h"
 #include "core/cell.h"
 #include "grasp/planner_factory.h"
+#include "record/recorder.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -44,6 +47,10 @@ int main(int argc, char** argv) {
   std::string log_level = "info";
   std::vector<std::string> modbus_robots;
   std::optional<int> modbus_poll_ms;
+  std::string source;
+  bool no_record = false;
+  std::string record_dir;
+  std::optional<int64_t> record_max_mb;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -61,6 +68,13 @@ int main(int argc, char** argv) {
                  "cell's robot.modbus)");
   app.add_option("--modbus-poll-ms", modbus_poll_ms,
                  "Modbus request flag poll interval (default: the cell's robot.modbus.poll_ms)");
+  app.add_option("--source", source,
+                 "capture source: synthetic, files:DIR or replay:DIR (a recorded session or a directory of "
+                 "frames; default: the cell's source)");
+  app.add_flag("--no-record", no_record, "do not record captures and answers (default: the cell's recording)");
+  app.add_option("--record-dir", record_dir, "directory of the recording sessions (default: the cell's)");
+  app.add_option("--record-max-mb", record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
+      ->check(CLI::PositiveNumber);
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
@@ -77,6 +91,20 @@ int main(int argc, char** argv) {
   if (!cell.ok()) {
     std::cerr << "binpickd: " << cell.status().ToString() << "\n";
     return 2;
+  }
+  if (!source.empty()) {
+    const size_t colon = source.find(':');
+    const std::string kind = source.substr(0, colon);
+    const std::string dir = colon == std::string::npos ? "" : source.substr(colon + 1);
+    if (kind == "synthetic" && dir.empty()) {
+      cell->source.kind = bp::SourceSpec::Kind::kSynthetic;
+    } else if ((kind == "files" || kind == "replay") && !dir.empty()) {
+      cell->source.kind = kind == "files" ? bp::SourceSpec::Kind::kFiles : bp::SourceSpec::Kind::kReplay;
+      cell->source.dir = dir;
+    } else {
+      std::cerr << "binpickd: --source '" << source << "' is not synthetic, files:DIR or replay:DIR\n";
+      return 2;
+    }
   }
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner = bp::MakePlanner(*cell);
   if (!planner.ok()) {
@@ -95,6 +123,22 @@ int main(int argc, char** argv) {
   handler_options.detection_threads = detection_threads;
   bp::RequestHandler handler(*cell, std::shared_ptr<bp::GraspPlanner>(std::move(*planner)),
                              nullptr, handler_options);
+
+  // The recorder observes every detection and answer; it owns its writer
+  // thread and the session directory (docs/architecture.md "Recording").
+  std::shared_ptr<bp::Recorder> recorder;
+  if (cell->recording.enabled && !no_record) {
+    bp::RecorderOptions options = bp::RecorderOptionsFromCell(*cell);
+    if (!record_dir.empty()) options.directory = record_dir;
+    if (record_max_mb) options.max_disk_bytes = *record_max_mb << 20;
+    auto started = bp::Recorder::Start(*cell, options);
+    if (started.ok()) {
+      recorder = *started;
+      handler.AddObserver(recorder);
+    } else {
+      spdlog::error("binpickd: recording disabled: {}", started.status().ToString());
+    }
+  }
 
   bp::DaoaiServerOptions daoai;
   daoai.bind = bind.value_or(cell->endpoints.bind);
@@ -180,6 +224,7 @@ int main(int argc, char** argv) {
   for (auto& master : masters) master->Stop();
   if (gri_server) gri_server->Stop();
   handler.Shutdown();
+  if (recorder) recorder->Stop();  // writes what is queued
   server.reset();
   gri_server.reset();
   return 0;
