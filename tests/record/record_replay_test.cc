@@ -15,6 +15,8 @@
 #include "pipeline/perception.h"
 #include "pipeline/recording.h"
 #include "record/recorder.h"
+#include "core/atomic_file.h"
+#include "pipeline/frame_io.h"
 #include "record/replay.h"
 #include "tests/record/record_test_util.h"
 #include "tests/testing/files.h"
@@ -190,6 +192,76 @@ TEST_F(RecordReplay, AResultThatMovedBeyondToleranceIsADifference) {
   ASSERT_TRUE(report.ok());
   EXPECT_EQ(report->differing, 0);
   EXPECT_NEAR(report->captures[0].max_position_diff_mm, 5.0, 1e-9);
+}
+
+TEST_F(RecordReplay, RecordsCutOffMidWriteAreSkippedWithAWarningAndReplayGoesOn) {
+  ASSERT_NO_FATAL_FAILURE(Record(4));
+  // cap 2: a data file cut short (a crash or a bad disk after the record was complete).
+  const std::string pcd = session_ + "/cap_000002/cloud.pcd";
+  fs::resize_file(pcd, fs::file_size(pcd) / 2);
+  // cap 3: the manifest never made it, only its temporary file did.
+  const std::string manifest = session_ + "/cap_000003/record.json";
+  const std::string text = testing::ReadBytes(manifest);
+  fs::remove(manifest);
+  testing::WriteText(AtomicTempPath(manifest), text.substr(0, text.size() / 3));
+  // cap 5: the staging directory of a record being written when the server died.
+  fs::create_directories(session_ + "/cap_000005.partial");
+  testing::WriteText(session_ + "/cap_000005.partial/cloud.pcd", "# .PCD v0.7");
+
+  Result<ReplayReport> report = ReplayDirectory(session_, ReplayWith(perception_));
+  ASSERT_TRUE(report.ok()) << report.status().ToString();
+  ASSERT_EQ(report->skipped.size(), 3u) << ::testing::PrintToString(report->skipped);
+  EXPECT_NE(report->skipped[0].find("cap_000002/cloud.pcd"), std::string::npos) << report->skipped[0];
+  EXPECT_NE(report->skipped[0].find("truncated"), std::string::npos) << report->skipped[0];
+  EXPECT_NE(report->skipped[1].find("cap_000003': no record.json"), std::string::npos) << report->skipped[1];
+  EXPECT_NE(report->skipped[2].find("cap_000005.partial"), std::string::npos) << report->skipped[2];
+  ASSERT_EQ(report->captures.size(), 2u);
+  EXPECT_EQ(report->captures[0].file, session_ + "/cap_000001");
+  EXPECT_EQ(report->captures[1].file, session_ + "/cap_000004");
+  EXPECT_EQ(report->differing, 0);
+  for (const CaptureReplay& c : report->captures) EXPECT_TRUE(c.replayed && c.compared) << c.error;
+
+  // The replay source serves the complete records only, in order, wrapping around.
+  auto source = MakeReplaySource(session_, cell_);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  std::vector<std::string> served;
+  for (int i = 0; i < 3; ++i) {
+    Result<Frame> frame = (*source)->Capture({});
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    served.push_back(frame->source);
+  }
+  EXPECT_EQ(served, (std::vector<std::string>{"replay " + session_ + "/cap_000001",
+                                              "replay " + session_ + "/cap_000004",
+                                              "replay " + session_ + "/cap_000001"}));
+}
+
+TEST(Replay, APlainDirectoryOfPcdAndDepthFilesReplays) {
+  const std::string dir = testing::FreshDir("plain");
+  const std::string cell_path = testing::WriteSmallCell(dir, 4, 7);
+  Result<Cell> cell = LoadCell(cell_path);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  auto source = MakeCaptureSource(*cell);
+  ASSERT_TRUE(source.ok());
+  Result<Frame> frame = (*source)->Capture({});
+  ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+  const std::string frames = dir + "/frames";
+  fs::create_directories(frames);
+  ASSERT_TRUE(WriteCloudPcd(*frame, frames + "/f000_cloud.pcd").ok());
+  ASSERT_TRUE(WriteDepthPng(*frame, frames + "/f001_depth.png").ok());
+
+  ReplayOptions o = ReplayWith(SharedPerception(*cell));
+  o.cell_path = cell_path;
+  Result<ReplayReport> report = ReplayDirectory(frames, o);
+  ASSERT_TRUE(report.ok()) << report.status().ToString();
+  EXPECT_FALSE(report->session);
+  ASSERT_EQ(report->captures.size(), 2u);
+  for (const CaptureReplay& c : report->captures) {
+    EXPECT_TRUE(c.replayed) << c.error;
+    EXPECT_FALSE(c.compared);  // nothing recorded
+    EXPECT_GT(c.result.detections, 0) << c.file;
+    EXPECT_FALSE(c.result.stages.empty());
+  }
+  EXPECT_EQ(report->differing, 0);
 }
 
 }  // namespace
