@@ -186,6 +186,25 @@ TEST(Recorder, AWriteFailurePausesRecordingThenItResumes) {
   EXPECT_EQ(listing->records, (std::vector<std::string>{session + "/cap_000001", session + "/cap_000002"}));
 }
 
+TEST(Recorder, AFlippedByteInARecordedFileFailsVerification) {
+  const std::string root = testing::FreshDir("flip");
+  RecorderOptions o;
+  o.directory = root;
+  auto recorder = Recorder::Start(TestCell(), o);
+  ASSERT_TRUE(recorder.ok());
+  (*recorder)->OnDetection(Event(1));
+  (*recorder)->Stop();
+  const std::string record = (*recorder)->session_dir() + "/cap_000001";
+  ASSERT_TRUE(VerifyRecord(record).ok()) << VerifyRecord(record).ToString();
+  const std::string pcd = record + "/cloud.pcd";
+  std::string bytes = testing::ReadBytes(pcd);
+  bytes[bytes.size() - 5] ^= 0x01;  // same size, one bit off
+  testing::WriteText(pcd, bytes);
+  const Status s = VerifyRecord(record);
+  EXPECT_EQ(s.code(), Status::Code::kCorruption);
+  EXPECT_NE(s.message().find("cloud.pcd': checksum does not match"), std::string::npos) << s.ToString();
+}
+
 TEST(Recorder, StartFailsWithThePathWhenTheDirectoryCannotBeCreated) {
   const std::string root = testing::FreshDir("nodir");
   testing::WriteText(root + "/file", "x");
