@@ -39,6 +39,12 @@ int64_t ToNs(std::chrono::system_clock::time_point t) {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(t.time_since_epoch()).count();
 }
 
+// Never throws: strings that are not UTF-8 (peer names, file paths) are
+// written with U+FFFD in place of the bad bytes.
+std::string Dump(const OrderedJson& j, int indent) {
+  return j.dump(indent, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+}
+
 std::string StatusText(const Status& s) { return s.ok() ? "OK" : s.ToString(); }
 
 // Sum of the sizes of the regular files under `path` (or of `path` itself).
@@ -125,7 +131,7 @@ class Recorder::Impl {
       const int64_t bytes = DiskBytes(entry.path());
       disk_bytes_ += bytes;
       const std::string name = entry.path().filename().string();
-      if (name.rfind("session_", 0) == 0 && entry.is_directory()) old_sessions_.push_back({entry.path().string(), bytes});
+      if (name.rfind("session_", 0) == 0 && entry.is_directory(ec)) old_sessions_.push_back({entry.path().string(), bytes});
     }
     std::sort(old_sessions_.begin(), old_sessions_.end(),
               [](const Item& a, const Item& b) { return a.path < b.path; });
@@ -146,7 +152,7 @@ class Recorder::Impl {
     OrderedJson tasks = OrderedJson::object();
     for (const TaskSpec& t : cell_.tasks) tasks[std::to_string(t.id)] = ConfigHash(cell_, t.id);
     session["config_hash_by_task"] = tasks;
-    const std::string session_text = session.dump(2) + "\n";
+    const std::string session_text = Dump(session, 2);
     for (const auto& [file, text] : {std::pair<const char*, const std::string&>{kSessionManifestName, session_text},
                                      std::pair<const char*, const std::string&>{kSessionCellName, cell_.yaml_text}}) {
       if (Status s = WriteFileAtomic((fs::path(session_dir_) / file).string(), text); !s.ok()) {
@@ -173,8 +179,12 @@ class Recorder::Impl {
       if (stopping_) return;
       if (queued_captures_ >= options_.queue_captures) {
         ++stats_.captures_dropped;
-        spdlog::warn("recording: writer busy ({} captures queued), capture of task {} not recorded ({} dropped)",
-                     queued_captures_, e.task_id, stats_.captures_dropped);
+        const auto now = std::chrono::steady_clock::now();
+        if (now - last_drop_warning_ >= std::chrono::seconds(1)) {  // at most one line a second
+          last_drop_warning_ = now;
+          spdlog::warn("recording: writer busy ({} captures queued), capture of task {} not recorded ({} dropped "
+                       "so far)", queued_captures_, e.task_id, stats_.captures_dropped);
+        }
         return;
       }
       ++queued_captures_;
@@ -239,22 +249,26 @@ class Recorder::Impl {
       const bool capture = std::holds_alternative<DetectionEvent>(job);
       --(capture ? queued_captures_ : queued_answers_);
       lock.unlock();
-      if (capture) {
-        WriteCapture(std::get<DetectionEvent>(job));
-      } else {
-        AddAnswer(std::get<AnswerEvent>(job));
+      try {  // nothing may escape the writer thread
+        if (capture) {
+          WriteCapture(std::get<DetectionEvent>(job));
+        } else {
+          AddAnswer(std::get<AnswerEvent>(job));
+        }
+      } catch (const std::exception& e) {
+        Pause(Status::Internal(std::string("unexpected error: ") + e.what()));
       }
       lock.lock();
       const bool idle = queue_.empty();
       lock.unlock();
-      if (idle) WriteAnswers();  // one rewrite per burst, not per answer
+      if (idle) WriteAnswersNoThrow();  // one rewrite per burst, not per answer
       lock.lock();
       ++processed_;
       stats_.disk_bytes = disk_bytes_;
       lock.unlock();
       done_cv_.notify_all();
     }
-    WriteAnswers();
+    WriteAnswersNoThrow();
     std::lock_guard lock(mutex_);
     stats_.disk_bytes = disk_bytes_;
     writer_done_ = true;
@@ -424,7 +438,7 @@ class Recorder::Impl {
     plan["result"] = e.plan ? record_internal::PlanResultJson(*e.plan) : OrderedJson();
     m["plan"] = plan;
     m["files"] = files;
-    return WriteFileAtomic((d / kRecordManifestName).string(), m.dump(1) + "\n");
+    return WriteFileAtomic((d / kRecordManifestName).string(), Dump(m, 1));
   }
 
   void AddAnswer(const AnswerEvent& e) {
@@ -450,6 +464,14 @@ class Recorder::Impl {
     ++answers_pending_;
   }
 
+  void WriteAnswersNoThrow() {
+    try {
+      WriteAnswers();
+    } catch (const std::exception& e) {
+      Pause(Status::Internal(std::string("unexpected error: ") + e.what()));
+    }
+  }
+
   // Replaces the current answers chunk with everything it holds so far.
   void WriteAnswers() {
     if (answers_pending_ == 0) return;
@@ -458,7 +480,7 @@ class Recorder::Impl {
     OrderedJson chunk;
     chunk["format"] = kAnswersFormat;
     chunk["answers"] = answers_;
-    const std::string text = chunk.dump(1) + "\n";
+    const std::string text = Dump(chunk, 1);
     MakeRoom(static_cast<int64_t>(text.size()) - answers_chunk_bytes_);
     if (answers_chunk_.empty()) {  // a new chunk, or the open one was rotated out
       answers_chunk_ = (fs::path(session_dir_) / (SeqName("answers_", ++next_chunk_) + ".json")).string();
@@ -498,6 +520,7 @@ class Recorder::Impl {
   bool stopping_ = false;      // GUARDED_BY(mutex_)
   bool writer_done_ = false;   // GUARDED_BY(mutex_)
   RecorderStats stats_;        // GUARDED_BY(mutex_)
+  std::chrono::steady_clock::time_point last_drop_warning_{};  // GUARDED_BY(mutex_)
   std::thread writer_;
 
   // Writer thread only.
