@@ -289,6 +289,7 @@ class Parser {
   void ParseRobot(const YAML::Node& n, Cell& cell) const;
   void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
   void ParseCalibration(const YAML::Node& n, const YAML::Node& camera, Cell& cell) const;
+  void ParseRecording(const YAML::Node& n, Cell& cell) const;
 
   std::string file_;
   fs::path base_dir_;
@@ -890,12 +891,26 @@ void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
   }
 }
 
+void Parser::ParseRecording(const YAML::Node& n, Cell& cell) const {
+  const std::string path = "recording";
+  ExpectMap(n, path, {"enabled", "directory", "max_disk_mb", "queue_captures"});
+  RecordingSpec& r = cell.recording;
+  r.enabled = OptBool(n, path, "enabled", r.enabled);
+  if (const YAML::Node d = n["directory"]; d.IsDefined()) r.directory = Resolve(Name(d, "recording.directory"));
+  const int cap = OptInt(n, path, "max_disk_mb", static_cast<int>(r.max_disk_mb));
+  Check(cap >= 1, n["max_disk_mb"], "recording.max_disk_mb", "must be >= 1, got " + std::to_string(cap));
+  r.max_disk_mb = cap;
+  r.queue_captures = OptInt(n, path, "queue_captures", r.queue_captures);
+  Check(r.queue_captures >= 1 && r.queue_captures <= 1000, n["queue_captures"], "recording.queue_captures",
+        "must be in 1..1000, got " + std::to_string(r.queue_captures));
+}
+
 Cell Parser::ParseCell(const YAML::Node& root) {
   if (!root.IsDefined() || root.IsNull()) Fail(root, "", "the cell file is empty");
   if (!root.IsMap()) Fail(root, "", "expected a map of sections at the top level, got " + What(root));
   ExpectMap(root, "",
             {"name", "camera", "source", "bin", "roi", "parts", "grippers", "tasks", "robot", "endpoints",
-             "calibration"});
+             "calibration", "recording"});
   Cell cell;
   cell.path = file_;
   cell.base_dir = base_dir_.string();
@@ -914,6 +929,7 @@ Cell Parser::ParseCell(const YAML::Node& root) {
   ParseTasks(Req(root, "", "tasks"), cell);
   ParseRobot(Req(root, "", "robot"), cell);
   if (const YAML::Node e = root["endpoints"]; e.IsDefined()) ParseEndpoints(e, cell);
+  if (const YAML::Node r = root["recording"]; r.IsDefined()) ParseRecording(r, cell);
   return cell;
 }
 
@@ -921,7 +937,9 @@ Result<Cell> ParseImpl(std::string_view text, const std::string& file, const fs:
   try {
     const YAML::Node root = YAML::Load(std::string(text));
     Parser parser(file, base_dir);
-    return parser.ParseCell(root);
+    Cell cell = parser.ParseCell(root);
+    cell.yaml_text = std::string(text);
+    return cell;
   } catch (const CellError& e) {
     return e.status;
   } catch (const YAML::ParserException& e) {

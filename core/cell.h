@@ -245,6 +245,17 @@ struct CalibrationSpec {
   Pose precision_target = Pose::Identity();
 };
 
+// Recording of captures and answers (record/recorder.h, docs/file_formats.md
+// "Recordings"). On by default.
+struct RecordingSpec {
+  bool enabled = true;
+  // Root of the session directories. Empty: "binpick_recordings" in the
+  // server's working directory. A relative path resolves against the cell file.
+  std::string directory;
+  int64_t max_disk_mb = 1024;  // cap on everything under `directory`
+  int queue_captures = 8;      // captures waiting for the writer before new ones are dropped
+};
+
 struct Cell {
   std::string path;       // file it was loaded from ("<embedded default>" if none)
   std::string base_dir;   // relative paths in the file resolve against this
@@ -261,6 +272,9 @@ struct Cell {
   // Present with a `calibration` section; then camera.hand_eye_file defaults
   // to "<cell file>.calibration.yaml" (none for the embedded default cell).
   std::optional<CalibrationSpec> calibration;
+  RecordingSpec recording;
+  // The YAML text the cell was parsed from (recordings hash and keep it).
+  std::string yaml_text;
 
   const PartSpec* FindPart(int class_id) const;
   const GripperSpec* FindGripper(const std::string& name) const;

@@ -1,6 +1,7 @@
 #include "pipeline/capture_source.h"
 
 #include "pipeline/file_source.h"
+#include "pipeline/recording.h"
 #include "pipeline/synthetic_source.h"
 
 namespace bp {
@@ -15,7 +16,10 @@ Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell) {
     case SourceSpec::Kind::kSynthetic:
       return MakeSyntheticSource(cell);
     case SourceSpec::Kind::kReplay:
-      return Status::Unavailable("replay: not implemented yet");
+      if (cell.source.dir.empty()) {
+        return Status::InvalidArgument(cell.path + ": source.dir is required when source.kind is replay");
+      }
+      return MakeReplaySource(cell.source.dir, cell);
   }
   return Status::InvalidArgument(cell.path + ": unknown source.kind");
 }

@@ -1,5 +1,5 @@
 // Capture sources: synthetic (OSMesa-rendered pile), files (PCD, PLY, depth
-// PNG), later replay. Not thread-safe: one owner calls Capture at a time.
+// PNG), replay of recordings (pipeline/recording.h). Not thread-safe: one owner calls Capture at a time.
 #pragma once
 
 #include <memory>

@@ -7,6 +7,8 @@
 //            [--gri-port N] [--gri-official-port N] [--gri-timeout S]
 //            [--http-port N] [--http-bind ADDR]  (status page, JSON API and
 //             /metrics: docs/status_page.md; port 0 or absent disables)
+//            [--source synthetic|files:DIR|replay:DIR]  (default: the cell's source)
+//            [--no-record] [--record-dir DIR] [--record-max-mb N]  (default: the cell's recording)
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
@@ -42,6 +44,7 @@
 #include "web/server_metrics.h"
 #include "web/status_server.h"
 #include "web/status_state.h"
+#include "record/recorder.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -58,6 +61,10 @@ int main(int argc, char** argv) {
   std::optional<int> modbus_poll_ms;
   int http_port = 0;
   std::string http_bind = "127.0.0.1";
+  std::string source;
+  bool no_record = false;
+  std::string record_dir;
+  std::optional<int64_t> record_max_mb;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -78,6 +85,13 @@ int main(int argc, char** argv) {
   app.add_option("--http-port", http_port,
                  "status page, JSON API and /metrics port; 0 disables (default), -1 ephemeral");
   app.add_option("--http-bind", http_bind, "status page listen address");
+  app.add_option("--source", source,
+                 "capture source: synthetic, files:DIR or replay:DIR (a recorded session or a directory of "
+                 "frames; default: the cell's source)");
+  app.add_flag("--no-record", no_record, "do not record captures and answers (default: the cell's recording)");
+  app.add_option("--record-dir", record_dir, "directory of the recording sessions (default: the cell's)");
+  app.add_option("--record-max-mb", record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
+      ->check(CLI::PositiveNumber);
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
@@ -101,6 +115,20 @@ int main(int argc, char** argv) {
   if (http_port != 0) {
     status = std::make_shared<bp::StatusState>(*cell, metrics);
     spdlog::default_logger()->sinks().push_back(status->LogSink());
+  }
+  if (!source.empty()) {
+    const size_t colon = source.find(':');
+    const std::string kind = source.substr(0, colon);
+    const std::string dir = colon == std::string::npos ? "" : source.substr(colon + 1);
+    if (kind == "synthetic" && dir.empty()) {
+      cell->source.kind = bp::SourceSpec::Kind::kSynthetic;
+    } else if ((kind == "files" || kind == "replay") && !dir.empty()) {
+      cell->source.kind = kind == "files" ? bp::SourceSpec::Kind::kFiles : bp::SourceSpec::Kind::kReplay;
+      cell->source.dir = dir;
+    } else {
+      std::cerr << "binpickd: --source '" << source << "' is not synthetic, files:DIR or replay:DIR\n";
+      return 2;
+    }
   }
   // A cell of pick_2d tasks only needs no 3D planner.
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
@@ -153,6 +181,22 @@ int main(int argc, char** argv) {
   if (status) {
     status->SetQueueProbe([&handler](int task_id) { return handler.QueueSize(task_id); });
     handler.AddObserver(status);
+  }
+
+  // The recorder observes every detection and answer; it owns its writer
+  // thread and the session directory (docs/architecture.md "Recording").
+  std::shared_ptr<bp::Recorder> recorder;
+  if (cell->recording.enabled && !no_record) {
+    bp::RecorderOptions options = bp::RecorderOptionsFromCell(*cell);
+    if (!record_dir.empty()) options.directory = record_dir;
+    if (record_max_mb) options.max_disk_bytes = *record_max_mb << 20;
+    auto started = bp::Recorder::Start(*cell, options);
+    if (started.ok()) {
+      recorder = *started;
+      handler.AddObserver(recorder);
+    } else {
+      spdlog::error("binpickd: recording disabled: {}", started.status().ToString());
+    }
   }
 
   bp::DaoaiServerOptions daoai;
@@ -260,6 +304,7 @@ int main(int argc, char** argv) {
   for (auto& master : masters) master->Stop();
   if (gri_server) gri_server->Stop();
   handler.Shutdown();
+  if (recorder) recorder->Stop();  // writes what is queued
   server.reset();
   gri_server.reset();
   return 0;

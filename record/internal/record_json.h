@@ -1,0 +1,32 @@
+// JSON of what a record holds (poses, plan results, robot messages), shared
+// by the recorder and the replay. Schema: docs/file_formats.md "Recordings".
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "comms/daoai_message.h"
+#include "core/pose.h"
+#include "core/status.h"
+#include "grasp/planner.h"
+
+namespace bp::record_internal {
+
+using OrderedJson = nlohmann::ordered_json;
+
+// 4x4 row-major matrix; doubles are printed with 17 significant digits, so
+// reading back is bit-exact.
+OrderedJson PoseJson(const Pose& X);
+// @returns Corruption if `j` is not a 4x4 array of numbers.
+Result<Pose> PoseFromJson(const nlohmann::json& j, const std::string& what);
+
+OrderedJson PlanResultJson(const PlanResult& result);
+// The fields PlanResultJson writes (stages included). Corruption on a bad shape.
+Result<PlanResult> PlanResultFromJson(const nlohmann::json& j, const std::string& what);
+
+OrderedJson RequestJson(const daoai::Request& request);
+OrderedJson ResponseJson(const daoai::Response& response);
+
+}  // namespace bp::record_internal
