@@ -13,7 +13,7 @@ log="build/demo_binpickd.log"
 fifo="$(mktemp -u)"
 mkfifo "$fifo"
 build/bin/binpickd --bind 127.0.0.1 --daoai-port "$port" --gri-port 0 --gri-official-port 0 \
-  --log-level info >"$fifo" 2>"$log" &
+  --record-dir build/recordings --log-level info >"$fifo" 2>"$log" &
 server=$!
 trap 'kill "$server" 2>/dev/null || true; wait "$server" 2>/dev/null || true; rm -f "$fifo"' EXIT
 
@@ -40,3 +40,5 @@ case "$rc" in
   *) echo "demo: robot connection or protocol error; binpickd log: $log" >&2
      exit "$rc" ;;
 esac
+echo "demo: every capture and answer was recorded under build/recordings; rerun them with" \
+     "build/bin/binpick replay build/recordings/<session>"

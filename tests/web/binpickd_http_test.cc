@@ -87,7 +87,7 @@ TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   const std::string dir = testing::FreshDir("binpickd");
   const int daoai_port = FreePort();
   Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
-                 "--gri-official-port", "0", "--http-port", "-1"},
+                 "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
                 dir + "/binpickd.log");
   const std::string ready = daemon.ReadyLine(60000);
   std::smatch m;
