@@ -840,8 +840,9 @@ Status ValidateModbusRegisterMap(const ModbusRegisterMap& m) {
   constexpr int kRequestFields = 12, kResponseFields = 16, kMaxRead = 125;
   auto in = [](int reg, int base, int count) { return reg >= base && reg < base + count; };
   auto bad = [](const std::string& why) { return Status::InvalidArgument("modbus register map: " + why); };
-  if (m.request_base < 0 || m.request_base + kRequestFields > 65536) return bad("request_base out of 0..65524");
-  if (m.response_base < 0 || m.response_base + kResponseFields > 65536) return bad("response_base out of 0..65520");
+  // Compared without adding to the base: a cell may give INT_MAX (fuzzed).
+  if (m.request_base < 0 || m.request_base > 65536 - kRequestFields) return bad("request_base out of 0..65524");
+  if (m.response_base < 0 || m.response_base > 65536 - kResponseFields) return bad("response_base out of 0..65520");
   if (m.request_flag < 0 || m.request_flag > 65535) return bad("request_flag out of 0..65535");
   if (m.response_flag < 0 || m.response_flag > 65535) return bad("response_flag out of 0..65535");
   if (m.request_flag == m.response_flag) return bad("request_flag and response_flag are the same register");

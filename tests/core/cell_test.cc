@@ -563,6 +563,18 @@ TEST_F(CellFileTest, ModbusSectionReadsTheRegisterMapAndPollInterval) {
   EXPECT_EQ(seed->robot.modbus_poll_ms, 2);
 }
 
+// Found by fuzz/modbus_registers_fuzz: request_base + 12 overflowed int for a
+// base near INT_MAX (undefined behaviour; the wrapped sum passed the check).
+TEST_F(CellFileTest, ModbusRegisterNearIntMaxIsRejectedWithoutOverflow) {
+  for (const char* key : {"request_base", "response_base"}) {
+    Result<Cell> cell = LoadCell(Write(Mutate(
+        kBaseCell, "  protocol_version: 2",
+        std::string("  protocol_version: 2\n  modbus: {host: plc, ") + key + ": 2147483647}")));
+    ASSERT_FALSE(cell.ok()) << key;
+    EXPECT_THAT(cell.status().message(), HasSubstr(std::string(key) + " out of 0..")) << key;
+  }
+}
+
 TEST_F(CellFileTest, ParseCellResolvesAgainstTheGivenPath) {
   Result<Cell> cell = ParseCell(kBaseCell, (tmp_.path() / "virtual.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
