@@ -28,6 +28,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "comms/gri_handler.h"
 #include "core/status.h"
@@ -44,6 +45,10 @@ struct GriServerOptions {
   std::chrono::milliseconds processing_timeout{70000};
   size_t max_queued_requests = 16;
   int io_threads = 1;
+  // As DaoaiServerOptions (docs/reliability.md "Limits", "Security").
+  size_t max_connections = 64;
+  double max_message_rate = 0;
+  std::vector<std::string> allowlist;
 };
 
 class GriServer {
@@ -60,6 +65,7 @@ class GriServer {
   int official_port() const;     // bound port; 0 when disabled
   std::string Describe() const;  // "v2 127.0.0.1:10000, official 127.0.0.1:7100"
   size_t connection_count() const;
+  uint64_t refused_count() const;  // connections closed at accept (limits, allowlist)
   void Stop();  // idempotent
 
  private:
