@@ -25,6 +25,9 @@
 namespace bp {
 namespace {
 
+// Largest cloud a PCD may declare (100 M points: 1.2 GB of xyz).
+constexpr uint64_t kMaxPcdPoints = 100000000;
+
 namespace fs = std::filesystem;
 using nlohmann::json;
 
@@ -379,6 +382,17 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
       if (f.name == "z") has[2] = true;
     }
     if (!has[0] || !has[1] || !has[2]) return Status::Corruption(Quote(path) + ": PCD has no x, y, z fields");
+    // PCL checks WIDTH x HEIGHT against POINTS in 32 bits, so a product that
+    // wraps passes and its conversion then indexes an empty cloud (found by
+    // fuzz/pcd_fuzz). Checked here in 64 bits.
+    // Zero points: PCL's conversion would take &cloud[0] of an empty cloud.
+    const uint64_t points = static_cast<uint64_t>(header.width) * header.height;
+    if (points == 0) return Status::Corruption(Quote(path) + ": PCD declares no points");
+    if (points > kMaxPcdPoints) {
+      return Status::Corruption(Quote(path) + ": PCD header says " + std::to_string(header.width) + "x" +
+                                std::to_string(header.height) + " points, more than " +
+                                std::to_string(kMaxPcdPoints));
+    }
     // Binary data must fill width * height points; PCL checks this too, but
     // its message goes to stderr.
     if (data_type == 1) {

@@ -145,6 +145,27 @@ TEST(CloudPcd, OrganizedCloudWithoutSidecarBecomesPointListWithDefaultPose) {
   EXPECT_TRUE(g->X_BC.matrix() == X_BC_default.matrix());
 }
 
+// Found by fuzz/pcd_fuzz: a header declaring no points made PCL take
+// &cloud[0] of an empty cloud, and WIDTH x HEIGHT wrapping in 32 bits to
+// POINTS passed PCL's own check, then its conversion wrote past the cloud.
+TEST(CloudPcd, HeaderWithNoPointsOrAWrappingSizeIsCorruption) {
+  const std::string dir = FreshDir("out");
+  const std::string head = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n";
+  WriteText(dir + "/none.pcd", head + "WIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n");
+  Result<Frame> none = LoadFrameFile(dir + "/none.pcd");
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.status().code(), Status::Code::kCorruption);
+  EXPECT_THAT(none.status().message(), HasSubstr("no points"));
+  // 65536 x 65537 = 2^32 + 65536: 65536 in 32 bits, the POINTS given.
+  std::string wrap = head + "WIDTH 65536\nHEIGHT 65537\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 65536\nDATA ascii\n";
+  for (int i = 0; i < 65536; ++i) wrap += "0 0 1\n";
+  WriteText(dir + "/wrap.pcd", wrap);
+  Result<Frame> wrapped = LoadFrameFile(dir + "/wrap.pcd");
+  ASSERT_FALSE(wrapped.ok());
+  EXPECT_EQ(wrapped.status().code(), Status::Code::kCorruption);
+  EXPECT_THAT(wrapped.status().message(), HasSubstr("65536x65537"));
+}
+
 TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
   const std::string dir = FreshDir("out");
   WriteText(dir + "/mesh.ply",
