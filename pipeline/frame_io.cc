@@ -382,6 +382,29 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
       if (f.name == "z") has[2] = true;
     }
     if (!has[0] || !has[1] || !has[2]) return Status::Corruption(Quote(path) + ": PCD has no x, y, z fields");
+    // PCL trusts SIZE / TYPE / COUNT: a field that does not fit in its point
+    // made its conversion read past the data (found by fuzz/pcd_fuzz).
+    for (const auto& f : header.fields) {
+      size_t bytes = 0;
+      switch (f.datatype) {
+        case pcl::PCLPointField::INT8: case pcl::PCLPointField::UINT8: bytes = 1; break;
+        case pcl::PCLPointField::INT16: case pcl::PCLPointField::UINT16: bytes = 2; break;
+        case pcl::PCLPointField::INT32: case pcl::PCLPointField::UINT32:
+        case pcl::PCLPointField::FLOAT32: bytes = 4; break;
+        case pcl::PCLPointField::FLOAT64: bytes = 8; break;
+        default: break;
+      }
+      if (bytes == 0 || f.count == 0 ||
+          static_cast<uint64_t>(f.offset) + static_cast<uint64_t>(bytes) * f.count > header.point_step) {
+        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
+                                  "' does not fit its point (SIZE, TYPE, COUNT disagree)");
+      }
+      if ((f.name == "x" || f.name == "y" || f.name == "z") &&
+          (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1)) {
+        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
+                                  "' is not one float32 (SIZE 4, TYPE F, COUNT 1)");
+      }
+    }
     // PCL checks WIDTH x HEIGHT against POINTS in 32 bits, so a product that
     // wraps passes and its conversion then indexes an empty cloud (found by
     // fuzz/pcd_fuzz). Checked here in 64 bits.

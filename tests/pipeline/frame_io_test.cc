@@ -166,6 +166,23 @@ TEST(CloudPcd, HeaderWithNoPointsOrAWrappingSizeIsCorruption) {
   EXPECT_THAT(wrapped.status().message(), HasSubstr("65536x65537"));
 }
 
+// Found by fuzz/pcd_fuzz: fields whose SIZE / TYPE / COUNT do not fit the
+// point made PCL's conversion read past its data (heap overflow under ASan).
+TEST(CloudPcd, FieldsThatDoNotFitTheirPointAreCorruption) {
+  const std::string dir = FreshDir("out");
+  const std::string points = "-0.25 -0.25 1\n0.25 -0.25 1\n-0.25 0.25 1\n0.25 0.25 1\n";
+  WriteText(dir + "/sizes.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 3 4 2\nWIDTH 4\nHEIGHT 1\n"
+                                "POINTS 4\nDATA ascii\n" + points);
+  Result<Frame> sizes = LoadFrameFile(dir + "/sizes.pcd");
+  ASSERT_FALSE(sizes.ok());
+  EXPECT_EQ(sizes.status().code(), Status::Code::kCorruption);
+  WriteText(dir + "/double.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
+                                 "COUNT 1 1 1\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n" + points);
+  Result<Frame> dbl = LoadFrameFile(dir + "/double.pcd");
+  ASSERT_FALSE(dbl.ok());
+  EXPECT_THAT(dbl.status().message(), HasSubstr("not one float32"));
+}
+
 TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
   const std::string dir = FreshDir("out");
   WriteText(dir + "/mesh.ply",
