@@ -12,6 +12,7 @@
 // --plan-ms of detection time: this loads the protocol path, the request
 // handler, the queues and the network threads, not perception.
 #include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
@@ -61,7 +62,10 @@ int main(int argc, char** argv) {
   app.add_option("--plan-ms", plan_ms, "in-process: detection time, ms");
   app.add_option("--max-message-rate", max_message_rate, "in-process: the server's limit");
   app.add_option("--io-threads", io_threads, "in-process: network threads");
+  std::string log_level = "warn";
+  app.add_option("--log-level", log_level, "server log level in-process (default warn)");
   CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::from_str(log_level));
 
   std::shared_ptr<bp::testing::ScriptedPlanner> planner;
   std::unique_ptr<bp::RequestHandler> handler;

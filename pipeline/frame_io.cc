@@ -10,6 +10,7 @@
 #include <fstream>
 #include <limits>
 #include <optional>
+#include <sstream>
 #include <system_error>
 
 #include <nlohmann/json.hpp>
@@ -358,11 +359,103 @@ bool MatchesPinhole(const pcl::PointCloud<pcl::PointXYZ>& cloud, const Intrinsic
   return true;
 }
 
+// x, y, z of a parsed PCD blob, every byte range checked against the data:
+// PCL's own conversion (fromPCLPointCloud2) trusts the header, and a hostile
+// one made it read past the data (found by fuzz/pcd_fuzz).
+Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
+                 pcl::PointCloud<pcl::PointXYZ>& cloud) {
+  std::array<uint32_t, 3> offset{};
+  std::array<bool, 3> found{};
+  for (const auto& f : blob.fields) {
+    const int axis = f.name == "x" ? 0 : f.name == "y" ? 1 : f.name == "z" ? 2 : -1;
+    if (axis < 0) continue;
+    if (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1) {
+      return Status::Corruption(Quote(path) + ": field '" + f.name + "' is not one float32 (PCD: SIZE 4, TYPE F, COUNT 1)");
+    }
+    offset[static_cast<size_t>(axis)] = f.offset;
+    found[static_cast<size_t>(axis)] = true;
+  }
+  if (!found[0] || !found[1] || !found[2]) return Status::Corruption(Quote(path) + ": no x, y, z fields");
+  const uint64_t w = blob.width, h = blob.height;
+  if (w * h == 0 || w * h > kMaxPcdPoints) {
+    return Status::Corruption(Quote(path) + ": " + std::to_string(w) + "x" + std::to_string(h) + " points");
+  }
+  cloud.clear();
+  cloud.width = static_cast<uint32_t>(w);
+  cloud.height = static_cast<uint32_t>(h);
+  cloud.points.resize(static_cast<size_t>(w * h));
+  cloud.is_dense = blob.is_dense != 0;
+  for (uint64_t r = 0; r < h; ++r) {
+    for (uint64_t c = 0; c < w; ++c) {
+      const uint64_t base = r * blob.row_step + c * blob.point_step;
+      pcl::PointXYZ& p = cloud.points[static_cast<size_t>(r * w + c)];
+      float* out[3] = {&p.x, &p.y, &p.z};
+      for (size_t a = 0; a < 3; ++a) {
+        const uint64_t at = base + offset[a];
+        if (at + sizeof(float) > blob.data.size()) {
+          return Status::Corruption(Quote(path) + ": data ends before point " + std::to_string(r * w + c));
+        }
+        std::memcpy(out[a], blob.data.data() + at, sizeof(float));
+      }
+    }
+  }
+  return Status::Ok();
+}
+
+// Checks the header's sizes before PCL sees them: PCL allocates
+// WIDTH x HEIGHT x (sum of SIZE x COUNT) bytes as declared, so a header of a
+// few bytes could ask for gigabytes (found by fuzz/pcd_fuzz). The declared
+// data may be at most 64 times the file (binary_compressed's bound; ascii
+// and binary are far below).
+Status CheckPcdHeaderSizes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const uint64_t file_size = fs::file_size(path, ec);
+  if (ec) return Status::NotFound(Quote(path) + ": cannot read");
+  std::vector<uint64_t> sizes, counts;
+  uint64_t width = 0, height = 1;
+  auto numbers = [](std::istringstream& is, std::vector<uint64_t>& out) {
+    std::string tok;
+    while (is >> tok) {
+      if (tok.empty() || tok.size() > 12 || tok.find_first_not_of("0123456789") != std::string::npos) return false;
+      out.push_back(std::stoull(tok));
+    }
+    return true;
+  };
+  std::string line;
+  for (int n = 0; n < 64 && std::getline(in, line); ++n) {
+    std::istringstream is(line);
+    std::string key;
+    is >> key;
+    std::vector<uint64_t> v;
+    if (key == "SIZE" || key == "COUNT" || key == "WIDTH" || key == "HEIGHT") {
+      if (!numbers(is, v) || v.empty()) return Status::Corruption(Quote(path) + ": PCD " + key + " is not a list of integers");
+      if (key == "SIZE") sizes = v;
+      if (key == "COUNT") counts = v;
+      if (key == "WIDTH") width = v[0];
+      if (key == "HEIGHT") height = v[0];
+    }
+    if (key == "DATA") break;
+  }
+  uint64_t point_step = 0;
+  for (size_t i = 0; i < sizes.size(); ++i) {
+    const uint64_t count = i < counts.size() ? counts[i] : 1;
+    if (sizes[i] > 8 || count > (1u << 20)) return Status::Corruption(Quote(path) + ": PCD field size or count out of range");
+    point_step += sizes[i] * count;
+  }
+  if (width > (1u << 30) || height > (1u << 30) ||
+      width * height * point_step > 64 * file_size + 4096) {
+    return Status::Corruption(Quote(path) + ": PCD header declares more data than the file can hold");
+  }
+  return Status::Ok();
+}
+
 Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
   const std::string head = ReadHead(path, 64);
   if (!(head.rfind("#", 0) == 0 || head.rfind("VERSION", 0) == 0 || head.rfind("FIELDS", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PCD file (bad magic)");
   }
+  if (Status s = CheckPcdHeaderSizes(path); !s.ok()) return s;
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;
@@ -428,7 +521,9 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
                                   std::to_string(need));
       }
     }
-    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+    pcl::PCLPointCloud2 blob;
+    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
   }
   if (cloud.size() != static_cast<size_t>(cloud.width) * cloud.height) {
     return Status::Corruption(Quote(path) + ": PCD has " + std::to_string(cloud.size()) + " points, header says " +
@@ -481,7 +576,9 @@ Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
   {
     QuietPcl quiet;
     pcl::PLYReader reader;
-    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+    pcl::PCLPointCloud2 blob;
+    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
   }
   Frame frame;
   frame.X_BC = X_BC_default;
