@@ -10,6 +10,8 @@
 #include <fstream>
 #include <limits>
 #include <optional>
+#include <set>
+#include <map>
 #include <sstream>
 #include <system_error>
 
@@ -402,51 +404,74 @@ Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
   return Status::Ok();
 }
 
-// Checks the header's sizes before PCL sees them: PCL allocates
-// WIDTH x HEIGHT x (sum of SIZE x COUNT) bytes as declared, so a header of a
-// few bytes could ask for gigabytes (found by fuzz/pcd_fuzz). The declared
-// data may be at most 64 times the file (binary_compressed's bound; ascii
-// and binary are far below).
-Status CheckPcdHeaderSizes(const std::string& path) {
+// Checks the header strictly before PCL sees it. PCL's parser trusts what it
+// reads: a header of a few bytes could make it allocate gigabytes, and
+// repeated or inconsistent lines corrupted its memory (found by
+// fuzz/pcd_fuzz). Accepted: comment lines, then each of VERSION FIELDS SIZE
+// TYPE COUNT WIDTH HEIGHT VIEWPOINT POINTS at most once, then DATA ascii |
+// binary | binary_compressed; FIELDS, SIZE, TYPE (and COUNT) of one length;
+// WIDTH x HEIGHT = POINTS; the declared data at most 64 times the file
+// (binary_compressed's bound; ascii and binary are far below).
+Status CheckPcdHeader(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
   const uint64_t file_size = fs::file_size(path, ec);
-  if (ec) return Status::NotFound(Quote(path) + ": cannot read");
-  std::vector<uint64_t> sizes, counts;
-  uint64_t width = 0, height = 1;
-  auto numbers = [](std::istringstream& is, std::vector<uint64_t>& out) {
-    std::string tok;
-    while (is >> tok) {
-      if (tok.empty() || tok.size() > 12 || tok.find_first_not_of("0123456789") != std::string::npos) return false;
-      out.push_back(std::stoull(tok));
+  if (ec || !in) return Status::NotFound(Quote(path) + ": cannot read");
+  auto bad = [&](const std::string& why) { return Status::Corruption(Quote(path) + ": PCD header: " + why); };
+  std::map<std::string, std::vector<std::string>> keys;
+  std::string line;
+  bool data = false;
+  for (int n = 0; n < 64 && std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream is(line);
+    std::string key, tok;
+    is >> key;
+    static const std::set<std::string> kKeys = {"VERSION", "FIELDS", "SIZE",   "TYPE", "COUNT",
+                                                "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
+    if (!kKeys.count(key)) return bad("unknown line '" + line.substr(0, 32) + "'");
+    if (keys.count(key)) return bad(key + " given twice");
+    std::vector<std::string>& v = keys[key];
+    while (is >> tok) v.push_back(tok);
+    if (key == "DATA") {
+      data = true;
+      break;
     }
+  }
+  if (!data) return bad("no DATA line");
+  for (const char* k : {"FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS"}) {
+    if (keys[k].empty()) return bad(std::string("no ") + k);
+  }
+  const std::string& d = keys["DATA"].empty() ? std::string() : keys["DATA"][0];
+  if (keys["DATA"].size() != 1 || (d != "ascii" && d != "binary" && d != "binary_compressed")) {
+    return bad("DATA must be ascii, binary or binary_compressed");
+  }
+  const size_t nf = keys["FIELDS"].size();
+  if (keys["SIZE"].size() != nf || keys["TYPE"].size() != nf || (keys.count("COUNT") && keys["COUNT"].size() != nf)) {
+    return bad("FIELDS, SIZE, TYPE and COUNT differ in length");
+  }
+  auto number = [](const std::string& t, uint64_t& out) {
+    if (t.empty() || t.size() > 12 || t.find_first_not_of("0123456789") != std::string::npos) return false;
+    out = std::stoull(t);
     return true;
   };
-  std::string line;
-  for (int n = 0; n < 64 && std::getline(in, line); ++n) {
-    std::istringstream is(line);
-    std::string key;
-    is >> key;
-    std::vector<uint64_t> v;
-    if (key == "SIZE" || key == "COUNT" || key == "WIDTH" || key == "HEIGHT") {
-      if (!numbers(is, v) || v.empty()) return Status::Corruption(Quote(path) + ": PCD " + key + " is not a list of integers");
-      if (key == "SIZE") sizes = v;
-      if (key == "COUNT") counts = v;
-      if (key == "WIDTH") width = v[0];
-      if (key == "HEIGHT") height = v[0];
-    }
-    if (key == "DATA") break;
-  }
   uint64_t point_step = 0;
-  for (size_t i = 0; i < sizes.size(); ++i) {
-    const uint64_t count = i < counts.size() ? counts[i] : 1;
-    if (sizes[i] > 8 || count > (1u << 20)) return Status::Corruption(Quote(path) + ": PCD field size or count out of range");
-    point_step += sizes[i] * count;
+  for (size_t i = 0; i < nf; ++i) {
+    uint64_t size = 0, count = 1;
+    if (!number(keys["SIZE"][i], size) || (size != 1 && size != 2 && size != 4 && size != 8)) return bad("bad SIZE");
+    if (keys.count("COUNT") && (!number(keys["COUNT"][i], count) || count == 0 || count > (1u << 20))) {
+      return bad("bad COUNT");
+    }
+    const std::string& t = keys["TYPE"][i];
+    if (t != "F" && t != "I" && t != "U") return bad("bad TYPE");
+    point_step += size * count;
   }
-  if (width > (1u << 30) || height > (1u << 30) ||
-      width * height * point_step > 64 * file_size + 4096) {
-    return Status::Corruption(Quote(path) + ": PCD header declares more data than the file can hold");
-  }
+  uint64_t width = 0, height = 1, points = 0;
+  if (keys["WIDTH"].size() != 1 || !number(keys["WIDTH"][0], width)) return bad("bad WIDTH");
+  if (keys.count("HEIGHT") && (keys["HEIGHT"].size() != 1 || !number(keys["HEIGHT"][0], height))) return bad("bad HEIGHT");
+  if (keys["POINTS"].size() != 1 || !number(keys["POINTS"][0], points)) return bad("bad POINTS");
+  if (width > (1u << 30) || height > (1u << 30) || width * height != points) return bad("WIDTH x HEIGHT is not POINTS");
+  if (points * point_step > 64 * file_size + 4096) return bad("declares more data than the file can hold");
   return Status::Ok();
 }
 
@@ -455,7 +480,7 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
   if (!(head.rfind("#", 0) == 0 || head.rfind("VERSION", 0) == 0 || head.rfind("FIELDS", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PCD file (bad magic)");
   }
-  if (Status s = CheckPcdHeaderSizes(path); !s.ok()) return s;
+  if (Status s = CheckPcdHeader(path); !s.ok()) return s;
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;

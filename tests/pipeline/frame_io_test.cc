@@ -163,7 +163,7 @@ TEST(CloudPcd, HeaderWithNoPointsOrAWrappingSizeIsCorruption) {
   Result<Frame> wrapped = LoadFrameFile(dir + "/wrap.pcd");
   ASSERT_FALSE(wrapped.ok());
   EXPECT_EQ(wrapped.status().code(), Status::Code::kCorruption);
-  EXPECT_THAT(wrapped.status().message(), HasSubstr("more data than the file can hold"));
+  EXPECT_THAT(wrapped.status().message(), HasSubstr("WIDTH x HEIGHT is not POINTS"));
 }
 
 // Found by fuzz/pcd_fuzz: fields whose SIZE / TYPE / COUNT do not fit the
@@ -181,6 +181,12 @@ TEST(CloudPcd, FieldsThatDoNotFitTheirPointAreCorruption) {
   Result<Frame> dbl = LoadFrameFile(dir + "/double.pcd");
   ASSERT_FALSE(dbl.ok());
   EXPECT_THAT(dbl.status().message(), HasSubstr("not one float32"));
+  // A repeated FIELDS line corrupted PCL's memory (bad free under ASan).
+  WriteText(dir + "/twice.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                                "FIELDS x y z 0\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n" + points);
+  Result<Frame> twice = LoadFrameFile(dir + "/twice.pcd");
+  ASSERT_FALSE(twice.ok());
+  EXPECT_THAT(twice.status().message(), HasSubstr("FIELDS given twice"));
 }
 
 // Found by fuzz/ply_frame_fuzz: a PLY whose vertex element is unrecognised
