@@ -399,6 +399,11 @@ Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) 
         double count = 0;
         if (!body.Read(p.count_type, &count)) return Corrupt(path, "truncated or malformed at " + where());
         if (count < 0) return Corrupt(path, where() + " has a negative list length");
+        // Every item takes at least one byte (ASCII too): a longer list is
+        // truncated, and its length must fit an int (fuzz/mesh_fuzz: 9.2e18).
+        if (count > static_cast<double>(body.available()) || count > 1e9) {
+          return Corrupt(path, "truncated at " + where());
+        }
         if (static_cast<size_t>(count) * body.MinBytes(p.type) > body.available()) {
           return Corrupt(path, "truncated at " + where());
         }

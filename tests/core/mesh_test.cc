@@ -267,6 +267,18 @@ TEST(MeshIo, PropertylessElementWithAHugeCountLoadsAtOnce) {
   EXPECT_EQ(mesh->triangles.size(), 1u);
 }
 
+// Found by fuzz/mesh_fuzz: an ASCII face list length of 9.2e18 was converted
+// to int (undefined behaviour).
+TEST(MeshIo, AsciiListLongerThanTheFileIsCorruption) {
+  const std::string path = TempPath("long_list.ply");
+  WriteFile(path, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                  "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                  "0 0 0\n1 0 0\n0 1 0\n9223372036854775807 0 1 2\n");
+  Result<TriangleMesh> mesh = LoadMesh(path);
+  ASSERT_FALSE(mesh.ok());
+  EXPECT_EQ(mesh.status().code(), Status::Code::kCorruption);
+}
+
 TEST(MeshIo, BinaryPlyRoundTripIsBitIdentical) {
   const TriangleMesh m = MakeFlangedBushing();
   const std::string path = TempPath("round_trip.ply");
