@@ -597,6 +597,25 @@ Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
   if (!(head.rfind("ply\n", 0) == 0 || head.rfind("ply\r\n", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PLY file (bad magic)");
   }
+  {
+    // PCL allocates every element's declared records at the end of the
+    // header: a few bytes could ask for gigabytes (fuzz/ply_frame_fuzz). A
+    // record takes at least one byte, so no count may exceed the file size.
+    std::ifstream in(path, std::ios::binary);
+    std::error_code ec;
+    const uint64_t file_size = fs::file_size(path, ec);
+    std::string line;
+    for (int n = 0; n < 256 && std::getline(in, line) && line.rfind("end_header", 0) != 0; ++n) {
+      std::istringstream ls(line);
+      std::string key, name, count;
+      ls >> key >> name >> count;
+      if (key != "element") continue;
+      if (count.empty() || count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoull(count) > file_size) {
+        return Status::Corruption(Quote(path) + ": PLY element '" + name + "' declares more records than the file holds");
+      }
+    }
+  }
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;
