@@ -55,7 +55,7 @@ class Connection final : public Session {
       return;
     }
     queued_.push_back(daoai::DecodeRequest(read_buf_));
-    Read();
+    ReadNextRequest();
     if (!busy_) ProcessNext();
   }
 
@@ -102,7 +102,9 @@ class DaoaiServer::Impl {
       : options_(std::move(options)),
         listener_("daoai", [&handler, this](SessionArgs args) -> std::shared_ptr<Session> {
           return std::make_shared<Connection>(std::move(args), handler, options_);
-        }) {}
+        },
+        internal::ConnectionLimits{options_.max_connections, options_.max_message_rate,
+                                   options_.allowlist}) {}
 
   Status Listen() { return listener_.Listen(options_.bind, {options_.port}, options_.io_threads); }
   void Stop() { listener_.Stop(); }
@@ -110,6 +112,7 @@ class DaoaiServer::Impl {
   std::string address() const { return options_.bind + ":" + std::to_string(port()); }
   size_t connection_count() const { return listener_.connection_count(); }
   TransportStats stats() const { return listener_.stats(); }
+  uint64_t refused_count() const { return listener_.refused_count(); }
 
  private:
   const DaoaiServerOptions options_;
@@ -130,6 +133,7 @@ int DaoaiServer::port() const { return impl_->port(); }
 std::string DaoaiServer::address() const { return impl_->address(); }
 size_t DaoaiServer::connection_count() const { return impl_->connection_count(); }
 TransportStats DaoaiServer::stats() const { return impl_->stats(); }
+uint64_t DaoaiServer::refused_count() const { return impl_->refused_count(); }
 void DaoaiServer::Stop() { impl_->Stop(); }
 
 }  // namespace bp

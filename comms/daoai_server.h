@@ -18,6 +18,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "comms/request_handler.h"
 #include "comms/transport_stats.h"
@@ -31,6 +32,14 @@ struct DaoaiServerOptions {
   std::chrono::milliseconds read_timeout{30000};
   size_t max_queued_requests = 16;
   int io_threads = 1;
+  // Limits and allowlist (docs/reliability.md "Limits", "Security"):
+  // connections beyond max_connections, and peers not in a non-empty
+  // allowlist (exact IP addresses), are closed at accept with a log line; a
+  // connection sending more than max_message_rate requests/s is read no
+  // faster (nothing dropped). 0: unlimited.
+  size_t max_connections = 64;
+  double max_message_rate = 0;
+  std::vector<std::string> allowlist;
 };
 
 class DaoaiServer {
@@ -48,6 +57,7 @@ class DaoaiServer {
   std::string address() const;   // "127.0.0.1:6969"
   size_t connection_count() const;
   TransportStats stats() const;  // thread-safe
+  uint64_t refused_count() const;  // connections closed at accept (limits, allowlist)
   // Stops accepting, closes every connection and joins the network threads.
   // Replies still being computed are dropped (their grasps stay queued).
   // Idempotent.

@@ -106,7 +106,7 @@ class Connection final : public Session {
       item.request = Echo();
       item.error = gri::CodeFor(fault);
     }
-    if (Enqueue(std::move(item))) ReadFirst();
+    if (Enqueue(std::move(item))) ReadNextRequest();
   }
 
   // The stream cannot be re-synchronised: answer, stop reading, close.
@@ -226,7 +226,9 @@ class GriServer::Impl {
         listener_("gri", [&handler, this](SessionArgs args) -> std::shared_ptr<Session> {
           const gri::Format f = FormatOfPort(args.local_port);
           return std::make_shared<Connection>(std::move(args), handler, options_, f);
-        }) {}
+        },
+        internal::ConnectionLimits{options_.max_connections, options_.max_message_rate,
+                                   options_.allowlist}) {}
 
   Status Listen() {
     std::vector<int> ports;
@@ -259,6 +261,7 @@ class GriServer::Impl {
   void Stop() { listener_.Stop(); }
   size_t connection_count() const { return listener_.connection_count(); }
   TransportStats stats() const { return listener_.stats(); }
+  uint64_t refused_count() const { return listener_.refused_count(); }
 
  private:
   gri::Format FormatOfPort(int port) const {
@@ -289,6 +292,7 @@ int GriServer::official_port() const { return impl_->PortOf(gri::Format::kOffici
 std::string GriServer::Describe() const { return impl_->Describe(); }
 size_t GriServer::connection_count() const { return impl_->connection_count(); }
 TransportStats GriServer::stats() const { return impl_->stats(); }
+uint64_t GriServer::refused_count() const { return impl_->refused_count(); }
 void GriServer::Stop() { impl_->Stop(); }
 
 }  // namespace bp

@@ -28,6 +28,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "comms/gri_handler.h"
 #include "comms/transport_stats.h"
@@ -45,6 +46,10 @@ struct GriServerOptions {
   std::chrono::milliseconds processing_timeout{70000};
   size_t max_queued_requests = 16;
   int io_threads = 1;
+  // As DaoaiServerOptions (docs/reliability.md "Limits", "Security").
+  size_t max_connections = 64;
+  double max_message_rate = 0;
+  std::vector<std::string> allowlist;
 };
 
 class GriServer {
@@ -62,6 +67,7 @@ class GriServer {
   std::string Describe() const;  // "v2 127.0.0.1:10000, official 127.0.0.1:7100"
   size_t connection_count() const;
   TransportStats stats() const;  // thread-safe
+  uint64_t refused_count() const;  // connections closed at accept (limits, allowlist)
   void Stop();  // idempotent
 
  private:

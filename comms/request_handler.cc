@@ -190,6 +190,20 @@ class RequestHandler::Impl {
   }
 
  private:
+  // Runs a planner call, turning an exception into Internal: a detection
+  // that throws must still finish (answer the capture, release waiting
+  // picks), never leave the task in flight forever.
+  template <typename F>
+  static auto Guard(const char* what, F&& f) -> decltype(f()) {
+    try {
+      return f();
+    } catch (const std::exception& e) {
+      return Status::Internal(std::string(what) + " threw: " + e.what());
+    } catch (...) {
+      return Status::Internal(std::string(what) + " threw");
+    }
+  }
+
   // Runs f on the arena (never on the caller's thread). Exceptions must not
   // escape f: they are caught and logged here as a last resort.
   void Spawn(std::function<void()> f) {
@@ -309,7 +323,7 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
     Result<CaptureHandle> scene = Status::Unavailable("not captured");
     {
       std::lock_guard lock(capture_mutex_);
-      scene = planner_->Capture(plan_request);
+      scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
     }
     const auto t1 = std::chrono::steady_clock::now();
     event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
@@ -327,7 +341,7 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
       return;
     }
     if (on_captured) on_captured(true);
-    Result<PlanResult> plan = planner_->Plan(plan_request, **scene);
+    Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
     PlanResult result;
     if (plan.ok()) {
       result = std::move(*plan);
@@ -666,7 +680,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
       TeachRequest teach{it->second->spec, *X_BF};
       done(NoResponse());
       serial_.Post([this, teach] {
-        const Status s = planner_->Teach(teach);
+        const Status s = Guard("teach", [&] { return planner_->Teach(teach); });
         if (s.ok()) {
           spdlog::info("daoai: taught a grasp for task {}", teach.task.id);
         } else {
@@ -688,7 +702,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         Result<CaptureHandle> scene = Status::Unavailable("not captured");
         {
           std::lock_guard lock(capture_mutex_);
-          scene = planner_->Capture(plan_request);
+          scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
         }
         const auto t1 = std::chrono::steady_clock::now();
         event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
@@ -707,7 +721,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
           done(Respond(Base(daoai::kBoxNotEmpty)));
           return;
         }
-        Result<PlanResult> plan = planner_->Plan(plan_request, **scene);
+        Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
         if (!observers_.empty()) {
           event.plan_status = plan.status();
           if (plan.ok()) event.plan = *plan;
@@ -738,7 +752,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         Result<double> error_mm = Status::Unavailable("not run");
         {
           std::lock_guard lock(capture_mutex_);
-          error_mm = planner_->CheckPrecision(plan_request);
+          error_mm = Guard("precision check", [&] { return planner_->CheckPrecision(plan_request); });
         }
         Result<int32_t> fixed = error_mm.ok() ? ToFixed(*error_mm) : Result<int32_t>(error_mm.status());
         if (!fixed.ok()) {

@@ -8,6 +8,8 @@
 
 #include "core/cell.h"
 
+#include <arpa/inet.h>
+
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -873,7 +875,8 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
 }
 
 void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
-  ExpectMap(n, "endpoints", {"bind", "daoai_port", "gri_port", "gri_official_port", "http_port"});
+  ExpectMap(n, "endpoints", {"bind", "daoai_port", "gri_port", "gri_official_port", "http_port",
+                             "max_connections", "max_message_rate", "allowlist"});
   Endpoints& e = cell.endpoints;
   e.bind = OptString(n, "endpoints", "bind", e.bind);
   Check(!e.bind.empty(), n["bind"], "endpoints.bind", "must not be empty");
@@ -887,6 +890,23 @@ void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
       Check(*ports[i].second == 0 || *ports[i].second != *ports[j].second, n[ports[i].first],
             Join("endpoints", ports[i].first),
             "port " + std::to_string(*ports[i].second) + " is already used by endpoints." + ports[j].first);
+    }
+  }
+  e.max_connections = OptInt(n, "endpoints", "max_connections", e.max_connections);
+  Check(e.max_connections >= 0, n["max_connections"], "endpoints.max_connections",
+        "must be >= 0 (0: unlimited)");
+  e.max_message_rate = OptNumber(n, "endpoints", "max_message_rate", e.max_message_rate);
+  Check(std::isfinite(e.max_message_rate) && e.max_message_rate >= 0, n["max_message_rate"],
+        "endpoints.max_message_rate", "must be >= 0 requests/s (0: unlimited)");
+  if (const YAML::Node a = n["allowlist"]; a.IsDefined()) {
+    if (!a.IsSequence()) Fail(a, "endpoints.allowlist", "expected a list of IP addresses, got " + What(a));
+    for (size_t i = 0; i < a.size(); ++i) {
+      const std::string key = "endpoints.allowlist[" + std::to_string(i) + "]";
+      const std::string ip = String(a[i], key);
+      in6_addr buf{};
+      Check(inet_pton(AF_INET, ip.c_str(), &buf) == 1 || inet_pton(AF_INET6, ip.c_str(), &buf) == 1,
+            a[i], key, "'" + ip + "' is not an IP address");
+      e.allowlist.push_back(ip);
     }
   }
 }
@@ -1017,8 +1037,9 @@ Status ValidateModbusRegisterMap(const ModbusRegisterMap& m) {
   constexpr int kRequestFields = 12, kResponseFields = 16, kMaxRead = 125;
   auto in = [](int reg, int base, int count) { return reg >= base && reg < base + count; };
   auto bad = [](const std::string& why) { return Status::InvalidArgument("modbus register map: " + why); };
-  if (m.request_base < 0 || m.request_base + kRequestFields > 65536) return bad("request_base out of 0..65524");
-  if (m.response_base < 0 || m.response_base + kResponseFields > 65536) return bad("response_base out of 0..65520");
+  // Compared without adding to the base: a cell may give INT_MAX (fuzzed).
+  if (m.request_base < 0 || m.request_base > 65536 - kRequestFields) return bad("request_base out of 0..65524");
+  if (m.response_base < 0 || m.response_base > 65536 - kResponseFields) return bad("response_base out of 0..65520");
   if (m.request_flag < 0 || m.request_flag > 65535) return bad("request_flag out of 0..65535");
   if (m.response_flag < 0 || m.response_flag > 65535) return bad("response_flag out of 0..65535");
   if (m.request_flag == m.response_flag) return bad("request_flag and response_flag are the same register");

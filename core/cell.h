@@ -217,6 +217,11 @@ struct Endpoints {
   int gri_port = 10000;
   int gri_official_port = 7100;
   int http_port = 0;
+  // Limits and allowlist of the robot listeners (DaoAI, GRI), docs/cell.md
+  // "endpoints" and docs/reliability.md. 0: unlimited; empty: any peer.
+  int max_connections = 64;
+  double max_message_rate = 0;        // requests per second per connection
+  std::vector<std::string> allowlist;  // robot IP addresses
 };
 
 // The hand-eye calibration target and its simulator (docs/cell.md,

@@ -368,6 +368,9 @@ Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) 
     }
     if (is_vertex && (ix < 0 || iy < 0 || iz < 0)) return Corrupt(path, "PLY vertex element lacks x, y or z");
     if (is_face && iface < 0) return Corrupt(path, "PLY face element lacks a vertex_indices list");
+    // An element without properties has empty records: nothing to read, and
+    // looping over a declared count of 2^62 of them hung (fuzz/mesh_fuzz).
+    if (e.properties.empty()) continue;
     // Refuse counts the remaining bytes cannot hold before allocating for them.
     if (min_record > 0 && e.count > body.available() / min_record) {
       return Corrupt(path, "truncated: element '" + e.name + "' declares " + std::to_string(e.count) +
@@ -396,6 +399,11 @@ Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) 
         double count = 0;
         if (!body.Read(p.count_type, &count)) return Corrupt(path, "truncated or malformed at " + where());
         if (count < 0) return Corrupt(path, where() + " has a negative list length");
+        // Every item takes at least one byte (ASCII too): a longer list is
+        // truncated, and its length must fit an int (fuzz/mesh_fuzz: 9.2e18).
+        if (count > static_cast<double>(body.available()) || count > 1e9) {
+          return Corrupt(path, "truncated at " + where());
+        }
         if (static_cast<size_t>(count) * body.MinBytes(p.type) > body.available()) {
           return Corrupt(path, "truncated at " + where());
         }

@@ -10,6 +10,9 @@
 #include <fstream>
 #include <limits>
 #include <optional>
+#include <set>
+#include <map>
+#include <sstream>
 #include <system_error>
 
 #include <nlohmann/json.hpp>
@@ -24,6 +27,9 @@
 
 namespace bp {
 namespace {
+
+// Largest cloud a PCD may declare (100 M points: 1.2 GB of xyz).
+constexpr uint64_t kMaxPcdPoints = 100000000;
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -355,11 +361,126 @@ bool MatchesPinhole(const pcl::PointCloud<pcl::PointXYZ>& cloud, const Intrinsic
   return true;
 }
 
+// x, y, z of a parsed PCD blob, every byte range checked against the data:
+// PCL's own conversion (fromPCLPointCloud2) trusts the header, and a hostile
+// one made it read past the data (found by fuzz/pcd_fuzz).
+Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
+                 pcl::PointCloud<pcl::PointXYZ>& cloud) {
+  std::array<uint32_t, 3> offset{};
+  std::array<bool, 3> found{};
+  for (const auto& f : blob.fields) {
+    const int axis = f.name == "x" ? 0 : f.name == "y" ? 1 : f.name == "z" ? 2 : -1;
+    if (axis < 0) continue;
+    if (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1) {
+      return Status::Corruption(Quote(path) + ": field '" + f.name + "' is not one float32 (PCD: SIZE 4, TYPE F, COUNT 1)");
+    }
+    offset[static_cast<size_t>(axis)] = f.offset;
+    found[static_cast<size_t>(axis)] = true;
+  }
+  if (!found[0] || !found[1] || !found[2]) return Status::Corruption(Quote(path) + ": no x, y, z fields");
+  const uint64_t w = blob.width, h = blob.height;
+  if (w * h == 0 || w * h > kMaxPcdPoints) {
+    return Status::Corruption(Quote(path) + ": " + std::to_string(w) + "x" + std::to_string(h) + " points");
+  }
+  cloud.clear();
+  cloud.width = static_cast<uint32_t>(w);
+  cloud.height = static_cast<uint32_t>(h);
+  cloud.points.resize(static_cast<size_t>(w * h));
+  cloud.is_dense = blob.is_dense != 0;
+  for (uint64_t r = 0; r < h; ++r) {
+    for (uint64_t c = 0; c < w; ++c) {
+      const uint64_t base = r * blob.row_step + c * blob.point_step;
+      pcl::PointXYZ& p = cloud.points[static_cast<size_t>(r * w + c)];
+      float* out[3] = {&p.x, &p.y, &p.z};
+      for (size_t a = 0; a < 3; ++a) {
+        const uint64_t at = base + offset[a];
+        if (at + sizeof(float) > blob.data.size()) {
+          return Status::Corruption(Quote(path) + ": data ends before point " + std::to_string(r * w + c));
+        }
+        std::memcpy(out[a], blob.data.data() + at, sizeof(float));
+      }
+    }
+  }
+  return Status::Ok();
+}
+
+// Checks the header strictly before PCL sees it. PCL's parser trusts what it
+// reads: a header of a few bytes could make it allocate gigabytes, and
+// repeated or inconsistent lines corrupted its memory (found by
+// fuzz/pcd_fuzz). Accepted: comment lines, then each of VERSION FIELDS SIZE
+// TYPE COUNT WIDTH HEIGHT VIEWPOINT POINTS at most once, then DATA ascii |
+// binary | binary_compressed; FIELDS, SIZE, TYPE (and COUNT) of one length;
+// WIDTH x HEIGHT = POINTS; the declared data at most 64 times the file
+// (binary_compressed's bound; ascii and binary are far below).
+Status CheckPcdHeader(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const uint64_t file_size = fs::file_size(path, ec);
+  if (ec || !in) return Status::NotFound(Quote(path) + ": cannot read");
+  auto bad = [&](const std::string& why) { return Status::Corruption(Quote(path) + ": PCD header: " + why); };
+  std::map<std::string, std::vector<std::string>> keys;
+  std::string line;
+  bool data = false;
+  for (int n = 0; n < 64 && std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream is(line);
+    std::string key, tok;
+    is >> key;
+    static const std::set<std::string> kKeys = {"VERSION", "FIELDS", "SIZE",   "TYPE", "COUNT",
+                                                "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
+    if (!kKeys.count(key)) return bad("unknown line '" + line.substr(0, 32) + "'");
+    if (keys.count(key)) return bad(key + " given twice");
+    std::vector<std::string>& v = keys[key];
+    while (is >> tok) v.push_back(tok);
+    if (key == "DATA") {
+      data = true;
+      break;
+    }
+  }
+  if (!data) return bad("no DATA line");
+  for (const char* k : {"FIELDS", "SIZE", "TYPE", "WIDTH", "POINTS"}) {
+    if (keys[k].empty()) return bad(std::string("no ") + k);
+  }
+  const std::string& d = keys["DATA"].empty() ? std::string() : keys["DATA"][0];
+  if (keys["DATA"].size() != 1 || (d != "ascii" && d != "binary" && d != "binary_compressed")) {
+    return bad("DATA must be ascii, binary or binary_compressed");
+  }
+  const size_t nf = keys["FIELDS"].size();
+  if (keys["SIZE"].size() != nf || keys["TYPE"].size() != nf || (keys.count("COUNT") && keys["COUNT"].size() != nf)) {
+    return bad("FIELDS, SIZE, TYPE and COUNT differ in length");
+  }
+  auto number = [](const std::string& t, uint64_t& out) {
+    if (t.empty() || t.size() > 12 || t.find_first_not_of("0123456789") != std::string::npos) return false;
+    out = std::stoull(t);
+    return true;
+  };
+  uint64_t point_step = 0;
+  for (size_t i = 0; i < nf; ++i) {
+    uint64_t size = 0, count = 1;
+    if (!number(keys["SIZE"][i], size) || (size != 1 && size != 2 && size != 4 && size != 8)) return bad("bad SIZE");
+    if (keys.count("COUNT") && (!number(keys["COUNT"][i], count) || count == 0 || count > (1u << 20))) {
+      return bad("bad COUNT");
+    }
+    const std::string& t = keys["TYPE"][i];
+    if (t != "F" && t != "I" && t != "U") return bad("bad TYPE");
+    point_step += size * count;
+  }
+  uint64_t width = 0, height = 1, points = 0;
+  if (keys["WIDTH"].size() != 1 || !number(keys["WIDTH"][0], width)) return bad("bad WIDTH");
+  if (keys.count("HEIGHT") && (keys["HEIGHT"].size() != 1 || !number(keys["HEIGHT"][0], height))) return bad("bad HEIGHT");
+  if (keys["POINTS"].size() != 1 || !number(keys["POINTS"][0], points)) return bad("bad POINTS");
+  if (width > (1u << 30) || height > (1u << 30) || width * height != points) return bad("WIDTH x HEIGHT is not POINTS");
+  if (points * point_step > 64 * file_size + 4096) return bad("declares more data than the file can hold");
+  return Status::Ok();
+}
+
 Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
   const std::string head = ReadHead(path, 64);
   if (!(head.rfind("#", 0) == 0 || head.rfind("VERSION", 0) == 0 || head.rfind("FIELDS", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PCD file (bad magic)");
   }
+  if (Status s = CheckPcdHeader(path); !s.ok()) return s;
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;
@@ -379,6 +500,40 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
       if (f.name == "z") has[2] = true;
     }
     if (!has[0] || !has[1] || !has[2]) return Status::Corruption(Quote(path) + ": PCD has no x, y, z fields");
+    // PCL trusts SIZE / TYPE / COUNT: a field that does not fit in its point
+    // made its conversion read past the data (found by fuzz/pcd_fuzz).
+    for (const auto& f : header.fields) {
+      size_t bytes = 0;
+      switch (f.datatype) {
+        case pcl::PCLPointField::INT8: case pcl::PCLPointField::UINT8: bytes = 1; break;
+        case pcl::PCLPointField::INT16: case pcl::PCLPointField::UINT16: bytes = 2; break;
+        case pcl::PCLPointField::INT32: case pcl::PCLPointField::UINT32:
+        case pcl::PCLPointField::FLOAT32: bytes = 4; break;
+        case pcl::PCLPointField::FLOAT64: bytes = 8; break;
+        default: break;
+      }
+      if (bytes == 0 || f.count == 0 ||
+          static_cast<uint64_t>(f.offset) + static_cast<uint64_t>(bytes) * f.count > header.point_step) {
+        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
+                                  "' does not fit its point (SIZE, TYPE, COUNT disagree)");
+      }
+      if ((f.name == "x" || f.name == "y" || f.name == "z") &&
+          (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1)) {
+        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
+                                  "' is not one float32 (SIZE 4, TYPE F, COUNT 1)");
+      }
+    }
+    // PCL checks WIDTH x HEIGHT against POINTS in 32 bits, so a product that
+    // wraps passes and its conversion then indexes an empty cloud (found by
+    // fuzz/pcd_fuzz). Checked here in 64 bits.
+    // Zero points: PCL's conversion would take &cloud[0] of an empty cloud.
+    const uint64_t points = static_cast<uint64_t>(header.width) * header.height;
+    if (points == 0) return Status::Corruption(Quote(path) + ": PCD declares no points");
+    if (points > kMaxPcdPoints) {
+      return Status::Corruption(Quote(path) + ": PCD header says " + std::to_string(header.width) + "x" +
+                                std::to_string(header.height) + " points, more than " +
+                                std::to_string(kMaxPcdPoints));
+    }
     // Binary data must fill width * height points; PCL checks this too, but
     // its message goes to stderr.
     if (data_type == 1) {
@@ -391,7 +546,9 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
                                   std::to_string(need));
       }
     }
-    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+    pcl::PCLPointCloud2 blob;
+    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
   }
   if (cloud.size() != static_cast<size_t>(cloud.width) * cloud.height) {
     return Status::Corruption(Quote(path) + ": PCD has " + std::to_string(cloud.size()) + " points, header says " +
@@ -440,11 +597,32 @@ Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
   if (!(head.rfind("ply\n", 0) == 0 || head.rfind("ply\r\n", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PLY file (bad magic)");
   }
+  {
+    // PCL allocates every element's declared records at the end of the
+    // header: a few bytes could ask for gigabytes (fuzz/ply_frame_fuzz). A
+    // record takes at least one byte, so no count may exceed the file size.
+    std::ifstream in(path, std::ios::binary);
+    std::error_code ec;
+    const uint64_t file_size = fs::file_size(path, ec);
+    std::string line;
+    for (int n = 0; n < 256 && std::getline(in, line) && line.rfind("end_header", 0) != 0; ++n) {
+      std::istringstream ls(line);
+      std::string key, name, count;
+      ls >> key >> name >> count;
+      if (key != "element") continue;
+      if (count.empty() || count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoull(count) > file_size) {
+        return Status::Corruption(Quote(path) + ": PLY element '" + name + "' declares more records than the file holds");
+      }
+    }
+  }
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;
     pcl::PLYReader reader;
-    if (reader.read(path, cloud) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+    pcl::PCLPointCloud2 blob;
+    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
   }
   Frame frame;
   frame.X_BC = X_BC_default;

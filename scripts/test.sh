@@ -1,7 +1,75 @@
 #!/usr/bin/env bash
-# Builds everything and runs every test (the README's test command).
+# The README's test command (and CI's, through .ci/run). Stages, in order:
+#   build  normal build (scripts/build.sh), every test (ctest), bounded load
+#          test (bp_load: 8 robots, 5 s, fails on any error)
+#   asan   every test binary under AddressSanitizer + UBSan (build-asan/)
+#   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
+#          ThreadSanitizer (build-tsan/)
+#   fuzz   every libFuzzer target for FUZZ_SECONDS (default 15) each
+#          (scripts/fuzz.sh, build-fuzz/)
+# BINPICK_TEST_STAGES picks stages (default "build asan tsan fuzz"); extra
+# arguments go to the normal ctest run. Each stage logs its start and its
+# duration; the first failure stops the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scripts/build.sh
-cd build
-ctest --output-on-failure --parallel "$(nproc)" --timeout 300 "$@"
+STAGES="${BINPICK_TEST_STAGES:-build asan tsan fuzz}"
+export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
+export CCACHE_MAXSIZE="${CCACHE_MAXSIZE:-5G}"
+export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
+JOBS="$(nproc)"
+TEST_TARGETS=(bp_core_tests bp_collision_tests bp_pipeline_tests bp_integration_tests
+              bp_grasp_tests bp_comms_tests)
+timings=()
+
+run_stage() {
+  local name="$1"
+  shift
+  echo "=== test.sh: stage '$name' started $(date -u +%H:%M:%S)"
+  local t0=$SECONDS
+  "$@"
+  local dt=$((SECONDS - t0))
+  timings+=("$(printf '%-6s %4d s' "$name" "$dt")")
+  echo "=== test.sh: stage '$name' passed in ${dt} s"
+}
+
+stage_build() {
+  scripts/build.sh
+  (cd build && ctest --output-on-failure --parallel "$JOBS" --timeout 300 "$@")
+  build/bin/bp_load --robots 8 --seconds 5
+}
+
+stage_asan() {
+  if [ ! -f build-asan/CMakeCache.txt ]; then cmake --preset asan >/dev/null; fi
+  cmake --build build-asan --parallel "$JOBS" --target "${TEST_TARGETS[@]}"
+  LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp" \
+  UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1" \
+  ASAN_OPTIONS="detect_leaks=1:abort_on_error=0" \
+    ctest --test-dir build-asan --output-on-failure --parallel "$JOBS" --timeout 600
+}
+
+stage_tsan() {
+  if [ ! -f build-tsan/CMakeCache.txt ]; then cmake --preset tsan >/dev/null; fi
+  cmake --build build-tsan --parallel "$JOBS" --target bp_comms_tests bp_grasp_tests
+  local t
+  for t in bp_grasp_tests bp_comms_tests; do
+    echo "--- tsan: $t"
+    (cd build-tsan && TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1" \
+       BINPICK_ASSETS="$PWD/../assets" bin/"$t" --gtest_brief=1)
+  done
+}
+
+stage_fuzz() {
+  FUZZ_SECONDS="${FUZZ_SECONDS:-15}" scripts/fuzz.sh
+}
+
+for s in $STAGES; do
+  case "$s" in
+    build) run_stage build stage_build "$@" ;;
+    asan) run_stage asan stage_asan ;;
+    tsan) run_stage tsan stage_tsan ;;
+    fuzz) run_stage fuzz stage_fuzz ;;
+    *) echo "test.sh: unknown stage '$s' (build asan tsan fuzz)"; exit 2 ;;
+  esac
+done
+echo "=== test.sh: all stages passed"
+printf '    %s\n' "${timings[@]}"

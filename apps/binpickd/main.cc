@@ -9,6 +9,7 @@
 //             /metrics: docs/status_page.md; port 0 or absent disables)
 //            [--source synthetic|files:DIR|replay:DIR]  (default: the cell's source)
 //            [--no-record] [--record-dir DIR] [--record-max-mb N]  (default: the cell's recording)
+//            [--max-connections N] [--max-message-rate R] [--allow IP]...
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
@@ -65,6 +66,9 @@ int main(int argc, char** argv) {
   bool no_record = false;
   std::string record_dir;
   std::optional<int64_t> record_max_mb;
+  std::optional<int> max_connections;
+  std::optional<double> max_message_rate;
+  std::vector<std::string> allow;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -77,6 +81,15 @@ int main(int argc, char** argv) {
                  "seconds without a complete request before an idle robot is disconnected");
   app.add_option("--detection-threads", detection_threads, "oneTBB arena size for detection");
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off");
+  app.add_option("--max-connections", max_connections,
+                 "robot connections per listener, more are closed at accept; 0 unlimited "
+                 "(default: the cell's endpoints.max_connections)");
+  app.add_option("--max-message-rate", max_message_rate,
+                 "requests/s per connection, faster robots are read no faster; 0 unlimited "
+                 "(default: the cell's endpoints.max_message_rate)");
+  app.add_option("--allow", allow,
+                 "robot IP allowed to connect, repeatable; others are closed at accept "
+                 "(default: the cell's endpoints.allowlist; none: any)");
   app.add_option("--modbus-robot", modbus_robots,
                  "HOST:PORT of a robot Modbus slave to serve as master (repeatable; default: the "
                  "cell's robot.modbus)");
@@ -203,6 +216,15 @@ int main(int argc, char** argv) {
   daoai.bind = bind.value_or(cell->endpoints.bind);
   daoai.port = daoai_port.value_or(cell->endpoints.daoai_port);
   daoai.read_timeout = std::chrono::milliseconds(static_cast<int64_t>(read_timeout_s * 1000));
+  daoai.max_connections = static_cast<size_t>(
+      std::max(0, max_connections.value_or(cell->endpoints.max_connections)));
+  daoai.max_message_rate = std::max(0.0, max_message_rate.value_or(cell->endpoints.max_message_rate));
+  daoai.allowlist = allow.empty() ? cell->endpoints.allowlist : allow;
+  if (!daoai.allowlist.empty()) {
+    std::string list;
+    for (const std::string& ip : daoai.allowlist) list += (list.empty() ? "" : ", ") + ip;
+    spdlog::info("binpickd: robots allowed to connect: {}", list);
+  }
   std::unique_ptr<bp::DaoaiServer> server;
   std::string ready = "binpickd ready: daoai ";
   if (daoai.port != 0) {
@@ -259,6 +281,9 @@ int main(int argc, char** argv) {
   gri.v2_port = gri_port.value_or(cell->endpoints.gri_port);
   gri.official_port = gri_official_port.value_or(cell->endpoints.gri_official_port);
   gri.read_timeout = daoai.read_timeout;
+  gri.max_connections = daoai.max_connections;
+  gri.max_message_rate = daoai.max_message_rate;
+  gri.allowlist = daoai.allowlist;
   gri.processing_timeout = std::chrono::milliseconds(static_cast<int64_t>(gri_timeout_s * 1000));
   std::unique_ptr<bp::GriServer> gri_server;
   ready += "; gri ";

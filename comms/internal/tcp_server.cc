@@ -11,11 +11,14 @@ Session::Session(SessionArgs args, const char* log_name, std::chrono::millisecon
       strand_(std::move(args.strand)),
       log_name_(log_name),
       timer_(strand_),
+      throttle_timer_(strand_),
+      max_message_rate_(args.max_message_rate),
       gate_(std::move(args.gate)),
       on_closed_(std::move(args.on_closed)),
       counters_(args.counters ? std::move(args.counters) : std::make_shared<TransportCounters>()),
       read_timeout_(read_timeout) {
   client_.id = args.id;
+  tokens_ = std::max(1.0, max_message_rate_);
   boost::system::error_code ec;
   const tcp::endpoint peer = socket_.remote_endpoint(ec);
   client_.peer = ec ? "?" : peer.address().to_string() + ":" + std::to_string(peer.port());
@@ -43,11 +46,42 @@ void Session::OnReadError(boost::system::error_code ec) {
   }
 }
 
+void Session::ReadNextRequest() {
+  if (max_message_rate_ <= 0) {
+    BeginReading();
+    return;
+  }
+  const auto now = std::chrono::steady_clock::now();
+  const double burst = std::max(1.0, max_message_rate_);
+  tokens_ = std::min(burst, tokens_ + max_message_rate_ *
+                                          std::chrono::duration<double>(now - tokens_at_).count());
+  tokens_at_ = now;
+  if (tokens_ >= 1.0) {
+    tokens_ -= 1.0;
+    BeginReading();
+    return;
+  }
+  if (!throttle_logged_) {
+    spdlog::warn("{}: {} sends more than {} requests/s; reading it no faster (max_message_rate)",
+                 log_name_, client_.peer, max_message_rate_);
+    throttle_logged_ = true;
+  }
+  const auto wait = std::chrono::duration<double>((1.0 - tokens_) / max_message_rate_);
+  throttle_timer_.expires_after(std::chrono::duration_cast<std::chrono::nanoseconds>(wait));
+  throttle_timer_.async_wait([self = shared_from_this()](boost::system::error_code ec) {
+    if (ec || self->closed_) return;
+    self->ReadNextRequest();
+  });
+}
+
 void Session::Write(std::vector<uint8_t> bytes, const char* close_reason) {
   write_buf_ = std::move(bytes);
+  writing_ = true;
+  write_start_ = std::chrono::steady_clock::now();
   asio::async_write(socket_, asio::buffer(write_buf_),
                     asio::bind_executor(strand_, [self = shared_from_this(), close_reason](
                                                      boost::system::error_code ec, size_t) {
+                      self->writing_ = false;
                       if (ec) {
                         self->DoClose("write failed");
                       } else if (close_reason) {
@@ -74,6 +108,13 @@ void Session::ArmTimer() {
   timer_.expires_at(busy_ ? now + read_timeout_ : last_activity_ + read_timeout_);
   timer_.async_wait([self = shared_from_this()](boost::system::error_code ec) {
     if (ec || self->closed_) return;
+    if (self->writing_ &&
+        std::chrono::steady_clock::now() - self->write_start_ >= self->read_timeout_) {
+      spdlog::warn("{}: {} read no answer for {} ms; closing", self->log_name_,
+                   self->client_.peer, self->read_timeout_.count());
+      self->DoClose("write timeout (robot not reading)");
+      return;
+    }
     const auto idle = std::chrono::steady_clock::now() - self->last_activity_;
     if (!self->busy_ && idle >= self->read_timeout_) {
       spdlog::warn("{}: {} sent no complete request for {} ms; closing", self->log_name_,
@@ -92,14 +133,15 @@ void Session::DoClose(const char* why) {
   spdlog::info("{}: connection {} ({}) closed: {}", log_name_, client_.id, client_.peer, why);
   boost::system::error_code ec;
   timer_.cancel();
+  throttle_timer_.cancel();
   socket_.shutdown(tcp::socket::shutdown_both, ec);
   socket_.close(ec);
   OnClosed();
   if (on_closed_) on_closed_(client_.id);
 }
 
-Listener::Listener(const char* log_name, Factory factory)
-    : log_name_(log_name), factory_(std::move(factory)) {}
+Listener::Listener(const char* log_name, Factory factory, ConnectionLimits limits)
+    : log_name_(log_name), factory_(std::move(factory)), limits_(std::move(limits)) {}
 
 Listener::~Listener() {
   Stop();
@@ -112,6 +154,16 @@ Status Listener::Listen(const std::string& bind, const std::vector<int>& ports, 
   const asio::ip::address address = asio::ip::make_address(bind, ec);
   if (ec)
     return Status::InvalidArgument(std::string(log_name_) + ": bad bind address '" + bind + "'");
+  for (const std::string& peer : limits_.allowlist) {
+    const asio::ip::address a = asio::ip::make_address(peer, ec);
+    if (ec) {
+      return Status::InvalidArgument(std::string(log_name_) + ": bad allowlist address '" + peer +
+                                     "' (an IP address)");
+    }
+    allowed_.push_back(a.is_v6() && a.to_v6().is_v4_mapped()
+                           ? asio::ip::address(asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6()))
+                           : a);
+  }
   for (int port : ports) {
     if (port < 0 || port > 65535) {
       return Status::InvalidArgument(std::string(log_name_) + ": bad port " + std::to_string(port));
@@ -181,13 +233,18 @@ void Listener::Accept(tcp::acceptor& acceptor, int port) {
           }
           return;
         }
+        if (!Admit(socket)) {
+          Accept(acceptor, port);
+          return;
+        }
         uint64_t id = 0;
         {
           std::lock_guard lock(mutex_);
           id = ++next_id_;
         }
         std::shared_ptr<Session> session = factory_(
-            SessionArgs{std::move(socket), strand, gate_, id, port, [this](uint64_t closed_id) {
+            SessionArgs{std::move(socket), strand, gate_, id, port, limits_.max_message_rate,
+                        [this](uint64_t closed_id) {
                           std::lock_guard lock(mutex_);
                           connections_.erase(closed_id);
                         }, counters_});
@@ -199,6 +256,36 @@ void Listener::Accept(tcp::acceptor& acceptor, int port) {
         session->Start();
         Accept(acceptor, port);
       });
+}
+
+bool Listener::Admit(tcp::socket& socket) {
+  boost::system::error_code ec;
+  const tcp::endpoint peer = socket.remote_endpoint(ec);
+  std::string why;
+  if (ec) {
+    why = "peer address unknown: " + ec.message();
+  } else if (!allowed_.empty()) {
+    asio::ip::address a = peer.address();
+    if (a.is_v6() && a.to_v6().is_v4_mapped()) a = asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6());
+    if (std::find(allowed_.begin(), allowed_.end(), a) == allowed_.end()) {
+      why = "not in the allowlist";
+    }
+  }
+  if (why.empty() && limits_.max_connections > 0) {
+    std::lock_guard lock(mutex_);
+    if (connections_.size() >= limits_.max_connections) {
+      why = std::to_string(connections_.size()) + " connections open (max_connections " +
+            std::to_string(limits_.max_connections) + ")";
+    }
+  }
+  if (why.empty()) return true;
+  ++refused_;
+  spdlog::warn("{}: refused a connection from {}: {}", log_name_,
+               ec ? std::string("?") : peer.address().to_string() + ":" + std::to_string(peer.port()),
+               why);
+  socket.shutdown(tcp::socket::shutdown_both, ec);
+  socket.close(ec);
+  return false;
 }
 
 }  // namespace bp::internal

@@ -44,12 +44,24 @@ struct TransportCounters {
   std::atomic<uint64_t> protocol_errors{0};
 };
 
+// Limits of one listener (docs/reliability.md "Limits"). Zero: unlimited.
+struct ConnectionLimits {
+  // Connections open at once; one more is closed at accept, with a log line.
+  size_t max_connections = 0;
+  // Complete requests per second per connection; above it the connection is
+  // not read until the rate allows (TCP back-pressure), nothing is dropped.
+  double max_message_rate = 0;
+  // Peer addresses allowed to connect (exact IPs); empty: any peer.
+  std::vector<std::string> allowlist;
+};
+
 struct SessionArgs {
   tcp::socket socket;
   Strand strand;
   std::shared_ptr<PostGate> gate;
   uint64_t id = 0;
   int local_port = 0;  // the listening port the robot connected to
+  double max_message_rate = 0;  // ConnectionLimits::max_message_rate
   std::function<void(uint64_t)> on_closed;
   std::shared_ptr<TransportCounters> counters;
 };
@@ -78,7 +90,13 @@ class Session : public std::enable_shared_from_this<Session> {
   void MarkActivity() { last_activity_ = std::chrono::steady_clock::now(); }
   // Closes on a read error with the right log line.
   void OnReadError(boost::system::error_code ec);
+  // After a complete request: BeginReading() the next one at once, or later
+  // when the connection is above max_message_rate (token bucket, one second
+  // of burst).
+  void ReadNextRequest();
   // Writes `bytes`; then Done(), or closes with `close_reason` when given.
+  // A write that does not complete within read_timeout (a robot that does not
+  // read its answers) closes the connection.
   void Write(std::vector<uint8_t> bytes, const char* close_reason = nullptr);
   void DoClose(const char* why);
   // The robot broke the protocol (counted in TransportStats::protocol_errors).
@@ -132,6 +150,13 @@ class Session : public std::enable_shared_from_this<Session> {
   void ArmTimer();
 
   asio::steady_timer timer_;
+  asio::steady_timer throttle_timer_;
+  const double max_message_rate_;
+  double tokens_ = 0;
+  std::chrono::steady_clock::time_point tokens_at_ = std::chrono::steady_clock::now();
+  bool throttle_logged_ = false;
+  bool writing_ = false;
+  std::chrono::steady_clock::time_point write_start_;
   std::shared_ptr<PostGate> gate_;
   std::function<void(uint64_t)> on_closed_;
   std::shared_ptr<TransportCounters> counters_;
@@ -147,26 +172,33 @@ class Listener {
  public:
   using Factory = std::function<std::shared_ptr<Session>(SessionArgs)>;
 
-  Listener(const char* log_name, Factory factory);
+  Listener(const char* log_name, Factory factory, ConnectionLimits limits = {});
   ~Listener();  // Stop(), then late completions are dropped
   Listener(const Listener&) = delete;
   Listener& operator=(const Listener&) = delete;
 
   // Binds every port (0: an ephemeral one) and starts io_threads threads.
-  // @returns InvalidArgument for a bad address or port, Unavailable when a
-  // port cannot be bound.
+  // @returns InvalidArgument for a bad address, port or allowlist entry,
+  // Unavailable when a port cannot be bound.
   Status Listen(const std::string& bind, const std::vector<int>& ports, int io_threads);
   const std::vector<int>& ports() const { return ports_; }  // bound, in Listen's order
   size_t connection_count() const;
   TransportStats stats() const;
+  // Connections closed at accept (allowlist or max_connections).
+  uint64_t refused_count() const { return refused_.load(); }
   // Stops accepting, closes every connection and joins the threads. Idempotent.
   void Stop();
 
  private:
   void Accept(tcp::acceptor& acceptor, int port);
+  // Applies the allowlist and max_connections; closes a refused socket.
+  bool Admit(tcp::socket& socket);
 
   const char* log_name_;
   Factory factory_;
+  const ConnectionLimits limits_;
+  std::vector<asio::ip::address> allowed_;  // parsed limits_.allowlist
+  std::atomic<uint64_t> refused_{0};
   std::shared_ptr<PostGate> gate_ = std::make_shared<PostGate>();
   std::shared_ptr<TransportCounters> counters_ = std::make_shared<TransportCounters>();
   asio::io_context io_;

@@ -18,6 +18,7 @@
 #include "comms/modbus_master.h"
 #include "comms/modbus_robot_sim.h"
 #include "comms/robot_flows.h"
+#include "tests/testing/process_stats.h"
 #include "tests/testing/run_command.h"
 #include "tests/testing/scripted_planner.h"
 
@@ -388,6 +389,37 @@ TEST(ModbusMaster, RobotRestartingMidRequestIsServedAfterReconnect) {
   EXPECT_EQ(m.connects, 2u);
   EXPECT_EQ(m.lost, 1u);  // the answer to the capture before the restart
   EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+}
+
+// Fault injection (docs/reliability.md): the robot's Modbus slave vanishes
+// between two pick cycles and stays away while the master retries, then
+// comes back on the same address. Every grasp is handed out once, and the
+// retries leak no descriptor.
+TEST(ModbusMaster, SlaveVanishingBetweenCyclesLosesNothingAndLeaksNoDescriptor) {
+  ModbusRig rig;
+  ScriptedPlanner::Script pile;
+  pile.pile = 4;
+  rig.planner_->SetScript(0, pile);
+  const int port = rig.sim_->port();
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  ASSERT_EQ(rig.robot_->Call(daoai::kPickPose, 0)->status, daoai::kObjectsFound);
+  ASSERT_EQ(rig.planner_->handed_out().size(), 1u);
+  const int fds = testing::OpenFdCount();  // slave listening + both ends connected
+  rig.robot_.reset();
+  rig.sim_->Stop();
+  ASSERT_TRUE(testing::WaitUntil([&] { return !rig.master_->stats().connected; }));
+  std::this_thread::sleep_for(300ms);  // refused reconnects with backoff (10..50 ms)
+  EXPECT_LE(testing::OpenFdCount(), fds - 3) << "a retry left a descriptor open";
+  rig.StartRobot(port);
+  ASSERT_TRUE(rig.sim_->WaitForMaster(5s));
+  FlowOptions f;
+  f.flow = "pick";  // capture and pick until the bin is empty
+  const FlowSummary s = rig.Run(f);
+  EXPECT_TRUE(s.ok) << rig.out_.str();
+  EXPECT_EQ(s.picks, 3);
+  EXPECT_EQ(rig.planner_->handed_out().size(), 4u) << "every part of the pile picked once";
+  EXPECT_EQ(rig.master_->stats().connects, 2u);
+  EXPECT_EQ(testing::OpenFdCount(), fds);
 }
 
 TEST(ModbusMaster, ConnectsToARobotThatStartsLater) {

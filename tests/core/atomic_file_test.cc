@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -28,6 +29,21 @@ TEST(AtomicFile, WritesANewFileWithTheRequestedMode) {
   EXPECT_EQ(st.st_mode & 0777, 0600u);
   EXPECT_FALSE(std::filesystem::exists(AtomicTempPath(path)));
   EXPECT_FALSE(std::filesystem::exists(AtomicBackupPath(path)));
+}
+
+// docs/reliability.md "Security": calibrations, taught grasps and
+// recordings are not world-readable, even when they replace a file that was.
+TEST(AtomicFile, DefaultModeIsNotWorldReadableAndReplacesAWiderMode) {
+  const std::string path = FreshDir("mode") + "/hand_eye.yaml";
+  const mode_t old_mask = ::umask(022);
+  { std::ofstream(path) << "old\n"; }
+  ASSERT_EQ(::chmod(path.c_str(), 0666), 0);
+  ASSERT_TRUE(WriteFileAtomic(path, "new\n").ok());
+  ::umask(old_mask);
+  struct stat st{};
+  ASSERT_EQ(::stat(path.c_str(), &st), 0);
+  EXPECT_EQ(st.st_mode & 0777, 0640u);
+  EXPECT_EQ(ReadBytes(path), "new\n");
 }
 
 TEST(AtomicFile, KeepsThePreviousVersionAsBackup) {

@@ -563,6 +563,45 @@ TEST_F(CellFileTest, ModbusSectionReadsTheRegisterMapAndPollInterval) {
   EXPECT_EQ(seed->robot.modbus_poll_ms, 2);
 }
 
+// Found by fuzz/modbus_registers_fuzz: request_base + 12 overflowed int for a
+// base near INT_MAX (undefined behaviour; the wrapped sum passed the check).
+TEST_F(CellFileTest, ModbusRegisterNearIntMaxIsRejectedWithoutOverflow) {
+  for (const char* key : {"request_base", "response_base"}) {
+    Result<Cell> cell = LoadCell(Write(Mutate(
+        kBaseCell, "  protocol_version: 2",
+        std::string("  protocol_version: 2\n  modbus: {host: plc, ") + key + ": 2147483647}")));
+    ASSERT_FALSE(cell.ok()) << key;
+    EXPECT_THAT(cell.status().message(), HasSubstr(std::string(key) + " out of 0..")) << key;
+  }
+}
+
+TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
+  auto with = [](const std::string& lines) {
+    return Mutate(kBaseCell, "  gri_port: 10000", "  gri_port: 10000\n" + lines);
+  };
+  Result<Cell> cell = ParseCell(with("  max_connections: 4\n  max_message_rate: 50\n"
+                                     "  allowlist: [192.168.10.21, \"fd00::7\"]"),
+                                (tmp_.path() / "c.yaml").string());
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_EQ(cell->endpoints.max_connections, 4);
+  EXPECT_EQ(cell->endpoints.max_message_rate, 50);
+  EXPECT_EQ(cell->endpoints.allowlist, (std::vector<std::string>{"192.168.10.21", "fd00::7"}));
+  Result<Cell> defaults = ParseCell(kBaseCell, (tmp_.path() / "d.yaml").string());
+  ASSERT_TRUE(defaults.ok());
+  EXPECT_EQ(defaults->endpoints.max_connections, 64);
+  EXPECT_EQ(defaults->endpoints.max_message_rate, 0);
+  EXPECT_TRUE(defaults->endpoints.allowlist.empty());
+  for (const auto& [yaml, error] : std::vector<std::pair<std::string, std::string>>{
+           {"  allowlist: [robot-1]", "endpoints.allowlist[0]: 'robot-1' is not an IP address"},
+           {"  allowlist: 10.0.0.1", "endpoints.allowlist: expected a list"},
+           {"  max_connections: -1", "endpoints.max_connections: must be >= 0"},
+           {"  max_message_rate: -5", "endpoints.max_message_rate: must be >= 0"}}) {
+    Result<Cell> bad = ParseCell(with(yaml), (tmp_.path() / "b.yaml").string());
+    ASSERT_FALSE(bad.ok()) << yaml;
+    EXPECT_THAT(bad.status().message(), HasSubstr(error)) << yaml;
+  }
+}
+
 TEST_F(CellFileTest, ParseCellResolvesAgainstTheGivenPath) {
   Result<Cell> cell = ParseCell(kBaseCell, (tmp_.path() / "virtual.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();

@@ -253,6 +253,32 @@ TEST(TriangleMesh, DiameterOfLargeMeshIsWithinDocumentedBoundOfExact) {
 
 // --- file I/O -------------------------------------------------------------------
 
+// Found by fuzz/mesh_fuzz: an element without properties declaring 2^62
+// records made the parser loop over them (a hang); they are empty records.
+TEST(MeshIo, PropertylessElementWithAHugeCountLoadsAtOnce) {
+  const std::string path = TempPath("huge_empty.ply");
+  WriteFile(path, "ply\nformat ascii 1.0\nelement nothing 4611686018427387904\n"
+                  "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                  "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+  Result<TriangleMesh> mesh = LoadMesh(path);
+  ASSERT_TRUE(mesh.ok()) << mesh.status().ToString();
+  EXPECT_EQ(mesh->vertices.size(), 3u);
+  EXPECT_EQ(mesh->triangles.size(), 1u);
+}
+
+// Found by fuzz/mesh_fuzz: an ASCII face list length of 9.2e18 was converted
+// to int (undefined behaviour).
+TEST(MeshIo, AsciiListLongerThanTheFileIsCorruption) {
+  const std::string path = TempPath("long_list.ply");
+  WriteFile(path, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                  "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                  "0 0 0\n1 0 0\n0 1 0\n9223372036854775807 0 1 2\n");
+  Result<TriangleMesh> mesh = LoadMesh(path);
+  ASSERT_FALSE(mesh.ok());
+  EXPECT_EQ(mesh.status().code(), Status::Code::kCorruption);
+}
+
 TEST(MeshIo, BinaryPlyRoundTripIsBitIdentical) {
   const TriangleMesh m = MakeFlangedBushing();
   const std::string path = TempPath("round_trip.ply");

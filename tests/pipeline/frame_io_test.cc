@@ -145,6 +145,62 @@ TEST(CloudPcd, OrganizedCloudWithoutSidecarBecomesPointListWithDefaultPose) {
   EXPECT_TRUE(g->X_BC.matrix() == X_BC_default.matrix());
 }
 
+// Found by fuzz/pcd_fuzz: a header declaring no points made PCL take
+// &cloud[0] of an empty cloud, and WIDTH x HEIGHT wrapping in 32 bits to
+// POINTS passed PCL's own check, then its conversion wrote past the cloud.
+TEST(CloudPcd, HeaderWithNoPointsOrAWrappingSizeIsCorruption) {
+  const std::string dir = FreshDir("out");
+  const std::string head = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n";
+  WriteText(dir + "/none.pcd", head + "WIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n");
+  Result<Frame> none = LoadFrameFile(dir + "/none.pcd");
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.status().code(), Status::Code::kCorruption);
+  EXPECT_THAT(none.status().message(), HasSubstr("no points"));
+  // 65536 x 65537 = 2^32 + 65536: 65536 in 32 bits, the POINTS given.
+  std::string wrap = head + "WIDTH 65536\nHEIGHT 65537\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 65536\nDATA ascii\n";
+  for (int i = 0; i < 65536; ++i) wrap += "0 0 1\n";
+  WriteText(dir + "/wrap.pcd", wrap);
+  Result<Frame> wrapped = LoadFrameFile(dir + "/wrap.pcd");
+  ASSERT_FALSE(wrapped.ok());
+  EXPECT_EQ(wrapped.status().code(), Status::Code::kCorruption);
+  EXPECT_THAT(wrapped.status().message(), HasSubstr("WIDTH x HEIGHT is not POINTS"));
+}
+
+// Found by fuzz/pcd_fuzz: fields whose SIZE / TYPE / COUNT do not fit the
+// point made PCL's conversion read past its data (heap overflow under ASan).
+TEST(CloudPcd, FieldsThatDoNotFitTheirPointAreCorruption) {
+  const std::string dir = FreshDir("out");
+  const std::string points = "-0.25 -0.25 1\n0.25 -0.25 1\n-0.25 0.25 1\n0.25 0.25 1\n";
+  WriteText(dir + "/sizes.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 3 4 2\nWIDTH 4\nHEIGHT 1\n"
+                                "POINTS 4\nDATA ascii\n" + points);
+  Result<Frame> sizes = LoadFrameFile(dir + "/sizes.pcd");
+  ASSERT_FALSE(sizes.ok());
+  EXPECT_EQ(sizes.status().code(), Status::Code::kCorruption);
+  WriteText(dir + "/double.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\n"
+                                 "COUNT 1 1 1\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n" + points);
+  Result<Frame> dbl = LoadFrameFile(dir + "/double.pcd");
+  ASSERT_FALSE(dbl.ok());
+  EXPECT_THAT(dbl.status().message(), HasSubstr("not one float32"));
+  // A repeated FIELDS line corrupted PCL's memory (bad free under ASan).
+  WriteText(dir + "/twice.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                                "FIELDS x y z 0\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n" + points);
+  Result<Frame> twice = LoadFrameFile(dir + "/twice.pcd");
+  ASSERT_FALSE(twice.ok());
+  EXPECT_THAT(twice.status().message(), HasSubstr("FIELDS given twice"));
+}
+
+// Found by fuzz/ply_frame_fuzz: a PLY whose vertex element is unrecognised
+// (no points) made PCL's conversion take &cloud[0] of an empty cloud.
+TEST(CloudPly, NoVerticesIsCorruption) {
+  const std::string dir = FreshDir("out");
+  WriteText(dir + "/none.ply", std::string("ply\nformat binary_little_endian 1.0\nelement v\0\0\0x 2\n"
+                                           "property float x\nproperty float y\nproperty float z\n"
+                                           "end_header\n", 114) + std::string(24, '\0'));
+  Result<Frame> none = LoadFrameFile(dir + "/none.ply");
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.status().code(), Status::Code::kCorruption);
+}
+
 TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
   const std::string dir = FreshDir("out");
   WriteText(dir + "/mesh.ply",

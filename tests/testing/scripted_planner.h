@@ -12,6 +12,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -29,6 +30,8 @@ class ScriptedPlanner final : public GraspPlanner {
     int64_t roi_points = 50000;
     int64_t largest_region_points = 40000;
     bool capture_fails = false;
+    bool capture_throws = false;  // Capture() throws std::runtime_error
+    bool plan_throws = false;     // Plan() throws std::runtime_error
     std::chrono::milliseconds capture_delay{0};
     std::chrono::milliseconds plan_delay{0};
     std::optional<double> precision_error_mm = 0.42;  // nullopt: target not found
@@ -64,6 +67,7 @@ class ScriptedPlanner final : public GraspPlanner {
       ++captures_;
       last_config_ = request.camera_config_id;
     }
+    if (s.capture_throws) throw std::runtime_error("scripted capture exception");
     if (s.capture_fails) return Status::Unavailable("scripted capture failure");
     return CaptureHandle(std::make_shared<Scene>());
   }
@@ -75,6 +79,7 @@ class ScriptedPlanner final : public GraspPlanner {
       cv_.wait(lock, [this] { return !hold_; });
     }
     std::this_thread::sleep_for(s.plan_delay);
+    if (s.plan_throws) throw std::runtime_error("scripted detection exception");
     int grasps = s.grasps;
     int64_t roi_points = s.roi_points, largest = s.largest_region_points;
     if (s.pile >= 0) {
