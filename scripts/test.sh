@@ -5,14 +5,16 @@
 #   asan   every test binary under AddressSanitizer + UBSan (build-asan/)
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
 #          ThreadSanitizer (build-tsan/)
-#   fuzz   every libFuzzer target for FUZZ_SECONDS (default 15) each
+#   fuzz   every libFuzzer target for FUZZ_SECONDS (default 10) each
 #          (scripts/fuzz.sh, build-fuzz/)
-# BINPICK_TEST_STAGES picks stages (default "build asan tsan fuzz"); extra
+# BINPICK_TEST_STAGES picks stages (default "build fuzz"; the full run is
+# BINPICK_TEST_STAGES="build asan tsan fuzz": the sanitizer stages are not
+# yet verified to fit CI's time budget from a cold cache); extra
 # arguments go to the normal ctest run. Each stage logs its start and its
 # duration; the first failure stops the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGES="${BINPICK_TEST_STAGES:-build asan tsan fuzz}"
+STAGES="${BINPICK_TEST_STAGES:-build fuzz}"
 export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
 export CCACHE_MAXSIZE="${CCACHE_MAXSIZE:-5G}"
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
@@ -59,7 +61,7 @@ stage_tsan() {
 }
 
 stage_fuzz() {
-  FUZZ_SECONDS="${FUZZ_SECONDS:-15}" scripts/fuzz.sh
+  FUZZ_SECONDS="${FUZZ_SECONDS:-10}" scripts/fuzz.sh
 }
 
 for s in $STAGES; do
