@@ -5,9 +5,11 @@
 #include <iostream>
 #include <string>
 
+#include "calib/calibration_camera.h"
 #include "comms/modbus_robot_sim.h"
 #include "comms/robot_client.h"
 #include "comms/robot_flows.h"
+#include "core/cell.h"
 #include "core/conventions.h"
 
 namespace bp {
@@ -36,6 +38,11 @@ int RunRobotCommand(int argc, char** argv) {
   app.add_option("--max-cycles", flow.max_cycles, "pick: capture cycles at most");
   app.add_option("--poses", flow.manual_poses, "calib-manual / calib-guidance: poses to send");
   app.add_option("--timeout-ms", timeout_ms, "per-response timeout");
+  std::string cell_path;
+  app.add_option("--cell", cell_path,
+                 "calib-manual / calib-auto / calib-guidance: the server's cell (default: the embedded "
+                 "default cell); with a calibration section the robot starts where the board faces the "
+                 "camera, as `binpick calib` does");
   bool modbus = false;
   int unit_id = 1;
   int wait_master_s = 60;
@@ -52,6 +59,14 @@ int RunRobotCommand(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;
   }
   flow.check_empty = !no_empty_check;
+  if (flow.flow == "calib-manual" || flow.flow == "calib-auto" || flow.flow == "calib-guidance") {
+    Result<Cell> cell = LoadCellOrDefault(cell_path);
+    if (!cell.ok()) {
+      std::cerr << "binpick robot: " << cell.status().ToString() << "\n";
+      return 2;
+    }
+    if (cell->calibration) flow.calib_start_X_BF = BoardFacingStartPose(*cell);
+  }
   const std::optional<RobotModel> model = FindRobotModel(robot);
   if (!model) {
     std::cerr << "binpick robot: unknown robot '" << robot << "'\n";
