@@ -25,6 +25,7 @@
 #include "core/conventions.h"
 #include "tests/calib/calib_test_util.h"
 #include "tests/testing/files.h"
+#include "tests/testing/run_command.h"
 
 namespace bp {
 namespace {
@@ -401,6 +402,28 @@ TEST(WireCodes, HecErrorsOfBothFormats) {
   EXPECT_EQ(gri::WireErrorCode(Format::kV2, Code::kHecInsufficientDetection), 21);
   EXPECT_EQ(gri::WireErrorCode(Format::kOfficial, Code::kHecConfigError), -14);
   EXPECT_EQ(gri::WireErrorCode(Format::kOfficial, Code::kHecInsufficientDetection), -18);
+}
+
+// `binpick robot --flow calib-*` against a server on binpickd's default cell:
+// with the cell, the robot program starts where the board faces the camera
+// (from the robot's nominal detection pose the board is not in view).
+TEST(RobotCommandCalibration, SeedProgramsCalibrateAgainstTheDefaultCell) {
+  Result<Cell> cell = LoadCellOrDefault("");
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  ASSERT_TRUE(cell->calibration.has_value());
+  Rig rig(*cell, 2, "");
+  const std::string robot = std::string(BINPICK_BINARY_DIR) + "/bin/binpick-robot --port " +
+                            std::to_string(rig.server->port());
+  const test::CommandRun automatic = test::RunCommand(robot + " --flow calib-auto");
+  EXPECT_EQ(automatic.exit_code, 0) << automatic.out;
+  EXPECT_NE(automatic.out.find("DONE_CALIBRATION(33)"), std::string::npos) << automatic.out;
+  rig.Drain();
+  ASSERT_TRUE(rig.service->last_solution().has_value()) << automatic.out;
+  EXPECT_LT(TranslationErrorMm(rig.service->last_solution()->X, cell->calibration->true_pose), 0.5);
+  const test::CommandRun manual = test::RunCommand(robot + " --flow calib-manual");
+  EXPECT_EQ(manual.exit_code, 0) << manual.out;
+  EXPECT_EQ(manual.out.find("UNKNOWN_COMMAND"), std::string::npos) << manual.out;
+  EXPECT_EQ(test::RunCommand(robot + " --flow calib-auto --cell /no/such/cell.yaml").exit_code, 2);
 }
 
 }  // namespace
