@@ -332,10 +332,10 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
                    scene.ok() ? "planner returned no scene" : scene.status().ToString());
       event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
       event.plan_status = event.capture_status;
-      NotifyDetection(event);
       PlanResult failed;
       failed.outcome = PlanResult::Outcome::kCaptureFailed;
       t.queue.Replace(std::move(failed));
+      NotifyDetection(event);
       if (on_captured) on_captured(false);
       FinishDetection(t);
       return;
@@ -360,9 +360,11 @@ void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request
       event.plan_status = plan.status();
       if (plan.ok()) event.plan = result;
       event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
-      NotifyDetection(event);
     }
     t.queue.Replace(std::move(result));
+    // After the refill (an observer reading the queue sees the new one),
+    // before waiting picks are answered (their answers follow the detection).
+    if (!observers_.empty()) NotifyDetection(event);
     FinishDetection(t);
   });
 }

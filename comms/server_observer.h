@@ -1,6 +1,9 @@
 // What the server tells observers (recorder, status page, metrics): every
 // detection (capture + plan) and every response written to a robot.
 //
+// Order: OnDetection of a detection that fills a task's queue runs after the
+// queue holds its grasps and before the picks waiting for it are answered.
+//
 // Threading: OnDetection runs on the detection worker that ran it, OnAnswer
 // on the transport's thread right after the response is built (before it is
 // written). Both can run concurrently from several threads; observers
