@@ -25,6 +25,8 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
+#include "pipeline/pose_json.h"
+
 namespace bp {
 namespace {
 
@@ -94,36 +96,6 @@ Status CheckPngMagic(const std::string& path) {
 
 // Files are written with keys in a fixed, readable order.
 using OrderedJson = nlohmann::ordered_json;
-
-OrderedJson PoseToJson(const Pose& X) {
-  OrderedJson rows = OrderedJson::array();
-  for (int r = 0; r < 4; ++r) {
-    OrderedJson row = OrderedJson::array();
-    for (int c = 0; c < 4; ++c) row.push_back(X.matrix()(r, c));
-    rows.push_back(row);
-  }
-  return rows;
-}
-
-// Throws json::exception on a wrong shape (caught by the callers' boundary).
-Result<Pose> PoseFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
-  Eigen::Matrix4d M;
-  for (int r = 0; r < 4; ++r) {
-    const json& row = j.at(r);
-    if (!row.is_array() || row.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
-    for (int c = 0; c < 4; ++c) M(r, c) = row.at(c).get<double>();
-  }
-  if (!M.allFinite()) return Status::Corruption(what + " has non-finite entries");
-  if (M.row(3) != Eigen::RowVector4d(0, 0, 0, 1)) return Status::Corruption(what + " last row is not [0, 0, 0, 1]");
-  const Mat3 R = M.topLeftCorner<3, 3>();
-  if (!(R.transpose() * R).isApprox(Mat3::Identity(), 1e-6) || R.determinant() < 0) {
-    return Status::Corruption(what + " rotation is not orthonormal");
-  }
-  Pose X = Pose::Identity();
-  X.matrix() = M;
-  return X;
-}
 
 Result<json> ReadJson(const std::string& path) {
   auto size = CheckReadable(path);

@@ -416,7 +416,7 @@ class Recorder::Impl {
     m["task_id"] = e.task_id;
     m["task_name"] = e.request.task.name;
     m["camera_config_id"] = e.request.camera_config_id;
-    m["X_BF"] = e.request.X_BF ? record_internal::PoseJson(*e.request.X_BF) : OrderedJson();
+    m["X_BF"] = e.request.X_BF ? PoseToJson(*e.request.X_BF) : OrderedJson();
     m["binpick_version"] = options_.version;
     m["config_hash"] = ConfigHash(cell_, e.task_id);
     OrderedJson capture;
@@ -425,7 +425,7 @@ class Recorder::Impl {
     if (frame != nullptr) {
       capture["source"] = frame->source;
       capture["timestamp_ns"] = frame->timestamp_ns;
-      capture["X_BC"] = record_internal::PoseJson(frame->X_BC);
+      capture["X_BC"] = PoseToJson(frame->X_BC);
       capture["width"] = frame->organized() ? frame->depth.width : static_cast<int>(frame->points_C.size());
       capture["height"] = frame->organized() ? frame->depth.height : 1;
     } else if (e.scene) {
@@ -457,7 +457,7 @@ class Recorder::Impl {
     a["after_record"] = last_record_seq_;  // 0: before the first record
     a["client_id"] = e.client_id;
     a["peer"] = e.peer;
-    a["X_BF"] = e.X_BF ? record_internal::PoseJson(*e.X_BF) : OrderedJson();
+    a["X_BF"] = e.X_BF ? PoseToJson(*e.X_BF) : OrderedJson();
     a["request"] = record_internal::RequestJson(e.request);
     a["response"] = record_internal::ResponseJson(e.response);
     answers_.push_back(std::move(a));

@@ -126,7 +126,7 @@ CaptureReplay ReplayRecord(const std::string& record, const Cell& cell, GraspPla
     request.task = *task;
     request.camera_config_id = manifest->value("camera_config_id", 0);
     if (const json& X = manifest->at("X_BF"); !X.is_null()) {
-      Result<Pose> X_BF = record_internal::PoseFromJson(X, "X_BF");
+      Result<Pose> X_BF = PoseFromJson(X, "X_BF");
       if (!X_BF.ok()) {
         c.error = X_BF.status().ToString();
         return c;

@@ -16,30 +16,6 @@ PlanResult::Outcome OutcomeFromString(const std::string& s, bool* ok) {
 
 }  // namespace
 
-OrderedJson PoseJson(const Pose& X) {
-  OrderedJson rows = OrderedJson::array();
-  for (int r = 0; r < 4; ++r) {
-    OrderedJson row = OrderedJson::array();
-    for (int c = 0; c < 4; ++c) row.push_back(X.matrix()(r, c));
-    rows.push_back(row);
-  }
-  return rows;
-}
-
-Result<Pose> PoseFromJson(const json& j, const std::string& what) {
-  if (!j.is_array() || j.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
-  Pose X = Pose::Identity();
-  for (int r = 0; r < 4; ++r) {
-    const json& row = j[static_cast<size_t>(r)];
-    if (!row.is_array() || row.size() != 4) return Status::Corruption(what + " is not a 4x4 array");
-    for (int c = 0; c < 4; ++c) {
-      if (!row[static_cast<size_t>(c)].is_number()) return Status::Corruption(what + " has a non-number");
-      X.matrix()(r, c) = row[static_cast<size_t>(c)].get<double>();
-    }
-  }
-  return X;
-}
-
 OrderedJson PlanResultJson(const PlanResult& result) {
   OrderedJson j;
   j["outcome"] = std::string(ToString(result.outcome));
@@ -48,20 +24,20 @@ OrderedJson PlanResultJson(const PlanResult& result) {
   j["largest_region_points"] = result.largest_region_points;
   OrderedJson parts = OrderedJson::array();
   for (const DetectedPart& p : result.parts) {
-    parts.push_back({{"class_id", p.class_id}, {"score", p.score}, {"X_BO", PoseJson(p.X_BO)}});
+    parts.push_back({{"class_id", p.class_id}, {"score", p.score}, {"X_BO", PoseToJson(p.X_BO)}});
   }
   j["parts"] = parts;
   OrderedJson grasps = OrderedJson::array();
   for (const Grasp& g : result.grasps) {
     OrderedJson related = OrderedJson::array();
-    for (const Pose& X : g.related_X_B) related.push_back(PoseJson(X));
+    for (const Pose& X : g.related_X_B) related.push_back(PoseToJson(X));
     grasps.push_back({{"name", g.name},
                       {"class_id", g.class_id},
                       {"instance_id", g.instance_id},
                       {"score", g.score},
-                      {"X_BT", PoseJson(g.X_BT)},
-                      {"X_BT_pre", PoseJson(g.X_BT_pre)},
-                      {"X_BO", PoseJson(g.X_BO)},
+                      {"X_BT", PoseToJson(g.X_BT)},
+                      {"X_BT_pre", PoseToJson(g.X_BT_pre)},
+                      {"X_BO", PoseToJson(g.X_BO)},
                       {"related_X_B", related}});
   }
   j["grasps"] = grasps;

@@ -11,16 +11,13 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "grasp/planner.h"
+#include "pipeline/pose_json.h"
 
 namespace bp::record_internal {
 
 using OrderedJson = nlohmann::ordered_json;
 
-// 4x4 row-major matrix; doubles are printed with 17 significant digits, so
-// reading back is bit-exact.
-OrderedJson PoseJson(const Pose& X);
-// @returns Corruption if `j` is not a 4x4 array of numbers.
-Result<Pose> PoseFromJson(const nlohmann::json& j, const std::string& what);
+// Poses: PoseToJson / PoseFromJson (pipeline/pose_json.h).
 
 OrderedJson PlanResultJson(const PlanResult& result);
 // The fields PlanResultJson writes (stages included). Corruption on a bad shape.
