@@ -124,11 +124,11 @@ bool PickPoseOk(const RobotReply& r) {
   return r.payload[0] > 0;
 }
 
-// seed 003 daoai_capture_and_process(): move to the detection pose and
-// capture for `task`. @returns false (and marks the flow failed) when the
-// server did not acknowledge the capture.
-Result<bool> CaptureAtDetectionPose(RobotClient& robot, Runner& run, int task) {
-  robot.SetPose(DetectionPose());
+// seed 003 daoai_capture_and_process(): move to `at` and capture for
+// `task`. @returns false (and marks the flow failed) when the server did not
+// acknowledge the capture.
+Result<bool> CaptureAt(RobotClient& robot, Runner& run, int task, const Pose& at) {
+  robot.SetPose(at);
   Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, task);
   if (!cap.ok()) return cap.status();
   if (cap->status != daoai::kDetection) {
@@ -138,10 +138,18 @@ Result<bool> CaptureAtDetectionPose(RobotClient& robot, Runner& run, int task) {
   return true;
 }
 
-Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
+Result<bool> CaptureAtDetectionPose(RobotClient& robot, Runner& run, int task) {
+  return CaptureAt(robot, run, task, DetectionPose());
+}
+
+// The seed's pick program: capture at `home`, then pick poses until none is
+// left (moving to `target(pick pose)` and back to `home` after each),
+// re-capture while a cycle picked something; finally the empty-box check.
+Status PickLoop(RobotClient& robot, Runner& run, const FlowOptions& o, const Pose& home,
+                const std::function<Pose(const Pose&)>& target) {
   FlowSummary& s = run.summary();
   for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
-    Result<bool> captured = CaptureAtDetectionPose(robot, run, o.task_id);
+    Result<bool> captured = CaptureAt(robot, run, o.task_id, home);
     if (!captured.ok()) return captured.status();
     if (!*captured) return Status::Ok();
     int picked = 0;
@@ -151,9 +159,11 @@ Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
       if (!PickPoseOk(*pick)) break;
       ++picked;
       ++s.picks;
-      if (pick->X_BT) s.pick_poses.push_back(*pick->X_BT);
-      if (pick->X_BT) robot.SetPose(*pick->X_BT);  // MoveL pick_pose
-      robot.SetPose(DetectionPose());              // MoveL detection_pose
+      if (pick->X_BT) {
+        s.pick_poses.push_back(*pick->X_BT);
+        robot.SetPose(target(*pick->X_BT));  // MoveL pick_pose
+      }
+      robot.SetPose(home);  // MoveL detection_pose
     }
     if (picked == 0) break;  // nothing more to pick from this bin
   }
@@ -165,42 +175,19 @@ Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   return Status::Ok();
 }
 
+Status PickFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
+  return PickLoop(robot, run, o, DetectionPose(), [](const Pose& X_BT) { return X_BT; });
+}
+
 // seed 000 daoai_capture_and_process_2d() + daoai_get_picking_pose_2d(): as
 // the pick flow, every pose in the plane frame; recv_daoai_data_2d() keeps
 // the robot's current z (daoai_tcp_pose[2] = cur_pose[2]).
 Status Pick2DFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
-  FlowSummary& s = run.summary();
-  for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
-    robot.SetPose(PlaneCentrePose());
-    Result<RobotReply> cap = run.Call(daoai::kCaptureAndProcess, o.task_id);
-    if (!cap.ok()) return cap.status();
-    if (cap->status != daoai::kDetection) {
-      s.ok = false;  // popup("DaoAI Image Capture Failed.")
-      return Status::Ok();
-    }
-    int picked = 0;
-    for (;;) {
-      Result<RobotReply> pick = run.Call(daoai::kPickPose, o.task_id);
-      if (!pick.ok()) return pick.status();
-      if (!PickPoseOk(*pick)) break;
-      ++picked;
-      ++s.picks;
-      if (pick->X_BT) {
-        s.pick_poses.push_back(*pick->X_BT);
-        Pose X_PT = *pick->X_BT;
-        X_PT.translation().z() = robot.pose().translation().z();  // the robot overwrites z
-        robot.SetPose(X_PT);
-      }
-      robot.SetPose(PlaneCentrePose());
-    }
-    if (picked == 0) break;
-  }
-  if (o.check_empty) {
-    Result<RobotReply> empty = run.Call(daoai::kCheckEmptyBox, o.task_id);
-    if (!empty.ok()) return empty.status();
-    s.ok = empty->status == daoai::kBoxEmpty;
-  }
-  return Status::Ok();
+  return PickLoop(robot, run, o, PlaneCentrePose(), [&robot](const Pose& X_PT) {
+    Pose moved = X_PT;
+    moved.translation().z() = robot.pose().translation().z();  // the robot overwrites z
+    return moved;
+  });
 }
 
 Status PickPlaceFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
