@@ -564,30 +564,86 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
   return frame;
 }
 
+// Checks the header strictly before PCL sees it, as CheckPcdHeader does.
+// PCL's PLY parser asserts (aborting the process) on lines it tokenizes
+// differently from how it dispatches them, e.g. "\vobj_info" (found by
+// fuzz/ply_frame_fuzz), and allocates every element's declared records up
+// front, so a few bytes could ask for gigabytes. Accepted: "ply", one
+// "format ascii|binary_little_endian|binary_big_endian 1.0", then comment,
+// obj_info, element NAME COUNT and property lines, then "end_header"; lines of
+// printable ASCII words separated by single spaces (a trailing CR allowed);
+// a property only after an element; no element declaring more records than
+// the file has bytes (a record takes at least one).
+Status CheckPlyHeader(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const uint64_t file_size = fs::file_size(path, ec);
+  if (ec || !in) return Status::NotFound(Quote(path) + ": cannot read");
+  auto bad = [&](const std::string& why) { return Status::Corruption(Quote(path) + ": PLY header: " + why); };
+  static const std::set<std::string> kTypes = {"char",  "uchar",  "short", "ushort",  "int",     "uint",
+                                               "float", "double", "int8",  "uint8",   "int16",   "uint16",
+                                               "int32", "uint32", "float32", "float64"};
+  std::string line;
+  bool format = false, element = false;
+  for (int n = 0; n < 256 && std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    const std::string shown = "line " + std::to_string(n + 1);
+    for (char c : line) {
+      if (c < 0x20 || c > 0x7e) return bad(shown + " has a control or non-ASCII byte");
+    }
+    std::vector<std::string> w;
+    for (size_t at = 0; at <= line.size();) {
+      const size_t sp = std::min(line.find(' ', at), line.size());
+      w.push_back(line.substr(at, sp - at));
+      at = sp + 1;
+    }
+    const std::string& key = w[0];
+    if (n == 0) {
+      if (line != "ply") return bad("does not start with 'ply'");
+      continue;
+    }
+    if (key == "comment" || key == "obj_info") continue;  // free text after the keyword
+    for (const std::string& word : w) {
+      if (word.empty()) return bad(shown + " has leading, trailing or doubled spaces");
+    }
+    if (key == "end_header") {
+      if (w.size() != 1) return bad(shown + ": end_header takes no words");
+      if (!format) return bad("no format line");
+      if (!element) return bad("no element");
+      return Status::Ok();
+    }
+    if (key == "format") {
+      if (format) return bad("format given twice");
+      if (w.size() != 3 || w[2] != "1.0" ||
+          (w[1] != "ascii" && w[1] != "binary_little_endian" && w[1] != "binary_big_endian")) {
+        return bad(shown + ": format must be ascii, binary_little_endian or binary_big_endian 1.0");
+      }
+      format = true;
+    } else if (key == "element") {
+      if (w.size() != 3) return bad(shown + ": element takes a name and a count");
+      const std::string& count = w[2];
+      if (count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
+          std::stoull(count) > file_size) {
+        return bad("element '" + w[1] + "' declares more records than the file holds");
+      }
+      element = true;
+    } else if (key == "property") {
+      if (!element) return bad(shown + ": property before any element");
+      const bool list = w.size() == 5 && w[1] == "list" && kTypes.count(w[2]) && kTypes.count(w[3]);
+      if (!list && !(w.size() == 3 && kTypes.count(w[1]))) return bad(shown + ": malformed property");
+    } else {
+      return bad(shown + ": unknown keyword '" + key.substr(0, 32) + "'");
+    }
+  }
+  return bad("no end_header in the first 256 lines");
+}
+
 Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
   const std::string head = ReadHead(path, 5);
   if (!(head.rfind("ply\n", 0) == 0 || head.rfind("ply\r\n", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PLY file (bad magic)");
   }
-  {
-    // PCL allocates every element's declared records at the end of the
-    // header: a few bytes could ask for gigabytes (fuzz/ply_frame_fuzz). A
-    // record takes at least one byte, so no count may exceed the file size.
-    std::ifstream in(path, std::ios::binary);
-    std::error_code ec;
-    const uint64_t file_size = fs::file_size(path, ec);
-    std::string line;
-    for (int n = 0; n < 256 && std::getline(in, line) && line.rfind("end_header", 0) != 0; ++n) {
-      std::istringstream ls(line);
-      std::string key, name, count;
-      ls >> key >> name >> count;
-      if (key != "element") continue;
-      if (count.empty() || count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
-          std::stoull(count) > file_size) {
-        return Status::Corruption(Quote(path) + ": PLY element '" + name + "' declares more records than the file holds");
-      }
-    }
-  }
+  if (Status s = CheckPlyHeader(path); !s.ok()) return s;
   pcl::PointCloud<pcl::PointXYZ> cloud;
   {
     QuietPcl quiet;

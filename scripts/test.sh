@@ -5,7 +5,8 @@
 #   asan   every test binary under AddressSanitizer + UBSan (build-asan/)
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
 #          ThreadSanitizer (build-tsan/)
-#   fuzz   every libFuzzer target for FUZZ_SECONDS (default 10) each
+#   fuzz   every libFuzzer target, gate mode: seed 1, FUZZ_RUNS (300000)
+#          inputs or FUZZ_SECONDS (12) each, whichever ends first
 #          (scripts/fuzz.sh, build-fuzz/)
 # BINPICK_TEST_STAGES picks stages (default "build fuzz"; the full run is
 # BINPICK_TEST_STAGES="build asan tsan fuzz": the sanitizer stages are not
@@ -61,7 +62,7 @@ stage_tsan() {
 }
 
 stage_fuzz() {
-  FUZZ_SECONDS="${FUZZ_SECONDS:-10}" scripts/fuzz.sh
+  FUZZ_RUNS="${FUZZ_RUNS:-300000}" FUZZ_SECONDS="${FUZZ_SECONDS:-12}" scripts/fuzz.sh
 }
 
 for s in $STAGES; do

@@ -201,6 +201,47 @@ TEST(CloudPly, NoVerticesIsCorruption) {
   EXPECT_EQ(none.status().code(), Status::Code::kCorruption);
 }
 
+// Found by fuzz/ply_frame_fuzz: PCL's parser aborted the process (an
+// assert) on an obj_info line with a leading vertical tab, and allocated an
+// element's declared records before reading them. Both are refused up front.
+TEST(CloudPly, HeadersPclCannotTakeAreCorruption) {
+  const std::string dir = FreshDir("out");
+  const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"ply\ntpe\n\n\n\n\vobj_info\n\n\n\n\n\n\n\n\nd", "unknown keyword 'tpe'"},  // the fuzz input
+      {"ply\nformat ascii 1.0\n\vobj_info x\nelement vertex 1\n" + xyz + "end_header\n0 0 1\n",
+       "control or non-ASCII byte"},
+      {"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\n" + xyz + "end_header\n",
+       "declares more records than the file holds"},
+      {"ply\nformat ascii 1.0\nelement vertex 99999999999999999999\n" + xyz + "end_header\n",
+       "declares more records than the file holds"},
+      {"ply\nformat ascii 1.0\nformat ascii 1.0\nelement vertex 1\n" + xyz + "end_header\n0 0 1\n",
+       "format given twice"},
+      {"ply\nformat ascii 2.0\nelement vertex 1\n" + xyz + "end_header\n0 0 1\n", "format must be"},
+      {"ply\nformat ascii 1.0\nproperty float x\nelement vertex 1\nend_header\n0\n", "property before any element"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty float64x x\nend_header\n0\n", "malformed property"},
+      {"ply\nformat ascii 1.0\nelement  vertex 1\n" + xyz + "end_header\n0 0 1\n", "doubled spaces"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz, "no end_header"},
+      {"ply\nformat ascii 1.0\nvertex 1\nend_header\n", "unknown keyword 'vertex'"},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    const std::string path = dir + "/case" + std::to_string(i) + ".ply";
+    WriteText(path, cases[i].first);
+    Result<Frame> r = LoadFrameFile(path);
+    ASSERT_FALSE(r.ok()) << "case " << i;
+    EXPECT_EQ(r.status().code(), Status::Code::kCorruption) << "case " << i;
+    EXPECT_THAT(r.status().message(), HasSubstr(cases[i].second)) << "case " << i;
+  }
+  // Comments and obj_info are free text; CRLF line ends are accepted.
+  WriteText(dir + "/ok.ply", "ply\r\nformat ascii 1.0\r\ncomment made by  a  scanner\r\nobj_info serial 42\r\n"
+                             "element vertex 1\r\nproperty float32 x\r\nproperty float32 y\r\nproperty float32 z\r\n"
+                             "end_header\r\n0.5 0.25 1\r\n");
+  Result<Frame> ok = LoadFrameFile(dir + "/ok.ply");
+  ASSERT_TRUE(ok.ok()) << ok.status().ToString();
+  ASSERT_EQ(ok->points_C.size(), 1u);
+  EXPECT_EQ(ok->points_C[0], Eigen::Vector3f(0.5f, 0.25f, 1.f));
+}
+
 TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
   const std::string dir = FreshDir("out");
   WriteText(dir + "/mesh.ply",
