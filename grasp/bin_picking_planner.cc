@@ -30,6 +30,7 @@ Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell&
   if (Status s = teach->Load(); !s.ok()) return s;
   std::unique_ptr<BinPickingPlanner> planner(new BinPickingPlanner());
   planner->cell_ = cell;
+  planner->options_ = options;
   planner->perception_ = std::move(perception);
   planner->model_ = std::move(*model);
   planner->teach_ = std::move(teach);
@@ -65,13 +66,80 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
 
   PlanDetail detail;
   detail.perception = std::move(*perception);
-  const PerceptionResult& per = detail.perception;
   PlanResult& result = detail.result;
+  const std::vector<StageTiming> first_timings = detail.perception.timings;
+  double grasps_ms = -1, retry_ms = -1;
+
+  if (task.kind == TaskSpec::Kind::kInHand || task.kind == TaskSpec::Kind::kPlace) {
+    // The best-scoring detection is the part in hand / the place area.
+    const PerceptionResult& per = detail.perception;
+    int best = -1;
+    for (int d = 0; d < static_cast<int>(per.detections.size()); ++d) {
+      if (best < 0 || per.detections[d].score > per.detections[best].score) best = d;
+    }
+    if (best < 0) {
+      result.outcome = PlanResult::Outcome::kNoObjects;
+      result.message = per.reason.empty() ? "nothing detected" : per.reason;
+    } else {
+      const Detection& det = per.detections[best];
+      Grasp g;
+      g.X_BO = det.X_BO;
+      g.instance_id = best;
+      g.class_id = det.class_id;
+      g.score = det.score;
+      if (task.kind == TaskSpec::Kind::kInHand) {
+        if (!request.X_BF) return Status::InvalidArgument("in-hand task " + std::to_string(task.id) + " needs the robot pose");
+        g.name = "in_hand";
+        g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_FO
+      } else {
+        g.name = "place_offset";
+        g.X_BT = det.X_BO * task.place_reference.inverse();  // X_off
+        g.related_X_B.push_back(det.X_BO);
+      }
+      g.X_BT_pre = g.X_BT;
+      result.outcome = PlanResult::Outcome::kGrasps;
+      result.grasps.push_back(std::move(g));
+    }
+  } else {
+    std::vector<TaughtGrasp> taught = teach_->All();
+    auto t0 = std::chrono::steady_clock::now();
+    detail.plan = PlanGrasps(*model_, task, detail.perception, taught);
+    grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
+                                 detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
+    if (options_.thorough_retry && nothing_to_pick && detail.perception.largest_region_points > 0) {
+      t0 = std::chrono::steady_clock::now();
+      Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
+      if (again.ok()) {
+        GraspPlan plan = PlanGrasps(*model_, task, *again, taught);
+        spdlog::debug("task {}: thorough retry: {} -> {} grasps", task.id, detail.plan.stats.Describe(),
+                      plan.queue.size());
+        if (plan.outcome == PlanResult::Outcome::kGrasps) {
+          detail.perception = std::move(*again);
+          detail.plan = std::move(plan);
+          detail.thorough_retry = true;
+        }
+      }
+      retry_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    }
+    result.outcome = detail.plan.outcome;
+    result.grasps = detail.plan.queue;
+    result.message = detail.plan.stats.Describe();
+    if (result.outcome == PlanResult::Outcome::kNoObjects && !detail.perception.reason.empty()) {
+      result.message = detail.perception.reason;
+    }
+    if (detail.thorough_retry) result.message += " (after a thorough perception retry)";
+  }
+
+  // The perception the plan is made from (a thorough retry may replace it).
+  const PerceptionResult& per = detail.perception;
   result.roi_points = per.roi_point_count;
   result.largest_region_points = per.largest_region_points;
   result.detections = static_cast<int>(per.detections.size());
   for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
-  for (const StageTiming& st : per.timings) result.stages.push_back({st.stage, st.ms});
+  for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});
+  if (grasps_ms >= 0) result.stages.push_back({"grasps", grasps_ms});
+  if (retry_ms >= 0) result.stages.push_back({"thorough_retry", retry_ms});  // perception + grasps, used or not
 
   // Match detections to ground truth (synthetic frames only): the true
   // instance most of the detection's support points show in the label image
@@ -113,47 +181,6 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
         }
       }
     }
-  }
-
-  if (task.kind == TaskSpec::Kind::kInHand || task.kind == TaskSpec::Kind::kPlace) {
-    // The best-scoring detection is the part in hand / the place area.
-    int best = -1;
-    for (int d = 0; d < static_cast<int>(per.detections.size()); ++d) {
-      if (best < 0 || per.detections[d].score > per.detections[best].score) best = d;
-    }
-    if (best < 0) {
-      result.outcome = PlanResult::Outcome::kNoObjects;
-      result.message = per.reason.empty() ? "nothing detected" : per.reason;
-    } else {
-      const Detection& det = per.detections[best];
-      Grasp g;
-      g.X_BO = det.X_BO;
-      g.instance_id = best;
-      g.class_id = det.class_id;
-      g.score = det.score;
-      if (task.kind == TaskSpec::Kind::kInHand) {
-        if (!request.X_BF) return Status::InvalidArgument("in-hand task " + std::to_string(task.id) + " needs the robot pose");
-        g.name = "in_hand";
-        g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_FO
-      } else {
-        g.name = "place_offset";
-        g.X_BT = det.X_BO * task.place_reference.inverse();  // X_off
-        g.related_X_B.push_back(det.X_BO);
-      }
-      g.X_BT_pre = g.X_BT;
-      result.outcome = PlanResult::Outcome::kGrasps;
-      result.grasps.push_back(std::move(g));
-    }
-  } else {
-    std::vector<TaughtGrasp> taught = teach_->All();
-    const auto t0 = std::chrono::steady_clock::now();
-    detail.plan = PlanGrasps(*model_, task, per, taught);
-    result.stages.push_back(
-        {"grasps", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count()});
-    result.outcome = detail.plan.outcome;
-    result.grasps = detail.plan.queue;
-    result.message = detail.plan.stats.Describe();
-    if (result.outcome == PlanResult::Outcome::kNoObjects && !per.reason.empty()) result.message = per.reason;
   }
 
   {

@@ -50,6 +50,12 @@ struct BinPickingPlannerOptions {
   // next to the cell file, or in memory only for the embedded default cell.
   // "-": in memory only.
   std::string teach_file;
+  // Pick tasks: when a normal perception run leaves nothing to pick (no
+  // detection, or none with a collision-free grasp) and the ROI holds a
+  // connected region, run perception again on the same frame with
+  // PerceptionEffort::kThorough and plan from that if it gives grasps. Costs
+  // time only on the answers that would otherwise stop the robot.
+  bool thorough_retry = true;
 };
 
 // Everything one Plan produced, for tools (`binpick clear`) and tests.
@@ -57,6 +63,7 @@ struct PlanDetail {
   PlanResult result;
   GraspPlan plan;
   PerceptionResult perception;
+  bool thorough_retry = false;  // the plan comes from a thorough perception retry
 };
 
 class BinPickingPlanner final : public GraspPlanner {
@@ -97,6 +104,7 @@ class BinPickingPlanner final : public GraspPlanner {
   };
   BinPickingPlanner() = default;
   Cell cell_;
+  BinPickingPlannerOptions options_;
   std::shared_ptr<const Perception> perception_;
   std::shared_ptr<const GraspPlanningModel> model_;
   std::unique_ptr<TeachStore> teach_;

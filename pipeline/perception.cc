@@ -79,7 +79,8 @@ class PerceptionImpl final : public Perception {
       : cell_(cell), options_(options), models_(std::move(models)), failures_(std::move(failures)),
         box_(internal::MakeRoiBox(cell)) {}
 
-  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes) const override;
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
+                               PerceptionEffort effort) const override;
 
  private:
   Cell cell_;
@@ -89,8 +90,10 @@ class PerceptionImpl final : public Perception {
   internal::RoiBox box_;
 };
 
-Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vector<int>& classes) const {
+Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vector<int>& classes,
+                                             PerceptionEffort effort) const {
   PerceptionResult result;
+  const bool thorough = effort == PerceptionEffort::kThorough;
   const auto stage = [&result](const char* name, Clock::time_point t0) {
     const Clock::time_point t1 = Clock::now();
     result.timings.push_back({name, Ms(t0, t1)});
@@ -363,7 +366,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         }
         ranked.emplace_back(ExtentMismatch(e, models[m]->extents()), static_cast<int>(m));
       }
-      if (options_.early_exit_score > 0.0) std::stable_sort(ranked.begin(), ranked.end());
+      if (options_.early_exit_score > 0.0 && !thorough) std::stable_sort(ranked.begin(), ranked.end());
       for (const auto& [cost, m] : ranked) order[v].push_back(m);
     });
     // Per view (in parallel, no barrier between views): the first class;
@@ -375,7 +378,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       internal::ClassEstimate estimate;
     };
     std::vector<std::vector<Job>> per_view(views.size());
-    const bool early_exit = options_.early_exit_score > 0.0;
+    const bool early_exit = options_.early_exit_score > 0.0 && !thorough;
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points, normals;
       gather(views[v], &points, &normals);
@@ -384,6 +387,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       view.normals_B = normals;
       view.frame = &frame;
       view.floor_plane_B = floor_plane_B;
+      if (thorough) view.search = options_.thorough_search;
       std::vector<Job>& done = per_view[v];
       // Runs classes ms[from, to) in parallel.
       const auto run = [&](const std::vector<int>& ms, size_t from, size_t to, bool too_small) {
@@ -529,6 +533,13 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
 
 Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const PerceptionOptions& options) {
   if (options.threads < 1) return Status::InvalidArgument("perception: threads must be >= 1");
+  {
+    const PoseSearch& s = options.thorough_search;
+    if (s.max_reference_points < 1 || s.max_coarse_poses < 1 || s.peaks_per_reference < 1 ||
+        s.peaks_examined < s.peaks_per_reference) {
+      return Status::InvalidArgument("perception: thorough_search counts must be >= 1, peaks_examined >= peaks_per_reference");
+    }
+  }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
   std::vector<Result<std::unique_ptr<ClassModel>>> built;

@@ -18,6 +18,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/frame.h"
+#include "pipeline/pose_estimator.h"
 
 namespace bp {
 
@@ -90,6 +91,17 @@ struct PerceptionOptions {
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;
+  // A thorough run (PerceptionEffort::kThorough) tries every class on every
+  // view (no early exit) with this wider coarse search. The grasp planner
+  // retries with it when a normal run leaves nothing to pick in a bin that is
+  // not empty (docs/perception.md, "Thorough retry").
+  PoseSearch thorough_search{.max_reference_points = 20, .max_coarse_poses = 24, .peaks_per_reference = 2,
+                             .peaks_examined = 30};
+};
+
+enum class PerceptionEffort {
+  kNormal,
+  kThorough,  // see PerceptionOptions::thorough_coarse_poses; slower
 };
 
 class Perception {
@@ -100,7 +112,8 @@ class Perception {
   // Detects parts of `classes` (empty = all cell parts) in `frame`. Empty ROI,
   // an all-NaN frame or degenerate segments give an OK result with no
   // detections and a reason; never a pose built from NaNs.
-  virtual Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {}) const = 0;
+  virtual Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {},
+                                       PerceptionEffort effort = PerceptionEffort::kNormal) const = 0;
 };
 
 }  // namespace bp

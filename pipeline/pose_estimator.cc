@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <sstream>
@@ -365,9 +366,20 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
 }
 
 Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
+  PoseSearch search;
+  search.max_reference_points = impl_->options.max_reference_points;
+  search.max_coarse_poses = impl_->options.max_coarse_poses;
+  return Estimate(view, search);
+}
+
+Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseSearch& search) const {
   const Impl& m = *impl_;
   const PoseEstimatorOptions& opt = m.options;
   PoseEstimates out;
+  if (search.max_reference_points < 1 || search.max_coarse_poses < 1 || search.peaks_per_reference < 1 ||
+      search.peaks_examined < search.peaks_per_reference) {
+    return Status::InvalidArgument("PoseSearch: counts must be >= 1 and peaks_examined >= peaks_per_reference");
+  }
   if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
     return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
                                    " entries for " + std::to_string(view.points_B.size()) + " points");
@@ -494,10 +506,10 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   // Coarse: PPF voting and pose clustering.
   internal::PpfMatchOptions mo;
   mo.reference_stride = std::max(1, static_cast<int>(std::lround(1.0 / opt.reference_fraction)));
-  mo.max_reference_points = opt.max_reference_points;
+  mo.max_reference_points = search.max_reference_points;
   mo.cluster_translation = opt.cluster_relative_translation * m.diameter;
   mo.cluster_rotation = opt.cluster_rotation_deg * M_PI / 180.0;
-  mo.max_poses = 3 * opt.max_coarse_poses;
+  mo.max_poses = 3 * search.max_coarse_poses;
   // With a support plane: points on it are not reference points (the floor
   // would otherwise dominate the votes), and coarse poses that sink the part
   // into it are dropped before refinement.
@@ -508,21 +520,28 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
     reference_ok.resize(sub_p.size());
     for (size_t i = 0; i < sub_p.size(); ++i) reference_ok[i] = n.dot(sub_p[i]) + d > 0.5f * m.step;
   }
-  std::vector<internal::CoarsePose> coarse = m.ppf.Match(sub_p, sub_n, reference_ok, mo, m.symmetry);
+  std::function<bool(const Pose&)> above_support;
   if (view.support_plane_B) {
     const Eigen::Vector3f n = view.support_plane_B->head<3>().cast<float>();
     const float d = static_cast<float>((*view.support_plane_B)[3]);
     const float limit = -static_cast<float>(opt.max_support_penetration) - 1.5f * m.step;
-    std::erase_if(coarse, [&](const internal::CoarsePose& cp) {
-      const Eigen::Matrix3f R = cp.X_BO.linear().cast<float>();
-      const Eigen::Vector3f t = cp.X_BO.translation().cast<float>();
+    above_support = [&m, n, d, limit](const Pose& X_BO) {
+      const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+      const Eigen::Vector3f t = X_BO.translation().cast<float>();
       for (const auto& p : m.ppf_points.points) {
-        if (n.dot(R * p + t) + d < limit) return true;
+        if (n.dot(R * p + t) + d < limit) return false;
       }
-      return false;
-    });
+      return true;
+    };
+    mo.accept = above_support;
+    mo.peaks_per_reference = search.peaks_per_reference;
+    mo.peaks_examined = search.peaks_examined;
   }
-  if (static_cast<int>(coarse.size()) > opt.max_coarse_poses) coarse.resize(opt.max_coarse_poses);
+  std::vector<internal::CoarsePose> coarse = m.ppf.Match(sub_p, sub_n, reference_ok, mo, m.symmetry);
+  if (above_support) {
+    std::erase_if(coarse, [&](const internal::CoarsePose& cp) { return !above_support(cp.X_BO); });
+  }
+  if (static_cast<int>(coarse.size()) > search.max_coarse_poses) coarse.resize(search.max_coarse_poses);
   const auto t2 = Clock::now();
   out.timings.coarse_ms = Ms(t1, t2);
   if (coarse.empty()) {

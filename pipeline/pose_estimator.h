@@ -109,6 +109,18 @@ struct SceneView {
   std::optional<Eigen::Vector4d> support_plane_B;
 };
 
+// How wide the coarse search is. Estimate(view) takes these from the options;
+// a caller retrying a segment that gave nothing can ask for more.
+struct PoseSearch {
+  int max_reference_points = 20;
+  int max_coarse_poses = 4;
+  // With a support plane: per reference point, the best peaks_examined
+  // accumulator peaks are tried in order and the first peaks_per_reference
+  // poses that do not sink the part into the plane are kept.
+  int peaks_per_reference = 1;
+  int peaks_examined = 8;
+};
+
 struct PoseTimings {
   double prepare_ms = 0;  // subsampling, normals
   double coarse_ms = 0;   // PPF voting + clustering
@@ -154,6 +166,9 @@ class PoseEstimator {
   // gives no hypothesis and a reason, never an error. Errors only for misuse
   // (normals_B of a different size than points_B).
   Result<PoseEstimates> Estimate(const SceneView& view) const;
+  // The same with the coarse search's width given (counts >= 1,
+  // peaks_examined >= peaks_per_reference; else InvalidArgument).
+  Result<PoseEstimates> Estimate(const SceneView& view, const PoseSearch& search) const;
 
   double diameter() const;         // metres, of the sampled model
   double sampling_distance() const;  // PPF sampling distance, metres

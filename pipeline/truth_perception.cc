@@ -81,7 +81,8 @@ bool InRoi(const Cell& cell, const Eigen::Vector3f& p_B) {
 TruthPerception::TruthPerception(Cell cell, TruthPerceptionOptions options)
     : cell_(std::move(cell)), options_(options) {}
 
-Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vector<int>& classes) const {
+Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vector<int>& classes,
+                                              PerceptionEffort /*effort*/) const {
   const auto t0 = std::chrono::steady_clock::now();
   PerceptionResult out;
   std::vector<uint16_t> label_of_point;

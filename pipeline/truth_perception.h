@@ -31,7 +31,9 @@ struct TruthPerceptionOptions {
 class TruthPerception final : public Perception {
  public:
   explicit TruthPerception(Cell cell, TruthPerceptionOptions options = {});
-  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {}) const override;
+  // `effort` changes nothing: the truth is exact.
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {},
+                               PerceptionEffort effort = PerceptionEffort::kNormal) const override;
 
  private:
   Cell cell_;

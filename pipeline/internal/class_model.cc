@@ -35,7 +35,7 @@ class PpfClassModel final : public ClassModel {
     }
     scene.support_plane_B = view.floor_plane_B;
     ClassEstimate out;
-    Result<PoseEstimates> est = estimator_->Estimate(scene);
+    Result<PoseEstimates> est = view.search ? estimator_->Estimate(scene, *view.search) : estimator_->Estimate(scene);
     if (!est.ok()) {
       out.reason = est.status().ToString();
       return out;

@@ -16,6 +16,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/frame.h"
+#include "pipeline/pose_estimator.h"
 
 namespace bp::internal {
 
@@ -25,6 +26,7 @@ struct SegmentView {
   std::span<const Eigen::Vector3f> normals_B;  // same size as points_B, or empty
   const Frame* frame = nullptr;                // for the camera pose and the depth image
   std::optional<Eigen::Vector4d> floor_plane_B;  // (n, d): n . x + d = 0, n towards the parts
+  std::optional<PoseSearch> search;              // unset: the estimator's options
 };
 
 struct ClassHypothesis {

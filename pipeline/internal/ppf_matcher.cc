@@ -126,6 +126,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   const float alpha_scale = static_cast<float>(NA) / kTwoPi;
   std::vector<uint16_t> acc(nm * NA);
   std::vector<CoarsePose> candidates;
+  std::vector<std::pair<uint16_t, size_t>> peaks;  // (votes, accumulator cell)
 
   // Reference points: every stride-th eligible point, at most max_reference_points.
   std::vector<uint32_t> refs;
@@ -163,13 +164,34 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
       }
     }
     if (best < 3) continue;
-    const size_t mr = best_bin / NA;
-    const float alpha = (static_cast<float>(best_bin % NA) + 0.5f) / alpha_scale;
     // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
-    const Eigen::Matrix3f R =
-        Rs.transpose() * Eigen::AngleAxisf(alpha, Eigen::Vector3f::UnitX()).toRotationMatrix() * to_canonical_[mr];
-    const Eigen::Vector3f t = sr - R * points_[mr];
-    candidates.push_back(CoarsePose{MakePose(R.cast<double>(), t.cast<double>()), best});
+    const auto pose_of = [&](size_t bin) {
+      const size_t mr = bin / NA;
+      const float alpha = (static_cast<float>(bin % NA) + 0.5f) / alpha_scale;
+      const Eigen::Matrix3f R =
+          Rs.transpose() * Eigen::AngleAxisf(alpha, Eigen::Vector3f::UnitX()).toRotationMatrix() * to_canonical_[mr];
+      const Eigen::Vector3f t = sr - R * points_[mr];
+      return MakePose(R.cast<double>(), t.cast<double>());
+    };
+    if (options.peaks_examined <= 1 && !options.accept) {
+      candidates.push_back(CoarsePose{pose_of(best_bin), best});
+      continue;
+    }
+    peaks.clear();
+    const int floor_votes = std::max(3, static_cast<int>(std::ceil(options.min_peak_fraction * static_cast<float>(best))));
+    for (size_t cell = 0; cell < acc.size(); ++cell) {
+      if (acc[cell] >= floor_votes) peaks.emplace_back(acc[cell], cell);
+    }
+    const size_t examine = std::min(peaks.size(), static_cast<size_t>(std::max(1, options.peaks_examined)));
+    std::partial_sort(peaks.begin(), peaks.begin() + static_cast<std::ptrdiff_t>(examine), peaks.end(),
+                      [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
+    int kept = 0;
+    for (size_t p = 0; p < examine && kept < options.peaks_per_reference; ++p) {
+      const Pose X = pose_of(peaks[p].second);
+      if (options.accept && !options.accept(X)) continue;
+      candidates.push_back(CoarsePose{X, peaks[p].first});
+      ++kept;
+    }
   }
 
   std::stable_sort(candidates.begin(), candidates.end(),

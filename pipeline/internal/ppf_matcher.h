@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <vector>
 
@@ -48,6 +49,17 @@ struct PpfMatchOptions {
   double cluster_translation = 0.01; // metres
   double cluster_rotation = 0.4;     // radians
   int max_poses = 4;
+  // Per reference point, the accumulator's highest cells (with at least
+  // min_peak_fraction of its best count) are turned into poses in order and
+  // the first peaks_per_reference that `accept` takes are kept (Drost keeps
+  // every peak near the best). Several peaks matter for planar views, where
+  // many placements of the model's faces tie; `accept` (e.g. "does not sink
+  // into the bin floor") lets a physically possible placement win over a
+  // better-voted impossible one. Unset: every pose is accepted.
+  int peaks_per_reference = 1;
+  int peaks_examined = 1;
+  float min_peak_fraction = 0.5f;
+  std::function<bool(const Pose&)> accept;
 };
 
 class PpfModel {

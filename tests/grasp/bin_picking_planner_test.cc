@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -109,6 +110,85 @@ TEST(BinPickingPlanner, AnEmptyBinIsNoObjectsAndEmpty) {
   EXPECT_EQ(plan->outcome, PlanResult::Outcome::kNoObjects);
   EXPECT_EQ(plan->detections, 0);
   EXPECT_TRUE(IsBoxEmpty(request.task.empty_box, *plan)) << plan->largest_region_points;
+}
+
+// A detector that finds the true parts only when asked to try hard; normal
+// runs see the same ROI and find nothing. Counts the runs of each effort.
+class FindsOnlyWhenThorough final : public Perception {
+ public:
+  explicit FindsOnlyWhenThorough(const Cell& cell) : truth_(cell) {}
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
+                               PerceptionEffort effort) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort);
+    if (!r.ok()) return r;
+    if (effort == PerceptionEffort::kThorough) {
+      ++thorough_runs;
+    } else {
+      ++normal_runs;
+      r->detections.clear();
+      r->reason = "nothing found on a normal run";
+    }
+    return r;
+  }
+  mutable int normal_runs = 0, thorough_runs = 0;
+
+ private:
+  TruthPerception truth_;
+};
+
+TEST(BinPickingPlanner, NothingToPickRetriesPerceptionThoroughlyOnTheSameFrame) {
+  Cell cell = SyntheticCell(3, 5);
+  for (const bool retry : {true, false}) {
+    SCOPED_TRACE(retry ? "retry on" : "retry off");
+    auto source = MakeSyntheticSource(cell);
+    ASSERT_TRUE(source.ok());
+    auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
+    BinPickingPlannerOptions options;
+    options.teach_file = "-";
+    options.thorough_retry = retry;
+    auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
+    ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+    PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+    auto scene = (*planner)->Capture(request);
+    ASSERT_TRUE(scene.ok());
+    auto detail = (*planner)->PlanDetailed(request, **scene);
+    ASSERT_TRUE(detail.ok()) << detail.status().ToString();
+    EXPECT_EQ(perception->normal_runs, 1);
+    EXPECT_EQ(perception->thorough_runs, retry ? 1 : 0);
+    EXPECT_EQ(detail->thorough_retry, retry);
+    const PlanResult& plan = detail->result;
+    if (retry) {
+      ASSERT_EQ(plan.outcome, PlanResult::Outcome::kGrasps) << plan.message;
+      EXPECT_EQ(plan.detections, 3);
+      EXPECT_NE(plan.message.find("thorough perception retry"), std::string::npos) << plan.message;
+      EXPECT_TRUE(std::any_of(plan.stages.begin(), plan.stages.end(),
+                              [](const StageTime& st) { return st.stage == "thorough_retry"; }));
+      // The queue's parts are the true ones: handing one out removes it.
+      EXPECT_GT((*planner)->TruthInstanceOf(0, plan.grasps.front().instance_id), 0);
+    } else {
+      EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoObjects);
+      EXPECT_EQ(plan.message, "nothing found on a normal run");
+    }
+  }
+}
+
+TEST(BinPickingPlanner, AnEmptyRoiIsNotRetried) {
+  Cell cell = SyntheticCell(0, 5);
+  auto source = MakeSyntheticSource(cell);
+  ASSERT_TRUE(source.ok());
+  auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
+  ASSERT_TRUE(planner.ok());
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  auto scene = (*planner)->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  auto plan = (*planner)->Plan(request, **scene);
+  ASSERT_TRUE(plan.ok());
+  EXPECT_EQ(plan->outcome, PlanResult::Outcome::kNoObjects);
+  EXPECT_EQ(plan->largest_region_points, 0);
+  EXPECT_EQ(perception->thorough_runs, 0);
 }
 
 TEST(BinPickingPlanner, HandingOutAGraspRemovesThatTruePartFromThePile) {

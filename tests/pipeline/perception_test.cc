@@ -86,10 +86,11 @@ struct Fixture {
     return frame;
   }
 
-  PerceptionResult Run(const Frame& frame, const std::vector<int>& classes = {}) const {
+  PerceptionResult Run(const Frame& frame, const std::vector<int>& classes = {},
+                       PerceptionEffort effort = PerceptionEffort::kNormal) const {
     tbb::task_arena arena(2);
     Result<PerceptionResult> r = Status::Internal("not run");
-    arena.execute([&] { r = perception->Run(frame, classes); });
+    arena.execute([&] { r = perception->Run(frame, classes, effort); });
     EXPECT_TRUE(r.ok()) << r.status().ToString();
     return r.ok() ? *r : PerceptionResult{};
   }
@@ -295,14 +296,45 @@ TEST_F(PerceptionTest, SymmetricPartIsFoundModuloItsSymmetry) {
   EXPECT_LT(SymmetryAwareRotationError(r.detections[0].X_BO, X_BO, fx().cell.parts[2].symmetry), 0.5 * kDeg);
 }
 
+// An L-bracket standing on the outer face of its upright, the base plate
+// pointing up: the camera sees mostly one plane, which many placements of the
+// model's plates explain as well, and the best-voted ones sink the rest of the
+// part into the floor. A normal run finds none of these; the thorough run
+// (several accumulator peaks per reference point, the first that stay above
+// the floor, PpfMatchOptions::accept) finds these two. Known gap: at yaw 0
+// and 200 deg it still finds nothing, at 290 deg a pose a few mm off
+// (docs/perception.md, "Thorough retry").
+TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketStandingOnItsUpright) {
+  for (const double yaw : {35.0, 110.0}) {
+    SCOPED_TRACE("yaw " + std::to_string(yaw));
+    // Part +x up: the upright's outer face (x = 0) rests on the floor.
+    const Pose X_WO = PoseW(0.02, -0.03, 0.0, yaw) *
+                      MakePose(Mat3(Eigen::AngleAxisd(-90 * kDeg, Vec3::UnitY())), Vec3::Zero());
+    const Frame frame = fx().Render({{1, X_WO}});
+    const PerceptionResult r = fx().Run(frame, {}, PerceptionEffort::kThorough);
+    ASSERT_EQ(r.detections.size(), 1u) << r.reason;
+    EXPECT_EQ(r.detections[0].class_id, 1);
+    const Pose X_BO = fx().cell.bin.X_BW * X_WO;
+    EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
+    EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+  }
+}
+
 TEST_F(PerceptionTest, SeparatesTwoTouchingParts) {
   // Two bushings standing side by side, flanges touching (60 mm flanges).
   const Pose X_W1 = PoseW(0.0, 0.0, 0.0, 0.0), X_W2 = PoseW(0.0601, 0.0, 0.0, 0.0);
   const Frame frame = fx().Render({{0, X_W1}, {0, X_W2}});
   const PerceptionResult r = fx().Run(frame);
   ASSERT_EQ(r.detections.size(), 2u) << r.reason;
+  // Each detection explains its own part: the supports may share only the
+  // points along the line where the flanges touch (within the support
+  // distance of both models), a few percent of either.
   std::set<int32_t> first(r.detections[0].support.begin(), r.detections[0].support.end());
-  for (int32_t i : r.detections[1].support) EXPECT_EQ(first.count(i), 0u);
+  size_t shared = 0;
+  for (int32_t i : r.detections[1].support) shared += first.count(i);
+  const size_t smaller = std::min(r.detections[0].support.size(), r.detections[1].support.size());
+  EXPECT_GT(smaller, 500u);
+  EXPECT_LE(shared, smaller / 20) << shared << " shared support points";
   for (const Pose& X_WO : {X_W1, X_W2}) {
     const Vec3 t = (fx().cell.bin.X_BW * X_WO).translation();
     const double best = std::min((r.detections[0].X_BO.translation() - t).norm(),
