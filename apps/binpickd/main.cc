@@ -310,6 +310,8 @@ int main(int argc, char** argv) {
     bp::StatusServerOptions http_options;
     http_options.bind = http_bind;
     http_options.port = http_port < 0 ? 0 : http_port;
+    http_options.max_connections = static_cast<size_t>(cell->endpoints.http_max_connections);
+    http_options.allowlist = cell->endpoints.http_allowlist;
     auto started = bp::StatusServer::Start(*status, metrics, http_options);
     if (!started.ok()) {
       std::cerr << "binpickd: " << started.status().ToString() << "\n";
