@@ -17,6 +17,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -28,6 +29,7 @@
 #include "comms/robot_client.h"
 #include "pipeline/recording.h"
 #include "record/recorder.h"
+#include "record/recorder_metrics.h"
 #include "tests/testing/files.h"
 #include "tests/testing/scripted_planner.h"
 #include "tests/web/web_test_util.h"
@@ -105,6 +107,13 @@ TEST(DiskFull, RecordingPausesOnENOSPCTheServerLosesNoGraspAndRecordingResumesWh
   ASSERT_TRUE(started.ok()) << started.status().ToString();
   std::shared_ptr<Recorder> recorder = *started;
   const std::string session = recorder->session_dir();
+  MetricsRegistry metrics;
+  AddRecorderMetrics(metrics, *recorder);
+  auto scrape = [&metrics] {
+    std::map<std::string, double> samples;
+    EXPECT_EQ(webtest::CheckPrometheusText(metrics.Render(), &samples), std::vector<std::string>{});
+    return samples;
+  };
 
   auto script = std::make_shared<ScriptedPlanner>();
   ScriptedPlanner::Script many;
@@ -153,6 +162,10 @@ TEST(DiskFull, RecordingPausesOnENOSPCTheServerLosesNoGraspAndRecordingResumesWh
   EXPECT_NE(s.last_error.find("disk full"), std::string::npos) << s.last_error;
   EXPECT_NE(log.str().find("recording paused"), std::string::npos) << log.str();
   EXPECT_NE(log.str().find("No space left on device"), std::string::npos) << log.str();
+  std::map<std::string, double> m = scrape();
+  EXPECT_EQ(m["binpick_recording_paused"], 1);
+  EXPECT_EQ(m["binpick_recording_captures_total{result=\"failed\"}"], static_cast<double>(s.captures_failed));
+  EXPECT_EQ(m["binpick_recording_captures_total{result=\"recorded\"}"], static_cast<double>(s.captures_recorded));
   // What is on disk is complete records only: the failed one left nothing.
   ExpectOnlyCompleteRecords(session, s.captures_recorded);
 
@@ -183,6 +196,9 @@ TEST(DiskFull, RecordingPausesOnENOSPCTheServerLosesNoGraspAndRecordingResumesWh
   EXPECT_FALSE(s.paused) << s.last_error;
   EXPECT_EQ(s.captures_recorded, recorded_while_full + 1);
   EXPECT_NE(log.str().find("recording: resuming"), std::string::npos);
+  m = scrape();
+  EXPECT_EQ(m["binpick_recording_paused"], 0);
+  EXPECT_EQ(m["binpick_recording_captures_total{result=\"recorded\"}"], static_cast<double>(s.captures_recorded));
 
   // Every grasp handed out exactly once: 6 per cycle, in order, none twice.
   const std::vector<std::pair<int, int>> handed_out = script->handed_out();
