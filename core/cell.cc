@@ -290,6 +290,8 @@ class Parser {
   void ParseTasks(const YAML::Node& n, Cell& cell) const;
   void ParseRobot(const YAML::Node& n, Cell& cell) const;
   void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
+  // endpoints.<name>: a list of IPv4 / IPv6 addresses (absent: empty).
+  std::vector<std::string> IpList(const YAML::Node& n, const char* name) const;
   void ParseCalibration(const YAML::Node& n, const YAML::Node& camera, Cell& cell) const;
   void ParseRecording(const YAML::Node& n, Cell& cell) const;
 
@@ -876,7 +878,8 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
 
 void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
   ExpectMap(n, "endpoints", {"bind", "daoai_port", "gri_port", "gri_official_port", "http_port",
-                             "max_connections", "max_message_rate", "allowlist"});
+                             "max_connections", "max_message_rate", "allowlist", "http_allowlist",
+                             "http_max_connections"});
   Endpoints& e = cell.endpoints;
   e.bind = OptString(n, "endpoints", "bind", e.bind);
   Check(!e.bind.empty(), n["bind"], "endpoints.bind", "must not be empty");
@@ -898,17 +901,28 @@ void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
   e.max_message_rate = OptNumber(n, "endpoints", "max_message_rate", e.max_message_rate);
   Check(std::isfinite(e.max_message_rate) && e.max_message_rate >= 0, n["max_message_rate"],
         "endpoints.max_message_rate", "must be >= 0 requests/s (0: unlimited)");
-  if (const YAML::Node a = n["allowlist"]; a.IsDefined()) {
-    if (!a.IsSequence()) Fail(a, "endpoints.allowlist", "expected a list of IP addresses, got " + What(a));
-    for (size_t i = 0; i < a.size(); ++i) {
-      const std::string key = "endpoints.allowlist[" + std::to_string(i) + "]";
-      const std::string ip = String(a[i], key);
-      in6_addr buf{};
-      Check(inet_pton(AF_INET, ip.c_str(), &buf) == 1 || inet_pton(AF_INET6, ip.c_str(), &buf) == 1,
-            a[i], key, "'" + ip + "' is not an IP address");
-      e.allowlist.push_back(ip);
-    }
+  e.allowlist = IpList(n, "allowlist");
+  e.http_allowlist = IpList(n, "http_allowlist");
+  e.http_max_connections = OptInt(n, "endpoints", "http_max_connections", e.http_max_connections);
+  Check(e.http_max_connections >= 0, n["http_max_connections"], "endpoints.http_max_connections",
+        "must be >= 0 (0: unlimited)");
+}
+
+std::vector<std::string> Parser::IpList(const YAML::Node& n, const char* name) const {
+  std::vector<std::string> list;
+  const YAML::Node a = n[name];
+  if (!a.IsDefined()) return list;
+  const std::string path = Join("endpoints", name);
+  if (!a.IsSequence()) Fail(a, path, "expected a list of IP addresses, got " + What(a));
+  for (size_t i = 0; i < a.size(); ++i) {
+    const std::string key = path + "[" + std::to_string(i) + "]";
+    const std::string ip = String(a[i], key);
+    in6_addr buf{};
+    Check(inet_pton(AF_INET, ip.c_str(), &buf) == 1 || inet_pton(AF_INET6, ip.c_str(), &buf) == 1,
+          a[i], key, "'" + ip + "' is not an IP address");
+    list.push_back(ip);
   }
+  return list;
 }
 
 void Parser::ParseRecording(const YAML::Node& n, Cell& cell) const {

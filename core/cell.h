@@ -222,6 +222,11 @@ struct Endpoints {
   int max_connections = 64;
   double max_message_rate = 0;        // requests per second per connection
   std::vector<std::string> allowlist;  // robot IP addresses
+  // The status page / metrics HTTP listener (web/status_server.h): its own
+  // allowlist (operator PCs, the metrics scraper; not the robots') and
+  // connection limit. Empty: any peer; 0: unlimited.
+  std::vector<std::string> http_allowlist;
+  int http_max_connections = 16;
 };
 
 // The hand-eye calibration target and its simulator (docs/cell.md,

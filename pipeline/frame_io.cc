@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <exception>
@@ -143,9 +144,13 @@ std::string PrettyJson(const OrderedJson& j) {
 Status WriteJson(const OrderedJson& j, const std::string& path) {
   std::ofstream out(path, std::ios::trunc);
   if (!out) return Status::Internal(Quote(path) + ": cannot open for writing");
+  errno = 0;
   out << PrettyJson(j) << "\n";
   out.close();
-  if (!out) return Status::Internal(Quote(path) + ": write failed");
+  if (!out) {
+    const std::string reason = errno != 0 ? std::string(": ") + std::strerror(errno) : "";
+    return Status::Internal(Quote(path) + ": write failed" + reason);
+  }
   return Status::Ok();
 }
 

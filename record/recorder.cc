@@ -268,8 +268,9 @@ class Recorder::Impl {
       lock.unlock();
       done_cv_.notify_all();
     }
-    WriteAnswersNoThrow();
+    WriteAnswersNoThrow(/*last=*/true);
     std::lock_guard lock(mutex_);
+    stats_.answers_dropped += answers_pending_;  // the last write failed: lost
     stats_.disk_bytes = disk_bytes_;
     writer_done_ = true;
     done_cv_.notify_all();
@@ -286,14 +287,18 @@ class Recorder::Impl {
     return true;
   }
 
-  void Pause(const Status& why) {
+  // `needed`: bytes the failed write needed. The writers' own messages do not
+  // always carry the errno (PCL, OpenCV), so a disk with less than that free
+  // (after the failed record was removed) is reported as full.
+  void Pause(const Status& why, int64_t needed = kRecordOverhead) {
     paused_ = true;
     paused_until_ = std::chrono::steady_clock::now() + options_.retry_after;
     std::string message = why.message();
     std::error_code ec;
     const fs::space_info space = fs::space(options_.directory, ec);
-    if (!ec && space.available < static_cast<uintmax_t>(kRecordOverhead)) {
-      message = "disk full (" + std::to_string(space.available) + " bytes free): " + message;
+    if (!ec && space.available < static_cast<uintmax_t>(std::max(needed, kRecordOverhead))) {
+      message = "disk full (" + std::to_string(space.available) + " bytes free on the recording disk, ~" +
+                std::to_string(std::max(needed, kRecordOverhead)) + " needed): " + message;
     }
     spdlog::error("recording: {}; recording paused for {} s (the server keeps serving)", message,
                   std::chrono::duration<double>(options_.retry_after).count());
@@ -354,7 +359,7 @@ class Recorder::Impl {
     if (!s.ok()) {
       fs::remove_all(staging, ec);
       fs::remove_all(final_dir, ec);
-      Pause(s);
+      Pause(s, estimate);
       return CountFailedCapture();
     }
     ++next_seq_;
@@ -449,6 +454,11 @@ class Recorder::Impl {
     }
     if (answers_.size() >= kAnswersPerChunk) {
       WriteAnswers();
+      if (answers_pending_ > 0) {  // could not write them: they go with the chunk
+        std::lock_guard lock(mutex_);
+        stats_.answers_dropped += answers_pending_;
+        answers_pending_ = 0;
+      }
       answers_ = OrderedJson::array();
       answers_chunk_.clear();
     }
@@ -464,19 +474,22 @@ class Recorder::Impl {
     ++answers_pending_;
   }
 
-  void WriteAnswersNoThrow() {
+  void WriteAnswersNoThrow(bool last = false) {
     try {
-      WriteAnswers();
+      WriteAnswers(last);
     } catch (const std::exception& e) {
       Pause(Status::Internal(std::string("unexpected error: ") + e.what()));
     }
   }
 
-  // Replaces the current answers chunk with everything it holds so far.
-  void WriteAnswers() {
+  // Replaces the current answers chunk with everything it holds so far. On a
+  // failure the answers stay pending (in memory, counted neither recorded nor
+  // dropped) and are written with the next successful write; not tried while
+  // paused, except the `last` write at Stop.
+  void WriteAnswers(bool last = false) {
     if (answers_pending_ == 0) return;
+    if (!last && paused_ && std::chrono::steady_clock::now() < paused_until_) return;
     const uint64_t pending = answers_pending_;
-    answers_pending_ = 0;
     OrderedJson chunk;
     chunk["format"] = kAnswersFormat;
     chunk["answers"] = answers_;
@@ -488,11 +501,10 @@ class Recorder::Impl {
     }
     const int64_t grow = static_cast<int64_t>(text.size()) - answers_chunk_bytes_;
     if (Status s = WriteFileAtomic(answers_chunk_, text); !s.ok()) {
-      Pause(s);
-      std::lock_guard lock(mutex_);
-      stats_.answers_dropped += pending;
+      Pause(s, static_cast<int64_t>(text.size()));
       return;
     }
+    answers_pending_ = 0;
     disk_bytes_ += grow;
     answers_chunk_bytes_ = static_cast<int64_t>(text.size());
     auto it = std::find_if(items_.begin(), items_.end(), [&](const Item& i) { return i.path == answers_chunk_; });

@@ -10,8 +10,14 @@
 // queue is bounded (options.queue_captures): a capture arriving when it is
 // full is dropped with a warning and counted, so recording never slows the
 // detection worker down. A write failure (disk full, permission) is logged
-// once as an error, the half-written record is removed, and recording pauses
-// for options.retry_after; the server keeps serving.
+// as an error ("disk full (N bytes free ...)" when the disk has less room
+// than the write needed), the half-written record is removed, and recording
+// pauses for options.retry_after: captures and answers arriving meanwhile are
+// counted as failed / dropped, not queued. Then the next capture is tried
+// again; it pauses again if the disk is still full, or recording resumes
+// (tested on a real full tmpfs: tests/record/disk_full_test.cc). Answers
+// whose file could not be written stay in memory and go out with the next
+// successful write. The server keeps serving throughout.
 //
 // Crash safety: a capture is written into "cap_N.partial/", each file is
 // fsync'ed, the manifest record.json (sizes + checksums of every file) is
@@ -65,7 +71,7 @@ struct RecorderStats {
   uint64_t captures_dropped = 0;   // queue full
   uint64_t captures_failed = 0;    // not written: write error, paused, larger than the cap
   uint64_t answers_recorded = 0;
-  uint64_t answers_dropped = 0;    // queue full, paused or write error
+  uint64_t answers_dropped = 0;    // queue full, paused, or not written at Stop (or chunk end)
   uint64_t records_rotated = 0;    // of the current session
   uint64_t sessions_rotated = 0;
   int64_t disk_bytes = 0;          // everything under options.directory, as accounted

@@ -53,6 +53,14 @@ class StatusServer::Impl {
     if (options_.port < 0 || options_.port > 65535) {
       return Status::InvalidArgument("http: bad port " + std::to_string(options_.port));
     }
+    for (const std::string& peer : options_.allowlist) {
+      asio::ip::address a = asio::ip::make_address(peer, ec);
+      if (ec) return Status::InvalidArgument("http: bad allowlist address '" + peer + "'");
+      allowed_.push_back(Unmapped(a));
+    }
+    // Both reasons appear in /metrics from the start, at 0.
+    refused_allowlist_ = &RefusedCounter("allowlist");
+    refused_limit_ = &RefusedCounter("max_connections");
     const tcp::endpoint endpoint(address, static_cast<uint16_t>(options_.port));
     acceptor_.open(endpoint.protocol(), ec);
     if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
@@ -195,16 +203,52 @@ class StatusServer::Impl {
         Accept();
         return;
       }
+      if (!Allowed(socket)) {
+        Accept();
+        return;
+      }
       const uint64_t id = ++next_id_;
       auto session = std::make_shared<Session>(*this, id, std::move(socket));
       sessions_[id] = session;
-      if (sessions_.size() > options_.max_connections) {
+      if (options_.max_connections > 0 && sessions_.size() > options_.max_connections) {
+        refused_limit_->Inc();
         session->Refuse();
       } else {
         session->Start();
       }
       Accept();
     });
+  }
+
+  static asio::ip::address Unmapped(const asio::ip::address& a) {
+    if (a.is_v6() && a.to_v6().is_v4_mapped()) {
+      return asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6());
+    }
+    return a;
+  }
+
+  Counter& RefusedCounter(const char* reason) {
+    return metrics_.GetCounter("binpick_http_refused_connections_total",
+                               "Status page connections refused (allowlist: closed at accept; "
+                               "max_connections: answered 503).",
+                               {{"reason", reason}});
+  }
+
+  // Applies the allowlist; closes a refused socket with a log line.
+  bool Allowed(tcp::socket& socket) {
+    if (allowed_.empty()) return true;
+    boost::system::error_code ec;
+    const tcp::endpoint peer = socket.remote_endpoint(ec);
+    if (!ec && std::find(allowed_.begin(), allowed_.end(), Unmapped(peer.address())) != allowed_.end()) {
+      return true;
+    }
+    refused_allowlist_->Inc();
+    spdlog::warn("http: refused a connection from {}: {}",
+                 ec ? std::string("?") : peer.address().to_string() + ":" + std::to_string(peer.port()),
+                 ec ? "peer address unknown: " + ec.message() : std::string("not in the allowlist"));
+    socket.shutdown(tcp::socket::shutdown_both, ec);
+    socket.close(ec);
+    return false;
   }
 
   Reply Route(std::string_view target) const {
@@ -244,6 +288,9 @@ class StatusServer::Impl {
   std::thread thread_;
   std::atomic<bool> stopped_{false};
   int port_ = 0;
+  std::vector<asio::ip::address> allowed_;  // parsed options_.allowlist
+  Counter* refused_allowlist_ = nullptr;
+  Counter* refused_limit_ = nullptr;
   uint64_t next_id_ = 0;                                                // io thread
   std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;     // io thread
 };

@@ -6,12 +6,21 @@
 // with at most max_request_bytes of headers and body (405 / 413 / 400
 // otherwise, never a crash); at most max_connections at once (more are
 // answered 503 and closed); a connection idle for idle_timeout is closed.
+//
+// Allowlist (docs/reliability.md "Security"): a peer whose address is not in
+// options.allowlist is closed at accept, before anything is read or written
+// (no 403: it gets no session, no buffer and no timer, so a scanner cannot
+// hold the slots of max_connections, and learns nothing about the server).
+// Each refusal is a log line and counts in
+// binpick_http_refused_connections_total{reason="allowlist"}; a 503 over the
+// limit counts with reason="max_connections".
 #pragma once
 
 #include <chrono>
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "core/status.h"
 #include "web/metrics.h"
@@ -22,7 +31,10 @@ namespace bp {
 struct StatusServerOptions {
   std::string bind = "127.0.0.1";
   int port = 8080;  // 0: an ephemeral port (tests); see StatusServer::port()
-  size_t max_connections = 16;
+  size_t max_connections = 16;  // 0: unlimited
+  // Peer IP addresses allowed to connect (exact; IPv4-mapped IPv6 peers
+  // compare as IPv4). Empty: any peer.
+  std::vector<std::string> allowlist;
   size_t max_request_bytes = 16 * 1024;
   std::chrono::milliseconds idle_timeout{15000};
 };

@@ -46,6 +46,7 @@
 #include "web/status_server.h"
 #include "web/status_state.h"
 #include "record/recorder.h"
+#include "record/recorder_metrics.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
@@ -307,9 +308,12 @@ int main(int argc, char** argv) {
     }
     for (const auto& master : masters) bp::AddModbusMetrics(metrics, *master);
     bp::AddQueueMetrics(metrics, handler);
+    if (recorder) bp::AddRecorderMetrics(metrics, *recorder);
     bp::StatusServerOptions http_options;
     http_options.bind = http_bind;
     http_options.port = http_port < 0 ? 0 : http_port;
+    http_options.max_connections = static_cast<size_t>(cell->endpoints.http_max_connections);
+    http_options.allowlist = cell->endpoints.http_allowlist;
     auto started = bp::StatusServer::Start(*status, metrics, http_options);
     if (!started.ok()) {
       std::cerr << "binpickd: " << started.status().ToString() << "\n";

@@ -580,22 +580,32 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
     return Mutate(kBaseCell, "  gri_port: 10000", "  gri_port: 10000\n" + lines);
   };
   Result<Cell> cell = ParseCell(with("  max_connections: 4\n  max_message_rate: 50\n"
-                                     "  allowlist: [192.168.10.21, \"fd00::7\"]"),
+                                     "  allowlist: [192.168.10.21, \"fd00::7\"]\n"
+                                     "  http_allowlist: [10.1.2.3]\n  http_max_connections: 3"),
                                 (tmp_.path() / "c.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->endpoints.max_connections, 4);
   EXPECT_EQ(cell->endpoints.max_message_rate, 50);
   EXPECT_EQ(cell->endpoints.allowlist, (std::vector<std::string>{"192.168.10.21", "fd00::7"}));
+  EXPECT_EQ(cell->endpoints.http_allowlist, (std::vector<std::string>{"10.1.2.3"}));
+  EXPECT_EQ(cell->endpoints.http_max_connections, 3);
   Result<Cell> defaults = ParseCell(kBaseCell, (tmp_.path() / "d.yaml").string());
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(defaults->endpoints.max_connections, 64);
   EXPECT_EQ(defaults->endpoints.max_message_rate, 0);
   EXPECT_TRUE(defaults->endpoints.allowlist.empty());
+  EXPECT_TRUE(defaults->endpoints.http_allowlist.empty());
+  EXPECT_EQ(defaults->endpoints.http_max_connections, 16);
   for (const auto& [yaml, error] : std::vector<std::pair<std::string, std::string>>{
            {"  allowlist: [robot-1]", "endpoints.allowlist[0]: 'robot-1' is not an IP address"},
            {"  allowlist: 10.0.0.1", "endpoints.allowlist: expected a list"},
            {"  max_connections: -1", "endpoints.max_connections: must be >= 0"},
-           {"  max_message_rate: -5", "endpoints.max_message_rate: must be >= 0"}}) {
+           {"  max_message_rate: -5", "endpoints.max_message_rate: must be >= 0"},
+           {"  http_allowlist: [10.0.0.1, 10.0.0.300]", "endpoints.http_allowlist[1]: '10.0.0.300' is not an IP address"},
+           {"  http_allowlist: {a: 1}", "endpoints.http_allowlist: expected a list"},
+           {"  http_allowlist: [[10.0.0.1]]", "endpoints.http_allowlist[0]"},
+           {"  http_max_connections: -1", "endpoints.http_max_connections: must be >= 0"},
+           {"  http_max_connections: many", "endpoints.http_max_connections"}}) {
     Result<Cell> bad = ParseCell(with(yaml), (tmp_.path() / "b.yaml").string());
     ASSERT_FALSE(bad.ok()) << yaml;
     EXPECT_THAT(bad.status().message(), HasSubstr(error)) << yaml;

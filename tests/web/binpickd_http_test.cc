@@ -145,5 +145,45 @@ TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   EXPECT_EQ(daemon.Stop(), 0);
 }
 
+// The cell's http_allowlist and the recorder's metrics reach the daemon's
+// HTTP listener: a peer not listed is closed at accept and counted; the
+// listed one reads /metrics.
+TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) {
+  const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+  const std::string dir = testing::FreshDir("binpickd_allow");
+  std::string cell = testing::ReadBytes(std::string(BINPICK_SOURCE_DIR) + "/assets/cells/default.yaml");
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets/";
+  for (size_t at = cell.find("../"); at != std::string::npos; at = cell.find("../", at)) cell.replace(at, 3, assets);
+  const size_t at = cell.find("  http_port: 0\n");
+  ASSERT_NE(at, std::string::npos);
+  cell.insert(at, "  http_allowlist: [127.0.0.2]\n");
+  testing::WriteText(dir + "/cell.yaml", cell);
+  Daemon daemon({bin + "binpickd", "--cell", dir + "/cell.yaml", "--daoai-port", std::to_string(FreePort()),
+                 "--gri-port", "0", "--gri-official-port", "0", "--http-port", "-1", "--record-dir",
+                 dir + "/rec"},
+                dir + "/binpickd.log");
+  const std::string ready = daemon.ReadyLine(60000);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
+      << ready << testing::ReadBytes(dir + "/binpickd.log");
+  const int http = std::stoi(m[1]);
+  const webtest::HttpResult refused = webtest::HttpRequest(http, "/metrics", boost::beast::http::verb::get,
+                                                           "127.0.0.1");
+  EXPECT_EQ(refused.status, 0);
+  EXPECT_NE(refused.error, "");
+  const webtest::HttpResult metrics = webtest::HttpRequest(http, "/metrics", boost::beast::http::verb::get,
+                                                           "127.0.0.2");
+  ASSERT_EQ(metrics.status, 200) << metrics.error;
+  std::map<std::string, double> s;
+  EXPECT_EQ(webtest::CheckPrometheusText(metrics.body, &s), std::vector<std::string>{});
+  EXPECT_EQ(s["binpick_http_refused_connections_total{reason=\"allowlist\"}"], 1.0);
+  EXPECT_EQ(s.count("binpick_recording_paused"), 1u);
+  EXPECT_EQ(s["binpick_recording_paused"], 0.0);
+  EXPECT_EQ(s.count("binpick_recording_captures_total{result=\"failed\"}"), 1u);
+  EXPECT_EQ(daemon.Stop(), 0);
+  EXPECT_NE(testing::ReadBytes(dir + "/binpickd.log").find("http: refused a connection from 127.0.0.1"),
+            std::string::npos);
+}
+
 }  // namespace
 }  // namespace bp

@@ -7,8 +7,12 @@
 #include <spdlog/sinks/base_sink.h>
 #include <spdlog/spdlog.h>
 
+#include <sys/socket.h>
+
+#include <cerrno>
 #include <cstdlib>
 #include <fstream>
+#include <map>
 #include <thread>
 
 #include "comms/request_handler.h"
@@ -265,6 +269,118 @@ TEST(StatusServer, RefusesConnectionsOverTheLimitWith503) {
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
   EXPECT_EQ(j["cell"], "test");
+  std::map<std::string, double> samples;
+  const webtest::HttpResult m = webtest::HttpRequest(s.port(), "/metrics");
+  EXPECT_EQ(webtest::CheckPrometheusText(m.body, &samples), std::vector<std::string>{});
+  // At least the one above; retries above may have met the closing idle ones.
+  EXPECT_GE(samples["binpick_http_refused_connections_total{reason=\"max_connections\"}"], 1);
+  EXPECT_EQ(samples["binpick_http_refused_connections_total{reason=\"allowlist\"}"], 0);
+}
+
+// A browser that keeps its connection open between requests.
+class KeepAliveClient {
+ public:
+  explicit KeepAliveClient(int port) : socket_(io_) {
+    socket_.connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<uint16_t>(port)});
+  }
+  int Get(const std::string& target) {
+    http::request<http::empty_body> req(http::verb::get, target, 11);
+    req.set(http::field::host, "127.0.0.1");
+    req.keep_alive(true);
+    boost::system::error_code ec;
+    http::write(socket_, req, ec);
+    if (ec) return -1;
+    http::response<http::string_body> res;
+    http::read(socket_, buffer_, res, ec);
+    return ec ? -1 : static_cast<int>(res.result_int());
+  }
+
+ private:
+  boost::asio::io_context io_;
+  boost::asio::ip::tcp::socket socket_;
+  boost::beast::flat_buffer buffer_;
+};
+
+// Connects from `from` and waits for the server: @returns the bytes it sent
+// before closing, or "<open>" if it kept the connection open for 0.5 s.
+std::string BytesBeforeClose(int port, const std::string& from) {
+  boost::asio::io_context io;
+  boost::asio::ip::tcp::socket socket(io);
+  socket.open(boost::asio::ip::tcp::v4());
+  socket.bind({boost::asio::ip::make_address(from), 0});
+  socket.connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<uint16_t>(port)});
+  const timeval tv{0, 500000};
+  ::setsockopt(socket.native_handle(), SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv));
+  std::string out;
+  char buf[256];
+  for (;;) {
+    const ssize_t n = ::recv(socket.native_handle(), buf, sizeof(buf), 0);
+    if (n > 0) {
+      out.append(buf, static_cast<size_t>(n));
+      continue;
+    }
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return "<open>";
+    return out;  // EOF or reset
+  }
+}
+
+std::map<std::string, double> Samples(int port) {
+  const webtest::HttpResult r = webtest::HttpRequest(port, "/metrics");
+  EXPECT_EQ(r.status, 200) << r.error;
+  std::map<std::string, double> samples;
+  EXPECT_EQ(webtest::CheckPrometheusText(r.body, &samples), std::vector<std::string>{});
+  return samples;
+}
+
+TEST(StatusServer, PeersNotInTheAllowlistAreClosedAtAcceptAndCounted) {
+  StatusServerOptions options;
+  options.allowlist = {"127.0.0.1"};
+  Stack s(options);
+  // A browser already on the page, from an allowed address.
+  KeepAliveClient browser(s.port());
+  ASSERT_EQ(browser.Get("/api/status"), 200);
+  // 127.0.0.2 is not listed: closed before a byte is read or written (a
+  // request would get no answer either).
+  for (int i = 0; i < 5; ++i) EXPECT_EQ(BytesBeforeClose(s.port(), "127.0.0.2"), "") << i;
+  const webtest::HttpResult refused = webtest::HttpRequest(s.port(), "/api/status", http::verb::get, "127.0.0.2");
+  EXPECT_EQ(refused.status, 0);
+  EXPECT_NE(refused.error, "");
+  // The allowed browser is unaffected, on its open connection and on new ones.
+  EXPECT_EQ(browser.Get("/api/status"), 200);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::get, "127.0.0.1").status, 200);
+  const std::map<std::string, double> samples = Samples(s.port());
+  EXPECT_EQ(samples.at("binpick_http_refused_connections_total{reason=\"allowlist\"}"), 6);
+  EXPECT_EQ(samples.at("binpick_http_refused_connections_total{reason=\"max_connections\"}"), 0);
+}
+
+TEST(StatusServer, AnAllowlistWithoutTheLoopbackPeerRefusesItAndServesTheListedOne) {
+  StatusServerOptions options;
+  options.allowlist = {"::ffff:127.0.0.2"};  // IPv4-mapped: compared as 127.0.0.2
+  Stack s(options);
+  EXPECT_EQ(BytesBeforeClose(s.port(), "127.0.0.1"), "");
+  EXPECT_NE(webtest::HttpRequest(s.port(), "/metrics").error, "");
+  const webtest::HttpResult r = webtest::HttpRequest(s.port(), "/metrics", http::verb::get, "127.0.0.2");
+  ASSERT_EQ(r.status, 200) << r.error;
+  std::map<std::string, double> samples;
+  EXPECT_EQ(webtest::CheckPrometheusText(r.body, &samples), std::vector<std::string>{});
+  EXPECT_EQ(samples.at("binpick_http_refused_connections_total{reason=\"allowlist\"}"), 2);
+  // Without an allowlist the same peer is served (the list is what refused it).
+  Stack open;
+  EXPECT_EQ(BytesBeforeClose(open.port(), "127.0.0.1"), "<open>");
+  EXPECT_EQ(webtest::HttpRequest(open.port(), "/api/status").status, 200);
+}
+
+TEST(StatusServer, ABadAllowlistEntryIsRefusedAtStart) {
+  const Cell cell = testing::MakeTestCell();
+  MetricsRegistry metrics;
+  StatusState state(cell, metrics);
+  StatusServerOptions options;
+  options.port = 0;
+  options.allowlist = {"127.0.0.1", "browser.local"};
+  auto started = StatusServer::Start(state, metrics, options);
+  ASSERT_FALSE(started.ok());
+  EXPECT_EQ(started.status().code(), Status::Code::kInvalidArgument);
+  EXPECT_NE(started.status().message().find("'browser.local'"), std::string::npos) << started.status().ToString();
 }
 
 TEST(StatusServer, KeepsTheLastWarningsAndErrors) {

@@ -28,13 +28,20 @@ struct HttpResult {
   std::string error;  // non-empty when the exchange failed
 };
 
+// `from`: the client's source address (any 127.0.0.0/8 address works on
+// Linux loopback); empty: chosen by the kernel.
 inline HttpResult HttpRequest(int port, const std::string& target,
-                              boost::beast::http::verb verb = boost::beast::http::verb::get) {
+                              boost::beast::http::verb verb = boost::beast::http::verb::get,
+                              const std::string& from = "") {
   namespace http = boost::beast::http;
   HttpResult r;
   try {
     boost::asio::io_context io;
     boost::asio::ip::tcp::socket socket(io);
+    if (!from.empty()) {
+      socket.open(boost::asio::ip::tcp::v4());
+      socket.bind({boost::asio::ip::make_address(from), 0});
+    }
     socket.connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<uint16_t>(port)});
     http::request<http::empty_body> req(verb, target, 11);
     req.set(http::field::host, "127.0.0.1");
