@@ -26,10 +26,13 @@ std::string PoseText(const Pose& X) {
   const double pitch = std::asin(std::clamp(-R(2, 0), -1.0, 1.0));
   const double yaw = std::atan2(R(1, 0), R(0, 0));
   constexpr double kDeg = 180.0 / M_PI;
+  // No "-0.000" for a component that prints as zero.
+  auto shown = [](double v, double unit) { return std::abs(v) < 5e-4 / unit ? 0.0 : v * unit; };
   std::ostringstream os;
-  os << std::fixed << std::setprecision(2) << "xyz [" << X.translation().x() * 1000 << ", "
-     << X.translation().y() * 1000 << ", " << X.translation().z() * 1000 << "] mm, rpy ["
-     << std::setprecision(3) << roll * kDeg << ", " << pitch * kDeg << ", " << yaw * kDeg << "] deg";
+  os << std::fixed << std::setprecision(2) << "xyz [" << shown(X.translation().x(), 1000) << ", "
+     << shown(X.translation().y(), 1000) << ", " << shown(X.translation().z(), 1000) << "] mm, rpy ["
+     << std::setprecision(3) << shown(roll, kDeg) << ", " << shown(pitch, kDeg) << ", " << shown(yaw, kDeg)
+     << "] deg";
   return os.str();
 }
 
