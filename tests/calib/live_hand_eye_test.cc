@@ -7,6 +7,7 @@
 // calibration over the protocol, and by < 1 mm on the next pick, same process.
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <future>
 #include <mutex>
 #include <sstream>
@@ -20,6 +21,8 @@
 #include "comms/robot_flows.h"
 #include "grasp/bin_picking_planner.h"
 #include "grasp/planner_factory.h"
+#include "pipeline/synthetic_source.h"
+#include "tests/calib/calib_test_util.h"
 
 namespace bp {
 namespace {
@@ -169,6 +172,56 @@ TEST_F(LiveHandEye, NextPickAfterAnAutoCalibrationUsesTheNewCameraPose) {
   EXPECT_LT(after->error_mm, 1.0);
   std::printf("[ figures ] grasp position error vs truth: %.2f mm before, %.2f mm after the auto calibration\n",
               before->error_mm, after->error_mm);
+}
+
+}  // namespace
+}  // namespace bp
+
+namespace bp {
+namespace {
+
+// The pick camera with a HandEyeProvider renders from calibration.true_pose
+// and stamps the believed pose read at each capture; both mounts. The image
+// is bit-identical to a perfectly calibrated camera placed at the true pose.
+void ExpectRendersFromTruthAndStampsBelief(Cell cell) {
+  cell.source.num_parts = 4;
+  cell.source.seed = 5;
+  const bool eih = cell.camera.eye_in_hand;
+  const Pose real = cell.calibration->true_pose;
+  const Pose nominal = eih ? cell.camera.X_FC : cell.camera.X_BC;
+  ASSERT_GT(TranslationErrorMm(real, nominal), 1.0);
+  auto state = std::make_shared<HandEyeState>(nominal);
+  auto live = MakeSyntheticSource(cell, [state] { return state->Get(); });
+  ASSERT_TRUE(live.ok()) << live.status().ToString();
+  Cell perfect = cell;
+  (eih ? perfect.camera.X_FC : perfect.camera.X_BC) = real;
+  auto reference = MakeSyntheticSource(perfect);
+  ASSERT_TRUE(reference.ok()) << reference.status().ToString();
+
+  CaptureRequest request;
+  if (eih) request.X_BF = LoadDefaultCell()->camera.X_BC * real.inverse();  // camera over the bin
+  for (int capture = 0; capture < 2; ++capture) {
+    if (capture == 1) state->Set(real);  // a calibration finished between the captures
+    Result<Frame> a = (*live)->Capture(request);
+    Result<Frame> b = (*reference)->Capture(request);
+    ASSERT_TRUE(a.ok() && b.ok());
+    const Pose believed = state->Get();
+    EXPECT_TRUE(a->X_BC.isApprox(eih ? Pose(*request.X_BF * believed) : believed, 1e-12)) << capture;
+    ASSERT_EQ(a->depth.data.size(), b->depth.data.size());
+    EXPECT_EQ(std::memcmp(a->depth.data.data(), b->depth.data.data(), a->depth.data.size() * sizeof(float)), 0)
+        << "rendered from the true pose (bit-identical depth, NaN for invalid)";
+    int valid = 0;
+    for (float z : a->depth.data) valid += z > 0 ? 1 : 0;
+    EXPECT_GT(valid, 1000);
+  }
+}
+
+TEST(LiveHandEyeSource, EyeToHandRendersFromTheTruePoseAndStampsTheBelievedOne) {
+  ExpectRendersFromTruthAndStampsBelief(testing::CalibCell(false));
+}
+
+TEST(LiveHandEyeSource, EyeInHandRendersFromTheTruePoseAndStampsTheBelievedOne) {
+  ExpectRendersFromTruthAndStampsBelief(testing::CalibCell(true));
 }
 
 }  // namespace
