@@ -69,6 +69,7 @@ Status HandEyeCalibrationService::Start(CalibrationKind kind, const Pose& X_BF) 
   plan_.clear();
   plan_next_ = 0;
   planned_ = false;
+  state_->SetSession(KindName(kind), 0);
   spdlog::info("calib: {} hand-eye calibration started", KindName(kind));
   return Status::Ok();
 }
@@ -130,6 +131,7 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
         return Status::NotFound("board not visible: " + sample.status().message());
       }
       samples_[next_slot_++] = std::move(*sample);
+      state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
       spdlog::info("calib: manual pose {} stored", samples_.size());
       return step;
 
@@ -145,6 +147,7 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
           planned_ = true;
         }
         samples_[next_slot_++] = std::move(*sample);
+        state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
         spdlog::info("calib: auto pose {} of {} stored", samples_.size(), wanted);
       } else {
         step.good = false;
@@ -162,20 +165,25 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
     case CalibrationKind::kGuidance: {
       if (!sample.ok()) {
         step.good = false;
-        spdlog::warn("calib: guidance pose BAD: board not visible ({})", sample.status().message());
+        const std::string reason = "board not visible (" + sample.status().message() + ")";
+        spdlog::warn("calib: guidance pose BAD: {}", reason);
+        state_->SetBadGuidance(reason);
         return step;
       }
       for (const auto& [slot, kept] : samples_) {
         if (RotationErrorDeg(kept.X_BF, X_BF) < kSameRotationDeg &&
             (kept.X_BF.translation() - X_BF.translation()).norm() < kSamePositionM) {
           step.good = false;
-          spdlog::warn("calib: guidance pose BAD: within {} deg and {} mm of a pose already kept; rotate the "
-                       "robot about another axis",
-                       kSameRotationDeg, kSamePositionM * 1000);
+          std::ostringstream reason;
+          reason << "within " << kSameRotationDeg << " deg and " << kSamePositionM * 1000
+                 << " mm of a pose already kept; rotate the robot about another axis";
+          spdlog::warn("calib: guidance pose BAD: {}", reason.str());
+          state_->SetBadGuidance(reason.str());
           return step;
         }
       }
       samples_[next_slot_++] = std::move(*sample);
+      state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
       spdlog::info("calib: guidance pose GOOD ({} of {})", samples_.size(), wanted);
       step.done = static_cast<int>(samples_.size()) >= wanted;
       return step;
@@ -194,6 +202,7 @@ Result<CalibrationStep> HandEyeCalibrationService::AccumulateInSlot(CalibrationK
     return Status::NotFound("board not visible: " + sample.status().message());
   }
   samples_[slot] = std::move(*sample);
+  state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
   spdlog::info("calib: pose stored in slot {} ({} poses)", slot, samples_.size());
   return CalibrationStep{};
 }
@@ -215,7 +224,17 @@ Status HandEyeCalibrationService::Finish(CalibrationKind kind) {
   Result<HandEyeSolution> sol = SolveHandEye(samples, spec_, camera_->intrinsics(), o);
   if (!sol.ok()) return sol.status();
   if (Status s = Persist(*sol); !s.ok()) return s;
-  state_->Set(sol->X);
+  HandEyeResultInfo info;
+  info.time = std::chrono::system_clock::now();
+  info.kind = KindName(kind);
+  info.method = sol->method;
+  info.poses = sol->poses;
+  info.residual_rms_mm = sol->residual_rms_mm;
+  info.residual_max_mm = sol->residual_max_mm;
+  info.residual_rms_deg = sol->residual_rms_deg;
+  info.residual_max_deg = sol->residual_max_deg;
+  info.reprojection_rms_px = sol->reprojection_rms_px;
+  state_->SetResult(sol->X, std::move(info));
   last_ = *sol;
   spdlog::info("calib: {} calibration solved from {} poses ({} pairs, {}): residuals {:.3f} mm / {:.4f} deg RMS, "
                "{:.3f} mm / {:.4f} deg max, reprojection {:.3f} px",

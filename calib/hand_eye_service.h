@@ -9,38 +9,18 @@
 
 #include <map>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include "calib/calibration_camera.h"
 #include "calib/hand_eye.h"
+#include "calib/hand_eye_state.h"
 #include "comms/calibration_service.h"
 #include "core/atomic_file.h"
 #include "core/cell.h"
 
 namespace bp {
-
-// The hand-eye transform in use (X_BC eye-to-hand, X_FC eye-in-hand):
-// written by the calibration service after a solve, read by the precision
-// check. Thread-safe.
-class HandEyeState {
- public:
-  explicit HandEyeState(const Pose& X) : X_(X) {}
-  Pose Get() const {
-    std::lock_guard lock(mutex_);
-    return X_;
-  }
-  void Set(const Pose& X) {
-    std::lock_guard lock(mutex_);
-    X_ = X;
-  }
-
- private:
-  mutable std::mutex mutex_;
-  Pose X_;  // GUARDED_BY(mutex_)
-};
 
 struct HandEyeServiceOptions {
   // Where Finish writes the result (the cell's camera.hand_eye_file); empty:

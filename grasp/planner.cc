@@ -1,5 +1,7 @@
 #include "grasp/planner.h"
 
+#include <utility>
+
 #include "grasp/planner_factory.h"
 
 #include "grasp/bin_picking_planner.h"
@@ -18,10 +20,10 @@ std::string_view ToString(PlanResult::Outcome outcome) {
   return "?";
 }
 
-Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell) {
+Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell, HandEyeProvider hand_eye) {
   Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
   if (!perception.ok()) return perception.status();
-  Result<std::unique_ptr<CaptureSource>> source = MakeCaptureSource(cell);
+  Result<std::unique_ptr<CaptureSource>> source = MakeCaptureSource(cell, std::move(hand_eye));
   if (!source.ok()) return source.status();
   auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
                                            std::move(*source));

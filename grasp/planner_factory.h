@@ -6,11 +6,14 @@
 #include "core/cell.h"
 #include "core/status.h"
 #include "grasp/planner.h"
+#include "pipeline/capture_source.h"
 
 namespace bp {
 
 // @returns the planner the cell describes, or Unavailable while the
 // perception pipeline is not built (binpickd then refuses to start).
-Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell);
+// `hand_eye`: the live hand-eye transform for the capture source
+// (MakeCaptureSource, pipeline/capture_source.h).
+Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell, HandEyeProvider hand_eye = {});
 
 }  // namespace bp

@@ -1,12 +1,14 @@
 #include "pipeline/capture_source.h"
 
+#include <utility>
+
 #include "pipeline/file_source.h"
 #include "pipeline/recording.h"
 #include "pipeline/synthetic_source.h"
 
 namespace bp {
 
-Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell) {
+Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell, HandEyeProvider hand_eye) {
   switch (cell.source.kind) {
     case SourceSpec::Kind::kFiles:
       if (cell.source.dir.empty()) {
@@ -14,7 +16,7 @@ Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell) {
       }
       return MakeFileSource(cell.source.dir, cell);
     case SourceSpec::Kind::kSynthetic:
-      return MakeSyntheticSource(cell);
+      return MakeSyntheticSource(cell, std::move(hand_eye));
     case SourceSpec::Kind::kReplay:
       if (cell.source.dir.empty()) {
         return Status::InvalidArgument(cell.path + ": source.dir is required when source.kind is replay");

@@ -2,6 +2,7 @@
 // PNG), replay of recordings (pipeline/recording.h). Not thread-safe: one owner calls Capture at a time.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -29,7 +30,21 @@ class CaptureSource {
   virtual std::string Describe() const = 0;
 };
 
-// Builds the source the cell names (source.kind).
-Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell);
+// The hand-eye transform binpick believes in right now: X_BC for an
+// eye-to-hand camera, X_FC for an eye-in-hand one. binpickd passes one
+// reading its HandEyeState (calib/hand_eye_state.h), so a finished hand-eye
+// calibration is used from the next capture on. Called once per capture on
+// the capturing thread: it must be quick and thread-safe.
+using HandEyeProvider = std::function<Pose()>;
+
+// Builds the source the cell names (source.kind). With `hand_eye` (a live
+// camera whose calibration can change while running), a synthetic source
+// renders the pile from where the camera really is (calibration.true_pose
+// when the cell has a calibration section) and stamps each frame with the
+// pose binpick believes: X_BC = hand_eye() (eye-to-hand) or X_BF *
+// hand_eye() (eye-in-hand). Without it the camera is perfectly calibrated
+// (rendered from and stamped with the nominal camera pose), which is what
+// perception evaluation wants. Files and replays keep the X_BC they recorded.
+Result<std::unique_ptr<CaptureSource>> MakeCaptureSource(const Cell& cell, HandEyeProvider hand_eye = {});
 
 }  // namespace bp

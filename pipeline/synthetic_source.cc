@@ -34,6 +34,7 @@ const CameraConfig* FindCameraConfig(const CameraSpec& camera, int id) {
 class SyntheticSource::Impl {
  public:
   Cell cell;
+  HandEyeProvider hand_eye;  // empty: a perfectly calibrated camera
   Pose X_BW = Pose::Identity();
   std::unique_ptr<SyntheticPile> pile;
   std::unique_ptr<DepthRenderer> renderer;
@@ -105,7 +106,8 @@ SyntheticSource::~SyntheticSource() = default;
 
 Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cell,
                                                                  std::vector<PileClass> classes,
-                                                                 const TriangleMesh& bin_mesh_W) {
+                                                                 const TriangleMesh& bin_mesh_W,
+                                                                 HandEyeProvider hand_eye) {
   const auto& wanted = cell.source.part_classes;
   if (!wanted.empty()) {
     std::erase_if(classes, [&](const PileClass& c) {
@@ -121,6 +123,7 @@ Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cel
   }
   auto impl = std::make_unique<Impl>();
   impl->cell = cell;
+  impl->hand_eye = std::move(hand_eye);
   impl->X_BW = cell.bin.X_BW;
   impl->bin_mesh = std::make_shared<TriangleMesh>(bin_mesh_W);
   PileOptions options;
@@ -141,13 +144,17 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   const CameraConfig* config = FindCameraConfig(m.cell.camera, config_id);
   if (!config)
     return Status::NotFound("synthetic source: no camera config " + std::to_string(config_id));
-  Pose X_BC = m.cell.camera.X_BC;
-  if (m.cell.camera.eye_in_hand) {
-    if (!request.X_BF)
-      return Status::InvalidArgument("synthetic source: eye-in-hand capture needs X_BF");
-    X_BC = *request.X_BF * m.cell.camera.X_FC;
-  }
-  const Pose X_WC = m.X_BW.inverse() * X_BC;
+  const CameraSpec& camera = m.cell.camera;
+  if (camera.eye_in_hand && !request.X_BF)
+    return Status::InvalidArgument("synthetic source: eye-in-hand capture needs X_BF");
+  // The hand-eye transform (X_BC or X_FC) the camera really has, and the one
+  // binpick believes in (stamped on the frame).
+  const Pose nominal = camera.eye_in_hand ? camera.X_FC : camera.X_BC;
+  const Pose real = m.hand_eye && m.cell.calibration ? m.cell.calibration->true_pose : nominal;
+  const Pose believed = m.hand_eye ? m.hand_eye() : nominal;
+  const Pose X_BC_real = camera.eye_in_hand ? Pose(*request.X_BF * real) : real;
+  const Pose X_BC = camera.eye_in_hand ? Pose(*request.X_BF * believed) : believed;
+  const Pose X_WC = m.X_BW.inverse() * X_BC_real;
   const Intrinsics& K = config->intrinsics;
   const RenderScene scene = m.Scene(*config);
   if (Status s = m.renderer->RenderInto(scene, K, X_WC, m.full); !s.ok()) return s;

@@ -2,6 +2,11 @@
 // cell's bin, rendered with OSMesa through the selected camera configuration,
 // with structured-light noise and full ground truth. See docs/synthetic.md.
 //
+// Camera pose: rendered from the nominal camera pose and stamped with it,
+// unless a HandEyeProvider is given (binpickd): then rendered from the true
+// pose (calibration.true_pose with a calibration section, hidden from the
+// rest of binpick) and stamped with what the provider says at capture time.
+//
 // Frame content: depth (noisy unless the config's noise is disabled),
 // intensity (Lambertian, light at the projector), intrinsics, X_BC, timestamp,
 // source "synthetic seed=S capture=N" and truth (labels before noise, per-part
@@ -26,11 +31,12 @@ class SyntheticSource final : public CaptureSource {
  public:
   // Builds the pile from cell.source (num_parts, seed, part_classes) using the
   // given class meshes (all classes; part_classes filters them) and the bin
-  // mesh in the bin frame W. @returns InvalidArgument if no class remains,
-  // Unavailable without OSMesa.
+  // mesh in the bin frame W; `hand_eye` as in MakeCaptureSource. @returns
+  // InvalidArgument if no class remains, Unavailable without OSMesa.
   static Result<std::unique_ptr<SyntheticSource>> Create(const Cell& cell,
                                                          std::vector<PileClass> classes,
-                                                         const TriangleMesh& bin_mesh_W);
+                                                         const TriangleMesh& bin_mesh_W,
+                                                         HandEyeProvider hand_eye = {});
   ~SyntheticSource() override;
 
   // NotFound for an unknown config id; InvalidArgument for eye-in-hand without X_BF.
@@ -54,6 +60,6 @@ class SyntheticSource final : public CaptureSource {
 
 // Loads the part meshes (LoadMesh) and the bin mesh (cell.bin.mesh, or one
 // generated from the bin sizes) and creates the source.
-Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell);
+Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell, HandEyeProvider hand_eye = {});
 
 }  // namespace bp

@@ -10,7 +10,7 @@
 
 namespace bp {
 
-Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell) {
+Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell, HandEyeProvider hand_eye) {
   std::vector<PileClass> classes;
   for (const auto& part : cell.parts) {
     auto mesh = LoadMesh(part.mesh);
@@ -32,7 +32,7 @@ Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell) {
   } else {
     bin_mesh = MakeBinMesh(cell.bin);
   }
-  auto source = SyntheticSource::Create(cell, std::move(classes), bin_mesh);
+  auto source = SyntheticSource::Create(cell, std::move(classes), bin_mesh, std::move(hand_eye));
   if (!source.ok()) return source.status();
   return std::unique_ptr<CaptureSource>(std::move(*source));
 }

@@ -23,6 +23,7 @@
 #include <algorithm>
 #include <csignal>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <optional>
@@ -32,6 +33,7 @@
 
 #include "calib/calibration_camera.h"
 #include "calib/hand_eye_service.h"
+#include "calib/hand_eye_state.h"
 #include "calib/precision_check.h"
 #include "comms/daoai_server.h"
 #include "comms/gri_server.h"
@@ -144,9 +146,24 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  // The hand-eye transform in use when the cell has a calibration section
+  // (camera.pose, or camera.hand_eye_file loaded by the cell loader): written
+  // by the calibration service, read by every capture of the pick camera, the
+  // precision check and the status page (docs/architecture.md "Hand-eye state").
+  std::shared_ptr<bp::HandEyeState> hand_eye;
+  bp::HandEyeProvider hand_eye_provider;
+  if (cell->calibration) {
+    std::error_code ec;
+    const bool from_file =
+        !cell->camera.hand_eye_file.empty() && std::filesystem::exists(cell->camera.hand_eye_file, ec);
+    hand_eye = std::make_shared<bp::HandEyeState>(cell->camera.eye_in_hand ? cell->camera.X_FC : cell->camera.X_BC,
+                                                  from_file ? cell->camera.hand_eye_file : "camera.pose");
+    hand_eye_provider = [hand_eye] { return hand_eye->Get(); };
+  }
   // A cell of pick_2d tasks only needs no 3D planner.
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
-      bp::OnlyPick2DTasks(*cell) ? std::unique_ptr<bp::GraspPlanner>() : bp::MakePlanner(*cell);
+      bp::OnlyPick2DTasks(*cell) ? std::unique_ptr<bp::GraspPlanner>()
+                                 : bp::MakePlanner(*cell, hand_eye_provider);
   if (!planner.ok()) {
     std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
     return 3;
@@ -175,20 +192,29 @@ int main(int argc, char** argv) {
   bp::RequestHandlerOptions handler_options;
   handler_options.detection_threads = detection_threads;
   // Hand-eye calibration and the precision check (RC 50) when the cell has a
-  // calibration section: the simulated calibration camera, the solved pose
-  // shared by both (loaded from camera.hand_eye_file by the cell loader). The
-  // 2D plane calibration, if any, serves RC 11/12 through it.
+  // calibration section: the simulated calibration camera and the hand-eye
+  // state above. The 2D plane calibration, if any, serves RC 11/12 through it.
   std::shared_ptr<bp::GraspPlanner> grasp_planner(std::move(*planner));
-  if (cell->calibration) {
+  if (hand_eye) {
     auto camera = std::make_shared<bp::SimulatedCalibrationCamera>(cell->camera, *cell->calibration);
-    auto hand_eye = std::make_shared<bp::HandEyeState>(cell->camera.eye_in_hand ? cell->camera.X_FC
-                                                                                : cell->camera.X_BC);
     bp::HandEyeServiceOptions calib_options;
     calib_options.result_file = cell->camera.hand_eye_file;
     calibration = std::make_unique<bp::HandEyeCalibrationService>(*cell, camera, hand_eye, std::move(calibration),
                                                                   calib_options);
     if (grasp_planner) {
-      grasp_planner = std::make_shared<bp::PrecisionCheckPlanner>(grasp_planner, *cell, camera, hand_eye);
+      bp::PrecisionCheckOptions check_options;
+      check_options.reference_file = bp::PrecisionReferenceFile(*cell);
+      auto check = std::make_shared<bp::PrecisionCheckPlanner>(grasp_planner, *cell, camera, hand_eye, check_options);
+      if (bp::Status s = check->LoadReferences(); !s.ok()) {
+        std::cerr << "binpickd: cannot start: " << s.ToString() << "\n";
+        return 3;
+      }
+      grasp_planner = std::move(check);
+    }
+    if (status) {
+      status->SetCalibrationProbe([hand_eye, eih = cell->camera.eye_in_hand] {
+        return bp::HandEyeStatusRows(hand_eye->Snapshot(), eih);
+      });
     }
   }
   bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);

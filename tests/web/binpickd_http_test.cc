@@ -11,9 +11,13 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <cmath>
 #include <filesystem>
+#include <map>
 #include <regex>
+#include <thread>
 
+#include "core/cell.h"
 #include "tests/testing/files.h"
 #include "tests/testing/run_command.h"
 #include "tests/web/web_test_util.h"
@@ -183,6 +187,80 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
   EXPECT_EQ(daemon.Stop(), 0);
   EXPECT_NE(testing::ReadBytes(dir + "/binpickd.log").find("http: refused a connection from 127.0.0.1"),
             std::string::npos);
+}
+
+// The "Calibration" rows show the live hand-eye state: the transform in use
+// and where it came from, then a bad guidance pose's reason (13), then an
+// auto calibration's result (the new X_BC, its time and residuals), all in
+// the same binpickd process.
+TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
+  const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+  const std::string dir = testing::FreshDir("binpickd_calib");
+  const int daoai_port = FreePort();
+  Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
+                 "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
+                dir + "/binpickd.log");
+  const std::string ready = daemon.ReadyLine(60000);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
+      << ready << testing::ReadBytes(dir + "/binpickd.log");
+  const int http = std::stoi(m[1]);
+  auto rows = [http] {
+    std::map<std::string, std::string> r;
+    const webtest::HttpResult status = webtest::HttpRequest(http, "/api/status");
+    if (status.status != 200) return r;
+    const json j = json::parse(status.body);
+    for (const json& row : j["calibration"]) r[row["name"]] = row["value"];
+    return r;
+  };
+  // xyz (mm) of the "hand-eye X_BC in use" row.
+  auto xyz_mm = [](const std::string& text) {
+    std::smatch x;
+    if (!std::regex_search(text, x, std::regex(R"(xyz \[([-0-9.]+), ([-0-9.]+), ([-0-9.]+)\] mm)"))) {
+      return Vec3(NAN, NAN, NAN);
+    }
+    return Vec3(std::stod(x[1]), std::stod(x[2]), std::stod(x[3]));
+  };
+  const Cell cell = LoadDefaultCell().value();
+
+  std::map<std::string, std::string> r = rows();
+  EXPECT_EQ(r["hand-eye from"], "camera.pose");
+  EXPECT_EQ(r["last calibration"], "none since start");
+  EXPECT_EQ(r.count("last bad guidance pose (13)"), 0u);
+  EXPECT_LT((xyz_mm(r["hand-eye X_BC in use"]) - cell.camera.X_BC.translation() * 1000).norm(), 0.01)
+      << r["hand-eye X_BC in use"];
+
+  // Version 1 guidance from a robot that never moves: the second pose adds
+  // nothing and is answered 13 with the reason.
+  test::RunCommand(bin + "binpick-robot --port " + std::to_string(daoai_port) +
+                   " --protocol-version 1 --flow calib-guidance");
+  r = rows();
+  EXPECT_NE(r["last bad guidance pose (13)"].find("of a pose already kept"), std::string::npos)
+      << r["last bad guidance pose (13)"];
+  EXPECT_EQ(r["mode"], "guidance");
+
+  const test::CommandRun calib =
+      test::RunCommand(bin + "binpick-robot --port " + std::to_string(daoai_port) + " --flow calib-auto");
+  ASSERT_EQ(calib.exit_code, 0) << calib.out;
+  // The solve runs on the calibration sequence after the last answer: poll.
+  for (int i = 0; i < 100 && rows()["hand-eye from"] != "calibration"; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  r = rows();
+  EXPECT_EQ(r["hand-eye from"], "calibration");
+  EXPECT_EQ(r["mode"], "none");
+  EXPECT_TRUE(std::regex_search(r["last calibration"], std::regex(R"(^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ \(auto, \d+ poses)")))
+      << r["last calibration"];
+  std::smatch res;
+  ASSERT_TRUE(std::regex_search(r["residuals rms / max"], res, std::regex(R"(^([0-9.]+) / ([0-9.]+) mm)")))
+      << r["residuals rms / max"];
+  EXPECT_GT(std::stod(res[1]), 0.0);
+  EXPECT_LT(std::stod(res[1]), 1.0);
+  // The transform shown is the solved one: near the camera's true pose, away from the nominal one.
+  const Vec3 shown = xyz_mm(r["hand-eye X_BC in use"]);
+  EXPECT_LT((shown - cell.calibration->true_pose.translation() * 1000).norm(), 0.5) << r["hand-eye X_BC in use"];
+  EXPECT_GT((shown - cell.camera.X_BC.translation() * 1000).norm(), 2.0);
+  EXPECT_EQ(daemon.Stop(), 0);
 }
 
 }  // namespace
