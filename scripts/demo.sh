@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # The main job (README): builds, starts binpickd on the default cell
-# (synthetic camera, simulate_picks on), and lets the simulated UR robot clear
-# the bin over the DaoAI socket protocol, exactly as the seed robot program
-# does: capture, pick until no object is left, re-capture, and finally the
-# empty-box check. Each pick prints status, pose, remaining count and latency.
+# (synthetic camera, simulate_picks on), commissions the cell as an integrator
+# would (the seed's auto hand-eye calibration: the simulated camera really sits
+# a few mm from where the cell file says, and binpickd uses the result at once),
+# then lets the simulated UR robot clear the bin over the DaoAI socket
+# protocol, exactly as the seed robot program does: capture, pick until no
+# object is left, re-capture, and finally the empty-box check. Each pick
+# prints status, pose, remaining count and latency.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/build.sh
@@ -24,6 +27,12 @@ if ! read -r -t 120 ready <"$fifo"; then
   exit 1
 fi
 echo "$ready"
+
+echo "demo: auto hand-eye calibration (seed 000 commands 4, 7, ...)"
+if ! build/bin/binpick robot --host 127.0.0.1 --port "$port" --robot ur --flow calib-auto; then
+  echo "demo: the calibration flow failed; binpickd log: $log" >&2
+  exit 2
+fi
 
 # Exit codes of the robot program: 0 bin cleared and EMPTY, 1 the program
 # ended without an empty bin, 2 connection / protocol error.
