@@ -43,7 +43,8 @@ case "$rc" in
   0) echo "demo: bin cleared, empty-box check answered EMPTY" ;;
   1) echo "demo: the robot program ended with parts left in the bin. The last pick answer says why:" \
           "NO_OBJECT_FOUND(3) = perception found none of them, NO_COLLISION_FREE_POSE(4) = found but no" \
-          "safe grasp (known gaps: L-brackets standing on edge; binpick clear reports which parts stay)." \
+          "safe grasp (known gaps: L-brackets standing on an edge or on their upright; binpick clear" \
+          "reports which parts stay)." \
           "binpickd log: $log"
      exit 1 ;;
   *) echo "demo: robot connection or protocol error; binpickd log: $log" >&2
