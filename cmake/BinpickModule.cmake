@@ -21,8 +21,8 @@ function(bp_add_test name dir)
   if(NOT _srcs)
     return()
   endif()
-  add_executable(${name} ${_srcs})
-  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock bp_warnings)
+  add_executable(${name} ${_srcs} ${PROJECT_SOURCE_DIR}/tests/testing/tsan_serial_tbb.cc)
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest GTest::gtest_main GTest::gmock TBB::tbb bp_warnings)
   target_compile_definitions(${name} PRIVATE
     BINPICK_SOURCE_DIR="${PROJECT_SOURCE_DIR}" BINPICK_BINARY_DIR="${CMAKE_BINARY_DIR}")
   gtest_discover_tests(${name} DISCOVERY_MODE PRE_TEST

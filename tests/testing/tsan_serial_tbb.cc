@@ -1,0 +1,14 @@
+// Linked into every test binary. Under ThreadSanitizer (scripts/test.sh's
+// tsan stage) oneTBB runs every parallel algorithm on the calling thread:
+// Debian's libtbb is not instrumented, so the hand-over between its worker
+// threads and the caller is invisible to TSan and every parallel_for would be
+// reported as a race. The stage checks the server and the queues, which run
+// on Asio and plain threads (request_handler.cc, __SANITIZE_THREAD__); the
+// parallel loops themselves are not checked by it. No effect in other builds.
+#if defined(__SANITIZE_THREAD__)
+#include <tbb/global_control.h>
+
+namespace {
+const tbb::global_control kSerialTbb(tbb::global_control::max_allowed_parallelism, 1);
+}  // namespace
+#endif
