@@ -86,6 +86,18 @@ class Daemon {
   int out_ = -1;
 };
 
+// Waits for binpickd's ready line and returns the HTTP port it names; -1
+// (with a failure naming the line and the log) when there is none.
+int HttpPortOnceReady(Daemon& daemon, const std::string& log) {
+  const std::string ready = daemon.ReadyLine(60000);
+  std::smatch m;
+  if (!std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))"))) {
+    ADD_FAILURE() << "no http port in the ready line '" << ready << "'\n" << testing::ReadBytes(log);
+    return -1;
+  }
+  return std::stoi(m[1]);
+}
+
 TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
   const std::string dir = testing::FreshDir("binpickd");
@@ -93,16 +105,14 @@ TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
                  "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
                 dir + "/binpickd.log");
-  const std::string ready = daemon.ReadyLine(60000);
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
-      << ready << testing::ReadBytes(dir + "/binpickd.log");
-  const int http = std::stoi(m[1]);
+  const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
+  ASSERT_GT(http, 0);
 
   const test::CommandRun robot =
       test::RunCommand(bin + "binpick-robot --port " + std::to_string(daoai_port) +
                        " --flow pick --max-cycles 1 --no-empty-check");
   ASSERT_EQ(robot.exit_code, 0) << robot.out;
+  std::smatch m;
   ASSERT_TRUE(std::regex_search(robot.out, m, std::regex(R"((\d+) picks)"))) << robot.out;
   const int picks = std::stoi(m[1]);
   ASSERT_GT(picks, 0);
@@ -166,11 +176,8 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
                  "--gri-port", "0", "--gri-official-port", "0", "--http-port", "-1", "--record-dir",
                  dir + "/rec"},
                 dir + "/binpickd.log");
-  const std::string ready = daemon.ReadyLine(60000);
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
-      << ready << testing::ReadBytes(dir + "/binpickd.log");
-  const int http = std::stoi(m[1]);
+  const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
+  ASSERT_GT(http, 0);
   const webtest::HttpResult refused = webtest::HttpRequest(http, "/metrics", boost::beast::http::verb::get,
                                                            "127.0.0.1");
   EXPECT_EQ(refused.status, 0);
@@ -200,11 +207,8 @@ TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
   Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
                  "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
                 dir + "/binpickd.log");
-  const std::string ready = daemon.ReadyLine(60000);
-  std::smatch m;
-  ASSERT_TRUE(std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))")))
-      << ready << testing::ReadBytes(dir + "/binpickd.log");
-  const int http = std::stoi(m[1]);
+  const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
+  ASSERT_GT(http, 0);
   auto rows = [http] {
     std::map<std::string, std::string> r;
     const webtest::HttpResult status = webtest::HttpRequest(http, "/api/status");
