@@ -73,6 +73,13 @@ class OsMesaRenderer final : public DepthRenderer {
     if (!OSMesaMakeCurrent(ctx_, color_.data(), GL_UNSIGNED_BYTE, w, h)) {
       return Status::Unavailable("render: OSMesaMakeCurrent failed");
     }
+    // Unbind before returning. Mesa keeps the current context in a
+    // thread-local; left bound, a thread that renders once (a request
+    // handler) would still point at this context after another thread has
+    // destroyed it, and its next OSMesaMakeCurrent flushes freed memory.
+    struct Unbind {
+      ~Unbind() { OSMesaMakeCurrent(nullptr, nullptr, 0, 0, 0); }
+    } unbind;
     OSMesaPixelStore(OSMESA_Y_UP, 1);
     if (!configured_) Configure();
 
