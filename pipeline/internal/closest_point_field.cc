@@ -21,20 +21,45 @@ void ClosestPointField::Build(std::span<const Eigen::Vector3f> points, float vox
   dims_ = (extent * inv_voxel_).array().ceil().cast<int>().matrix();
   const size_t n = static_cast<size_t>(dims_.x()) * dims_.y() * dims_.z();
   cells_.assign(n, -1);
-  std::vector<float> best(n, band * band);
+  const float band2 = band * band;
+  std::vector<float> best(n, band2);
   const int reach = static_cast<int>(std::ceil(band * inv_voxel_));
+  // Each sample updates the voxels whose centres lie within the band: per
+  // (z, y) row, only the x run inside the sphere (a cube of side 2 * reach
+  // would visit about twice as many). The distance is summed in the order
+  // Eigen's (centre - p).squaredNorm() uses for a Vector3f, dx² + (dy² + dz²),
+  // so ties resolve as they did when it was computed that way.
+  const float ox = origin_.x(), oy = origin_.y(), oz = origin_.z();
+  const int nx = dims_.x(), ny = dims_.y(), nz = dims_.z();
   for (size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3f g = (points[i] - origin_) * inv_voxel_;
-    const int cx = static_cast<int>(g.x()), cy = static_cast<int>(g.y()), cz = static_cast<int>(g.z());
-    for (int z = std::max(0, cz - reach); z <= std::min(dims_.z() - 1, cz + reach); ++z) {
-      for (int y = std::max(0, cy - reach); y <= std::min(dims_.y() - 1, cy + reach); ++y) {
-        for (int x = std::max(0, cx - reach); x <= std::min(dims_.x() - 1, cx + reach); ++x) {
-          const Eigen::Vector3f centre = origin_ + (Eigen::Vector3f(x, y, z) + Eigen::Vector3f::Constant(0.5f)) * voxel;
-          const float d2 = (centre - points[i]).squaredNorm();
-          const size_t c = (static_cast<size_t>(z) * dims_.y() + y) * dims_.x() + x;
-          if (d2 < best[c]) {
-            best[c] = d2;
-            cells_[c] = static_cast<int32_t>(i);
+    const float px = points[i].x(), py = points[i].y(), pz = points[i].z();
+    const int cx = static_cast<int>((px - ox) * inv_voxel_),
+              cy = static_cast<int>((py - oy) * inv_voxel_),
+              cz = static_cast<int>((pz - oz) * inv_voxel_);
+    const int32_t index = static_cast<int32_t>(i);
+    for (int z = std::max(0, cz - reach); z <= std::min(nz - 1, cz + reach); ++z) {
+      const float dz = oz + (static_cast<float>(z) + 0.5f) * voxel - pz;
+      const float dz2 = dz * dz;
+      if (dz2 >= band2) continue;
+      for (int y = std::max(0, cy - reach); y <= std::min(ny - 1, cy + reach); ++y) {
+        const float dy = oy + (static_cast<float>(y) + 0.5f) * voxel - py;
+        const float dyz2 = dy * dy + dz2;
+        if (dyz2 >= band2) continue;
+        // |dx| < rx, one voxel of slack on each side; the d2 test decides.
+        const float rx = std::sqrt(band2 - dyz2);
+        const int x_lo = std::max(
+            {0, cx - reach, static_cast<int>(std::floor((px - rx - ox) * inv_voxel_)) - 1});
+        const int x_hi = std::min(
+            {nx - 1, cx + reach, static_cast<int>(std::floor((px + rx - ox) * inv_voxel_)) + 1});
+        const size_t row = (static_cast<size_t>(z) * ny + y) * nx;
+        float* best_row = best.data() + row;
+        int32_t* cell_row = cells_.data() + row;
+        for (int x = x_lo; x <= x_hi; ++x) {
+          const float dx = ox + (static_cast<float>(x) + 0.5f) * voxel - px;
+          const float d2 = dx * dx + dyz2;
+          if (d2 < best_row[x]) {
+            best_row[x] = d2;
+            cell_row[x] = index;
           }
         }
       }
