@@ -21,6 +21,16 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   cell.source.seed = seed;
   const TaskSpec* task = cell.FindTask(options.task_id);
   if (task == nullptr) return Status::InvalidArgument("clear: the cell has no task " + std::to_string(options.task_id));
+  std::vector<const TaskSpec*> fallbacks;
+  for (int id : options.fallback_task_ids) {
+    const TaskSpec* fb = cell.FindTask(id);
+    if (fb == nullptr) return Status::InvalidArgument("clear: the cell has no fallback task " + std::to_string(id));
+    if (fb->kind != TaskSpec::Kind::kPick || id == task->id) {
+      return Status::InvalidArgument("clear: fallback task " + std::to_string(id) +
+                                     " must be a pick task other than task " + std::to_string(task->id));
+    }
+    fallbacks.push_back(fb);
+  }
   auto source = MakeCaptureSource(cell);
   if (!source.ok()) return source.status();
   BinPickingPlannerOptions planner_options;
@@ -59,11 +69,31 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
                       c.rejected ? ToString(*c.rejected) : "ok");
       }
     }
-    if (last.grasps.empty() || report.cycles >= max_cycles) break;
+    // The task whose grasp is taken: the primary one, else the first
+    // fallback with a grasp on this frame. `last` stays the primary task's
+    // plan: the final empty-box answer is the primary task's.
+    const TaskSpec* used = task;
+    PlanResult taken = last;
+    if (taken.grasps.empty() && report.cycles < max_cycles) {
+      for (const TaskSpec* fb : fallbacks) {
+        PlanRequest fb_request;
+        fb_request.task = *fb;
+        const auto t1 = std::chrono::steady_clock::now();
+        auto fb_detail = p.PlanDetailed(fb_request, **scene);
+        report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
+        if (!fb_detail.ok()) return fb_detail.status();
+        if (!fb_detail->result.grasps.empty()) {
+          used = fb;
+          taken = std::move(fb_detail->result);
+          break;
+        }
+      }
+    }
+    if (taken.grasps.empty() || report.cycles >= max_cycles) break;
 
     // Judge the first grasp against the true scene.
-    const Grasp& grasp = last.grasps.front();
-    const int instance = p.TruthInstanceOf(task->id, grasp.instance_id);
+    const Grasp& grasp = taken.grasps.front();
+    const int instance = p.TruthInstanceOf(used->id, grasp.instance_id);
     std::vector<Detection> truth;
     int target = -1;
     for (const PartTruth& t : truth_parts) {
@@ -74,13 +104,14 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
       truth.push_back(std::move(d));
     }
     if (target < 0) ++report.unmatched_picks;
-    if (auto hit = p.model().CheckAgainstParts(task->gripper, grasp.X_BT, truth, target)) {
+    if (auto hit = p.model().CheckAgainstParts(used->gripper, grasp.X_BT, truth, target)) {
       ++report.truth_collisions;
-      report.collisions.push_back("cycle " + std::to_string(report.cycles) + ": grasp " + grasp.name +
-                                  " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit)));
+      report.collisions.push_back("cycle " + std::to_string(report.cycles) + ": task " + std::to_string(used->id) +
+                                  " grasp " + grasp.name + " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit)));
     }
-    p.NotifyHandedOut(*task, grasp);
+    p.NotifyHandedOut(*used, grasp);
     ++report.picks;
+    if (used != task) ++report.fallback_picks;
   }
   report.parts_left = static_cast<int>(truth_parts.size());
   for (const PartTruth& t : truth_parts) {
@@ -99,6 +130,18 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   return report;
 }
 
+void ClearReport::Add(SceneClearReport scene) {
+  parts_placed += scene.parts_placed;
+  picks += scene.picks;
+  fallback_picks += scene.fallback_picks;
+  cycles += scene.cycles;
+  truth_collisions += scene.truth_collisions;
+  unmatched_picks += scene.unmatched_picks;
+  parts_left += scene.parts_left;
+  wrong_empty_answers += scene.wrong_empty_answer ? 1 : 0;
+  scenes.push_back(std::move(scene));
+}
+
 Result<ClearReport> ClearScenes(const Cell& cell, uint64_t seed, int scenes, std::shared_ptr<const Perception> perception,
                                 bool oracle, const ClearOptions& options) {
   ClearReport report;
@@ -106,14 +149,7 @@ Result<ClearReport> ClearScenes(const Cell& cell, uint64_t seed, int scenes, std
   for (int i = 0; i < scenes; ++i) {
     auto scene = ClearScene(cell, seed + static_cast<uint64_t>(i), perception, options);
     if (!scene.ok()) return scene.status();
-    report.parts_placed += scene->parts_placed;
-    report.picks += scene->picks;
-    report.cycles += scene->cycles;
-    report.truth_collisions += scene->truth_collisions;
-    report.unmatched_picks += scene->unmatched_picks;
-    report.parts_left += scene->parts_left;
-    report.wrong_empty_answers += scene->wrong_empty_answer ? 1 : 0;
-    report.scenes.push_back(std::move(*scene));
+    report.Add(std::move(*scene));
   }
   return report;
 }

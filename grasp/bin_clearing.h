@@ -18,6 +18,12 @@ namespace bp {
 
 struct ClearOptions {
   int task_id = 0;          // the cell's pick task to plan for
+  // Pick tasks the simulated robot falls back to, in order, on a frame where
+  // task_id has no grasp: a cell with a tool changer asks the suction task
+  // first, then (after changing tools) a parallel-jaw task. Each fallback
+  // plans on the same frame with its own gripper; its grasp is judged with
+  // that gripper. Empty: no fallback.
+  std::vector<int> fallback_task_ids;
   int max_cycles = 0;       // capture cycles per scene; <= 0: 3 * parts + 5
 };
 
@@ -25,6 +31,7 @@ struct SceneClearReport {
   uint64_t seed = 0;
   int parts_placed = 0;         // parts in the pile at the start
   int picks = 0;                // grasps taken
+  int fallback_picks = 0;       // of which planned by a fallback task
   int cycles = 0;               // captures (one per pick, plus the last one)
   int truth_collisions = 0;     // chosen grasps colliding with the true scene
   int unmatched_picks = 0;      // grasps on no true part (a false detection)
@@ -44,8 +51,10 @@ struct ClearReport {
   std::vector<SceneClearReport> scenes;
   bool oracle = false;  // detections came from the ground-truth oracle
   // Totals.
-  int parts_placed = 0, picks = 0, cycles = 0, truth_collisions = 0, unmatched_picks = 0, parts_left = 0,
-      wrong_empty_answers = 0;
+  int parts_placed = 0, picks = 0, fallback_picks = 0, cycles = 0, truth_collisions = 0, unmatched_picks = 0,
+      parts_left = 0, wrong_empty_answers = 0;
+  // Appends `scene` and adds it to the totals.
+  void Add(SceneClearReport scene);
   double CyclesPerPick() const { return picks > 0 ? static_cast<double>(cycles) / picks : 0.0; }
   double ClearedFraction() const {
     return parts_placed > 0 ? 1.0 - static_cast<double>(parts_left) / parts_placed : 1.0;

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <random>
 
 #include "grasp/bin_clearing.h"
@@ -302,6 +303,39 @@ TEST(BinClearing, AShortClearHasNoGroundTruthCollisionsAndEndsEmpty) {
     EXPECT_EQ(s.said_empty, s.parts_left == 0) << s.final_outcome;
     EXPECT_EQ(s.cycles, s.picks + 1);
   }
+}
+
+// The default cell's L-bracket lying on its side shows only 5 mm edges from
+// above: the suction task leaves it. A robot with a tool changer falls back to
+// the parallel-jaw task 4, which pinches it; the pick is judged against ground
+// truth with the parallel jaw.
+TEST(BinClearing, AFallbackTaskWithTheParallelJawPicksWhatSuctionCannot) {
+  std::optional<uint64_t> stuck_seed;
+  for (uint64_t seed = 1; seed <= 300 && !stuck_seed; ++seed) {
+    Cell cell = SyntheticCell(1, seed);
+    auto suction_only = ClearScene(cell, seed, std::make_shared<TruthPerception>(cell));
+    ASSERT_TRUE(suction_only.ok()) << suction_only.status().ToString();
+    if (suction_only->parts_left == 1 && suction_only->left[0].find("l_bracket") != std::string::npos) {
+      EXPECT_EQ(suction_only->picks, 0);
+      EXPECT_FALSE(suction_only->said_empty);
+      stuck_seed = seed;
+    }
+  }
+  ASSERT_TRUE(stuck_seed) << "no single-part scene in 300 that suction cannot clear";
+  Cell cell = SyntheticCell(1, *stuck_seed);
+  ClearOptions options;
+  options.fallback_task_ids = {4};
+  auto report = ClearScene(cell, *stuck_seed, std::make_shared<TruthPerception>(cell), options);
+  ASSERT_TRUE(report.ok()) << report.status().ToString();
+  EXPECT_EQ(report->picks, 1) << "seed " << *stuck_seed << ": " << report->final_outcome;
+  EXPECT_EQ(report->fallback_picks, 1);
+  EXPECT_EQ(report->truth_collisions, 0);
+  EXPECT_EQ(report->parts_left, 0);
+  EXPECT_TRUE(report->said_empty);
+
+  options.fallback_task_ids = {2};  // a place task is no fallback
+  EXPECT_EQ(ClearScene(cell, 1, std::make_shared<TruthPerception>(cell), options).status().code(),
+            Status::Code::kInvalidArgument);
 }
 
 }  // namespace
