@@ -50,9 +50,9 @@ test::CommandRun ServeARobot(const std::string& dir, const std::string& args, in
   const std::string script =
       kBin + "binpickd --daoai-port " + p + " --gri-port 0 --gri-official-port 0 " + args + " > " + dir +
       "/ready 2> " + dir + "/binpickd.log & pid=$!; "
-      // Up to 120 s: binpickd builds its perception models first (about 45 s
+      // Up to 180 s: binpickd builds its perception models first (about 45 s
       // under ASan).
-      "for i in $(seq 2400); do grep -q ready " + dir + "/ready && break; sleep 0.05; done; " +
+      "for i in $(seq 3600); do grep -q ready " + dir + "/ready && break; sleep 0.05; done; " +
       kBin + "binpick-robot --port " + p + " --flow pick --no-empty-check --max-cycles " + std::to_string(cycles) +
       "; rc=$?; kill -TERM $pid; wait $pid; echo binpickd exit $?; exit $rc";
   return test::RunCommand("sh -c '" + script + "'");

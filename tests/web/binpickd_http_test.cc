@@ -89,7 +89,9 @@ class Daemon {
 // Waits for binpickd's ready line and returns the HTTP port it names; -1
 // (with a failure naming the line and the log) when there is none.
 int HttpPortOnceReady(Daemon& daemon, const std::string& log) {
-  const std::string ready = daemon.ReadyLine(60000);
+  // Normally ready in about a second; under ASan, with another test binary
+  // sharing the two cores, building the model tables alone took over 60 s.
+  const std::string ready = daemon.ReadyLine(180000);
   std::smatch m;
   if (!std::regex_search(ready, m, std::regex(R"(; http 127\.0\.0\.1:(\d+))"))) {
     ADD_FAILURE() << "no http port in the ready line '" << ready << "'\n" << testing::ReadBytes(log);
