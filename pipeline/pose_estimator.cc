@@ -28,6 +28,96 @@ double Ms(Clock::time_point a, Clock::time_point b) {
 }
 
 constexpr uint64_t kSamplingSeed = 0x5eed;
+constexpr double kDeg = M_PI / 180.0;
+
+// 2D convex hull (Andrew's monotone chain), counter-clockwise.
+std::vector<Eigen::Vector2f> ConvexHull2(std::vector<Eigen::Vector2f> p) {
+  std::sort(p.begin(), p.end(), [](const Eigen::Vector2f& a, const Eigen::Vector2f& b) {
+    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
+  });
+  if (p.size() < 3) return p;
+  auto cross = [](const Eigen::Vector2f& o, const Eigen::Vector2f& a, const Eigen::Vector2f& b) {
+    return (a.x() - o.x()) * (b.y() - o.y()) - (a.y() - o.y()) * (b.x() - o.x());
+  };
+  std::vector<Eigen::Vector2f> h(2 * p.size());
+  size_t k = 0;
+  for (size_t i = 0; i < p.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  for (size_t i = p.size() - 1, t = k + 1; i-- > 0;) {
+    while (k >= t && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  h.resize(k - 1);
+  return h;
+}
+
+// An orthonormal basis (u, v) of the plane normal to unit d.
+std::pair<Eigen::Vector3f, Eigen::Vector3f> PlaneBasis(const Eigen::Vector3f& d) {
+  const Eigen::Vector3f u = d.unitOrthogonal();
+  return {u, d.cross(u)};
+}
+
+// The orientations in which the part rests on a flat floor. Candidates are
+// the mesh's face normals (merged within 1 deg); one is a resting direction d
+// (pointing into the floor) when the samples within `tol` of the lowest in
+// that direction span an area whose convex hull holds the projection of the
+// centroid (so the part neither tips nor rolls). Directions within 3 deg are
+// one, and so are directions a symmetry of the part maps onto each other.
+std::vector<Eigen::Vector3f> RestingDirections(const TriangleMesh& mesh, std::span<const Eigen::Vector3f> pts,
+                                               const Eigen::Vector3f& centroid, const Symmetry& symmetry,
+                                               float tol) {
+  std::vector<Eigen::Vector3f> candidates;
+  const float cos1 = static_cast<float>(std::cos(1 * kDeg));
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    const Eigen::Vector3f c = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    if (!(c.norm() > 1e-12f)) continue;
+    const Eigen::Vector3f n = c.normalized();
+    if (std::none_of(candidates.begin(), candidates.end(), [&](const Eigen::Vector3f& d) { return d.dot(n) > cos1; })) {
+      candidates.push_back(n);
+    }
+  }
+  const Eigen::Vector3f axis = symmetry.axis.cast<float>().normalized();
+  auto same_rest = [&](const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
+    const float cos3 = static_cast<float>(std::cos(3 * kDeg));
+    if (a.dot(b) > cos3) return true;
+    switch (symmetry.kind) {
+      case Symmetry::Kind::kRevolute:
+        return std::abs(a.dot(axis) - b.dot(axis)) < 0.05f;
+      case Symmetry::Kind::kDiscrete:
+        for (int k = 1; k < symmetry.order; ++k) {
+          const Eigen::AngleAxisf r(static_cast<float>(2 * M_PI * k / symmetry.order), axis);
+          if ((r * a).dot(b) > cos3) return true;
+        }
+        return false;
+      default:
+        return false;
+    }
+  };
+  std::vector<Eigen::Vector3f> rests;
+  for (const Eigen::Vector3f& d : candidates) {
+    if (std::any_of(rests.begin(), rests.end(), [&](const Eigen::Vector3f& r) { return same_rest(r, d); })) continue;
+    float depth = -std::numeric_limits<float>::infinity();
+    for (const auto& p : pts) depth = std::max(depth, d.dot(p));
+    const auto [u, v] = PlaneBasis(d);
+    std::vector<Eigen::Vector2f> contact;
+    for (const auto& p : pts) {
+      if (d.dot(p) >= depth - tol) contact.emplace_back(u.dot(p), v.dot(p));
+    }
+    const std::vector<Eigen::Vector2f> hull = ConvexHull2(std::move(contact));
+    if (hull.size() < 3) continue;
+    const Eigen::Vector2f c(u.dot(centroid), v.dot(centroid));
+    bool inside = true;
+    for (size_t i = 0; i < hull.size() && inside; ++i) {
+      const Eigen::Vector2f& a = hull[i];
+      const Eigen::Vector2f& b = hull[(i + 1) % hull.size()];
+      inside = (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x() >= 0;
+    }
+    if (inside) rests.push_back(d);
+  }
+  return rests;
+}
 constexpr int kMinScenePoints = 30;
 constexpr int kMinSampledPoints = 8;
 
@@ -149,6 +239,15 @@ struct PoseEstimator::Impl {
   OrientedPoints verify;           // verification samples
   OrientedPoints ppf_points;
   internal::PpfModel ppf;
+  // Resting orientations: unit directions in O pointing into the floor, and
+  // for each the largest d . p over the dense samples (the contact height).
+  std::vector<Eigen::Vector3f> rest_down;
+  std::vector<float> rest_depth;
+
+  // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
+  // towards the parts) in each resting orientation, centred on the segment.
+  void AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector4d& plane,
+                          std::vector<internal::CoarsePose>& coarse) const;
 
   // Visible-surface test, support and free-space test for one pose.
   // stride > 1 checks every stride-th verification sample (a quick pass).
@@ -175,6 +274,65 @@ int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->pp
 const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { return impl_->verify.points; }
 const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
 
+void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector4d& plane,
+                                              std::vector<internal::CoarsePose>& coarse) const {
+  const Eigen::Vector3f n = plane.head<3>().cast<float>();
+  const float d = static_cast<float>(plane[3]);
+  const auto [u, v] = PlaneBasis(n);
+  // The segment above the floor, in plane coordinates: its centre and its
+  // principal direction (angle in the (u, v) plane).
+  auto principal_angle = [](const std::vector<Eigen::Vector2f>& q, Eigen::Vector2f& mean) {
+    mean.setZero();
+    for (const auto& p : q) mean += p;
+    mean /= static_cast<float>(q.size());
+    Eigen::Matrix2f C = Eigen::Matrix2f::Zero();
+    for (const auto& p : q) C += (p - mean) * (p - mean).transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix2f> es(C);
+    const Eigen::Vector2f e = es.eigenvectors().col(1);
+    return std::atan2(e.y(), e.x());
+  };
+  std::vector<Eigen::Vector2f> seg;
+  for (const auto& p : scene) {
+    if (n.dot(p) + d > 0.5f * step) seg.emplace_back(u.dot(p), v.dot(p));
+  }
+  if (seg.size() < 3) return;
+  Eigen::Vector2f seg_mean;
+  const float seg_angle = principal_angle(seg, seg_mean);
+  const Eigen::Vector3f seg_in_plane = u * seg_mean.x() + v * seg_mean.y();
+  for (size_t r = 0; r < rest_down.size(); ++r) {
+    // R0 turns the resting direction onto -n.
+    const Eigen::Matrix3f R0 = Eigen::Quaternionf::FromTwoVectors(rest_down[r], -n).toRotationMatrix();
+    std::vector<Eigen::Vector2f> top;
+    top.reserve(ppf_points.size());
+    for (const auto& p : ppf_points.points) {
+      const Eigen::Vector3f q = R0 * p;
+      top.emplace_back(u.dot(q), v.dot(q));
+    }
+    Eigen::Vector2f model_mean;
+    const float model_angle = principal_angle(top, model_mean);
+    std::vector<float> yaws = {seg_angle - model_angle, seg_angle - model_angle + static_cast<float>(M_PI)};
+    const bool spins_freely = symmetry.kind == Symmetry::Kind::kRevolute &&
+                              std::abs(rest_down[r].dot(symmetry.axis.cast<float>().normalized())) > 0.999f;
+    if (!spins_freely) {
+      for (int k = 0; k < 36; ++k) yaws.push_back(static_cast<float>(k * 10 * kDeg));
+    } else {
+      yaws.resize(1);
+    }
+    for (const float yaw : yaws) {
+      const Eigen::Matrix3f R = Eigen::AngleAxisf(yaw, n).toRotationMatrix() * R0;
+      const Eigen::Vector3f c = R * centroid_O;
+      // In the plane: centroid over the segment's centre. Along n: the
+      // lowest samples (n . R p = -rest_depth) on the plane.
+      const Eigen::Vector3f t = seg_in_plane - (c - n * n.dot(c)) + n * (rest_depth[r] - d);
+      internal::CoarsePose cp;
+      cp.X_BO = Pose::Identity();
+      cp.X_BO.linear() = R.cast<double>();
+      cp.X_BO.translation() = t.cast<double>();
+      coarse.push_back(cp);
+    }
+  }
+}
+
 Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& mesh, const Symmetry& symmetry,
                                                             const PoseEstimatorOptions& options) {
   std::string error;
@@ -199,6 +357,13 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
   for (const auto& p : impl->dense.points) impl->centroid_O += p;
   impl->centroid_O /= static_cast<float>(impl->dense.size());
 
+  impl->rest_down = RestingDirections(mesh, impl->dense.points, impl->centroid_O, symmetry,
+                                      static_cast<float>(2 * options.icp_model_spacing));
+  for (const Eigen::Vector3f& d : impl->rest_down) {
+    float depth = -std::numeric_limits<float>::infinity();
+    for (const auto& p : impl->dense.points) depth = std::max(depth, d.dot(p));
+    impl->rest_depth.push_back(depth);
+  }
   impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
   impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
   const float band = std::max(static_cast<float>(options.icp_initial_relative_distance) * impl->step,
@@ -542,6 +707,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     std::erase_if(coarse, [&](const internal::CoarsePose& cp) { return !above_support(cp.X_BO); });
   }
   if (static_cast<int>(coarse.size()) > search.max_coarse_poses) coarse.resize(search.max_coarse_poses);
+  if (search.resting_seeds && view.support_plane_B) m.AppendRestingSeeds(pts, *view.support_plane_B, coarse);
   const auto t2 = Clock::now();
   out.timings.coarse_ms = Ms(t1, t2);
   if (coarse.empty()) {

@@ -119,6 +119,14 @@ struct PoseSearch {
   // poses that do not sink the part into the plane are kept.
   int peaks_per_reference = 1;
   int peaks_examined = 8;
+  // With a support plane: also try the part lying on the plane in each of
+  // its resting orientations (faces on its convex hull that hold its centre
+  // above them), at 10 deg steps of yaw plus the two yaws that align its
+  // top-view principal axis with the segment's, centred on the segment. These
+  // seeds go to ICP and verification with the coarse poses. For the last
+  // parts of a bin, which lie on the floor in views PPF voting cannot
+  // resolve: an L-bracket on its side shows only its 5 mm edges.
+  bool resting_seeds = false;
 };
 
 struct PoseTimings {

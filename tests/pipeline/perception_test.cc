@@ -301,11 +301,13 @@ TEST_F(PerceptionTest, SymmetricPartIsFoundModuloItsSymmetry) {
 // model's plates explain as well, and the best-voted ones sink the rest of the
 // part into the floor. A normal run finds none of these; the thorough run
 // (several accumulator peaks per reference point, the first that stay above
-// the floor, PpfMatchOptions::accept) finds these two. Known gap: at yaw 0
-// and 200 deg it still finds nothing, at 290 deg a pose a few mm off
-// (docs/perception.md, "Thorough retry").
+// the floor, PpfMatchOptions::accept; and the resting-pose seeds) finds these
+// three. Known gap: at yaw 200 deg it finds nothing (the part falls into two
+// segments), at 290 deg it finds the bracket turned 180 deg, 65 mm off (the
+// upright, flat on the floor, is 5 mm thick; docs/perception.md, "Thorough
+// retry").
 TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketStandingOnItsUpright) {
-  for (const double yaw : {35.0, 110.0}) {
+  for (const double yaw : {0.0, 35.0, 110.0}) {
     SCOPED_TRACE("yaw " + std::to_string(yaw));
     // Part +x up: the upright's outer face (x = 0) rests on the floor.
     const Pose X_WO = PoseW(0.02, -0.03, 0.0, yaw) *
@@ -317,6 +319,27 @@ TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketStandingOnItsUpright) {
     const Pose X_BO = fx().cell.bin.X_BW * X_WO;
     EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
     EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+  }
+}
+
+// An L-bracket lying on its side (part y up): from above, only its 5 mm
+// edges and, at an angle, a side face. PPF voting alone finds nothing; the
+// thorough run's resting-pose seeds (PoseSearch::resting_seeds) do.
+TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketLyingOnItsSide) {
+  for (const double yaw : {0.0, 50.0, 125.0, 240.0}) {
+    for (const double roll : {-90.0, 90.0}) {
+      SCOPED_TRACE("yaw " + std::to_string(yaw) + ", roll " + std::to_string(roll));
+      // Roll +90: part y up, its y = -25 mm face on the floor; -90: y down.
+      const Pose X_WO = PoseW(-0.03, 0.02, 0.025, yaw) *
+                        MakePose(Mat3(Eigen::AngleAxisd(roll * kDeg, Vec3::UnitX())), Vec3::Zero());
+      const Frame frame = fx().Render({{1, X_WO}});
+      const PerceptionResult r = fx().Run(frame, {}, PerceptionEffort::kThorough);
+      ASSERT_EQ(r.detections.size(), 1u) << r.reason;
+      EXPECT_EQ(r.detections[0].class_id, 1);
+      const Pose X_BO = fx().cell.bin.X_BW * X_WO;
+      EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
+      EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+    }
   }
 }
 
