@@ -82,11 +82,19 @@ Result<IntensityImage> RenderBoard(const CalibrationSpec& b, const Intrinsics& k
   // The back of the board shows no pattern.
   const bool front = X_CT.linear().col(2).dot(X_CT * BoardCentre(b)) > 0;
 
-  // Each sub-sample's ray meets the board plane n.(p - t) = 0 at lambda * d.
+  // Each sub-sample's ray d = ((uu - cx) / fx, (vv - cy) / fy, 1) meets the
+  // board plane n.(p - t) = 0 at lambda * d, lambda = n.t / n.d; on the board
+  // that is p_T = R^T (lambda d - t). R^T d and n.d are affine in (uu, vv):
+  // per sub-sample only the x and y of p_T are computed, in scalars.
   const Mat3 R = X_CT.linear();
   const Vec3 t = X_CT.translation();
   const Vec3 n = R.col(2);
   const double nt = n.dot(t);
+  const Mat3 Rt = R.transpose();
+  const Vec3 du = Rt.col(0) / k.fx, dv = Rt.col(1) / k.fy;
+  const Vec3 d0 = Rt.col(2) - du * k.cx - dv * k.cy;  // R^T d at (uu, vv) = (0, 0)
+  const Vec3 Rt_t = Rt * t;
+  const double nd_u = n.x() / k.fx, nd_v = n.y() / k.fy, nd_0 = n.z() - nd_u * k.cx - nd_v * k.cy;
   cv::Mat img(k.height, k.width, CV_32F);
   const double step = 1.0 / kSupersample;
   for (int v = 0; v < k.height; ++v) {
@@ -94,16 +102,17 @@ Result<IntensityImage> RenderBoard(const CalibrationSpec& b, const Intrinsics& k
     for (int u = 0; u < k.width; ++u) {
       double sum = 0;
       for (int sv = 0; sv < kSupersample; ++sv) {
+        const double vv = v - 0.5 + (sv + 0.5) * step;
         for (int su = 0; su < kSupersample; ++su) {
-          const double uu = u - 0.5 + (su + 0.5) * step, vv = v - 0.5 + (sv + 0.5) * step;
-          const Vec3 d((uu - k.cx) / k.fx, (vv - k.cy) / k.fy, 1.0);
-          const double nd = n.dot(d);
+          const double uu = u - 0.5 + (su + 0.5) * step;
+          const double nd = nd_0 + nd_u * uu + nd_v * vv;
           double g = kBackground;
           if (front && std::abs(nd) > 1e-12) {
             const double lambda = nt / nd;
             if (lambda > 0) {
-              const Vec3 p_T = R.transpose() * (lambda * d - t);
-              const double tex = BoardTexture(b, p_T.x(), p_T.y());
+              const double x = lambda * (d0.x() + du.x() * uu + dv.x() * vv) - Rt_t.x();
+              const double y = lambda * (d0.y() + du.y() * uu + dv.y() * vv) - Rt_t.y();
+              const double tex = BoardTexture(b, x, y);
               if (!std::isnan(tex)) g = tex;
             }
           }
