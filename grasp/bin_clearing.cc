@@ -106,8 +106,36 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     if (target < 0) ++report.unmatched_picks;
     if (auto hit = p.model().CheckAgainstParts(used->gripper, grasp.X_BT, truth, target)) {
       ++report.truth_collisions;
-      report.collisions.push_back("cycle " + std::to_string(report.cycles) + ": task " + std::to_string(used->id) +
-                                  " grasp " + grasp.name + " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit)));
+      std::string line = "cycle " + std::to_string(report.cycles) + ": task " + std::to_string(used->id) + " grasp " +
+                         grasp.name + " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit));
+      // How far the detection the grasp was planned on is from the truth.
+      const size_t det = static_cast<size_t>(grasp.instance_id);
+      if (target >= 0 && det < taken.parts.size()) {
+        const Pose& est = taken.parts[det].X_BO;
+        const Pose& real = truth[static_cast<size_t>(target)].X_BO;
+        char error[96];
+        std::snprintf(error, sizeof(error), " (its detection is %.1f mm, %.1f deg from the truth)",
+                      1000 * (est.translation() - real.translation()).norm(),
+                      Eigen::AngleAxisd(est.linear().transpose() * real.linear()).angle() * 180 / M_PI);
+        line += error;
+      }
+      // Which true part it hits, how much of it the camera saw, and whether
+      // a detection lies within 10 mm of it.
+      for (size_t j = 0; j < truth.size(); ++j) {
+        if (static_cast<int>(j) == target) continue;
+        const Detection pair[] = {truth[j]};
+        if (!p.model().CheckAgainstParts(used->gripper, grasp.X_BT, pair, -1)) continue;
+        bool detected = false;
+        for (const DetectedPart& d : taken.parts) {
+          detected |= (d.X_BO.translation() - truth[j].X_BO.translation()).norm() < 0.01;
+        }
+        char hit_part[160];
+        std::snprintf(hit_part, sizeof(hit_part), "; hits instance %d (%s, %.0f%% visible, %s)",
+                      truth_parts[j].instance_id, truth_parts[j].class_name.c_str(),
+                      100 * truth_parts[j].visible_fraction, detected ? "detected" : "not detected");
+        line += hit_part;
+      }
+      report.collisions.push_back(std::move(line));
     }
     p.NotifyHandedOut(*used, grasp);
     ++report.picks;
