@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <sstream>
+#include <tuple>
 #include <utility>
 
 #include "collision/mesh_collider.h"
@@ -393,6 +395,29 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     rest.reserve(perception.roi_points_B.size());
     for (size_t i = 0; i < explained.size(); ++i) {
       if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
+    }
+    if (m.options.occluded_columns && !rest.empty()) {
+      // One point per voxel (in the bin frame W, z up from the floor) under
+      // each unexplained point, down to the floor; the surface points stay.
+      const float res = static_cast<float>(m.options.octree_resolution);
+      const Eigen::Affine3f X_WB = cell.bin.X_BW.inverse().cast<float>();
+      const Eigen::Affine3f X_BW = cell.bin.X_BW.cast<float>();
+      auto cell_of = [res](float v) { return static_cast<int64_t>(std::floor(v / res)); };
+      std::vector<std::tuple<int64_t, int64_t, int64_t>> tops;
+      tops.reserve(rest.size());
+      for (const Eigen::Vector3f& p : rest) {
+        const Eigen::Vector3f w = X_WB * p;
+        tops.emplace_back(cell_of(w.x()), cell_of(w.y()), cell_of(w.z()));
+      }
+      // Per (x, y) column the highest voxel; everything below it is filled.
+      std::sort(tops.begin(), tops.end(), std::greater<>());
+      for (size_t k = 0; k < tops.size();) {
+        const auto [cx, cy, top] = tops[k];
+        while (k < tops.size() && std::get<0>(tops[k]) == cx && std::get<1>(tops[k]) == cy) ++k;
+        for (int64_t cz = top - 1; cz >= 0; --cz) {
+          rest.push_back(X_BW * Eigen::Vector3f((cx + 0.5f) * res, (cy + 0.5f) * res, (cz + 0.5f) * res));
+        }
+      }
     }
     auto points = PointObstacle::FromPoints(rest, m.options.octree_resolution);
     if (points.ok()) obstacles.points = *points;

@@ -58,6 +58,11 @@ struct GraspPlanningOptions {
   double approach_step = 0.005;     // m between swept copies of the gripper
   double contact_margin = 0.005;    // m the gripper is lifted for self / point checks
   double octree_resolution = 0.004; // m, voxel edge of the scene-point OcTree
+  // The space below each scene point no detection explains, down to the bin
+  // floor, is an obstacle too (voxels of octree_resolution): the camera sees
+  // the top edge of an undetected plate standing on end, not the plate below
+  // it, and a tilted tool passing beside that edge hits the hidden part.
+  bool occluded_columns = true;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg) (name + "~v").

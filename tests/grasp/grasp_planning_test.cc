@@ -198,6 +198,38 @@ TEST(GraspFilter, RejectsGraspsThroughUnexplainedScenePointsButIgnoresThePartsOw
   EXPECT_EQ(blocked.outcome, PlanResult::Outcome::kNoCollisionFree);
 }
 
+// A plate standing on end next to the part shows the camera only its top
+// edge. A tool tilted toward it passes under that edge, through the plate's
+// hidden body: only the space below the unexplained points (the occluded
+// columns) blocks it.
+TEST(GraspFilter, TheSpaceUnderAnUnexplainedEdgeBlocksATiltedToolThatPassesBelowIt) {
+  // Bushing tilted 40 deg about y: its hub-top grasps (24 turns about its
+  // axis, all on one approach line) lean the tool toward +x; the rod's axis
+  // crosses x = 72 mm at about 86 mm high.
+  PerceptionResult scene = Scene({Bushing(0, 0, 0, 40)});
+  // The edge: a 5 x 30 mm strip at 150 mm, over the rod's path at x = 70..75 mm.
+  for (int i = 0; i <= 5; ++i) {
+    for (int j = 0; j <= 30; ++j) {
+      const Vec3 p_W(0.070 + 0.001 * i, -0.015 + 0.001 * j, 0.150);
+      scene.roi_points_B.push_back((DefaultCell().bin.X_BW * p_W).cast<float>());
+    }
+  }
+  auto hub_top = [](const GraspPlan& plan, std::optional<RejectReason> verdict) {
+    int n = 0;
+    for (const GraspCandidate& c : plan.candidates) {
+      n += c.detection == 0 && c.name.rfind("hub_top@", 0) == 0 && c.name.find("~v") == std::string::npos &&
+           c.rejected == verdict;
+    }
+    return n;
+  };
+  GraspPlanningOptions surface_only;
+  surface_only.occluded_columns = false;
+  auto flat = GraspPlanningModel::Build(DefaultCell(), surface_only);
+  ASSERT_TRUE(flat.ok()) << flat.status().ToString();
+  EXPECT_EQ(hub_top(PlanGrasps(**flat, PickTask(), scene), std::nullopt), 24);
+  EXPECT_EQ(hub_top(PlanGrasps(Model(), PickTask(), scene), RejectReason::kPoints), 24);
+}
+
 TEST(GraspPlan, NoDetectionsIsNoObjectsAndBlockedPartsAreNoCollisionFree) {
   EXPECT_EQ(PlanGrasps(Model(), PickTask(), Scene({})).outcome, PlanResult::Outcome::kNoObjects);
   // A part of a class the task does not pick counts as no object.
