@@ -102,6 +102,17 @@ class PerceptionTest : public ::testing::Test {
     if (!Fixture::Get().renderer) GTEST_SKIP() << "no OSMesa renderer";
   }
   Fixture& fx() { return Fixture::Get(); }
+  // Renders one L-bracket at X_WO; a thorough run finds it, and only it,
+  // within 2 mm / 2 deg.
+  void ExpectThoroughRunFindsTheBracket(const Pose& X_WO) {
+    const Frame frame = fx().Render({{1, X_WO}});
+    const PerceptionResult r = fx().Run(frame, {}, PerceptionEffort::kThorough);
+    ASSERT_EQ(r.detections.size(), 1u) << r.reason;
+    EXPECT_EQ(r.detections[0].class_id, 1);
+    const Pose X_BO = fx().cell.bin.X_BW * X_WO;
+    EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
+    EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+  }
 };
 
 int32_t NearestPoint(const PerceptionResult& r, const Vec3& p_B) {
@@ -310,15 +321,8 @@ TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketStandingOnItsUpright) {
   for (const double yaw : {0.0, 35.0, 110.0}) {
     SCOPED_TRACE("yaw " + std::to_string(yaw));
     // Part +x up: the upright's outer face (x = 0) rests on the floor.
-    const Pose X_WO = PoseW(0.02, -0.03, 0.0, yaw) *
-                      MakePose(Mat3(Eigen::AngleAxisd(-90 * kDeg, Vec3::UnitY())), Vec3::Zero());
-    const Frame frame = fx().Render({{1, X_WO}});
-    const PerceptionResult r = fx().Run(frame, {}, PerceptionEffort::kThorough);
-    ASSERT_EQ(r.detections.size(), 1u) << r.reason;
-    EXPECT_EQ(r.detections[0].class_id, 1);
-    const Pose X_BO = fx().cell.bin.X_BW * X_WO;
-    EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
-    EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+    ExpectThoroughRunFindsTheBracket(PoseW(0.02, -0.03, 0.0, yaw) *
+                                     MakePose(Mat3(Eigen::AngleAxisd(-90 * kDeg, Vec3::UnitY())), Vec3::Zero()));
   }
 }
 
@@ -330,15 +334,8 @@ TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketLyingOnItsSide) {
     for (const double roll : {-90.0, 90.0}) {
       SCOPED_TRACE("yaw " + std::to_string(yaw) + ", roll " + std::to_string(roll));
       // Roll +90: part y up, its y = -25 mm face on the floor; -90: y down.
-      const Pose X_WO = PoseW(-0.03, 0.02, 0.025, yaw) *
-                        MakePose(Mat3(Eigen::AngleAxisd(roll * kDeg, Vec3::UnitX())), Vec3::Zero());
-      const Frame frame = fx().Render({{1, X_WO}});
-      const PerceptionResult r = fx().Run(frame, {}, PerceptionEffort::kThorough);
-      ASSERT_EQ(r.detections.size(), 1u) << r.reason;
-      EXPECT_EQ(r.detections[0].class_id, 1);
-      const Pose X_BO = fx().cell.bin.X_BW * X_WO;
-      EXPECT_LT((r.detections[0].X_BO.translation() - X_BO.translation()).norm(), 0.002);
-      EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 2 * kDeg);
+      ExpectThoroughRunFindsTheBracket(PoseW(-0.03, 0.02, 0.025, yaw) *
+                                       MakePose(Mat3(Eigen::AngleAxisd(roll * kDeg, Vec3::UnitX())), Vec3::Zero()));
     }
   }
 }
