@@ -59,15 +59,19 @@ std::pair<Eigen::Vector3f, Eigen::Vector3f> PlaneBasis(const Eigen::Vector3f& d)
   return {u, d.cross(u)};
 }
 
+struct RestingPose {
+  Eigen::Vector3f down;  // unit, in O, pointing into the floor
+  float depth = 0;       // largest down . p over the samples: the contact height
+};
+
 // The orientations in which the part rests on a flat floor. Candidates are
 // the mesh's face normals (merged within 1 deg); one is a resting direction d
 // (pointing into the floor) when the samples within `tol` of the lowest in
 // that direction span an area whose convex hull holds the projection of the
 // centroid (so the part neither tips nor rolls). Directions within 3 deg are
 // one, and so are directions a symmetry of the part maps onto each other.
-std::vector<Eigen::Vector3f> RestingDirections(const TriangleMesh& mesh, std::span<const Eigen::Vector3f> pts,
-                                               const Eigen::Vector3f& centroid, const Symmetry& symmetry,
-                                               float tol) {
+std::vector<RestingPose> RestingPoses(const TriangleMesh& mesh, std::span<const Eigen::Vector3f> pts,
+                                      const Eigen::Vector3f& centroid, const Symmetry& symmetry, float tol) {
   std::vector<Eigen::Vector3f> candidates;
   const float cos1 = static_cast<float>(std::cos(1 * kDeg));
   for (const Eigen::Vector3i& t : mesh.triangles) {
@@ -95,9 +99,9 @@ std::vector<Eigen::Vector3f> RestingDirections(const TriangleMesh& mesh, std::sp
         return false;
     }
   };
-  std::vector<Eigen::Vector3f> rests;
+  std::vector<RestingPose> rests;
   for (const Eigen::Vector3f& d : candidates) {
-    if (std::any_of(rests.begin(), rests.end(), [&](const Eigen::Vector3f& r) { return same_rest(r, d); })) continue;
+    if (std::any_of(rests.begin(), rests.end(), [&](const RestingPose& r) { return same_rest(r.down, d); })) continue;
     float depth = -std::numeric_limits<float>::infinity();
     for (const auto& p : pts) depth = std::max(depth, d.dot(p));
     const auto [u, v] = PlaneBasis(d);
@@ -114,7 +118,7 @@ std::vector<Eigen::Vector3f> RestingDirections(const TriangleMesh& mesh, std::sp
       const Eigen::Vector2f& b = hull[(i + 1) % hull.size()];
       inside = (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x() >= 0;
     }
-    if (inside) rests.push_back(d);
+    if (inside) rests.push_back({d, depth});
   }
   return rests;
 }
@@ -239,10 +243,7 @@ struct PoseEstimator::Impl {
   OrientedPoints verify;           // verification samples
   OrientedPoints ppf_points;
   internal::PpfModel ppf;
-  // Resting orientations: unit directions in O pointing into the floor, and
-  // for each the largest d . p over the dense samples (the contact height).
-  std::vector<Eigen::Vector3f> rest_down;
-  std::vector<float> rest_depth;
+  std::vector<RestingPose> rests;  // over the dense samples
 
   // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
   // towards the parts) in each resting orientation, centred on the segment.
@@ -299,9 +300,9 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
   Eigen::Vector2f seg_mean;
   const float seg_angle = principal_angle(seg, seg_mean);
   const Eigen::Vector3f seg_in_plane = u * seg_mean.x() + v * seg_mean.y();
-  for (size_t r = 0; r < rest_down.size(); ++r) {
+  for (const RestingPose& rest : rests) {
     // R0 turns the resting direction onto -n.
-    const Eigen::Matrix3f R0 = Eigen::Quaternionf::FromTwoVectors(rest_down[r], -n).toRotationMatrix();
+    const Eigen::Matrix3f R0 = Eigen::Quaternionf::FromTwoVectors(rest.down, -n).toRotationMatrix();
     std::vector<Eigen::Vector2f> top;
     top.reserve(ppf_points.size());
     for (const auto& p : ppf_points.points) {
@@ -312,7 +313,7 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
     const float model_angle = principal_angle(top, model_mean);
     std::vector<float> yaws = {seg_angle - model_angle, seg_angle - model_angle + static_cast<float>(M_PI)};
     const bool spins_freely = symmetry.kind == Symmetry::Kind::kRevolute &&
-                              std::abs(rest_down[r].dot(symmetry.axis.cast<float>().normalized())) > 0.999f;
+                              std::abs(rest.down.dot(symmetry.axis.cast<float>().normalized())) > 0.999f;
     if (!spins_freely) {
       for (int k = 0; k < 36; ++k) yaws.push_back(static_cast<float>(k * 10 * kDeg));
     } else {
@@ -322,8 +323,8 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
       const Eigen::Matrix3f R = Eigen::AngleAxisf(yaw, n).toRotationMatrix() * R0;
       const Eigen::Vector3f c = R * centroid_O;
       // In the plane: centroid over the segment's centre. Along n: the
-      // lowest samples (n . R p = -rest_depth) on the plane.
-      const Eigen::Vector3f t = seg_in_plane - (c - n * n.dot(c)) + n * (rest_depth[r] - d);
+      // lowest samples (n . R p = -rest.depth) on the plane.
+      const Eigen::Vector3f t = seg_in_plane - (c - n * n.dot(c)) + n * (rest.depth - d);
       internal::CoarsePose cp;
       cp.X_BO = Pose::Identity();
       cp.X_BO.linear() = R.cast<double>();
@@ -357,13 +358,8 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
   for (const auto& p : impl->dense.points) impl->centroid_O += p;
   impl->centroid_O /= static_cast<float>(impl->dense.size());
 
-  impl->rest_down = RestingDirections(mesh, impl->dense.points, impl->centroid_O, symmetry,
-                                      static_cast<float>(2 * options.icp_model_spacing));
-  for (const Eigen::Vector3f& d : impl->rest_down) {
-    float depth = -std::numeric_limits<float>::infinity();
-    for (const auto& p : impl->dense.points) depth = std::max(depth, d.dot(p));
-    impl->rest_depth.push_back(depth);
-  }
+  impl->rests = RestingPoses(mesh, impl->dense.points, impl->centroid_O, symmetry,
+                                  static_cast<float>(2 * options.icp_model_spacing));
   impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
   impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
   const float band = std::max(static_cast<float>(options.icp_initial_relative_distance) * impl->step,
