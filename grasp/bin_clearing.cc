@@ -73,8 +73,9 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     // fallback with a grasp on this frame. `last` stays the primary task's
     // plan: the final empty-box answer is the primary task's.
     const TaskSpec* used = task;
-    PlanResult taken = last;
-    if (taken.grasps.empty() && report.cycles < max_cycles) {
+    const PlanResult* taken = &last;
+    PlanResult fallback_result;
+    if (last.grasps.empty() && report.cycles < max_cycles) {
       for (const TaskSpec* fb : fallbacks) {
         PlanRequest fb_request;
         fb_request.task = *fb;
@@ -84,15 +85,16 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
         if (!fb_detail.ok()) return fb_detail.status();
         if (!fb_detail->result.grasps.empty()) {
           used = fb;
-          taken = std::move(fb_detail->result);
+          fallback_result = std::move(fb_detail->result);
+          taken = &fallback_result;
           break;
         }
       }
     }
-    if (taken.grasps.empty() || report.cycles >= max_cycles) break;
+    if (taken->grasps.empty() || report.cycles >= max_cycles) break;
 
     // Judge the first grasp against the true scene.
-    const Grasp& grasp = taken.grasps.front();
+    const Grasp& grasp = taken->grasps.front();
     const int instance = p.TruthInstanceOf(used->id, grasp.instance_id);
     std::vector<Detection> truth;
     int target = -1;
@@ -110,8 +112,8 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
                          grasp.name + " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit));
       // How far the detection the grasp was planned on is from the truth.
       const size_t det = static_cast<size_t>(grasp.instance_id);
-      if (target >= 0 && det < taken.parts.size()) {
-        const Pose& est = taken.parts[det].X_BO;
+      if (target >= 0 && det < taken->parts.size()) {
+        const Pose& est = taken->parts[det].X_BO;
         const Pose& real = truth[static_cast<size_t>(target)].X_BO;
         char error[96];
         std::snprintf(error, sizeof(error), " (its detection is %.1f mm, %.1f deg from the truth)",
@@ -126,7 +128,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
         const Detection pair[] = {truth[j]};
         if (!p.model().CheckAgainstParts(used->gripper, grasp.X_BT, pair, -1)) continue;
         bool detected = false;
-        for (const DetectedPart& d : taken.parts) {
+        for (const DetectedPart& d : taken->parts) {
           detected |= (d.X_BO.translation() - truth[j].X_BO.translation()).norm() < 0.01;
         }
         char hit_part[160];
