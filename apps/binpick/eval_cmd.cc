@@ -2,6 +2,7 @@
 // frames with ground truth from a directory, runs the perception pipeline and
 // scores it (pipeline/evaluation.h). Progress on stderr, a table on stdout,
 // the same figures in JSON with --json.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -41,6 +42,7 @@ struct EvalCliOptions {
   int min_segment = -1;
   double convex = -2.0;
   bool regions = false;
+  bool thorough = false;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -155,11 +157,23 @@ int Run(const EvalCliOptions& opt) {
     }
     if (!frame.ok()) return Fail(cmd, frame.status());
     Result<PerceptionResult> result = Status::Internal("not run");
-    arena.execute([&] { result = (*perception)->Run(*frame); });
+    const PerceptionEffort effort = opt.thorough ? PerceptionEffort::kThorough : PerceptionEffort::kNormal;
+    arena.execute([&] { result = (*perception)->Run(*frame, {}, effort); });
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
     if (spdlog::should_log(spdlog::level::debug)) {
+      std::vector<int> matched;
+      for (const DetectionOutcome& d : evaluations.back().detections) matched.push_back(d.truth_instance);
+      for (const PartTruth& p : frame->truth->parts) {
+        if (p.visible_fraction < EvalOptions{}.min_visible_fraction) continue;
+        if (std::find(matched.begin(), matched.end(), p.instance_id) != matched.end()) continue;
+        const Eigen::Vector3d z = p.X_BO.rotation().col(2);
+        spdlog::debug("frame {} missed inst {} class {} vis {:.2f} at ({:.0f}, {:.0f}, {:.0f}) mm, z axis ({:.2f}, {:.2f}, "
+                      "{:.2f})",
+                      i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
+                      p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
+      }
       for (const Detection& d : result->detections) {
         double best = 1e9;
         const PartTruth* near = nullptr;
@@ -219,6 +233,8 @@ Command EvalCommand() {
                    sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
                    sub.add_option("--convex", opt->convex, "convex-crease tolerance, < 0 off (tuning)");
                    sub.add_flag("--match-regions", opt->regions, "also match multi-segment regions (tuning)");
+                   sub.add_flag("--thorough", opt->thorough,
+                                "run the thorough search (the planner's retry) on every frame (tuning)");
                    return [opt] { return Run(*opt); };
                  }};
 }
