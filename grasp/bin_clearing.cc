@@ -146,9 +146,17 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   report.parts_left = static_cast<int>(truth_parts.size());
   for (const PartTruth& t : truth_parts) {
     const Vec3 z = t.X_BO.linear().col(2);
-    char line[200];
-    std::snprintf(line, sizeof(line), "instance %d (%s): part z axis (%.2f, %.2f, %.2f), %.0f%% visible",
-                  t.instance_id, t.class_name.c_str(), z.x(), z.y(), z.z(), 100.0 * t.visible_fraction);
+    // The part axis nearest the base frame's up direction: how the part rests.
+    const Vec3 up_O = t.X_BO.linear().transpose() * Vec3::UnitZ();
+    Eigen::Index axis = 0;
+    up_O.cwiseAbs().maxCoeff(&axis);
+    const Vec3 at = 1000.0 * t.X_BO.translation();
+    char line[240];
+    std::snprintf(line, sizeof(line),
+                  "instance %d (%s) at (%.0f, %.0f, %.0f) mm: part z axis (%.2f, %.2f, %.2f), up is part %c%c, "
+                  "%.0f%% visible",
+                  t.instance_id, t.class_name.c_str(), at.x(), at.y(), at.z(), z.x(), z.y(), z.z(),
+                  up_O[axis] < 0 ? '-' : '+', static_cast<char>('x' + axis), 100.0 * t.visible_fraction);
     report.left.push_back(line);
   }
   report.final_roi_points = last.roi_points;
