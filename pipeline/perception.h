@@ -96,12 +96,12 @@ struct PerceptionOptions {
   // retries with it when a normal run leaves nothing to pick in a bin that is
   // not empty (docs/perception.md, "Thorough retry").
   PoseSearch thorough_search{.max_reference_points = 20, .max_coarse_poses = 24, .peaks_per_reference = 2,
-                             .peaks_examined = 30, .resting_seeds = true};
+                             .peaks_examined = 30, .resting_seeds = true, .keep_better_than_fine = true};
 };
 
 enum class PerceptionEffort {
   kNormal,
-  kThorough,  // see PerceptionOptions::thorough_coarse_poses; slower
+  kThorough,  // see PerceptionOptions::thorough_search; slower
 };
 
 class Perception {

@@ -72,16 +72,26 @@ struct RestingPose {
 // one, and so are directions a symmetry of the part maps onto each other.
 std::vector<RestingPose> RestingPoses(const TriangleMesh& mesh, std::span<const Eigen::Vector3f> pts,
                                       const Eigen::Vector3f& centroid, const Symmetry& symmetry, float tol) {
-  std::vector<Eigen::Vector3f> candidates;
+  // Face normals merged within 1 deg, with their total area, largest first:
+  // where directions within 3 deg are one below, the broad face's own normal
+  // stands for them, not a facet of a hole wall 2.9 deg off it (which tilted
+  // an L-bracket lying on its side by 3 deg).
+  std::vector<std::pair<float, Eigen::Vector3f>> by_area;
   const float cos1 = static_cast<float>(std::cos(1 * kDeg));
   for (const Eigen::Vector3i& t : mesh.triangles) {
     const Eigen::Vector3f c = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
     if (!(c.norm() > 1e-12f)) continue;
     const Eigen::Vector3f n = c.normalized();
-    if (std::none_of(candidates.begin(), candidates.end(), [&](const Eigen::Vector3f& d) { return d.dot(n) > cos1; })) {
-      candidates.push_back(n);
+    auto same = std::find_if(by_area.begin(), by_area.end(), [&](const auto& e) { return e.second.dot(n) > cos1; });
+    if (same == by_area.end()) {
+      by_area.emplace_back(0.5f * c.norm(), n);
+    } else {
+      same->first += 0.5f * c.norm();
     }
   }
+  std::stable_sort(by_area.begin(), by_area.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<Eigen::Vector3f> candidates;
+  for (const auto& [area, n] : by_area) candidates.push_back(n);
   const Eigen::Vector3f axis = symmetry.axis.cast<float>().normalized();
   auto same_rest = [&](const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
     const float cos3 = static_cast<float>(std::cos(3 * kDeg));
@@ -123,6 +133,12 @@ std::vector<RestingPose> RestingPoses(const TriangleMesh& mesh, std::span<const 
   return rests;
 }
 constexpr int kMinScenePoints = 30;
+// Resting-pose seeds: height band of the top that centres them (metres);
+// upward faces are within kTiltedFaceDeg of the floor's normal; a segment whose
+// upward faces tilt more than kMinSeedTiltDeg also gets tilted seeds.
+constexpr float kRestTopBand = 0.003f;
+constexpr double kTiltedFaceDeg = 20.0;
+constexpr double kMinSeedTiltDeg = 2.0;
 constexpr int kMinSampledPoints = 8;
 
 // Without a depth image: the segment's points splatted into an angular grid
@@ -247,7 +263,10 @@ struct PoseEstimator::Impl {
 
   // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
   // towards the parts) in each resting orientation, centred on the segment.
-  void AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector4d& plane,
+  // sub_p / sub_n: the subsampled scene points and their normals (towards
+  // the camera), for the tilt of the segment's upward faces.
+  void AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, std::span<const Eigen::Vector3f> sub_p,
+                          std::span<const Eigen::Vector3f> sub_n, const Eigen::Vector4d& plane,
                           std::vector<internal::CoarsePose>& coarse) const;
 
   // Visible-surface test, support and free-space test for one pose.
@@ -275,7 +294,9 @@ int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->pp
 const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { return impl_->verify.points; }
 const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
 
-void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector4d& plane,
+void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> scene,
+                                              std::span<const Eigen::Vector3f> sub_p,
+                                              std::span<const Eigen::Vector3f> sub_n, const Eigen::Vector4d& plane,
                                               std::vector<internal::CoarsePose>& coarse) const {
   const Eigen::Vector3f n = plane.head<3>().cast<float>();
   const float d = static_cast<float>(plane[3]);
@@ -293,13 +314,67 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
     return std::atan2(e.y(), e.x());
   };
   std::vector<Eigen::Vector2f> seg;
+  std::vector<float> heights;
   for (const auto& p : scene) {
-    if (n.dot(p) + d > 0.5f * step) seg.emplace_back(u.dot(p), v.dot(p));
+    const float h = n.dot(p) + d;
+    if (h > 0.5f * step) {
+      seg.emplace_back(u.dot(p), v.dot(p));
+      heights.push_back(h);
+    }
   }
   if (seg.size() < 3) return;
   Eigen::Vector2f seg_mean;
   const float seg_angle = principal_angle(seg, seg_mean);
-  const Eigen::Vector3f seg_in_plane = u * seg_mean.x() + v * seg_mean.y();
+  // The seeds are centred on the segment's top: its points within
+  // kRestTopBand of its top height (the 97th percentile, past outliers) are
+  // laid over the part's samples within kRestTopBand of its top. The top is
+  // what the camera sees whole; the segment's centre moves with the side
+  // faces an off-centre camera also sees (measured on 36 L-brackets lying on
+  // their side or standing, up to 17 cm off the optical axis: 6 not found
+  // with this centring, 7 with the segment's centre).
+  std::vector<float> sorted = heights;
+  const size_t q = std::min(sorted.size() - 1, static_cast<size_t>(0.97 * static_cast<double>(sorted.size())));
+  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(q), sorted.end());
+  const float seg_top = sorted[q];
+  Eigen::Vector2f top_mean = Eigen::Vector2f::Zero();
+  int top_count = 0;
+  for (size_t i = 0; i < seg.size(); ++i) {
+    if (heights[i] >= seg_top - kRestTopBand && heights[i] <= seg_top + kRestTopBand) {
+      top_mean += seg[i];
+      ++top_count;
+    }
+  }
+  top_mean /= static_cast<float>(std::max(1, top_count));
+  const Eigen::Vector3f top_in_plane = u * top_mean.x() + v * top_mean.y();
+  // A part leaning on a neighbour or a wall rests a few degrees off the floor
+  // (measured in cleared piles: L-brackets on their side tilted 3-9 deg,
+  // which ICP from a flat seed did not recover on 5 mm edges). The mean
+  // normal of the segment's upward faces (within kTiltedFaceDeg of the floor
+  // normal) gives the tilt; above kMinSeedTiltDeg, every seed gets a tilted
+  // copy whose upward faces' centroid sits on the segment's.
+  Eigen::Vector3f up_normal = Eigen::Vector3f::Zero();
+  const float cos_face = static_cast<float>(std::cos(kTiltedFaceDeg * kDeg));
+  for (const auto& nn : sub_n) {
+    if (nn.dot(n) > cos_face) up_normal += nn;
+  }
+  std::optional<Eigen::Matrix3f> R_tilt;
+  Eigen::Vector3f up_centroid = Eigen::Vector3f::Zero();
+  if (up_normal.norm() > 0) {
+    up_normal.normalize();
+    if (up_normal.dot(n) < static_cast<float>(std::cos(kMinSeedTiltDeg * kDeg))) {
+      int count = 0;
+      for (size_t i = 0; i < sub_p.size(); ++i) {
+        if (sub_n[i].dot(up_normal) > cos_face) {
+          up_centroid += sub_p[i];
+          ++count;
+        }
+      }
+      if (count >= 3) {
+        up_centroid /= static_cast<float>(count);
+        R_tilt = Eigen::Quaternionf::FromTwoVectors(n, up_normal).toRotationMatrix();
+      }
+    }
+  }
   for (const RestingPose& rest : rests) {
     // R0 turns the resting direction onto -n.
     const Eigen::Matrix3f R0 = Eigen::Quaternionf::FromTwoVectors(rest.down, -n).toRotationMatrix();
@@ -319,17 +394,50 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
     } else {
       yaws.resize(1);
     }
+    // The part's top in this orientation: samples within kRestTopBand of the
+    // highest (heights along -down; the contact is at down . p = depth).
+    Eigen::Vector3f model_top = Eigen::Vector3f::Zero();
+    {
+      float lowest = std::numeric_limits<float>::infinity();
+      for (const auto& p : ppf_points.points) lowest = std::min(lowest, rest.down.dot(p));
+      int count = 0;
+      for (const auto& p : ppf_points.points) {
+        if (rest.down.dot(p) <= lowest + kRestTopBand) {
+          model_top += p;
+          ++count;
+        }
+      }
+      model_top /= static_cast<float>(std::max(1, count));
+    }
+    // Its upward faces' centroid, for the tilted copies.
+    Eigen::Vector3f model_up = Eigen::Vector3f::Zero();
+    {
+      int count = 0;
+      for (size_t i = 0; i < ppf_points.size(); ++i) {
+        if (-ppf_points.normals[i].dot(rest.down) > cos_face) {
+          model_up += ppf_points.points[i];
+          ++count;
+        }
+      }
+      model_up /= static_cast<float>(std::max(1, count));
+    }
     for (const float yaw : yaws) {
       const Eigen::Matrix3f R = Eigen::AngleAxisf(yaw, n).toRotationMatrix() * R0;
-      const Eigen::Vector3f c = R * centroid_O;
-      // In the plane: centroid over the segment's centre. Along n: the
+      const Eigen::Vector3f c = R * model_top;
+      // In the plane: the part's top over the segment's. Along n: the
       // lowest samples (n . R p = -rest.depth) on the plane.
-      const Eigen::Vector3f t = seg_in_plane - (c - n * n.dot(c)) + n * (rest.depth - d);
+      const Eigen::Vector3f t = top_in_plane - (c - n * n.dot(c)) + n * (rest.depth - d);
       internal::CoarsePose cp;
       cp.X_BO = Pose::Identity();
       cp.X_BO.linear() = R.cast<double>();
       cp.X_BO.translation() = t.cast<double>();
       coarse.push_back(cp);
+      if (R_tilt) {
+        const Eigen::Matrix3f Rt = *R_tilt * R;
+        cp.X_BO.linear() = Rt.cast<double>();
+        cp.X_BO.translation() = (up_centroid - Rt * model_up).cast<double>();
+        coarse.push_back(cp);
+      }
     }
   }
 }
@@ -703,7 +811,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     std::erase_if(coarse, [&](const internal::CoarsePose& cp) { return !above_support(cp.X_BO); });
   }
   if (static_cast<int>(coarse.size()) > search.max_coarse_poses) coarse.resize(search.max_coarse_poses);
-  if (search.resting_seeds && view.support_plane_B) m.AppendRestingSeeds(pts, *view.support_plane_B, coarse);
+  if (search.resting_seeds && view.support_plane_B) m.AppendRestingSeeds(pts, sub_p, sub_n, *view.support_plane_B, coarse);
   const auto t2 = Clock::now();
   out.timings.coarse_ms = Ms(t1, t2);
   if (coarse.empty()) {
@@ -811,9 +919,18 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
                      opt.icp_iterations);
     });
     if (!icp.ok || !icp.X_BO.matrix().allFinite()) continue;
+    const Candidate before = c;
     c.X_BO = icp.X_BO;
     c.icp = icp;
     timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth); });
+    if (search.keep_better_than_fine && c.stats.score < 0.9) {
+      VerifyStats st;
+      timed(verify_ms, [&] { st = m.Verify(before.X_BO, view, support_hash, segment_depth); });
+      if (st.score > c.stats.score) {
+        c = before;
+        c.stats = st;
+      }
+    }
     if (!passes(c.stats, min_score)) {
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
