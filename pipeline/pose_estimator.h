@@ -122,7 +122,8 @@ struct PoseSearch {
   // With a support plane: also try the part lying on the plane in each of
   // its resting orientations (faces on its convex hull that hold its centre
   // above them), at 10 deg steps of yaw plus the two yaws that align its
-  // top-view principal axis with the segment's, centred on the segment. These
+  // top-view principal axis with the segment's, its top over the segment's
+  // top, plus tilted copies when the segment's upward faces tilt. These
   // seeds go to ICP and verification with the coarse poses. For the last
   // parts of a bin, which lie on the floor in views PPF voting cannot
   // resolve: an L-bracket on its side shows only its 5 mm edges.
