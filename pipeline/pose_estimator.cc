@@ -62,6 +62,10 @@ std::pair<Eigen::Vector3f, Eigen::Vector3f> PlaneBasis(const Eigen::Vector3f& d)
 struct RestingPose {
   Eigen::Vector3f down;  // unit, in O, pointing into the floor
   float depth = 0;       // largest down . p over the samples: the contact height
+  // Seed anchors (AppendRestingSeeds), over the PPF samples: the centroid of
+  // the samples within kRestTopBand of the top, and of the upward faces.
+  Eigen::Vector3f top_O = Eigen::Vector3f::Zero();
+  Eigen::Vector3f up_O = Eigen::Vector3f::Zero();
 };
 
 // The orientations in which the part rests on a flat floor. Candidates are
@@ -394,36 +398,9 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
     } else {
       yaws.resize(1);
     }
-    // The part's top in this orientation: samples within kRestTopBand of the
-    // highest (heights along -down; the contact is at down . p = depth).
-    Eigen::Vector3f model_top = Eigen::Vector3f::Zero();
-    {
-      float lowest = std::numeric_limits<float>::infinity();
-      for (const auto& p : ppf_points.points) lowest = std::min(lowest, rest.down.dot(p));
-      int count = 0;
-      for (const auto& p : ppf_points.points) {
-        if (rest.down.dot(p) <= lowest + kRestTopBand) {
-          model_top += p;
-          ++count;
-        }
-      }
-      model_top /= static_cast<float>(std::max(1, count));
-    }
-    // Its upward faces' centroid, for the tilted copies.
-    Eigen::Vector3f model_up = Eigen::Vector3f::Zero();
-    {
-      int count = 0;
-      for (size_t i = 0; i < ppf_points.size(); ++i) {
-        if (-ppf_points.normals[i].dot(rest.down) > cos_face) {
-          model_up += ppf_points.points[i];
-          ++count;
-        }
-      }
-      model_up /= static_cast<float>(std::max(1, count));
-    }
     for (const float yaw : yaws) {
       const Eigen::Matrix3f R = Eigen::AngleAxisf(yaw, n).toRotationMatrix() * R0;
-      const Eigen::Vector3f c = R * model_top;
+      const Eigen::Vector3f c = R * rest.top_O;
       // In the plane: the part's top over the segment's. Along n: the
       // lowest samples (n . R p = -rest.depth) on the plane.
       const Eigen::Vector3f t = top_in_plane - (c - n * n.dot(c)) + n * (rest.depth - d);
@@ -435,7 +412,7 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
       if (R_tilt) {
         const Eigen::Matrix3f Rt = *R_tilt * R;
         cp.X_BO.linear() = Rt.cast<double>();
-        cp.X_BO.translation() = (up_centroid - Rt * model_up).cast<double>();
+        cp.X_BO.translation() = (up_centroid - Rt * rest.up_O).cast<double>();
         coarse.push_back(cp);
       }
     }
@@ -470,6 +447,27 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
                                   static_cast<float>(2 * options.icp_model_spacing));
   impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
   impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
+  const float cos_face = static_cast<float>(std::cos(kTiltedFaceDeg * kDeg));
+  for (RestingPose& rest : impl->rests) {
+    // Top: samples within kRestTopBand of the highest (heights along -down).
+    // Upward faces: normals within kTiltedFaceDeg of -down.
+    const OrientedPoints& s = impl->ppf_points;
+    float highest = std::numeric_limits<float>::infinity();
+    for (const auto& p : s.points) highest = std::min(highest, rest.down.dot(p));
+    int top = 0, up = 0;
+    for (size_t i = 0; i < s.size(); ++i) {
+      if (rest.down.dot(s.points[i]) <= highest + kRestTopBand) {
+        rest.top_O += s.points[i];
+        ++top;
+      }
+      if (-s.normals[i].dot(rest.down) > cos_face) {
+        rest.up_O += s.points[i];
+        ++up;
+      }
+    }
+    rest.top_O /= static_cast<float>(std::max(1, top));
+    rest.up_O /= static_cast<float>(std::max(1, up));
+  }
   const float band = std::max(static_cast<float>(options.icp_initial_relative_distance) * impl->step,
                               static_cast<float>(2 * options.icp_final_distance));
   impl->field.Build(impl->dense.points, std::max(0.001f, static_cast<float>(options.icp_model_spacing)), band);
