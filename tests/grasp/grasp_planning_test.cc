@@ -137,6 +137,39 @@ TEST(GraspFilter, RejectsAGraspWhoseApproachHitsTheWallAndAcceptsItAwayFromTheWa
   EXPECT_EQ(Count(Verdicts(near, 0, "hub_top@"), std::nullopt), 0);
 }
 
+// The default cell's L-bracket lying on its side (+y up) near the +x wall,
+// its base turned 40 deg toward the wall. The parallel jaw closes across a
+// plate, so its 90 mm palm spans the plate's normal: at the middle of either
+// plate it meets the wall, at the end of the base nearer the corner and low
+// on the upright it does not. Task 4 pinches each plate at more than one place.
+TEST(GraspFilter, PinchesAPlateWhereItIsClearOfTheWallWhenItsMiddleIsNot) {
+  const TaskSpec task = *DefaultCell().FindTask(4);
+  Detection d;
+  d.class_id = 1;
+  d.X_BO = DefaultCell().bin.X_BW * MakePose(Mat3(Eigen::AngleAxisd(40 * M_PI / 180, Vec3::UnitZ()) *
+                                                  Eigen::AngleAxisd(M_PI / 2, Vec3::UnitX())),
+                                             Vec3(0.18, 0.0, 0.025));
+  d.score = 0.9;
+  const GraspPlan plan = PlanGrasps(Model(), task, Scene({d}));
+  const auto verdict = [&](const std::string& name) -> std::optional<RejectReason> {
+    for (const GraspCandidate& c : plan.candidates) {
+      if (c.name == name) return c.rejected;
+    }
+    ADD_FAILURE() << "no candidate " << name;
+    return RejectReason::kTilt;
+  };
+  EXPECT_EQ(verdict("base_pinch_y_up"), RejectReason::kBin);
+  EXPECT_EQ(verdict("base_pinch_y_up_far"), RejectReason::kBin);
+  EXPECT_EQ(verdict("upright_pinch_y_up"), RejectReason::kBin);
+  EXPECT_EQ(verdict("base_pinch_y_up_near"), std::nullopt);
+  EXPECT_EQ(verdict("upright_pinch_y_up_low"), std::nullopt);
+  // Approaching from below the part is no grasp.
+  EXPECT_EQ(verdict("base_pinch_y_down_near"), RejectReason::kTilt);
+  ASSERT_EQ(plan.queue.size(), 1u);
+  EXPECT_TRUE(plan.queue[0].name == "base_pinch_y_up_near" || plan.queue[0].name == "upright_pinch_y_up_low")
+      << plan.queue[0].name;
+}
+
 TEST(GraspFilter, RejectsApproachesTiltedPastTheTasksLimit) {
   GraspPlanningOptions options;
   options.suction_compliance_deg = 0;
