@@ -189,11 +189,41 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     const int n_regions =
         internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
                               static_cast<float>(options_.segment_convex_tolerance));
-    // Keep segments with enough samples, renumbered by size (largest first).
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
     for (int32_t s : segment_of_cell) {
       if (s >= 0) ++size[static_cast<size_t>(s)];
     }
+    if (options_.match_fragmented_regions) {
+      // A connected region the normal condition cut into pieces all below
+      // min_segment_points, but big enough as a whole, becomes one segment
+      // (its first piece's label). Measured: an L-bracket lying on its side
+      // and tilted, alone in the bin, shows 544 points in 5 mm edge strips
+      // and side faces, none of them 150.
+      const int32_t n_cc =
+          region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
+      std::vector<int32_t> total(static_cast<size_t>(n_cc), 0), largest(static_cast<size_t>(n_cc), 0),
+          label(static_cast<size_t>(n_cc), -1);
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
+        if (sgm < 0 || r < 0) continue;
+        ++total[static_cast<size_t>(r)];
+        largest[static_cast<size_t>(r)] = std::max(largest[static_cast<size_t>(r)], size[static_cast<size_t>(sgm)]);
+        if (label[static_cast<size_t>(r)] < 0) label[static_cast<size_t>(r)] = sgm;
+      }
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        int32_t& sgm = segment_of_cell[c];
+        const int32_t r = region_of_cell[c];
+        if (sgm < 0 || r < 0) continue;
+        if (largest[static_cast<size_t>(r)] >= options_.min_segment_points ||
+            total[static_cast<size_t>(r)] < options_.min_segment_points) {
+          continue;
+        }
+        --size[static_cast<size_t>(sgm)];
+        sgm = label[static_cast<size_t>(r)];
+        ++size[static_cast<size_t>(sgm)];
+      }
+    }
+    // Keep segments with enough samples, renumbered by size (largest first).
     std::vector<int32_t> order(static_cast<size_t>(n_regions));
     std::iota(order.begin(), order.end(), 0);
     std::stable_sort(order.begin(), order.end(), [&](int32_t a, int32_t b) { return size[a] > size[b]; });

@@ -69,6 +69,10 @@ struct PerceptionOptions {
   // Also match each connected region (depth continuity only) that holds two
   // or more segments, as one more view (parts cut by the normal condition).
   bool match_regions = true;
+  // A connected region whose segments are all below min_segment_points but
+  // that holds at least that many grid points as a whole is matched as one
+  // segment (thin parts whose faces the normal condition cuts apart).
+  bool match_fragmented_regions = true;
   // The pose estimator sees each segment plus the other segments' points
   // within this fraction of the largest part diameter of its centroid (0 = the
   // segment alone).
