@@ -62,13 +62,16 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     if (!detail.ok()) return detail.status();
     ++report.cycles;
     last = detail->result;
-    if (spdlog::should_log(spdlog::level::debug)) {
-      for (const GraspCandidate& c : detail->plan.candidates) {
-        spdlog::debug("seed {} cycle {}: detection {} (truth {}) {} tilt {:.0f} deg: {}", seed, report.cycles,
-                      c.detection, p.TruthInstanceOf(task->id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
+    // Every candidate of a task's plan and why it was rejected (debug log).
+    const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
+      if (!spdlog::should_log(spdlog::level::debug)) return;
+      for (const GraspCandidate& c : plan.plan.candidates) {
+        spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}", seed, report.cycles,
+                      t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
                       c.rejected ? ToString(*c.rejected) : "ok");
       }
-    }
+    };
+    log_candidates(*task, *detail);
     // The task whose grasp is taken: the primary one, else the first
     // fallback with a grasp on this frame. `last` stays the primary task's
     // plan: the final empty-box answer is the primary task's.
@@ -83,6 +86,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
         auto fb_detail = p.PlanDetailed(fb_request, **scene);
         report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
         if (!fb_detail.ok()) return fb_detail.status();
+        log_candidates(*fb, *fb_detail);
         if (!fb_detail->result.grasps.empty()) {
           used = fb;
           fallback_result = std::move(fb_detail->result);

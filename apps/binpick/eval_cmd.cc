@@ -185,9 +185,10 @@ int Run(const EvalCliOptions& opt) {
           }
         }
         if (near != nullptr) {
-          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} -> nearest inst {} class {} vis {:.2f} "
-                        "at {:.1f} mm",
-                        i, d.class_id, d.score, d.visible_fraction, d.support.size(), near->instance_id,
+          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm -> nearest "
+                        "inst {} class {} vis {:.2f} at {:.1f} mm",
+                        i, d.class_id, d.score, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
+                        1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(), near->instance_id,
                         near->class_id, near->visible_fraction, best * 1000);
         }
       }
