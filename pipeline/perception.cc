@@ -38,7 +38,8 @@ constexpr double kPi = 3.14159265358979323846;
 // the bin floor, not parts.
 constexpr float kFloorBand = 0.004f;
 constexpr float kFloorMinNormalZ = 0.95f;
-// Two detections are one physical part when their centres are closer than this
+// Two detections are one physical part when their centres (of the part's
+// surface, not its origin: an L-bracket's origin is its corner) are closer than this
 // fraction of the larger diameter, or when more than kMaxSharedSupport of the
 // weaker one's support is already claimed.
 constexpr double kNmsRelativeDistance = 0.3;
@@ -67,6 +68,7 @@ double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model)
 struct Candidate {
   int class_id = 0;
   double diameter = 0.0;
+  Eigen::Vector3d centre_B = Eigen::Vector3d::Zero();  // the part's surface centroid at the hypothesis
   int segment = 0;
   internal::ClassHypothesis h;
   std::vector<int32_t> support_roi;  // ROI indices
@@ -478,6 +480,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         Candidate c;
         c.class_id = model.class_id();
         c.diameter = model.diameter();
+        c.centre_B = h.X_BO * model.centroid_O().cast<double>();
         c.segment = static_cast<int>(s);
         c.support_roi.reserve(h.support.size());
         const std::vector<int32_t>& index = views[s];
@@ -498,13 +501,14 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // one or most of its support is already claimed.
   std::vector<uint8_t> claimed(pts.size(), 0);
   std::vector<double> accepted_diameter;
+  std::vector<Eigen::Vector3d> accepted_centre;
   const auto accept = [&](std::vector<Candidate> candidates) {
     std::stable_sort(candidates.begin(), candidates.end(),
                      [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
     for (Candidate& c : candidates) {
       bool duplicate = false;
       for (size_t k = 0; k < result.detections.size(); ++k) {
-        const double dist = (result.detections[k].X_BO.translation() - c.h.X_BO.translation()).norm();
+        const double dist = (accepted_centre[k] - c.centre_B).norm();
         if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
           duplicate = true;
           break;
@@ -518,6 +522,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       if (duplicate) continue;
       for (int32_t i : c.support_roi) claimed[static_cast<size_t>(i)] = 1;
       accepted_diameter.push_back(c.diameter);
+      accepted_centre.push_back(c.centre_B);
       Detection d;
       d.class_id = c.class_id;
       d.X_BO = c.h.X_BO;

@@ -296,6 +296,7 @@ double PoseEstimator::diameter() const { return impl_->diameter; }
 double PoseEstimator::sampling_distance() const { return impl_->step; }
 int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->ppf_points.size()); }
 const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { return impl_->verify.points; }
+Eigen::Vector3f PoseEstimator::centroid_O() const { return impl_->centroid_O; }
 const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
 
 void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> scene,

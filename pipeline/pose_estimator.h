@@ -193,6 +193,8 @@ class PoseEstimator {
   int model_point_count() const;   // PPF model points
   // Model surface samples in O (verification spacing), e.g. for ADD-S.
   const std::vector<Eigen::Vector3f>& surface_points_O() const;
+  // Centroid of the model surface in O.
+  Eigen::Vector3f centroid_O() const;
   const Symmetry& symmetry() const;
 
  private:

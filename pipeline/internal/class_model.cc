@@ -21,6 +21,7 @@ class PpfClassModel final : public ClassModel {
   int class_id() const override { return class_id_; }
   double diameter() const override { return estimator_->diameter(); }
   Eigen::Vector3f extents() const override { return extents_; }
+  Eigen::Vector3f centroid_O() const override { return estimator_->centroid_O(); }
 
   ClassEstimate Estimate(const SegmentView& view) const override {
     SceneView scene;

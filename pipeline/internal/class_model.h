@@ -49,6 +49,8 @@ class ClassModel {
   virtual double diameter() const = 0;
   // Extents of the model surface along its principal axes, metres, largest first.
   virtual Eigen::Vector3f extents() const = 0;
+  // Centroid of the part's surface in its own frame O, metres.
+  virtual Eigen::Vector3f centroid_O() const = 0;
   virtual ClassEstimate Estimate(const SegmentView& view) const = 0;
 };
 

@@ -416,6 +416,22 @@ TEST_F(PerceptionTest, AFragmentedLonePartIsMatchedAsOneSegment) {
   EXPECT_LT(Eigen::AngleAxisd(r.detections[0].X_BO.linear().transpose() * X_BO.linear()).angle(), 4 * kDeg);
 }
 
+// Two L-brackets lying flat back to back, their corners (the part origins)
+// 20 mm apart: two parts, though their origins are closer than the
+// duplicate distance (0.3 diameters, 35 mm). Duplicates are judged by the
+// centres of the parts' surfaces, 90 mm apart here.
+TEST_F(PerceptionTest, FindsTwoLBracketsWhoseCornersAreCloseButWhoseBodiesAreApart) {
+  const Pose X_W1 = PoseW(0.01, 0.0, 0.0, 0.0), X_W2 = PoseW(-0.01, 0.01, 0.0, 180.0);
+  const PerceptionResult r = fx().Run(fx().Render({{1, X_W1}, {1, X_W2}}));
+  ASSERT_EQ(r.detections.size(), 2u) << r.reason;
+  for (const Pose& X_WO : {X_W1, X_W2}) {
+    const Vec3 t_B = (fx().cell.bin.X_BW * X_WO).translation();
+    double best = 1e9;
+    for (const Detection& d : r.detections) best = std::min(best, (d.X_BO.translation() - t_B).norm());
+    EXPECT_LT(best, 0.001);
+  }
+}
+
 TEST_F(PerceptionTest, SeparatesTwoTouchingParts) {
   // Two bushings standing side by side, flanges touching (60 mm flanges).
   const Pose X_W1 = PoseW(0.0, 0.0, 0.0, 0.0), X_W2 = PoseW(0.0601, 0.0, 0.0, 0.0);
