@@ -4,12 +4,16 @@
 
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
+#include <optional>
+#include <system_error>
 #include <utility>
 
 #include "grasp/bin_picking_planner.h"
 #include "grasp/empty_box.h"
 #include "grasp/grasp_planning.h"
 #include "pipeline/capture_source.h"
+#include "pipeline/frame_io.h"
 
 namespace bp {
 
@@ -46,12 +50,14 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   int max_cycles = options.max_cycles;
   PlanResult last;
   std::vector<PartTruth> truth_parts;
+  std::optional<Frame> last_frame;  // kept only for save_left_dir
   for (int cycle = 0;; ++cycle) {
     auto scene = p.Capture(request);
     if (!scene.ok()) return scene.status();
     const Frame& frame = static_cast<const CapturedFrame&>(**scene).frame();
     if (!frame.truth) return Status::Internal("clear: the synthetic frame has no ground truth");
     truth_parts = frame.truth->parts;
+    if (!options.save_left_dir.empty()) last_frame = frame;
     if (cycle == 0) {
       report.parts_placed = static_cast<int>(truth_parts.size());
       if (max_cycles <= 0) max_cycles = 3 * report.parts_placed + 5;
@@ -148,6 +154,16 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     if (used != task) ++report.fallback_picks;
   }
   report.parts_left = static_cast<int>(truth_parts.size());
+  if (report.parts_left > 0 && last_frame) {
+    std::error_code ec;
+    std::filesystem::create_directories(options.save_left_dir, ec);
+    if (ec) return Status::Internal("clear: cannot create '" + options.save_left_dir + "': " + ec.message());
+    const std::string path =
+        (std::filesystem::path(options.save_left_dir) / ("clear_seed" + std::to_string(seed) + "_depth.png")).string();
+    if (Status s = WriteDepthPng(*last_frame, path); !s.ok()) return s;
+    if (Status s = WriteGroundTruthJson(*last_frame, CompanionPath(path, "truth.json")); !s.ok()) return s;
+    report.saved_frame = path;
+  }
   for (const PartTruth& t : truth_parts) {
     const Vec3 z = t.X_BO.linear().col(2);
     // The part axis nearest the base frame's up direction: how the part rests.

@@ -25,6 +25,12 @@ struct ClearOptions {
   // that gripper. Empty: no fallback.
   std::vector<int> fallback_task_ids;
   int max_cycles = 0;       // capture cycles per scene; <= 0: 3 * parts + 5
+  // When not empty: a scene that ends with parts left writes its last frame
+  // here as "clear_seed<N>_depth.png" with its intrinsics sidecar and
+  // "clear_seed<N>_truth.json" (docs/file_formats.md), so that
+  // `binpick eval --source files:DIR` replays exactly what perception missed.
+  // The directory is created when missing.
+  std::string save_left_dir;
 };
 
 struct SceneClearReport {
@@ -45,6 +51,7 @@ struct SceneClearReport {
   std::vector<std::string> left;  // "instance 7 (l_bracket): part z axis (0.00, 1.00, 0.00), 83% visible"
   double plan_ms_total = 0;     // perception + planning over all cycles
   std::vector<std::string> collisions;  // "cycle 3: grasp hub_top@5 on instance 7: part"
+  std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty
 };
 
 struct ClearReport {

@@ -33,6 +33,7 @@ struct ClearCliOptions {
   bool oracle = false;
   int task_id = 0;
   std::vector<int> fallback_task_ids;
+  std::string save_left_dir;
 };
 
 int Error(const Status& s) {
@@ -67,6 +68,7 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"final_outcome", s.final_outcome},
                       {"plan_ms_total", s.plan_ms_total},
                       {"collisions", s.collisions},
+                      {"saved_frame", s.saved_frame},
                       {"left", s.left}});
   }
   j["scenes"] = scenes;
@@ -100,6 +102,7 @@ int Run(const ClearCliOptions& opt) {
   ClearOptions options;
   options.task_id = opt.task_id;
   options.fallback_task_ids = opt.fallback_task_ids;
+  options.save_left_dir = opt.save_left_dir;
   ClearReport report;
   report.oracle = opt.oracle;
   for (int i = 0; i < opt.scenes; ++i) {
@@ -115,6 +118,7 @@ int Run(const ClearCliOptions& opt) {
     for (const std::string& c : s.collisions) std::printf("  collision: %s\n", c.c_str());
     if (s.parts_left > 0) std::printf("  last plan: %s\n", s.final_outcome.c_str());
     for (const std::string& l : s.left) std::printf("  left: %s\n", l.c_str());
+    if (!s.saved_frame.empty()) std::printf("  saved: %s\n", s.saved_frame.c_str());
     report.Add(std::move(*scene));
     std::fflush(stdout);
   }
@@ -148,6 +152,9 @@ Command ClearCommand() {
     sub.add_option("--fallback-task", opt->fallback_task_ids,
                    "a pick task to try on the same frame when --task has no grasp (a robot with a tool changer; "
                    "repeat for more, tried in order; the default cell's task 4 uses its parallel jaw)");
+    sub.add_option("--save-left", opt->save_left_dir,
+                   "write the last frame of every scene that ends with parts left to this directory (depth PNG, "
+                   "intrinsics, ground truth), for `binpick eval --source files:DIR`");
     sub.add_flag("--oracle", opt->oracle,
                  "use ground-truth detections instead of perception (does NOT measure perception)");
     return [opt] { return Run(*opt); };

@@ -14,6 +14,7 @@
 
 #include "grasp/bin_clearing.h"
 #include "grasp/empty_box.h"
+#include "pipeline/frame_io.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 
@@ -303,6 +304,34 @@ TEST(BinClearing, AShortClearHasNoGroundTruthCollisionsAndEndsEmpty) {
     EXPECT_EQ(s.said_empty, s.parts_left == 0) << s.final_outcome;
     EXPECT_EQ(s.cycles, s.picks + 1);
   }
+}
+
+// A scene that ends with parts left (here: cut short after two cycles) writes
+// its last frame with the truth of the parts still in the bin; a clean scene
+// writes nothing.
+TEST(BinClearing, AScenesLastFrameIsSavedOnlyWhenPartsAreLeft) {
+  const std::string dir = TempPath("left");
+  std::filesystem::remove_all(dir);
+  Cell cell = SyntheticCell(6, 5);
+  ClearOptions options;
+  options.max_cycles = 2;
+  options.save_left_dir = dir;
+  auto cut = ClearScene(cell, 5, std::make_shared<TruthPerception>(cell), options);
+  ASSERT_TRUE(cut.ok()) << cut.status().ToString();
+  ASSERT_GT(cut->parts_left, 0);
+  EXPECT_EQ(cut->saved_frame, dir + "/clear_seed5_depth.png");
+  auto frame = LoadFrameFile(cut->saved_frame);
+  ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+  ASSERT_TRUE(frame->truth.has_value());
+  EXPECT_EQ(static_cast<int>(frame->truth->parts.size()), cut->parts_left);
+  EXPECT_TRUE(frame->organized());
+
+  options.max_cycles = 0;
+  auto clean = ClearScene(cell, 6, std::make_shared<TruthPerception>(cell), options);
+  ASSERT_TRUE(clean.ok()) << clean.status().ToString();
+  ASSERT_EQ(clean->parts_left, 0) << clean->final_outcome;
+  EXPECT_TRUE(clean->saved_frame.empty());
+  EXPECT_FALSE(std::filesystem::exists(dir + "/clear_seed6_depth.png"));
 }
 
 // The default cell's L-bracket lying on its side shows only 5 mm edges from
