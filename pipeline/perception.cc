@@ -47,6 +47,10 @@ constexpr double kMaxSharedSupport = 0.5;
 // A segment is matched again on its unclaimed points when at least this
 // fraction of it is left after the first pass.
 constexpr double kResidualFraction = 0.25;
+// A connected region with one segment is matched as a whole too when its
+// pieces below min_segment_points hold at least this fraction of the
+// segment's samples (PerceptionOptions::match_regions).
+constexpr double kFragmentShare = 0.25;
 // Unorganized clouds are grouped by voxel connectivity at this voxel size
 // (fine enough that 5000 points scattered through the bin stay isolated).
 constexpr float kUnorganizedVoxel = 0.003f;
@@ -235,6 +239,16 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       if (size[static_cast<size_t>(s)] < options_.min_segment_points) break;
       renumber[static_cast<size_t>(s)] = kept++;
     }
+    // Pieces below min_segment_points are no segment of their own; region
+    // views (match_regions) still see them.
+    std::vector<uint8_t> fragment_cell;
+    if (options_.match_regions) {
+      fragment_cell.assign(segment_of_cell.size(), 0);
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        const int32_t s = segment_of_cell[c];
+        fragment_cell[c] = s >= 0 && renumber[static_cast<size_t>(s)] < 0 ? 1 : 0;
+      }
+    }
     for (int32_t& s : segment_of_cell) s = s >= 0 ? renumber[static_cast<size_t>(s)] : -1;
     // Group the grid samples by segment.
     std::vector<int32_t> start(static_cast<size_t>(kept) + 1, 0);
@@ -259,16 +273,36 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
     for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
     if (options_.match_regions) {
-      // Connected regions that hold two or more segments, as extra views.
+      // Connected regions that hold two or more segments, or one segment and
+      // pieces too small to be segments (kFragmentShare of its samples or
+      // more), as extra views of all their non-floor samples. The pieces
+      // follow the segments' samples in seg_points, in no seg_range.
       const int32_t n_cc = region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
       std::vector<int32_t> first_segment(static_cast<size_t>(n_cc), -1);
       std::vector<uint8_t> multi(static_cast<size_t>(n_cc), 0);
+      std::vector<int32_t> kept_samples(static_cast<size_t>(n_cc), 0), fragment_samples(static_cast<size_t>(n_cc), 0);
       for (size_t c = 0; c < segment_of_cell.size(); ++c) {
         const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
-        if (sgm < 0 || r < 0) continue;
+        if (r < 0) continue;
+        fragment_samples[static_cast<size_t>(r)] += fragment_cell[c];
+        if (sgm < 0) continue;
+        ++kept_samples[static_cast<size_t>(r)];
         int32_t& first = first_segment[static_cast<size_t>(r)];
         if (first < 0) first = sgm;
         else if (first != sgm) multi[static_cast<size_t>(r)] = 1;
+      }
+      for (int32_t r = 0; r < n_cc; ++r) {
+        const auto i = static_cast<size_t>(r);
+        if (kept_samples[i] > 0 && fragment_samples[i] >= kFragmentShare * kept_samples[i]) multi[i] = 1;
+      }
+      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+        const int32_t r = region_of_cell[c];
+        if (!fragment_cell[c] || r < 0 || !multi[static_cast<size_t>(r)]) continue;
+        const int32_t i = grid.point_of_cell[c];
+        seg_points.push_back(roi.points_B[static_cast<size_t>(i)]);
+        seg_normals.push_back(normals[c]);
+        seg_roi_index.push_back(i);
+        cell_of_sample.push_back(static_cast<int32_t>(c));
       }
       std::vector<int32_t> view_of_region(static_cast<size_t>(n_cc), -1);
       for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {

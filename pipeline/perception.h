@@ -67,7 +67,9 @@ struct PerceptionOptions {
   // survive it mostly score 0.35-0.7, true ones 0.9+).
   double min_detection_score = 0.7;
   // Also match each connected region (depth continuity only) that holds two
-  // or more segments, as one more view (parts cut by the normal condition).
+  // or more segments, or one segment and pieces below min_segment_points
+  // (a quarter of its points or more), as one more view of all its non-floor
+  // points (parts cut by the normal condition).
   bool match_regions = true;
   // A connected region whose segments are all below min_segment_points but
   // that holds at least that many grid points as a whole is matched as one
@@ -100,7 +102,8 @@ struct PerceptionOptions {
   // retries with it when a normal run leaves nothing to pick in a bin that is
   // not empty (docs/perception.md, "Thorough retry").
   PoseSearch thorough_search{.max_reference_points = 20, .max_coarse_poses = 24, .peaks_per_reference = 2,
-                             .peaks_examined = 30, .resting_seeds = true, .keep_better_than_fine = true};
+                             .peaks_examined = 30, .resting_seeds = true, .keep_better_than_fine = true,
+                             .unmeasured_is_no_evidence = true};
 };
 
 enum class PerceptionEffort {
