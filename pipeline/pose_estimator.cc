@@ -207,8 +207,16 @@ SegmentDepth BuildSegmentDepth(std::span<const Eigen::Vector3f> pts, const Eigen
   return b;
 }
 
+// Model points facing the camera by less than this cosine (more than 60 deg
+// off the line of sight) lie on grazing faces, where depth sensors (and the
+// synthetic noise model) drop pixels.
+constexpr float kGrazingCos = 0.5f;
+
 struct VerifyStats {
   int visible = 0, occluded = 0, supported = 0, free_space = 0;
+  // Of the visible points, those on a grazing face (see kGrazingCos) whose
+  // pixel has no measurement and that no scene point supports.
+  int unmeasured = 0;
   bool below_support = false;
   double score = -1;
 };
@@ -276,7 +284,8 @@ struct PoseEstimator::Impl {
   // Visible-surface test, support and free-space test for one pose.
   // stride > 1 checks every stride-th verification sample (a quick pass).
   VerifyStats Verify(const Pose& X_BO, const SceneView& view, const internal::PointHash& scene_hash,
-                     const SegmentDepth& segment_depth, int stride = 1) const;
+                     const SegmentDepth& segment_depth, int stride = 1,
+                     bool unmeasured_is_no_evidence = false) const;
   internal::IcpResult Refine(std::span<const Eigen::Vector3f> scene, std::span<const uint8_t> boundary,
                              const Pose& X_BO, const Vec3& camera_B, float initial, float final_gate,
                              int iterations) const {
@@ -514,7 +523,8 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
 
 VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
                                         const internal::PointHash& scene_hash,
-                                        const SegmentDepth& segment_depth, int stride) const {
+                                        const SegmentDepth& segment_depth, int stride,
+                                        bool unmeasured_is_no_evidence) const {
   VerifyStats s;
   const Eigen::Matrix3f R = X_BO.linear().cast<float>();
   const Eigen::Vector3f t = X_BO.translation().cast<float>();
@@ -607,6 +617,7 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
             }
           } else {
             supported = scene_hash.AnyWithin(cands[i].p, support);
+            if (!supported && cs < kGrazingCos) ++s.unmeasured;
           }
         }
       }
@@ -626,7 +637,7 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
     }
     if (supported) ++s.supported;
   }
-  const int denom = s.visible - s.occluded;
+  const int denom = s.visible - s.occluded - (unmeasured_is_no_evidence ? s.unmeasured : 0);
   if (denom > 0) {
     s.score = (s.supported - options.free_space_weight * s.free_space) / static_cast<double>(denom);
   }
@@ -872,7 +883,8 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   auto by_score = [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; };
   const double min_score = have_depth ? opt.min_score : opt.min_score_without_depth;
   auto passes = [&](const VerifyStats& st, double min_score) {
-    return st.visible - st.occluded >= opt.min_visible_points && st.score >= min_score;
+    return st.visible - st.occluded - (search.unmeasured_is_no_evidence ? st.unmeasured : 0) >= opt.min_visible_points &&
+           st.score >= min_score;
   };
   const double nms = opt.nms_relative_distance * m.diameter;
   auto duplicate_of = [&](const Pose& X, const std::vector<Candidate>& kept) {
@@ -892,7 +904,8 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     });
     if (!icp.ok) continue;
     Candidate c{icp.X_BO, {}, icp, cp.votes};
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3); });
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3,
+                                                   search.unmeasured_is_no_evidence); });
     first.push_back(c);
   }
   std::stable_sort(first.begin(), first.end(), by_score);
@@ -921,10 +934,12 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     const Candidate before = c;
     c.X_BO = icp.X_BO;
     c.icp = icp;
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth); });
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 1,
+                                                   search.unmeasured_is_no_evidence); });
     if (search.keep_better_than_fine && c.stats.score < 0.9) {
       VerifyStats st;
-      timed(verify_ms, [&] { st = m.Verify(before.X_BO, view, support_hash, segment_depth); });
+      timed(verify_ms, [&] { st = m.Verify(before.X_BO, view, support_hash, segment_depth, 1,
+                                        search.unmeasured_is_no_evidence); });
       if (st.score > c.stats.score) {
         c = before;
         c.stats = st;
@@ -949,6 +964,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     h.occluded_points = c.stats.occluded;
     h.supported_points = c.stats.supported;
     h.free_space_points = c.stats.free_space;
+    h.unmeasured_points = c.stats.unmeasured;
     h.rms_residual = c.icp.rms;
     h.coarse_votes = c.votes;
     out.hypotheses.push_back(std::move(h));
