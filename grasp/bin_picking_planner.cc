@@ -112,9 +112,14 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
       Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
       if (again.ok()) {
         GraspPlan plan = PlanGrasps(*model_, task, *again, taught);
-        spdlog::debug("task {}: thorough retry: {} -> {} grasps", task.id, detail.plan.stats.Describe(),
-                      plan.queue.size());
-        if (plan.outcome == PlanResult::Outcome::kGrasps) {
+        spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
+                      again->detections.size(), plan.stats.Describe());
+        // Adopted when it gives grasps, and also when it finds parts where
+        // the normal run found none: the answer is then "no collision-free
+        // grasp" for the parts it found, not "no object".
+        if (plan.outcome == PlanResult::Outcome::kGrasps ||
+            (detail.plan.outcome == PlanResult::Outcome::kNoObjects &&
+             plan.outcome == PlanResult::Outcome::kNoCollisionFree)) {
           detail.perception = std::move(*again);
           detail.plan = std::move(plan);
           detail.thorough_retry = true;

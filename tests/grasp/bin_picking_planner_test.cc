@@ -174,6 +174,32 @@ TEST(BinPickingPlanner, NothingToPickRetriesPerceptionThoroughlyOnTheSameFrame) 
   }
 }
 
+// A retry that finds parts but no grasp on them is the answer too: "no
+// collision-free grasp" for the parts it found, not "no object" (the robot
+// program changes tools on either, but only the first is true).
+TEST(BinPickingPlanner, ARetryThatFindsPartsButNoGraspAnswersNoCollisionFree) {
+  Cell cell = SyntheticCell(3, 5);
+  for (TaskSpec& t : cell.tasks) t.max_tilt_deg = 0.01;  // no grasp is upright enough
+  auto source = MakeSyntheticSource(cell);
+  ASSERT_TRUE(source.ok());
+  auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
+  ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  auto scene = (*planner)->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  auto detail = (*planner)->PlanDetailed(request, **scene);
+  ASSERT_TRUE(detail.ok()) << detail.status().ToString();
+  EXPECT_EQ(perception->thorough_runs, 1);
+  EXPECT_TRUE(detail->thorough_retry);
+  EXPECT_EQ(detail->result.outcome, PlanResult::Outcome::kNoCollisionFree) << detail->result.message;
+  EXPECT_EQ(detail->result.detections, 3);
+  EXPECT_NE(detail->result.message.find("tilt"), std::string::npos) << detail->result.message;
+  EXPECT_FALSE(IsBoxEmpty(request.task.empty_box, detail->result));
+}
+
 TEST(BinPickingPlanner, AnEmptyRoiIsNotRetried) {
   Cell cell = SyntheticCell(0, 5);
   auto source = MakeSyntheticSource(cell);
