@@ -25,6 +25,8 @@ IcpResult RefinePointToPlane(const IcpModel& model, std::span<const Eigen::Vecto
     const Eigen::Vector3f c_O = (X_OB * camera_B).cast<float>();
     // Float accumulation (a few thousand terms of similar size); solved in double.
     Eigen::Matrix<float, 6, 6> Hf = Eigen::Matrix<float, 6, 6>::Zero();
+    Eigen::Matrix<float, 6, 6> Hb = Eigen::Matrix<float, 6, 6>::Zero();  // the boundary terms alone
+    int boundary_count = 0;
     Eigen::Matrix<float, 6, 1> gf = Eigen::Matrix<float, 6, 1>::Zero();
     double sum_r2 = 0;
     int count = 0;
@@ -65,8 +67,9 @@ IcpResult RefinePointToPlane(const IcpModel& model, std::span<const Eigen::Vecto
           Eigen::Matrix<float, 6, 1> J;
           J.head<3>() = q.cross(nn);
           J.tail<3>() = nn;
-          Hf.noalias() += wb * (J * J.transpose());
+          Hb.noalias() += wb * (J * J.transpose());
           gf += (wb * s) * J;
+          ++boundary_count;
         }
       }
     }
@@ -75,7 +78,8 @@ IcpResult RefinePointToPlane(const IcpModel& model, std::span<const Eigen::Vecto
     result.rms = std::sqrt(sum_r2 / count);
     result.inliers = count;
     result.iterations = it + 1;
-    Eigen::Matrix<double, 6, 6> H = Hf.cast<double>();
+    const Eigen::Matrix<double, 6, 6> Hp = Hf.cast<double>(), Hs = Hb.cast<double>();
+    Eigen::Matrix<double, 6, 6> H = Hp + Hs;
     const Eigen::Matrix<double, 6, 1> g = gf.cast<double>();
     // Light Levenberg damping keeps directions the data does not constrain
     // (e.g. the axis of a revolute part) where they are.
@@ -88,7 +92,15 @@ IcpResult RefinePointToPlane(const IcpModel& model, std::span<const Eigen::Vecto
     if (angle > 0) delta.linear() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
     delta.translation() = x.tail<3>();
     X_OB = delta * X_OB;
-    if (angle < 1e-5 && x.tail<3>().norm() < 1e-6 && t >= 1.f) break;  // 0.0006 deg, 1 um
+    // Converged once the step changes the point-to-plane residuals and the
+    // boundary residuals each by less than options.convergence (RMS, from
+    // x' H x): a twist in a direction the data leaves free (a revolute part's
+    // axis) moves no residual and does not count; a slide only the
+    // silhouette sees moves the boundary residuals.
+    const double change = std::sqrt(std::max(0.0, x.dot(Hp * x)) / count);
+    const double boundary_change =
+        boundary_count > 0 ? std::sqrt(std::max(0.0, x.dot(Hs * x)) / boundary_count) : 0.0;
+    if (change < options.convergence && boundary_change < options.convergence && t >= 1.f) break;
   }
   if (any_ok) {
     Pose X_BO = X_OB.inverse();
