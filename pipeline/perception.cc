@@ -479,8 +479,21 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         run(order[v], 0, order[v].size(), false);
       }
       bool found = false;
+      double best = -1.0;
       for (const Job& job : done) {
-        for (const auto& h : job.estimate.hypotheses) found |= h.score >= options_.min_detection_score;
+        for (const auto& h : job.estimate.hypotheses) {
+          found |= h.score >= options_.min_detection_score;
+          best = std::max(best, h.score);
+        }
+      }
+      if (!thorough && best < options_.second_look_below && !order[v].empty()) {
+        // A second look with a wider coarse search (PerceptionOptions::second_look_below).
+        view.search = options_.second_look_search;
+        run(order[v], 0, order[v].size(), false);
+        view.search.reset();
+        for (const Job& job : done) {
+          for (const auto& h : job.estimate.hypotheses) found |= h.score >= options_.min_detection_score;
+        }
       }
       if (!found) run(too_small[v], 0, too_small[v].size(), true);
     });
@@ -602,11 +615,12 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
 
 Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const PerceptionOptions& options) {
   if (options.threads < 1) return Status::InvalidArgument("perception: threads must be >= 1");
-  {
-    const PoseSearch& s = options.thorough_search;
+  for (const auto& [name, s] : {std::pair<const char*, const PoseSearch&>{"thorough_search", options.thorough_search},
+                                 {"second_look_search", options.second_look_search}}) {
     if (s.max_reference_points < 1 || s.max_coarse_poses < 1 || s.peaks_per_reference < 1 ||
         s.peaks_examined < s.peaks_per_reference) {
-      return Status::InvalidArgument("perception: thorough_search counts must be >= 1, peaks_examined >= peaks_per_reference");
+      return Status::InvalidArgument(std::string("perception: ") + name +
+                                     " counts must be >= 1, peaks_examined >= peaks_per_reference");
     }
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");

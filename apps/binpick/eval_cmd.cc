@@ -43,6 +43,7 @@ struct EvalCliOptions {
   double convex = -2.0;
   bool regions = false;
   bool thorough = false;
+  double second_look = 0.0;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -128,6 +129,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
   if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
   if (opt.regions) popt.match_regions = true;
+  popt.second_look_below = opt.second_look;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -234,6 +236,10 @@ Command EvalCommand() {
                    sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
                    sub.add_option("--convex", opt->convex, "convex-crease tolerance, < 0 off (tuning)");
                    sub.add_flag("--match-regions", opt->regions, "also match multi-segment regions (tuning)");
+                   sub.add_option("--second-look", opt->second_look,
+                                  "match views whose best score is below this again with a wider coarse search "
+                                  "(PerceptionOptions::second_look_below; 0 = off, tuning)")
+                       ->check(CLI::Range(0.0, 2.0));
                    sub.add_flag("--thorough", opt->thorough,
                                 "run the thorough search (the planner's retry) on every frame (tuning)");
                    return [opt] { return Run(*opt); };

@@ -532,5 +532,37 @@ TEST(PerceptionEval, ShortSyntheticRunMeetsThresholds) {
   EXPECT_LE(all.r_median_deg, 1.0);
 }
 
+// The second look (PerceptionOptions::second_look_below) matches views whose
+// best hypothesis is weak or missing again with 12 coarse poses instead of 4.
+// On piles 18 and 23 of the default cell it finds parts the normal run
+// misses (recall 0.800 -> 0.850 and 0.944 -> 1.000 measured).
+TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  PerceptionOptions options;
+  options.second_look_below = 0.9;
+  auto second = Perception::Build(f.cell, options);
+  ASSERT_TRUE(second.ok()) << second.status().ToString();
+  std::vector<FrameEvaluation> normal, with_second_look;
+  for (uint64_t seed : {18u, 23u}) {
+    Cell cell = f.cell;
+    cell.source.seed = seed;
+    auto source = MakeSyntheticSource(cell);
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    auto frame = (*source)->Capture({});
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    normal.push_back(EvaluateFrame(Fixture::RunWith(*f.perception, *frame), *frame->truth, f.models));
+    with_second_look.push_back(EvaluateFrame(Fixture::RunWith(**second, *frame), *frame->truth, f.models));
+  }
+  const ClassFigures a = Summarize(normal, f.models).classes.back();
+  const ClassFigures b = Summarize(with_second_look, f.models).classes.back();
+  EXPECT_GT(b.recall, a.recall + 0.02);
+  EXPECT_LE(b.t_median_mm, 1.0);
+
+  PerceptionOptions bad;
+  bad.second_look_search.max_coarse_poses = 0;
+  EXPECT_EQ(Perception::Build(f.cell, bad).status().code(), Status::Code::kInvalidArgument);
+}
+
 }  // namespace
 }  // namespace bp
