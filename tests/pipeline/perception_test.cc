@@ -417,7 +417,7 @@ TEST_F(PerceptionTest, AFragmentedLonePartIsMatchedAsOneSegment) {
   ExpectThoroughRunFindsTheBracket(frame, X_WO, 0.005, 4.0);
 }
 
-// L-brackets lying alone on their side, tilted 6-13 deg, in the last frames
+// L-brackets lying alone on their side, tilted 11-13 deg, in the last frames
 // of two scenes that `binpick clear --scenes 100 --seed 1 --fallback-task 4
 // --save-left DIR` left unfinished (tests/pipeline/data: depth PNG at 0.1 mm,
 // intrinsics, truth; the cell's sensor model with its projector shadow and
