@@ -97,10 +97,6 @@ struct PerceptionOptions {
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;
-  // A thorough run (PerceptionEffort::kThorough) tries every class on every
-  // view (no early exit) with this wider coarse search. The grasp planner
-  // retries with it when a normal run leaves nothing to pick in a bin that is
-  // not empty (docs/perception.md, "Thorough retry").
   // A second look: a view whose best hypothesis over the classes tried
   // scores below this (none at all included) is matched again by the classes
   // that fit it, with second_look_search. 0 = off (the default). Measured
@@ -114,6 +110,10 @@ struct PerceptionOptions {
   double second_look_below = 0.0;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
                                 .peaks_examined = 16};
+  // A thorough run (PerceptionEffort::kThorough) tries every class on every
+  // view (no early exit) with this wider coarse search. The grasp planner
+  // retries with it when a normal run leaves nothing to pick in a bin that is
+  // not empty (docs/perception.md, "Thorough retry").
   PoseSearch thorough_search{.max_reference_points = 20, .max_coarse_poses = 24, .peaks_per_reference = 2,
                              .peaks_examined = 30, .resting_seeds = true, .keep_better_than_fine = true,
                              .unmeasured_is_no_evidence = true};

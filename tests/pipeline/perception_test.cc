@@ -355,8 +355,9 @@ TEST_F(PerceptionTest, ThoroughRunFindsAnLBracketLyingOnItsSide) {
 // Before the resting directions were taken from the broad faces (a hole-wall
 // facet 2.9 deg off had tilted the seeds) and the thorough search kept the
 // better of the coarse and fine poses, the bracket was found at none of the
-// yaws tried at x = 0.14. Measured now: 20 of 24 within 5 mm / 4 deg, 12
-// within 2 mm / 2 deg (point-to-plane ICP slides a 5 mm edge along itself).
+// yaws tried at x = 0.14. Then 20 of 24 within 5 mm / 4 deg, 12 within 2 mm
+// / 2 deg (point-to-plane ICP slides a 5 mm edge along itself); since the
+// thorough search counts unmeasured grazing points as no evidence, 24 and 24.
 TEST_F(PerceptionTest, ThoroughRunFindsMostLBracketsLyingOnTheirSideOffTheOpticalAxis) {
   int found = 0, within_2mm = 0, poses = 0;
   for (const double x : {0.14, -0.17}) {
@@ -381,8 +382,8 @@ TEST_F(PerceptionTest, ThoroughRunFindsMostLBracketsLyingOnTheirSideOffTheOptica
     }
   }
   std::printf("[          ] %d of %d found within 5 mm / 4 deg, %d within 2 mm / 2 deg\n", found, poses, within_2mm);
-  EXPECT_GE(found, 18);
-  EXPECT_GE(within_2mm, 9);
+  EXPECT_GE(found, 22);
+  EXPECT_GE(within_2mm, 20);
 }
 
 // An L-bracket alone on the floor, on its side and tilted 15 deg about its
