@@ -138,22 +138,29 @@ class FindsOnlyWhenThorough final : public Perception {
   TruthPerception truth_;
 };
 
+// A planner on `cell`'s synthetic pile that detects with `perception`.
+std::unique_ptr<BinPickingPlanner> MakePlanner(const Cell& cell, std::shared_ptr<const Perception> perception,
+                                               bool thorough_retry = true) {
+  auto source = MakeSyntheticSource(cell);
+  EXPECT_TRUE(source.ok()) << source.status().ToString();
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  options.thorough_retry = thorough_retry;
+  auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), options);
+  EXPECT_TRUE(planner.ok()) << planner.status().ToString();
+  return std::move(*planner);
+}
+
 TEST(BinPickingPlanner, NothingToPickRetriesPerceptionThoroughlyOnTheSameFrame) {
   Cell cell = SyntheticCell(3, 5);
   for (const bool retry : {true, false}) {
     SCOPED_TRACE(retry ? "retry on" : "retry off");
-    auto source = MakeSyntheticSource(cell);
-    ASSERT_TRUE(source.ok());
     auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
-    BinPickingPlannerOptions options;
-    options.teach_file = "-";
-    options.thorough_retry = retry;
-    auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
-    ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+    auto planner = MakePlanner(cell, perception, retry);
     PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
-    auto scene = (*planner)->Capture(request);
+    auto scene = planner->Capture(request);
     ASSERT_TRUE(scene.ok());
-    auto detail = (*planner)->PlanDetailed(request, **scene);
+    auto detail = planner->PlanDetailed(request, **scene);
     ASSERT_TRUE(detail.ok()) << detail.status().ToString();
     EXPECT_EQ(perception->normal_runs, 1);
     EXPECT_EQ(perception->thorough_runs, retry ? 1 : 0);
@@ -166,7 +173,7 @@ TEST(BinPickingPlanner, NothingToPickRetriesPerceptionThoroughlyOnTheSameFrame) 
       EXPECT_TRUE(std::any_of(plan.stages.begin(), plan.stages.end(),
                               [](const StageTime& st) { return st.stage == "thorough_retry"; }));
       // The queue's parts are the true ones: handing one out removes it.
-      EXPECT_GT((*planner)->TruthInstanceOf(0, plan.grasps.front().instance_id), 0);
+      EXPECT_GT(planner->TruthInstanceOf(0, plan.grasps.front().instance_id), 0);
     } else {
       EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoObjects);
       EXPECT_EQ(plan.message, "nothing found on a normal run");
@@ -180,17 +187,12 @@ TEST(BinPickingPlanner, NothingToPickRetriesPerceptionThoroughlyOnTheSameFrame) 
 TEST(BinPickingPlanner, ARetryThatFindsPartsButNoGraspAnswersNoCollisionFree) {
   Cell cell = SyntheticCell(3, 5);
   for (TaskSpec& t : cell.tasks) t.max_tilt_deg = 0.01;  // no grasp is upright enough
-  auto source = MakeSyntheticSource(cell);
-  ASSERT_TRUE(source.ok());
   auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
-  BinPickingPlannerOptions options;
-  options.teach_file = "-";
-  auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
-  ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+  auto planner = MakePlanner(cell, perception);
   PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
-  auto scene = (*planner)->Capture(request);
+  auto scene = planner->Capture(request);
   ASSERT_TRUE(scene.ok());
-  auto detail = (*planner)->PlanDetailed(request, **scene);
+  auto detail = planner->PlanDetailed(request, **scene);
   ASSERT_TRUE(detail.ok()) << detail.status().ToString();
   EXPECT_EQ(perception->thorough_runs, 1);
   EXPECT_TRUE(detail->thorough_retry);
@@ -202,17 +204,12 @@ TEST(BinPickingPlanner, ARetryThatFindsPartsButNoGraspAnswersNoCollisionFree) {
 
 TEST(BinPickingPlanner, AnEmptyRoiIsNotRetried) {
   Cell cell = SyntheticCell(0, 5);
-  auto source = MakeSyntheticSource(cell);
-  ASSERT_TRUE(source.ok());
   auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);
-  BinPickingPlannerOptions options;
-  options.teach_file = "-";
-  auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
-  ASSERT_TRUE(planner.ok());
+  auto planner = MakePlanner(cell, perception);
   PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
-  auto scene = (*planner)->Capture(request);
+  auto scene = planner->Capture(request);
   ASSERT_TRUE(scene.ok());
-  auto plan = (*planner)->Plan(request, **scene);
+  auto plan = planner->Plan(request, **scene);
   ASSERT_TRUE(plan.ok());
   EXPECT_EQ(plan->outcome, PlanResult::Outcome::kNoObjects);
   EXPECT_EQ(plan->largest_region_points, 0);

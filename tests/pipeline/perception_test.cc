@@ -88,6 +88,17 @@ struct Fixture {
     return frame;
   }
 
+  // The cell's synthetic pile of seed `seed`, as the synthetic source captures it.
+  Frame Pile(uint64_t seed) const {
+    Cell c = cell;
+    c.source.seed = seed;
+    auto source = MakeSyntheticSource(c);
+    EXPECT_TRUE(source.ok()) << source.status().ToString();
+    auto frame = (*source)->Capture({});
+    EXPECT_TRUE(frame.ok()) << frame.status().ToString();
+    return std::move(*frame);
+  }
+
   PerceptionResult Run(const Frame& frame, const std::vector<int>& classes = {},
                        PerceptionEffort effort = PerceptionEffort::kNormal) const {
     return RunWith(*perception, frame, classes, effort);
@@ -513,16 +524,12 @@ TEST(PerceptionEval, ShortSyntheticRunMeetsThresholds) {
   std::vector<FrameEvaluation> frames;
   tbb::task_arena arena(2);
   for (uint64_t seed : {11u, 12u}) {
-    Cell cell = f.cell;
-    cell.source.seed = seed;
-    auto source = MakeSyntheticSource(cell);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    auto frame = (*source)->Capture({});
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    const Frame frame = f.Pile(seed);
+    ASSERT_TRUE(frame.truth.has_value());
     Result<PerceptionResult> r = Status::Internal("not run");
-    arena.execute([&] { r = f.perception->Run(*frame); });
+    arena.execute([&] { r = f.perception->Run(frame); });
     ASSERT_TRUE(r.ok()) << r.status().ToString();
-    frames.push_back(EvaluateFrame(*r, *frame->truth, f.models));
+    frames.push_back(EvaluateFrame(*r, *frame.truth, f.models));
   }
   const EvalReport report = Summarize(frames, f.models);
   const ClassFigures& all = report.classes.back();
@@ -546,14 +553,10 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   ASSERT_TRUE(second.ok()) << second.status().ToString();
   std::vector<FrameEvaluation> normal, with_second_look;
   for (uint64_t seed : {18u, 23u}) {
-    Cell cell = f.cell;
-    cell.source.seed = seed;
-    auto source = MakeSyntheticSource(cell);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    auto frame = (*source)->Capture({});
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    normal.push_back(EvaluateFrame(Fixture::RunWith(*f.perception, *frame), *frame->truth, f.models));
-    with_second_look.push_back(EvaluateFrame(Fixture::RunWith(**second, *frame), *frame->truth, f.models));
+    const Frame frame = f.Pile(seed);
+    ASSERT_TRUE(frame.truth.has_value());
+    normal.push_back(EvaluateFrame(Fixture::RunWith(*f.perception, frame), *frame.truth, f.models));
+    with_second_look.push_back(EvaluateFrame(Fixture::RunWith(**second, frame), *frame.truth, f.models));
   }
   const ClassFigures a = Summarize(normal, f.models).classes.back();
   const ClassFigures b = Summarize(with_second_look, f.models).classes.back();
