@@ -85,13 +85,15 @@ void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Ei
   }
   std::partial_sum(offsets_.begin(), offsets_.end(), offsets_.begin());
   entries_.resize(offsets_.back());
+  const float alpha_scale = static_cast<float>(params.alpha_bins) / kTwoPi;
   std::vector<uint32_t> fill(offsets_.begin(), offsets_.end() - 1);
   for (size_t r = 0; r < n; ++r) {
     for (size_t i = 0; i < n; ++i) {
       if (i == r) continue;
       const int k = Key(points_[r], normals_[r], points_[i], normals_[i]);
       if (k < 0) continue;
-      entries_[fill[k]++] = Entry{static_cast<uint32_t>(r), Alpha(to_canonical_[r], points_[i] - points_[r])};
+      const float alpha_bins = Alpha(to_canonical_[r], points_[i] - points_[r]) * alpha_scale;
+      entries_[fill[k]++] = Entry{static_cast<uint32_t>(r * params.alpha_bins), alpha_bins};
     }
   }
   // Cap bucket sizes (evenly spread subset), compacting in place.
@@ -124,7 +126,12 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   if (ns < 3 || nm == 0) return out;
   const int NA = params_.alpha_bins;
   const float alpha_scale = static_cast<float>(NA) / kTwoPi;
-  std::vector<uint16_t> acc(nm * NA);
+  // The accumulator is zero between reference points: only the cells a
+  // reference point touched (listed in `touched`, appended without a branch:
+  // a cell's first vote is about every other one, which a branch mispredicts)
+  // are read for its peaks and reset after it.
+  std::vector<uint16_t> acc(nm * NA, 0);
+  std::vector<uint32_t> touched;
   std::vector<CoarsePose> candidates;
   std::vector<std::pair<uint16_t, size_t>> peaks;  // (votes, accumulator cell)
 
@@ -135,34 +142,64 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   }
   size_t stride = static_cast<size_t>(std::max(1, options.reference_stride));
   stride = std::max(stride, (refs.size() + options.max_reference_points - 1) / std::max(1, options.max_reference_points));
+  // Per partner: its key's entry range and its alpha in bins.
+  struct Pair {
+    uint32_t begin, end;
+    float alpha;
+  };
+  std::vector<Pair> pairs;
+  pairs.reserve(ns);
+  const float fNA = static_cast<float>(NA);
   for (size_t ri = 0; ri < refs.size(); ri += stride) {
     const size_t r = refs[ri];
     const Eigen::Vector3f& sr = points[r];
     const Eigen::Vector3f& nr = normals[r];
     const Eigen::Matrix3f Rs = AlignToX(nr);
-    std::fill(acc.begin(), acc.end(), 0);
-    int best = 0;
-    size_t best_bin = 0;
+    pairs.clear();
+    size_t votes = 0;
     for (size_t i = 0; i < ns; ++i) {
       if (i == r) continue;
       const int k = Key(sr, nr, points[i], normals[i]);
       if (k < 0) continue;
       const uint32_t begin = offsets_[k], end = offsets_[k + 1];
       if (begin == end) continue;
-      const float as = Alpha(Rs, points[i] - sr);
-      for (uint32_t e = begin; e < end; ++e) {
-        float a = as - entries_[e].alpha;
-        if (a < 0) a += kTwoPi;
-        int b = static_cast<int>(a * alpha_scale);
-        if (b >= NA) b -= NA;
-        const size_t cell = static_cast<size_t>(entries_[e].ref) * NA + b;
-        const int v = ++acc[cell];
-        if (v > best) {
-          best = v;
-          best_bin = cell;
-        }
+      pairs.push_back(Pair{begin, end, Alpha(Rs, points[i] - sr) * alpha_scale});
+      votes += end - begin;
+    }
+    touched.resize(votes + 1);
+    size_t n_touched = 0;
+    uint16_t* const a_cells = acc.data();
+    const Entry* const entries = entries_.data();
+    for (const Pair& pr : pairs) {
+      for (uint32_t e = pr.begin; e < pr.end; ++e) {
+        float a = pr.alpha - entries[e].alpha;
+        a += a < 0.f ? fNA : 0.f;
+        int b = static_cast<int>(a);
+        b -= b >= NA ? NA : 0;
+        const uint32_t cell = entries[e].cell + static_cast<uint32_t>(b);
+        const uint16_t v = ++a_cells[cell];
+        touched[n_touched] = cell;
+        n_touched += v == 1;
       }
     }
+    touched.resize(n_touched);
+    int best = 0;
+    size_t best_bin = 0;
+    for (const uint32_t cell : touched) {
+      const int v = acc[cell];
+      if (v > best || (v == best && cell < best_bin)) {
+        best = v;
+        best_bin = cell;
+      }
+    }
+    // Resets the touched cells (deferred to the end of this reference point).
+    struct Reset {
+      std::vector<uint16_t>& acc;
+      const std::vector<uint32_t>& touched;
+      ~Reset() {
+        for (const uint32_t cell : touched) acc[cell] = 0;
+      }
+    } reset{acc, touched};
     if (best < 3) continue;
     // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
     const auto pose_of = [&](size_t bin) {
@@ -179,7 +216,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     }
     peaks.clear();
     const int floor_votes = std::max(3, static_cast<int>(std::ceil(options.min_peak_fraction * static_cast<float>(best))));
-    for (size_t cell = 0; cell < acc.size(); ++cell) {
+    for (const uint32_t cell : touched) {
       if (acc[cell] >= floor_votes) peaks.emplace_back(acc[cell], cell);
     }
     const size_t examine = std::min(peaks.size(), static_cast<size_t>(std::max(1, options.peaks_examined)));

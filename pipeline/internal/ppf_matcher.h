@@ -93,8 +93,8 @@ class PpfModel {
   std::array<uint8_t, kCosTable> cos_to_bin_{};
 
   struct Entry {
-    uint32_t ref;
-    float alpha;
+    uint32_t cell;  // model reference point * alpha_bins: its first accumulator cell
+    float alpha;    // alpha_m in bins, [0, alpha_bins)
   };
   PpfParams params_;
   float max_distance_ = 0;
