@@ -486,7 +486,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           best = std::max(best, h.score);
         }
       }
-      if (!thorough && best < options_.second_look_below && !order[v].empty()) {
+      if (!thorough && options_.second_look_below > 0.0 && best < options_.second_look_below && !order[v].empty()) {
         // A second look with a wider coarse search (PerceptionOptions::second_look_below).
         view.search = options_.second_look_search;
         run(order[v], 0, order[v].size(), false);
