@@ -10,6 +10,7 @@ namespace bp::internal {
 
 void ClosestPointField::Build(std::span<const Eigen::Vector3f> points, float voxel, float band) {
   cells_.clear();
+  cells16_.clear();
   dims_.setZero();
   band_ = band;
   inv_voxel_ = 1.f / voxel;
@@ -64,6 +65,11 @@ void ClosestPointField::Build(std::span<const Eigen::Vector3f> points, float vox
         }
       }
     }
+  }
+  if (points.size() < kNone16) {
+    cells16_.resize(cells_.size());
+    for (size_t k = 0; k < cells_.size(); ++k) cells16_[k] = cells_[k] < 0 ? kNone16 : static_cast<uint16_t>(cells_[k]);
+    std::vector<int32_t>().swap(cells_);
   }
 }
 

@@ -23,7 +23,7 @@ class ClosestPointField {
     const Eigen::Vector3f g = (q - origin_) * inv_voxel_;
     const int x = static_cast<int>(g.x()), y = static_cast<int>(g.y()), z = static_cast<int>(g.z());
     if (g.x() < 0 || g.y() < 0 || g.z() < 0 || x >= dims_.x() || y >= dims_.y() || z >= dims_.z()) return -1;
-    return cells_[(static_cast<size_t>(z) * dims_.y() + y) * dims_.x() + x];
+    return Cell((static_cast<size_t>(z) * dims_.y() + y) * dims_.x() + x);
   }
   // Nearer to exact: the best, measured from q itself, of the samples stored
   // in the 8 voxels whose centres surround q. -1 if none.
@@ -38,7 +38,7 @@ class ClosestPointField {
       for (int dy = 0; dy <= 1; ++dy) {
         const size_t row = (static_cast<size_t>(z0 + dz) * dims_.y() + (y0 + dy)) * dims_.x() + x0;
         for (int dx = 0; dx <= 1; ++dx) {
-          const int idx = cells_[row + dx];
+          const int idx = Cell(row + dx);
           if (idx < 0 || idx == best) continue;
           const float d2 = (points[idx] - q).squaredNorm();
           if (best < 0 || d2 < best_d2) {
@@ -51,13 +51,22 @@ class ClosestPointField {
     return best;
   }
   float band() const { return band_; }
-  size_t memory_bytes() const { return cells_.size() * sizeof(int32_t); }
+  size_t memory_bytes() const { return cells16_.size() * sizeof(uint16_t) + cells_.size() * sizeof(int32_t); }
 
  private:
+  // Sample index of a voxel, -1 for none.
+  int Cell(size_t i) const {
+    if (!cells16_.empty()) return cells16_[i] == kNone16 ? -1 : static_cast<int>(cells16_[i]);
+    return cells_[i];
+  }
+  // Fewer than kNone16 samples: 16-bit indices (half the memory, and ICP's
+  // lookups are cache misses), else 32-bit.
+  static constexpr uint16_t kNone16 = 0xFFFF;
   Eigen::Vector3f origin_ = Eigen::Vector3f::Zero();
   float inv_voxel_ = 1.f, band_ = 0.f;
   Eigen::Vector3i dims_ = Eigen::Vector3i::Zero();
   std::vector<int32_t> cells_;
+  std::vector<uint16_t> cells16_;
 };
 
 }  // namespace bp::internal
