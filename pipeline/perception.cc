@@ -51,6 +51,11 @@ constexpr double kResidualFraction = 0.25;
 // pieces below min_segment_points hold at least this fraction of the
 // segment's samples (PerceptionOptions::match_regions).
 constexpr double kFragmentShare = 0.25;
+// A view of a later wave (PerceptionOptions::view_waves) with at least this
+// fraction of its points within kExplainedDistance of an accepted detection's
+// surface is a piece of a part already found and is not matched.
+constexpr double kExplainedFraction = 0.6;
+constexpr float kExplainedDistance = 0.0025f;
 // Unorganized clouds are grouped by voxel connectivity at this voxel size
 // (fine enough that 5000 points scattered through the bin stay isolated).
 constexpr float kUnorganizedVoxel = 0.003f;
@@ -497,6 +502,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       }
       if (!found) run(too_small[v], 0, too_small[v].size(), true);
     });
+    result.views += static_cast<int>(views.size());
+    for (const std::vector<Job>& jobs : per_view) result.estimator_calls += static_cast<int>(jobs.size());
     std::vector<std::pair<size_t, int>> jobs_done;
     std::vector<uint8_t> too_small_job;
     std::vector<internal::ClassEstimate> estimates;
@@ -580,12 +587,89 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
   };
 
-  const size_t first_region_view = view_of_segment.size();
+  // Fraction of a view's points within kExplainedDistance of the surface of
+  // an accepted detection.
+  const auto model_of = [&](int class_id) -> const ClassModel* {
+    for (const ClassModel* m : models) {
+      if (m->class_id() == class_id) return m;
+    }
+    return nullptr;
+  };
+  const auto ExplainedFraction = [&](const std::vector<int32_t>& view) {
+    if (view.empty()) return 0.0;
+    std::vector<Eigen::Vector3f> points;
+    points.reserve(view.size());
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    for (int32_t k : view) {
+      points.push_back(seg_points[static_cast<size_t>(k)]);
+      centre += points.back().cast<double>();
+    }
+    centre /= static_cast<double>(points.size());
+    double radius = 0.0;
+    for (const Eigen::Vector3f& p : points) radius = std::max(radius, (p.cast<double>() - centre).norm());
+    std::vector<uint8_t> on(points.size(), 0);
+    for (size_t d = 0; d < result.detections.size(); ++d) {
+      // The part lies within a diameter of its surface centroid.
+      if ((accepted_centre[d] - centre).norm() > radius + accepted_diameter[d]) continue;
+      if (const ClassModel* m = model_of(result.detections[d].class_id)) {
+        m->MarkOnSurface(result.detections[d].X_BO, points, kExplainedDistance, &on);
+      }
+    }
+    return static_cast<double>(std::count(on.begin(), on.end(), uint8_t{1})) / static_cast<double>(on.size());
+  };
+
+  // Views in waves by size (PerceptionOptions::view_waves): after each wave
+  // its detections are accepted, and a view of a later wave whose points lie
+  // mostly on an accepted detection's surface (a fragment of a part already
+  // found) is not matched.
+  const size_t n_segment_views = view_of_segment.size();
   for (auto& view : region_views) view_of_segment.push_back(std::move(view));
-  std::vector<Candidate> candidates = estimate(view_of_segment, first_region_view);
-  t = stage("pose", t);
-  accept(std::move(candidates));
-  t = stage("verify", t);
+  std::vector<size_t> by_size(view_of_segment.size());
+  std::iota(by_size.begin(), by_size.end(), size_t{0});
+  std::stable_sort(by_size.begin(), by_size.end(), [&](size_t a, size_t b) {
+    return view_of_segment[a].size() > view_of_segment[b].size();
+  });
+  std::vector<int> wave_min = options_.view_waves;
+  wave_min.push_back(0);
+  double pose_ms = 0.0, verify_ms = 0.0;
+  size_t next_view = 0;
+  for (size_t w = 0; w < wave_min.size() && next_view < by_size.size(); ++w) {
+    const Clock::time_point t0 = Clock::now();
+    std::vector<size_t> members;
+    while (next_view < by_size.size() &&
+           static_cast<int>(view_of_segment[by_size[next_view]].size()) >= wave_min[w]) {
+      members.push_back(by_size[next_view++]);
+    }
+    if (!result.detections.empty() && !members.empty()) {
+      std::vector<uint8_t> explained(members.size(), 0);
+      tbb::parallel_for(size_t{0}, members.size(), [&](size_t i) {
+        explained[i] = ExplainedFraction(view_of_segment[members[i]]) >= kExplainedFraction ? 1 : 0;
+      });
+      size_t kept = 0;
+      for (size_t i = 0; i < members.size(); ++i) {
+        if (!explained[i]) members[kept++] = members[i];
+      }
+      result.views += static_cast<int>(members.size() - kept);
+      result.views_explained += static_cast<int>(members.size() - kept);
+      members.resize(kept);
+    }
+    // Segment views first, then region views (estimate's convention).
+    std::stable_partition(members.begin(), members.end(), [&](size_t v) { return v < n_segment_views; });
+    std::vector<std::vector<int32_t>> wave_views;
+    size_t first_region = 0;
+    for (size_t v : members) {
+      first_region += v < n_segment_views ? 1 : 0;
+      wave_views.push_back(std::move(view_of_segment[v]));
+    }
+    std::vector<Candidate> candidates = estimate(wave_views, first_region);
+    const Clock::time_point t1 = Clock::now();
+    accept(std::move(candidates));
+    pose_ms += Ms(t0, t1);
+    verify_ms += Ms(t1, Clock::now());
+  }
+  result.timings.push_back({"pose", pose_ms});
+  result.timings.push_back({"verify", verify_ms});
+  t = Clock::now();
 
   // Residual pass: segments that a detection explained only in part (touching
   // parts merged into one segment) are matched again on their unclaimed points.

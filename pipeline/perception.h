@@ -45,6 +45,9 @@ struct PerceptionResult {
   int64_t roi_point_count = 0;          // == roi_points_B.size()
   int64_t largest_region_points = 0;    // largest connected region of ROI points (empty-box rule)
   std::vector<StageTiming> timings;
+  int views = 0;              // segment, region and residual views formed
+  int views_explained = 0;    // of those, skipped as pieces of parts already found (view_waves)
+  int estimator_calls = 0;    // (view, class) pose estimates run
   std::string reason;                   // why there are no detections, when there are none
   double TotalMs() const;
 };
@@ -94,6 +97,13 @@ struct PerceptionOptions {
   // Detections of a class too small for the view (tried last, when no class
   // that fits found anything: merged segments) need at least this score.
   double too_small_class_min_score = 0.85;
+  // Views (segments and region views) are matched in waves by size: first
+  // those with at least view_waves[0] grid points, then those with at least
+  // view_waves[1], ..., then the rest. Before each wave after the first, the
+  // detections so far are accepted, and a view whose points lie mostly (60%)
+  // on an accepted detection's surface is not matched: it is a piece of a
+  // part already found. Empty = one wave (every view matched).
+  std::vector<int> view_waves = {2000, 800, 300};
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;

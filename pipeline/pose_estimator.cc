@@ -363,6 +363,19 @@ struct PoseEstimator::Impl {
 
 PoseEstimator::PoseEstimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 PoseEstimator::~PoseEstimator() = default;
+void PoseEstimator::MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
+                                  std::vector<uint8_t>* on_surface) const {
+  const Pose X_OB = X_BO.inverse();
+  const Eigen::Matrix3f R = X_OB.linear().cast<float>();
+  const Eigen::Vector3f t = X_OB.translation().cast<float>();
+  const float tol2 = tolerance * tolerance;
+  for (size_t i = 0; i < points_B.size() && i < on_surface->size(); ++i) {
+    if ((*on_surface)[i]) continue;
+    const Eigen::Vector3f q = R * points_B[i] + t;
+    const int idx = impl_->field.Lookup(q);
+    if (idx >= 0 && (q - impl_->dense.points[static_cast<size_t>(idx)]).squaredNorm() <= tol2) (*on_surface)[i] = 1;
+  }
+}
 double PoseEstimator::diameter() const { return impl_->diameter; }
 double PoseEstimator::sampling_distance() const { return impl_->step; }
 int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->ppf_points.size()); }

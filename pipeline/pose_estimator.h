@@ -205,6 +205,12 @@ class PoseEstimator {
   // peaks_examined >= peaks_per_reference; else InvalidArgument).
   Result<PoseEstimates> Estimate(const SceneView& view, const PoseSearch& search) const;
 
+  // Sets (*on_surface)[i] = 1 for the points_B within `tolerance` (metres,
+  // plus up to half a closest-point voxel) of the part's surface at X_BO;
+  // leaves the others as they are. on_surface->size() must be points_B.size().
+  void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
+                     std::vector<uint8_t>* on_surface) const;
+
   double diameter() const;         // metres, of the sampled model
   double sampling_distance() const;  // PPF sampling distance, metres
   int model_point_count() const;   // PPF model points

@@ -23,6 +23,11 @@ class PpfClassModel final : public ClassModel {
   Eigen::Vector3f extents() const override { return extents_; }
   Eigen::Vector3f centroid_O() const override { return estimator_->centroid_O(); }
 
+  void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
+                     std::vector<uint8_t>* on_surface) const override {
+    estimator_->MarkOnSurface(X_BO, points_B, tolerance, on_surface);
+  }
+
   ClassEstimate Estimate(const SegmentView& view) const override {
     SceneView scene;
     scene.points_B = view.points_B;

@@ -568,5 +568,29 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   EXPECT_EQ(Perception::Build(f.cell, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
+// View waves (PerceptionOptions::view_waves): the views of later waves that
+// lie mostly on a part already found are not matched. On pile 3 this skips
+// views and estimator calls, and finds the same parts (the same recall
+// targets, no extra false detection) as one wave of every view.
+TEST(PerceptionEval, ViewWavesSkipPiecesOfPartsAlreadyFound) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  PerceptionOptions options;
+  options.view_waves = {};
+  auto one_wave = Perception::Build(f.cell, options);
+  ASSERT_TRUE(one_wave.ok()) << one_wave.status().ToString();
+  const Frame frame = f.Pile(3);
+  ASSERT_TRUE(frame.truth.has_value());
+  const PerceptionResult all = Fixture::RunWith(**one_wave, frame);
+  const PerceptionResult waves = Fixture::RunWith(*f.perception, frame);
+  EXPECT_EQ(all.views_explained, 0);
+  EXPECT_GT(waves.views_explained, 0);
+  EXPECT_LT(waves.estimator_calls, all.estimator_calls);
+  const ClassFigures a = Summarize({EvaluateFrame(all, *frame.truth, f.models)}, f.models).classes.back();
+  const ClassFigures b = Summarize({EvaluateFrame(waves, *frame.truth, f.models)}, f.models).classes.back();
+  EXPECT_EQ(b.found, a.found);
+  EXPECT_LE(b.detections - b.true_positives, a.detections - a.true_positives);
+}
+
 }  // namespace
 }  // namespace bp
