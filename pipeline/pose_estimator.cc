@@ -240,6 +240,97 @@ std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std
   return flags;
 }
 
+// A planar face of the part, for PoseSearch::face_seeds.
+struct PlanarFace {
+  Eigen::Vector3f n = Eigen::Vector3f::UnitZ();  // outward unit normal, O
+  Eigen::Vector3f c = Eigen::Vector3f::Zero();   // centroid of the face's samples, O
+  Eigen::Vector3f u = Eigen::Vector3f::UnitX();  // in-plane principal axis (largest extent)
+  Eigen::Vector3f v = Eigen::Vector3f::UnitY();  // n x u
+  Eigen::Vector2f lo = Eigen::Vector2f::Zero(), hi = Eigen::Vector2f::Zero();  // samples' box in (u, v) about c
+};
+// Faces are triangles whose normals agree within this and whose planes within kFacePlaneTol.
+constexpr double kFaceNormalDeg = 2.0;
+constexpr float kFacePlaneTol = 0.0006f;
+// A face seeds poses when both its extents are at least this (metres).
+constexpr float kMinFaceExtent = 0.015f;
+// Face seeds align a face's axes with the view's principal axis and with up
+// to this many more directions, those of the view's longest convex-hull edges
+// (merged within kFaceEdgeMergeDeg, modulo 90 deg).
+constexpr int kFaceEdgeDirections = 2;
+constexpr double kFaceEdgeMergeDeg = 5.0;
+// A view is planar when its points' RMS distance from their plane is below
+// this (depth noise on the default cell: ~0.45 mm) and it spans at least
+// kMinFaceExtent along its second axis.
+constexpr double kPlanarViewRms = 0.0010;
+
+// In-plane principal axes (u, v = n x u) and box of 2D points about their centroid.
+void PlaneFrame(std::span<const Eigen::Vector3f> pts, const Eigen::Vector3f& n, Eigen::Vector3f* c,
+                Eigen::Vector3f* u, Eigen::Vector3f* v, Eigen::Vector2f* lo, Eigen::Vector2f* hi) {
+  *c = Eigen::Vector3f::Zero();
+  for (const auto& p : pts) *c += p;
+  *c /= static_cast<float>(std::max<size_t>(1, pts.size()));
+  const Eigen::Vector3f a = n.unitOrthogonal(), b = n.cross(a);
+  Eigen::Matrix2f C = Eigen::Matrix2f::Zero();
+  for (const auto& p : pts) {
+    const Eigen::Vector2f q(a.dot(p - *c), b.dot(p - *c));
+    C += q * q.transpose();
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix2f> es(C);
+  const Eigen::Vector2f e = es.eigenvectors().col(1);
+  *u = (a * e.x() + b * e.y()).normalized();
+  *v = n.cross(*u);
+  *lo = Eigen::Vector2f::Constant(std::numeric_limits<float>::infinity());
+  *hi = -*lo;
+  for (const auto& p : pts) {
+    const Eigen::Vector2f q(u->dot(p - *c), v->dot(p - *c));
+    *lo = lo->cwiseMin(q);
+    *hi = hi->cwiseMax(q);
+  }
+}
+
+// The part's large planar faces: mesh triangles grouped by normal and plane,
+// each group with the dense samples on it.
+std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoints& dense) {
+  struct Group {
+    Eigen::Vector3f n;
+    float d;
+    float area;
+  };
+  std::vector<Group> groups;
+  const float cos_tol = static_cast<float>(std::cos(kFaceNormalDeg * kDeg));
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    const Eigen::Vector3f& a = mesh.vertices[t[0]];
+    const Eigen::Vector3f cr = (mesh.vertices[t[1]] - a).cross(mesh.vertices[t[2]] - a);
+    if (!(cr.norm() > 1e-12f)) continue;
+    const Eigen::Vector3f n = cr.normalized();
+    const float d = n.dot(a);
+    auto g = std::find_if(groups.begin(), groups.end(),
+                          [&](const Group& e) { return e.n.dot(n) > cos_tol && std::abs(e.d - d) < kFacePlaneTol; });
+    if (g == groups.end()) {
+      groups.push_back({n, d, 0.5f * cr.norm()});
+    } else {
+      g->area += 0.5f * cr.norm();
+    }
+  }
+  std::vector<PlanarFace> faces;
+  for (const Group& g : groups) {
+    if (g.area < kMinFaceExtent * kMinFaceExtent) continue;
+    std::vector<Eigen::Vector3f> on;
+    for (size_t i = 0; i < dense.size(); ++i) {
+      if (dense.normals[i].dot(g.n) > cos_tol && std::abs(g.n.dot(dense.points[i]) - g.d) < kFacePlaneTol) {
+        on.push_back(dense.points[i]);
+      }
+    }
+    if (on.size() < 20) continue;
+    PlanarFace f;
+    f.n = g.n;
+    PlaneFrame(on, g.n, &f.c, &f.u, &f.v, &f.lo, &f.hi);
+    if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
+    faces.push_back(f);
+  }
+  return faces;
+}
+
 // The points of `pts` that are lowest along one of ~2500 directions spread
 // over the sphere: nearly the convex hull's vertices. The minimum of a linear
 // function over `pts` (how deep a pose sinks the part into a plane) is then
@@ -334,6 +425,7 @@ struct PoseEstimator::Impl {
   std::vector<Eigen::Vector3f> ppf_extreme, verify_extreme;
   internal::PpfModel ppf;
   std::vector<RestingPose> rests;  // over the dense samples
+  std::vector<PlanarFace> faces;   // PoseSearch::face_seeds
 
   // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
   // towards the parts) in each resting orientation, centred on the segment.
@@ -342,6 +434,14 @@ struct PoseEstimator::Impl {
   void AppendRestingSeeds(std::span<const Eigen::Vector3f> scene, std::span<const Eigen::Vector3f> sub_p,
                           std::span<const Eigen::Vector3f> sub_n, const Eigen::Vector4d& plane,
                           std::vector<internal::CoarsePose>& coarse) const;
+
+  // PoseSearch::face_seeds: the part with one of its planar faces on the
+  // view's plane (normal n, towards the camera), turned so that the face's
+  // principal axes lie along the view's, placed so that the face's box holds
+  // the view's; the `keep` best by a quick verification are appended.
+  void AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n, const SceneView& view,
+                       const internal::PointHash& support_hash, const SegmentDepth& segment_depth, int keep,
+                       std::vector<internal::CoarsePose>& coarse) const;
 
   // Visible-surface test, support and free-space test for one pose.
   // stride > 1 checks every stride-th verification sample (a quick pass).
@@ -504,6 +604,97 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
   }
 }
 
+void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n,
+                                          const SceneView& view, const internal::PointHash& support_hash,
+                                          const SegmentDepth& segment_depth, int keep,
+                                          std::vector<internal::CoarsePose>& coarse) const {
+  Eigen::Vector3f c, a, b;
+  Eigen::Vector2f lo, hi;
+  PlaneFrame(scene, n, &c, &a, &b, &lo, &hi);
+  // The view in its plane, (a, b) coordinates about c.
+  std::vector<Eigen::Vector2f> q;
+  q.reserve(scene.size());
+  for (const auto& p : scene) q.emplace_back(a.dot(p - c), b.dot(p - c));
+  // In-plane directions to align a face's axes with: the view's principal
+  // axis, and its convex hull's long edges (a partly hidden face keeps some
+  // of its straight edges; its principal axes turn with what is hidden).
+  // Directions modulo 90 deg: each is tried in its four quarter turns.
+  std::vector<float> angles = {0.f};
+  {
+    const std::vector<Eigen::Vector2f> hull = ConvexHull2(q);
+    std::vector<std::pair<float, float>> edges;  // (length, angle mod 90 deg)
+    for (size_t i = 0; i < hull.size(); ++i) {
+      const Eigen::Vector2f e = hull[(i + 1) % hull.size()] - hull[i];
+      float ang = std::atan2(e.y(), e.x());
+      ang = std::fmod(ang + static_cast<float>(4 * M_PI), static_cast<float>(M_PI / 2));
+      edges.emplace_back(e.norm(), ang);
+    }
+    std::stable_sort(edges.begin(), edges.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    const float same = static_cast<float>(kFaceEdgeMergeDeg * kDeg), quarter = static_cast<float>(M_PI / 2);
+    for (const auto& [len, ang] : edges) {
+      if (len < kMinFaceExtent || static_cast<int>(angles.size()) > kFaceEdgeDirections) break;
+      const bool known = std::any_of(angles.begin(), angles.end(), [&](float x) {
+        const float d = std::abs(x - ang);
+        return std::min(d, quarter - d) < same;
+      });
+      if (!known) angles.push_back(ang);
+    }
+  }
+  const float tol = 0.004f;  // box slack: depth noise and normal outliers along the view's border
+  const Eigen::Vector3f axis = symmetry.axis.cast<float>().normalized();
+  std::vector<std::pair<double, internal::CoarsePose>> seeds;
+  for (const PlanarFace& f : faces) {
+    const Eigen::Vector2f fext = f.hi - f.lo;
+    // A face a revolute part's axis is normal to looks the same at every turn.
+    const bool round = symmetry.kind == Symmetry::Kind::kRevolute && std::abs(f.n.dot(axis)) > 0.999f;
+    for (size_t di = 0; di < (round ? 1 : angles.size()); ++di) {
+      for (int k = 0; k < (round ? 1 : 4); ++k) {
+        const float th = angles[di] + static_cast<float>(k * M_PI / 2);
+        const Eigen::Vector2f dx(std::cos(th), std::sin(th)), dy(-dx.y(), dx.x());
+        const Eigen::Vector3f x = dx.x() * a + dx.y() * b;
+        const Eigen::Vector3f y = n.cross(x);  // = dy.x() a + dy.y() b
+        // The view's box in (x, y) about c; the face's box must hold it.
+        Eigen::Vector2f vlo = Eigen::Vector2f::Constant(std::numeric_limits<float>::infinity()), vhi = -vlo;
+        for (const Eigen::Vector2f& p : q) {
+          const Eigen::Vector2f r(p.dot(dx), p.dot(dy));
+          vlo = vlo.cwiseMin(r);
+          vhi = vhi.cwiseMax(r);
+        }
+        if ((vhi - vlo).x() > fext.x() + tol || (vhi - vlo).y() > fext.y() + tol) continue;
+        Eigen::Matrix3f S, F;
+        S << x, y, n;
+        F << f.u, f.v, f.n;
+        const Eigen::Matrix3f R = S * F.transpose();
+        // Per axis: centre on centre when the face is no larger than the view
+        // (within tol); else two placements, the boxes' low or high edges together.
+        std::vector<float> off[2];
+        for (int e = 0; e < 2; ++e) {
+          if (fext[e] - (vhi[e] - vlo[e]) < tol) {
+            off[e].push_back(0.5f * (vlo[e] + vhi[e]) - 0.5f * (f.lo[e] + f.hi[e]));
+          } else {
+            off[e].push_back(vlo[e] - f.lo[e]);
+            off[e].push_back(vhi[e] - f.hi[e]);
+          }
+        }
+        for (float ox : off[0]) {
+          for (float oy : off[1]) {
+            // The face centroid goes to c + ox x + oy y.
+            internal::CoarsePose cp;
+            cp.X_BO = Pose::Identity();
+            cp.X_BO.linear() = R.cast<double>();
+            cp.X_BO.translation() = (c + ox * x + oy * y - R * f.c).cast<double>();
+            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, 3);
+            if (st.below_support || !(st.score > 0)) continue;
+            seeds.emplace_back(st.score, cp);
+          }
+        }
+      }
+    }
+  }
+  std::stable_sort(seeds.begin(), seeds.end(), [](const auto& p, const auto& q) { return p.first > q.first; });
+  for (size_t i = 0; i < seeds.size() && static_cast<int>(i) < keep; ++i) coarse.push_back(seeds[i].second);
+}
+
 Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& mesh, const Symmetry& symmetry,
                                                             const PoseEstimatorOptions& options) {
   std::string error;
@@ -532,6 +723,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
                                   static_cast<float>(2 * options.icp_model_spacing));
   impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
   impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
+  impl->faces = PlanarFaces(mesh, impl->dense);
   impl->ppf_extreme = ExtremePoints(impl->ppf_points.points);
   impl->verify_extreme = ExtremePoints(impl->verify.points);
   const float cos_face = static_cast<float>(std::cos(kTiltedFaceDeg * kDeg));
@@ -723,6 +915,32 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
   return s;
 }
 
+Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X_BO) const {
+  const Impl& m = *impl_;
+  if (!X_BO.matrix().allFinite()) return Status::InvalidArgument("Score: X_BO is not finite");
+  std::vector<Eigen::Vector3f> pts;
+  for (const Eigen::Vector3f& p : view.points_B) {
+    if (p.allFinite()) pts.push_back(p);
+  }
+  internal::PointHash support_hash;
+  support_hash.Build(pts, 2.f * static_cast<float>(m.options.support_distance));
+  const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
+  const SegmentDepth segment_depth =
+      have_depth || pts.empty()
+          ? SegmentDepth{}
+          : BuildSegmentDepth(pts, view.X_BC.translation().cast<float>(), 1.5f * static_cast<float>(m.options.verify_model_spacing));
+  const VerifyStats st = m.Verify(X_BO, view, support_hash, segment_depth, 1, false);
+  PoseHypothesis h;
+  h.X_BO = X_BO;
+  h.score = st.below_support ? -1.0 : st.score;
+  h.visible_points = st.visible;
+  h.occluded_points = st.occluded;
+  h.supported_points = st.supported;
+  h.free_space_points = st.free_space;
+  h.unmeasured_points = st.unmeasured;
+  return h;
+}
+
 Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   PoseSearch search;
   search.max_reference_points = impl_->options.max_reference_points;
@@ -766,7 +984,10 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
                            std::to_string(kMinScenePoints) + ")";
     return out;
   }
-  // Degenerate geometry: spread along fewer than two directions.
+  // Degenerate geometry: spread along fewer than two directions. A view
+  // that is one plane (its normal towards the camera in view_plane) gets face
+  // seeds (PoseSearch::face_seeds).
+  std::optional<Eigen::Vector3f> view_plane;
   {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     for (const auto& p : pts) mean += p.cast<double>();
@@ -779,6 +1000,11 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     C /= static_cast<double>(pts.size());
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
     const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
+    if (std::sqrt(ev[0]) < kPlanarViewRms) {
+      Eigen::Vector3f n = es.eigenvectors().col(0).cast<float>();
+      if (n.dot(view.X_BC.translation().cast<float>() - mean.cast<float>()) < 0) n = -n;
+      view_plane = n;
+    }
     const double min_spread = 0.05 * m.step;
     if (std::sqrt(ev[1]) < min_spread) {
       out.no_result_reason = "degenerate segment: points are (nearly) collinear";
@@ -974,6 +1200,9 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     return false;
   };
 
+  if (search.face_seeds > 0 && view_plane && !m.faces.empty()) {
+    timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, support_hash, segment_depth, search.face_seeds, coarse); });
+  }
   std::vector<Candidate> first;
   for (const internal::CoarsePose& cp : coarse) {
     internal::IcpResult icp;

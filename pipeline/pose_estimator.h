@@ -152,6 +152,13 @@ struct PoseSearch {
   // piles it let more wrong poses through (precision 0.959 instead of 0.968
   // on 30 piles, seeds 11-40), so only the thorough search sets it.
   bool unmeasured_is_no_evidence = false;
+  // A view that is one plane (an L-bracket's plate: a segment of coplanar
+  // points, on which point pair features tie between every placement of the
+  // part's flat faces) also gets face seeds: the part with each of its large
+  // planar faces on the view's plane, the face's principal axes along the
+  // view's, its box holding the view's. The best this many by a quick
+  // verification go on with the coarse poses. 0 = none.
+  int face_seeds = 2;
 };
 
 struct PoseTimings {
@@ -204,6 +211,10 @@ class PoseEstimator {
   // The same with the coarse search's width given (counts >= 1,
   // peaks_examined >= peaks_per_reference; else InvalidArgument).
   Result<PoseEstimates> Estimate(const SceneView& view, const PoseSearch& search) const;
+  // Verification alone of a given pose against the view (no search, no
+  // refinement): the score and counts Estimate gives a hypothesis at X_BO.
+  // For diagnostics, e.g. how the true pose of a missed part scores.
+  Result<PoseHypothesis> Score(const SceneView& view, const Pose& X_BO) const;
 
   // Sets (*on_surface)[i] = 1 for the points_B within `tolerance` (metres,
   // plus up to half a closest-point voxel) of the part's surface at X_BO;

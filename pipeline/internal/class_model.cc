@@ -13,6 +13,21 @@ namespace bp::internal {
 
 namespace {
 
+SceneView ToScene(const SegmentView& view) {
+  SceneView scene;
+  scene.points_B = view.points_B;
+  scene.normals_B = view.normals_B;
+  if (view.frame != nullptr) {
+    scene.X_BC = view.frame->X_BC;
+    if (view.frame->organized()) {
+      scene.depth = &view.frame->depth;
+      scene.intrinsics = view.frame->intrinsics;
+    }
+  }
+  scene.support_plane_B = view.floor_plane_B;
+  return scene;
+}
+
 class PpfClassModel final : public ClassModel {
  public:
   PpfClassModel(int class_id, std::unique_ptr<PoseEstimator> estimator)
@@ -28,18 +43,12 @@ class PpfClassModel final : public ClassModel {
     estimator_->MarkOnSurface(X_BO, points_B, tolerance, on_surface);
   }
 
+  Result<PoseHypothesis> Score(const SegmentView& view, const Pose& X_BO) const override {
+    return estimator_->Score(ToScene(view), X_BO);
+  }
+
   ClassEstimate Estimate(const SegmentView& view) const override {
-    SceneView scene;
-    scene.points_B = view.points_B;
-    scene.normals_B = view.normals_B;
-    if (view.frame != nullptr) {
-      scene.X_BC = view.frame->X_BC;
-      if (view.frame->organized()) {
-        scene.depth = &view.frame->depth;
-        scene.intrinsics = view.frame->intrinsics;
-      }
-    }
-    scene.support_plane_B = view.floor_plane_B;
+    const SceneView scene = ToScene(view);
     ClassEstimate out;
     Result<PoseEstimates> est = view.search ? estimator_->Estimate(scene, *view.search) : estimator_->Estimate(scene);
     if (!est.ok()) {

@@ -52,6 +52,9 @@ class ClassModel {
   // Centroid of the part's surface in its own frame O, metres.
   virtual Eigen::Vector3f centroid_O() const = 0;
   virtual ClassEstimate Estimate(const SegmentView& view) const = 0;
+  // Verification alone of the part at X_BO against the view (diagnostics);
+  // score -1 when the pose sinks the part into the floor.
+  virtual Result<PoseHypothesis> Score(const SegmentView& view, const Pose& X_BO) const = 0;
   // See PoseEstimator::MarkOnSurface.
   virtual void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
                              std::vector<uint8_t>* on_surface) const = 0;
