@@ -257,6 +257,9 @@ constexpr float kMinFaceExtent = 0.015f;
 // to this many more directions, those of the view's longest convex-hull edges
 // (merged within kFaceEdgeMergeDeg, modulo 90 deg).
 constexpr int kFaceEdgeDirections = 2;
+// Face seeds are ranked by a verification of every this-many-th sample
+// (measured: 6 ranks as well as 3 on seeds 1-70, at half the cost).
+constexpr int kFaceSeedStride = 6;
 constexpr double kFaceEdgeMergeDeg = 5.0;
 // A view is planar when its points' RMS distance from their plane is below
 // this (depth noise on the default cell: ~0.45 mm) and it spans at least
@@ -683,7 +686,7 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
             cp.X_BO = Pose::Identity();
             cp.X_BO.linear() = R.cast<double>();
             cp.X_BO.translation() = (c + ox * x + oy * y - R * f.c).cast<double>();
-            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, 3);
+            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedStride);
             if (st.below_support || !(st.score > 0)) continue;
             seeds.emplace_back(st.score, cp);
           }
