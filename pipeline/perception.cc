@@ -8,6 +8,7 @@
 #include <numeric>
 
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 #include <tbb/task_arena.h>
 
 #include "pipeline/internal/class_model.h"
@@ -175,14 +176,14 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     const double spacing = footprint * stride;
     const float grid_jump = std::max(max_jump, static_cast<float>(2.5 * spacing));
 
+    // Connected regions and normals are independent: one task each (the
+    // stage "regions" covers both).
     std::vector<int32_t> region_of_cell;
-    internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell);
-    t = stage("regions", t);
-
     const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
     std::vector<Eigen::Vector3f> normals;
-    internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
-    t = stage("normals", t);
+    tbb::parallel_invoke([&] { internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
+                         [&] { internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals); });
+    t = stage("regions", t);
 
     // Floor band: near the floor and facing up.
     std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);

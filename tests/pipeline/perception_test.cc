@@ -305,7 +305,7 @@ TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   for (int32_t i : d.support) ASSERT_LT(static_cast<size_t>(i), r.roi_points_B.size());
   std::vector<std::string> stages;
   for (const StageTiming& t : r.timings) stages.push_back(t.stage);
-  EXPECT_EQ(stages, (std::vector<std::string>{"roi", "regions", "normals", "segment", "pose", "verify", "residual"}));
+  EXPECT_EQ(stages, (std::vector<std::string>{"roi", "regions", "segment", "pose", "verify", "residual"}));
 }
 
 TEST_F(PerceptionTest, ClassesArgumentRestrictsTheSearch) {
