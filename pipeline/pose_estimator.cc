@@ -405,7 +405,7 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(ppf_angle_step_deg >= 3 && ppf_angle_step_deg <= 45)) return fail("ppf_angle_step_deg must be in [3, 45]");
   if (!(icp_model_spacing > 0) || !(verify_model_spacing > 0)) return fail("model spacings must be > 0");
   if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
-  if (ppf_max_bucket_entries < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
+  if (ppf_max_bucket_entries < 1 || ppf_max_partners < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
   if (icp_iterations < 1 || icp_max_points < 100) return fail("icp_iterations must be >= 1, icp_max_points >= 100");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
@@ -1094,6 +1094,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   internal::PpfMatchOptions mo;
   mo.reference_stride = std::max(1, static_cast<int>(std::lround(1.0 / opt.reference_fraction)));
   mo.max_reference_points = search.max_reference_points;
+  mo.max_partners = opt.ppf_max_partners;
   mo.cluster_translation = opt.cluster_relative_translation * m.diameter;
   mo.cluster_rotation = opt.cluster_rotation_deg * M_PI / 180.0;
   mo.max_poses = 3 * search.max_coarse_poses;

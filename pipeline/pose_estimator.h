@@ -46,6 +46,12 @@ struct PoseEstimatorOptions {
   // Fraction of the subsampled scene points used as reference points, and a cap.
   double reference_fraction = 0.2;
   int max_reference_points = 20;
+  // Each reference point pairs with at most about this many subsampled scene
+  // points (strided). Measured (`binpick eval`, seeds 1-10 / 11-40 / 41-70):
+  // with 250 recall 0.933 / 0.942 / 0.936 against 0.926 / 0.938 / 0.934 with
+  // every point, the same precision, the coarse stage 0.56 instead of 0.86 ms
+  // per estimate (large segments have 300-500 subsampled points).
+  int ppf_max_partners = 250;
   // Pose clustering thresholds: translation relative to the diameter, rotation.
   double cluster_relative_translation = 0.1;
   double cluster_rotation_deg = 24.0;

@@ -150,6 +150,10 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   std::vector<Pair> pairs;
   pairs.reserve(ns);
   const float fNA = static_cast<float>(NA);
+  // Every partner_stride-th point pairs with a reference point (offset by the
+  // reference point, so that the references together use every point).
+  const size_t max_partners = static_cast<size_t>(std::max(1, options.max_partners));
+  const size_t partner_stride = (ns + max_partners - 1) / max_partners;
   for (size_t ri = 0; ri < refs.size(); ri += stride) {
     const size_t r = refs[ri];
     const Eigen::Vector3f& sr = points[r];
@@ -157,7 +161,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     const Eigen::Matrix3f Rs = AlignToX(nr);
     pairs.clear();
     size_t votes = 0;
-    for (size_t i = 0; i < ns; ++i) {
+    for (size_t i = r % partner_stride; i < ns; i += partner_stride) {
       if (i == r) continue;
       const int k = Key(sr, nr, points[i], normals[i]);
       if (k < 0) continue;

@@ -46,6 +46,9 @@ struct CoarsePose {
 struct PpfMatchOptions {
   int reference_stride = 5;          // every k-th scene point is a reference point
   int max_reference_points = 80;
+  // Each reference point pairs with at most about this many scene points
+  // (evenly strided); large segments vote on a subset.
+  int max_partners = 1 << 30;
   double cluster_translation = 0.01; // metres
   double cluster_rotation = 0.4;     // radians
   int max_poses = 4;
