@@ -710,6 +710,11 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
+  for (size_t i = 0; i < options.view_waves.size(); ++i) {
+    if (options.view_waves[i] < 1 || (i > 0 && options.view_waves[i] >= options.view_waves[i - 1])) {
+      return Status::InvalidArgument("perception: view_waves must be positive and strictly decreasing");
+    }
+  }
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(cell.parts.size());
   for (size_t i = 0; i < cell.parts.size(); ++i) built.emplace_back(Status::Internal("not built"));

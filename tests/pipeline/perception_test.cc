@@ -648,6 +648,10 @@ TEST(PerceptionEval, ViewWavesSkipPiecesOfPartsAlreadyFound) {
   const ClassFigures b = Summarize({EvaluateFrame(waves, *frame.truth, f.models)}, f.models).classes.back();
   EXPECT_EQ(b.found, a.found);
   EXPECT_LE(b.detections - b.true_positives, a.detections - a.true_positives);
+
+  PerceptionOptions bad;
+  bad.view_waves = {300, 2000};
+  EXPECT_EQ(Perception::Build(f.cell, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
 }  // namespace
