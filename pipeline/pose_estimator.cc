@@ -257,13 +257,12 @@ constexpr float kMinFaceExtent = 0.015f;
 // to this many more directions, those of the view's longest convex-hull edges
 // (merged within kFaceEdgeMergeDeg, modulo 90 deg).
 constexpr int kFaceEdgeDirections = 2;
+constexpr double kFaceEdgeMergeDeg = 5.0;
 // Face seeds are ranked by a verification of every this-many-th sample
 // (measured: 6 ranks as well as 3 on seeds 1-70, at half the cost).
 constexpr int kFaceSeedStride = 6;
-constexpr double kFaceEdgeMergeDeg = 5.0;
 // A view is planar when its points' RMS distance from their plane is below
-// this (depth noise on the default cell: ~0.45 mm) and it spans at least
-// kMinFaceExtent along its second axis.
+// this (depth noise on the default cell: ~0.45 mm).
 constexpr double kPlanarViewRms = 0.0010;
 
 // In-plane principal axes (u, v = n x u) and box of 2D points about their centroid.
@@ -439,9 +438,10 @@ struct PoseEstimator::Impl {
                           std::vector<internal::CoarsePose>& coarse) const;
 
   // PoseSearch::face_seeds: the part with one of its planar faces on the
-  // view's plane (normal n, towards the camera), turned so that the face's
-  // principal axes lie along the view's, placed so that the face's box holds
-  // the view's; the `keep` best by a quick verification are appended.
+  // view's plane (normal n, towards the camera), the face's principal axis
+  // along the view's principal axis or one of its longest hull edges (each in
+  // four quarter turns), placed so that the face's box holds the view's; the
+  // `keep` best by a quick verification are appended.
   void AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n, const SceneView& view,
                        const internal::PointHash& support_hash, const SegmentDepth& segment_depth, int keep,
                        std::vector<internal::CoarsePose>& coarse) const;

@@ -161,9 +161,10 @@ struct PoseSearch {
   // A view that is one plane (an L-bracket's plate: a segment of coplanar
   // points, on which point pair features tie between every placement of the
   // part's flat faces) also gets face seeds: the part with each of its large
-  // planar faces on the view's plane, the face's principal axes along the
-  // view's, its box holding the view's. The best this many by a quick
-  // verification go on with the coarse poses. 0 = none.
+  // planar faces on the view's plane, the face's principal axis along the
+  // view's principal axis or one of its longest hull edges, its box holding
+  // the view's (docs/perception.md, "Face seeds"). The best this many by a
+  // quick verification go on with the coarse poses. 0 = none.
   int face_seeds = 2;
 };
 
@@ -222,9 +223,10 @@ class PoseEstimator {
   // For diagnostics, e.g. how the true pose of a missed part scores.
   Result<PoseHypothesis> Score(const SceneView& view, const Pose& X_BO) const;
 
-  // Sets (*on_surface)[i] = 1 for the points_B within `tolerance` (metres,
-  // plus up to half a closest-point voxel) of the part's surface at X_BO;
-  // leaves the others as they are. on_surface->size() must be points_B.size().
+  // Sets (*on_surface)[i] = 1 for the points_B within `tolerance` (metres)
+  // of the part's surface at X_BO, as the closest-point field sees it (the
+  // sample nearest the point's voxel: a point near a voxel's edge can be
+  // missed, never one farther away taken); leaves the others as they are.
   void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
                      std::vector<uint8_t>* on_surface) const;
 
