@@ -159,6 +159,8 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     const Eigen::Vector3f& sr = points[r];
     const Eigen::Vector3f& nr = normals[r];
     const Eigen::Matrix3f Rs = AlignToX(nr);
+    // The previous reference point's cells back to zero.
+    for (const uint32_t cell : touched) acc[cell] = 0;
     pairs.clear();
     size_t votes = 0;
     for (size_t i = r % partner_stride; i < ns; i += partner_stride) {
@@ -196,14 +198,6 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
         best_bin = cell;
       }
     }
-    // Resets the touched cells (deferred to the end of this reference point).
-    struct Reset {
-      std::vector<uint16_t>& acc;
-      const std::vector<uint32_t>& touched;
-      ~Reset() {
-        for (const uint32_t cell : touched) acc[cell] = 0;
-      }
-    } reset{acc, touched};
     if (best < 3) continue;
     // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
     const auto pose_of = [&](size_t bin) {
