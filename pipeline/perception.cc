@@ -45,6 +45,12 @@ constexpr float kFloorMinNormalZ = 0.95f;
 // weaker one's support is already claimed.
 constexpr double kNmsRelativeDistance = 0.3;
 constexpr double kMaxSharedSupport = 0.5;
+// Parts of a pile never interpenetrate: a candidate is rejected when more
+// than kMaxInsideFraction of its surface samples lie at least kInsideDepth
+// inside an accepted detection's material, or the other way round
+// (PoseEstimator::CountInside; below half the L-bracket's 5 mm plate).
+constexpr float kInsideDepth = 0.001f;
+constexpr double kMaxInsideFraction = 0.03;
 // A segment is matched again on its unclaimed points when at least this
 // fraction of it is left after the first pass.
 constexpr double kResidualFraction = 0.25;
@@ -553,16 +559,56 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
 
   // 5. One detection per physical part: best score first, across segments and
   // classes; a candidate is a duplicate when its centre is near an accepted
-  // one or most of its support is already claimed.
-  std::vector<uint8_t> claimed(pts.size(), 0);
+  // one or most of its support is already claimed. A candidate that
+  // interpenetrates accepted detections replaces them when it scores higher
+  // than each (they came from an earlier, larger view), else it is dropped.
+  std::vector<uint16_t> claims(pts.size(), 0);  // accepted detections supported by each point
+  std::vector<uint8_t> dropped;                 // per result.detections entry: replaced
   std::vector<double> accepted_diameter;
   std::vector<Eigen::Vector3d> accepted_centre;
+  const auto model_of = [&](int class_id) -> const ClassModel* {
+    for (const ClassModel* m : models) {
+      if (m->class_id() == class_id) return m;
+    }
+    return nullptr;
+  };
+  const auto surface_B = [](const ClassModel& m, const Pose& X_BO) {
+    const std::span<const Eigen::Vector3f> s = m.surface_points_O();
+    std::vector<Eigen::Vector3f> out(s.size());
+    const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+    const Eigen::Vector3f t = X_BO.translation().cast<float>();
+    for (size_t i = 0; i < s.size(); ++i) out[i] = R * s[i] + t;
+    return out;
+  };
+  std::vector<std::vector<Eigen::Vector3f>> accepted_surface;
+  // The accepted detections c interpenetrates (kInsideDepth, kMaxInsideFraction).
+  const auto Interpenetrated = [&](const Candidate& c) {
+    std::vector<size_t> hit;
+    const ClassModel* cm = model_of(c.class_id);
+    if (cm == nullptr) return hit;
+    std::vector<Eigen::Vector3f> mine;
+    for (size_t k = 0; k < result.detections.size(); ++k) {
+      if (dropped[k]) continue;
+      if ((accepted_centre[k] - c.centre_B).norm() > 0.5 * (c.diameter + accepted_diameter[k])) continue;
+      const ClassModel* km = model_of(result.detections[k].class_id);
+      if (km == nullptr) continue;
+      if (mine.empty()) mine = surface_B(*cm, c.h.X_BO);
+      const double limit_mine = kMaxInsideFraction * static_cast<double>(mine.size());
+      const double limit_theirs = kMaxInsideFraction * static_cast<double>(accepted_surface[k].size());
+      if (static_cast<double>(km->CountInside(result.detections[k].X_BO, mine, kInsideDepth)) > limit_mine ||
+          static_cast<double>(cm->CountInside(c.h.X_BO, accepted_surface[k], kInsideDepth)) > limit_theirs) {
+        hit.push_back(k);
+      }
+    }
+    return hit;
+  };
   const auto accept = [&](std::vector<Candidate> candidates) {
     std::stable_sort(candidates.begin(), candidates.end(),
                      [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
     for (Candidate& c : candidates) {
       bool duplicate = false;
       for (size_t k = 0; k < result.detections.size(); ++k) {
+        if (dropped[k]) continue;
         const double dist = (accepted_centre[k] - c.centre_B).norm();
         if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
           duplicate = true;
@@ -571,13 +617,26 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       }
       if (!duplicate && !c.support_roi.empty()) {
         size_t shared = 0;
-        for (int32_t i : c.support_roi) shared += claimed[static_cast<size_t>(i)];
+        for (int32_t i : c.support_roi) shared += claims[static_cast<size_t>(i)] > 0 ? 1 : 0;
         duplicate = static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size());
       }
       if (duplicate) continue;
-      for (int32_t i : c.support_roi) claimed[static_cast<size_t>(i)] = 1;
+      const std::vector<size_t> hit = Interpenetrated(c);
+      if (std::any_of(hit.begin(), hit.end(), [&](size_t k) { return result.detections[k].score >= c.h.score; })) {
+        continue;
+      }
+      for (size_t k : hit) {
+        dropped[k] = 1;
+        for (int32_t i : result.detections[k].support) --claims[static_cast<size_t>(i)];
+      }
+      for (int32_t i : c.support_roi) ++claims[static_cast<size_t>(i)];
       accepted_diameter.push_back(c.diameter);
       accepted_centre.push_back(c.centre_B);
+      if (const ClassModel* m = model_of(c.class_id)) {
+        accepted_surface.push_back(surface_B(*m, c.h.X_BO));
+      } else {
+        accepted_surface.emplace_back();
+      }
       Detection d;
       d.class_id = c.class_id;
       d.X_BO = c.h.X_BO;
@@ -585,17 +644,12 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       d.visible_fraction = c.h.visible_fraction;
       d.support = std::move(c.support_roi);
       result.detections.push_back(std::move(d));
+      dropped.push_back(0);
     }
   };
 
   // Fraction of a view's points within kExplainedDistance of the surface of
   // an accepted detection.
-  const auto model_of = [&](int class_id) -> const ClassModel* {
-    for (const ClassModel* m : models) {
-      if (m->class_id() == class_id) return m;
-    }
-    return nullptr;
-  };
   const auto ExplainedFraction = [&](const std::vector<int32_t>& view) {
     if (view.empty()) return 0.0;
     std::vector<Eigen::Vector3f> points;
@@ -610,6 +664,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     for (const Eigen::Vector3f& p : points) radius = std::max(radius, (p.cast<double>() - centre).norm());
     std::vector<uint8_t> on(points.size(), 0);
     for (size_t d = 0; d < result.detections.size(); ++d) {
+      if (dropped[d]) continue;
       // The part lies within a diameter of its surface centroid.
       if ((accepted_centre[d] - centre).norm() > radius + accepted_diameter[d]) continue;
       if (const ClassModel* m = model_of(result.detections[d].class_id)) {
@@ -678,7 +733,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   for (const auto& [b, e] : seg_range) {
     std::vector<int32_t> left;
     for (int32_t k = b; k < e; ++k) {
-      if (!claimed[static_cast<size_t>(seg_roi_index[static_cast<size_t>(k)])]) left.push_back(k);
+      if (claims[static_cast<size_t>(seg_roi_index[static_cast<size_t>(k)])] == 0) left.push_back(k);
     }
     const auto n = static_cast<int32_t>(left.size());
     if (n < e - b && n >= options_.min_segment_points && n >= kResidualFraction * (e - b)) {
@@ -687,6 +742,15 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   }
   if (!residual.empty()) accept(estimate(residual, residual.size()));
   stage("residual", t);
+  {
+    size_t kept = 0;
+    for (size_t k = 0; k < result.detections.size(); ++k) {
+      if (dropped[k]) continue;
+      if (kept != k) result.detections[kept] = std::move(result.detections[k]);
+      ++kept;
+    }
+    result.detections.resize(kept);
+  }
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(seg_range.size()) + " segments" +
                     (rejected_low_score > 0 ? " (" + std::to_string(rejected_low_score) + " below min_detection_score)"

@@ -479,6 +479,21 @@ void PoseEstimator::MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vecto
     if (idx >= 0 && (q - impl_->dense.points[static_cast<size_t>(idx)]).squaredNorm() <= tol2) (*on_surface)[i] = 1;
   }
 }
+size_t PoseEstimator::CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B,
+                                  float min_depth) const {
+  const Pose X_OB = X_BO.inverse();
+  const Eigen::Matrix3f R = X_OB.linear().cast<float>();
+  const Eigen::Vector3f t = X_OB.translation().cast<float>();
+  size_t inside = 0;
+  for (const Eigen::Vector3f& p : points_B) {
+    const Eigen::Vector3f q = R * p + t;
+    const int idx = impl_->field.Nearest(q, impl_->dense.points);
+    if (idx < 0) continue;
+    const size_t i = static_cast<size_t>(idx);
+    inside += impl_->dense.normals[i].dot(q - impl_->dense.points[i]) < -min_depth ? 1 : 0;
+  }
+  return inside;
+}
 double PoseEstimator::diameter() const { return impl_->diameter; }
 double PoseEstimator::sampling_distance() const { return impl_->step; }
 int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->ppf_points.size()); }

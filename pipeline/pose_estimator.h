@@ -230,6 +230,15 @@ class PoseEstimator {
   void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
                      std::vector<uint8_t>* on_surface) const;
 
+  // How many of points_B lie inside the part's material at X_BO, at least
+  // min_depth (metres) behind its surface: the nearest dense model sample
+  // (within the closest-point field's band, a few millimetres) has its
+  // outward normal pointing away from the point. Points deeper than the band
+  // are not counted, so min_depth must stay below half the thinnest wall.
+  // Two parts of one pile never interpenetrate; two detections that do
+  // cannot both be right.
+  size_t CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float min_depth) const;
+
   double diameter() const;         // metres, of the sampled model
   double sampling_distance() const;  // PPF sampling distance, metres
   int model_point_count() const;   // PPF model points

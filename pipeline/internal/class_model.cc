@@ -42,6 +42,10 @@ class PpfClassModel final : public ClassModel {
                      std::vector<uint8_t>* on_surface) const override {
     estimator_->MarkOnSurface(X_BO, points_B, tolerance, on_surface);
   }
+  size_t CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float min_depth) const override {
+    return estimator_->CountInside(X_BO, points_B, min_depth);
+  }
+  std::span<const Eigen::Vector3f> surface_points_O() const override { return estimator_->surface_points_O(); }
 
   Result<PoseHypothesis> Score(const SegmentView& view, const Pose& X_BO) const override {
     return estimator_->Score(ToScene(view), X_BO);

@@ -58,6 +58,10 @@ class ClassModel {
   // See PoseEstimator::MarkOnSurface.
   virtual void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
                              std::vector<uint8_t>* on_surface) const = 0;
+  // See PoseEstimator::CountInside.
+  virtual size_t CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float min_depth) const = 0;
+  // Model surface samples in O (verification spacing).
+  virtual std::span<const Eigen::Vector3f> surface_points_O() const = 0;
 };
 
 // Extents of points along their principal axes (PCA), largest first, metres.

@@ -342,6 +342,36 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
   EXPECT_FALSE(PoseEstimator::Build(flat, Symmetry{}).ok());
 }
 
+TEST(PoseEstimator, CountInsideCountsPointsInTheMaterialOnly) {
+  // The test block spans x in [-30, 30], y in [-20, 20], z in [-10, 10] mm in O.
+  const PoseEstimator& block = Estimator(2);
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3(1, 2, 3).normalized())), Vec3(0.1, -0.05, 0.2));
+  const auto in_B = [&](std::vector<Eigen::Vector3f> pts_O) {
+    for (auto& p : pts_O) p = (X_BO * p.cast<double>()).cast<float>();
+    return pts_O;
+  };
+  // 2 mm under each face, and the same points 2 mm outside.
+  const std::vector<Eigen::Vector3f> inside = in_B({{0.028f, 0.f, 0.f},
+                                                    {0.f, -0.018f, 0.003f},
+                                                    {0.01f, 0.01f, 0.008f},
+                                                    {-0.02f, 0.f, -0.008f}});
+  const std::vector<Eigen::Vector3f> outside = in_B({{0.032f, 0.f, 0.f},
+                                                     {0.f, -0.022f, 0.003f},
+                                                     {0.01f, 0.01f, 0.012f},
+                                                     {-0.02f, 0.f, -0.012f},
+                                                     {0.f, 0.f, 0.f}});  // the centre: deeper than the band
+  EXPECT_EQ(block.CountInside(X_BO, inside, 0.001f), 4u);
+  EXPECT_EQ(block.CountInside(X_BO, inside, 0.003f), 0u);  // not 3 mm deep
+  EXPECT_EQ(block.CountInside(X_BO, outside, 0.001f), 0u);
+  // A copy of the block moved 4 mm along x overlaps it; one moved 61 mm does not.
+  std::vector<Eigen::Vector3f> surface_B;
+  for (const Eigen::Vector3f& p : block.surface_points_O()) surface_B.push_back((X_BO * p.cast<double>()).cast<float>());
+  const Pose shifted = X_BO * MakePose(Mat3::Identity(), Vec3(0.004, 0, 0));
+  const Pose apart = X_BO * MakePose(Mat3::Identity(), Vec3(0.061, 0, 0));
+  EXPECT_GT(block.CountInside(shifted, surface_B, 0.001f), surface_B.size() / 20);
+  EXPECT_EQ(block.CountInside(apart, surface_B, 0.001f), 0u);
+}
+
 TEST(SymmetricPoseError, RevolutePartRotatedAboutItsAxisHasZeroError) {
   const Symmetry s = testing::RevoluteZ();
   const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized())), Vec3(0.1, 0.2, 0.3));
