@@ -418,7 +418,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     }
   };
   // views[first_region_view..] are region views (see match_regions).
-  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view) {
+  // best_out (optional): per view, the best score over the classes tried (-1
+  // for none). second_look: every class that fits, with second_look_search.
+  const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view,
+                            std::vector<double>* best_out = nullptr, bool second_look = false) {
     // Per view: the classes that can fit it (SegmentFitsClass), ordered by
     // how well the view's principal extents match each model's.
     const size_t n_models = models.size();
@@ -456,7 +459,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       internal::ClassEstimate estimate;
     };
     std::vector<std::vector<Job>> per_view(views.size());
-    const bool early_exit = options_.early_exit_score > 0.0 && !thorough;
+    const bool early_exit = options_.early_exit_score > 0.0 && !thorough && !second_look;
+    if (best_out != nullptr) best_out->assign(views.size(), -1.0);
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points, normals;
       gather(views[v], &points, &normals);
@@ -466,6 +470,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       view.frame = &frame;
       view.floor_plane_B = floor_plane_B;
       if (thorough) view.search = options_.thorough_search;
+      if (second_look) view.search = options_.second_look_search;
       std::vector<Job>& done = per_view[v];
       // Runs classes ms[from, to) in parallel.
       const auto run = [&](const std::vector<int>& ms, size_t from, size_t to, bool too_small) {
@@ -498,15 +503,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           best = std::max(best, h.score);
         }
       }
-      if (!thorough && options_.second_look_below > 0.0 && best < options_.second_look_below && !order[v].empty()) {
-        // A second look with a wider coarse search (PerceptionOptions::second_look_below).
-        view.search = options_.second_look_search;
-        run(order[v], 0, order[v].size(), false);
-        view.search.reset();
-        for (const Job& job : done) {
-          for (const auto& h : job.estimate.hypotheses) found |= h.score >= options_.min_detection_score;
-        }
-      }
+      if (best_out != nullptr) (*best_out)[v] = best;
       if (!found) run(too_small[v], 0, too_small[v].size(), true);
     });
     result.views += static_cast<int>(views.size());
@@ -686,6 +683,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     return view_of_segment[a].size() > view_of_segment[b].size();
   });
   std::vector<int> wave_min = options_.view_waves;
+  std::vector<std::vector<int32_t>> weak_segment_views, weak_region_views;  // for the second look
   wave_min.push_back(0);
   double pose_ms = 0.0, verify_ms = 0.0;
   size_t next_view = 0;
@@ -717,15 +715,46 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       first_region += v < n_segment_views ? 1 : 0;
       wave_views.push_back(std::move(view_of_segment[v]));
     }
-    std::vector<Candidate> candidates = estimate(wave_views, first_region);
+    std::vector<double> best;
+    std::vector<Candidate> candidates = estimate(wave_views, first_region, &best);
     const Clock::time_point t1 = Clock::now();
     accept(std::move(candidates));
     pose_ms += Ms(t0, t1);
     verify_ms += Ms(t1, Clock::now());
+    if (!thorough && options_.second_look_below > 0.0) {
+      for (size_t i = 0; i < wave_views.size(); ++i) {
+        if (best[i] < options_.second_look_below) {
+          (i < first_region ? weak_segment_views : weak_region_views).push_back(std::move(wave_views[i]));
+        }
+      }
+    }
   }
   result.timings.push_back({"pose", pose_ms});
   result.timings.push_back({"verify", verify_ms});
   t = Clock::now();
+
+  // Second look (PerceptionOptions::second_look_below): the weak views of
+  // second_look_min_points or more that no detection explains (as the waves
+  // judge a view, kExplainedFraction) are matched again with the wider search.
+  {
+    const size_t n_weak_segments = weak_segment_views.size();
+    for (auto& view : weak_region_views) weak_segment_views.push_back(std::move(view));
+    std::vector<uint8_t> explained(weak_segment_views.size(), 0);
+    tbb::parallel_for(size_t{0}, weak_segment_views.size(), [&](size_t i) {
+      explained[i] = ExplainedFraction(weak_segment_views[i]) >= kExplainedFraction ? 1 : 0;
+    });
+    std::vector<std::vector<int32_t>> again;
+    size_t first_region = 0;
+    for (size_t i = 0; i < weak_segment_views.size(); ++i) {
+      if (explained[i]) continue;
+      if (static_cast<int>(weak_segment_views[i].size()) < options_.second_look_min_points) continue;
+      first_region += i < n_weak_segments ? 1 : 0;
+      again.push_back(std::move(weak_segment_views[i]));
+    }
+    result.second_looks = static_cast<int>(again.size());
+    if (!again.empty()) accept(estimate(again, first_region, nullptr, /*second_look=*/true));
+  }
+  t = stage("second_look", t);
 
   // Residual pass: segments that a detection explained only in part (touching
   // parts merged into one segment) are matched again on their unclaimed points.

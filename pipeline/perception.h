@@ -48,6 +48,7 @@ struct PerceptionResult {
   int views = 0;              // segment, region and residual views formed
   int views_explained = 0;    // of those, skipped as pieces of parts already found (view_waves)
   int estimator_calls = 0;    // (view, class) pose estimates run
+  int second_looks = 0;       // views matched again (PerceptionOptions::second_look_below)
   std::string reason;                   // why there are no detections, when there are none
   double TotalMs() const;
 };
@@ -107,17 +108,17 @@ struct PerceptionOptions {
   // Grid spacing targeted on the bin floor (metres): high-resolution frames are
   // segmented and matched on every k-th pixel so that the spacing is about this.
   double grid_spacing = 0.0012;
-  // A second look: a view whose best hypothesis over the classes tried
-  // scores below this (none at all included) is matched again by the classes
-  // that fit it, with second_look_search. 0 = off (the default). Measured
-  // with 0.9 (`binpick eval --second-look 0.9`, seeds 1-10 / 11-40 / 41-70):
-  // recall 0.914 / 0.919 / 0.909 instead of 0.883 / 0.890 / 0.868, precision
-  // 0.976 / 0.960 / 0.974 instead of 0.981 / 0.966 / 0.969, total median
-  // 120 / 122 / 131 ms instead of 75 / 73 / 81. The recall comes from the
-  // coarse poses ranked 5-12 by PPF votes (12 coarse poses with 1 peak of 8
-  // per reference point gave the same recall on seeds 11-40; 4 coarse poses
-  // with 2 peaks of 16, 0.896).
-  double second_look_below = 0.0;
+  // A second look: after the waves, a view whose best hypothesis over the
+  // classes tried scored below this (none at all included), that holds at
+  // least second_look_min_points grid points and that the detections do not
+  // explain (as for view_waves) is matched again by every class that fits it,
+  // with second_look_search. 0 = off. Measured (`binpick eval`, seeds 1-10 /
+  // 11-40 / 41-70, docs/perception_pipeline.md): recall 0.945 / 0.950 /
+  // 0.951 against 0.933 / 0.942 / 0.934 with it off, precision 0.982 / 0.979
+  // / 0.985 against 0.988 / 0.981 / 0.984, about 10 ms more per frame. The
+  // recall comes from the coarse poses ranked 5-12 by PPF votes.
+  double second_look_below = 0.9;
+  int second_look_min_points = 450;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
                                 .peaks_examined = 16};
   // A thorough run (PerceptionEffort::kThorough) tries every class on every

@@ -43,7 +43,7 @@ struct EvalCliOptions {
   double convex = -2.0;
   bool regions = false;
   bool thorough = false;
-  double second_look = 0.0;
+  double second_look = PerceptionOptions{}.second_look_below;
 };
 
 void Progress(int done, int total, double last_ms) {
