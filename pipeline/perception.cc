@@ -42,10 +42,13 @@ constexpr float kFloorMinNormalZ = 0.95f;
 // Two detections are one physical part when their centres (of the part's
 // surface, not its origin: an L-bracket's origin is its corner) are closer than this
 // fraction of the larger diameter, or when more than kMaxSharedSupport of the
-// weaker one's support is already claimed.
+// later one's support is already claimed.
 constexpr double kNmsRelativeDistance = 0.3;
 constexpr double kMaxSharedSupport = 0.5;
-// Parts of a pile never interpenetrate: a candidate is rejected when more
+// ... and the accepted detections that hold at least this fraction of the
+// later one's support are the ones it conflicts with.
+constexpr double kSharedOwner = 0.1;
+// Parts of a pile never interpenetrate: a candidate conflicts when more
 // than kMaxInsideFraction of its surface samples lie at least kInsideDepth
 // inside an accepted detection's material, or the other way round
 // (PoseEstimator::CountInside; below half the L-bracket's 5 mm plate).
@@ -554,13 +557,15 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     return candidates;
   };
 
-  // 5. One detection per physical part: best score first, across segments and
-  // classes; a candidate is a duplicate when its centre is near an accepted
-  // one or most of its support is already claimed. A candidate that
-  // interpenetrates accepted detections replaces them when it scores higher
-  // than each (they came from an earlier, larger view), else it is dropped.
+  // 5. One detection per physical part, greedy by score across segments,
+  // classes and waves: a candidate conflicts with an accepted detection whose
+  // centre is near its own, that holds a share of its support when most of
+  // that is already claimed, or that it interpenetrates. It is dropped when a
+  // detection it conflicts with scores as well, else it replaces them all
+  // (they came from an earlier wave or the second look came after them).
   std::vector<uint16_t> claims(pts.size(), 0);  // accepted detections supported by each point
   std::vector<uint8_t> dropped;                 // per result.detections entry: replaced
+  std::vector<uint8_t> mark(pts.size(), 0);     // scratch: a candidate's support
   std::vector<double> accepted_diameter;
   std::vector<Eigen::Vector3d> accepted_centre;
   const auto model_of = [&](int class_id) -> const ClassModel* {
@@ -603,26 +608,44 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::stable_sort(candidates.begin(), candidates.end(),
                      [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
     for (Candidate& c : candidates) {
-      bool duplicate = false;
+      // The live accepted detections c conflicts with: centres within the
+      // NMS distance, a share of c's support when more than
+      // kMaxSharedSupport of it is claimed, or interpenetration.
+      std::vector<size_t> conflicts;
       for (size_t k = 0; k < result.detections.size(); ++k) {
         if (dropped[k]) continue;
         const double dist = (accepted_centre[k] - c.centre_B).norm();
-        if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) {
-          duplicate = true;
-          break;
-        }
+        if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) conflicts.push_back(k);
       }
-      if (!duplicate && !c.support_roi.empty()) {
+      if (!c.support_roi.empty()) {
         size_t shared = 0;
         for (int32_t i : c.support_roi) shared += claims[static_cast<size_t>(i)] > 0 ? 1 : 0;
-        duplicate = static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size());
+        if (static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size())) {
+          for (int32_t i : c.support_roi) mark[static_cast<size_t>(i)] = 1;
+          bool attributed = false;
+          for (size_t k = 0; k < result.detections.size(); ++k) {
+            if (dropped[k]) continue;
+            size_t overlap = 0;
+            for (int32_t i : result.detections[k].support) overlap += mark[static_cast<size_t>(i)];
+            if (static_cast<double>(overlap) >= kSharedOwner * static_cast<double>(c.support_roi.size())) {
+              attributed = true;
+              if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
+            }
+          }
+          for (int32_t i : c.support_roi) mark[static_cast<size_t>(i)] = 0;
+          if (!attributed) continue;
+        }
       }
-      if (duplicate) continue;
-      const std::vector<size_t> hit = Interpenetrated(c);
-      if (std::any_of(hit.begin(), hit.end(), [&](size_t k) { return result.detections[k].score >= c.h.score; })) {
+      for (size_t k : Interpenetrated(c)) {
+        if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
+      }
+      // Greedy by score across the waves: c loses to any conflicting
+      // detection that scores as well, else replaces them all.
+      if (std::any_of(conflicts.begin(), conflicts.end(),
+                      [&](size_t k) { return result.detections[k].score >= c.h.score; })) {
         continue;
       }
-      for (size_t k : hit) {
+      for (size_t k : conflicts) {
         dropped[k] = 1;
         for (int32_t i : result.detections[k].support) --claims[static_cast<size_t>(i)];
       }
@@ -646,8 +669,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   };
 
   // Fraction of a view's points within kExplainedDistance of the surface of
-  // an accepted detection.
-  const auto ExplainedFraction = [&](const std::vector<int32_t>& view) {
+  // an accepted detection (of those scoring at least min_score).
+  const auto ExplainedFraction = [&](const std::vector<int32_t>& view, double min_score = 0.0) {
     if (view.empty()) return 0.0;
     std::vector<Eigen::Vector3f> points;
     points.reserve(view.size());
@@ -661,7 +684,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     for (const Eigen::Vector3f& p : points) radius = std::max(radius, (p.cast<double>() - centre).norm());
     std::vector<uint8_t> on(points.size(), 0);
     for (size_t d = 0; d < result.detections.size(); ++d) {
-      if (dropped[d]) continue;
+      if (dropped[d] || result.detections[d].score < min_score) continue;
       // The part lies within a diameter of its surface centroid.
       if ((accepted_centre[d] - centre).norm() > radius + accepted_diameter[d]) continue;
       if (const ClassModel* m = model_of(result.detections[d].class_id)) {
@@ -734,14 +757,17 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   t = Clock::now();
 
   // Second look (PerceptionOptions::second_look_below): the weak views of
-  // second_look_min_points or more that no detection explains (as the waves
-  // judge a view, kExplainedFraction) are matched again with the wider search.
+  // second_look_min_points or more that no confident detection (scoring at
+  // least second_look_below) explains (kExplainedFraction, as the waves judge
+  // a view) are matched again with the wider search; what they find competes
+  // with the detections so far by score (accept).
   {
     const size_t n_weak_segments = weak_segment_views.size();
     for (auto& view : weak_region_views) weak_segment_views.push_back(std::move(view));
     std::vector<uint8_t> explained(weak_segment_views.size(), 0);
     tbb::parallel_for(size_t{0}, weak_segment_views.size(), [&](size_t i) {
-      explained[i] = ExplainedFraction(weak_segment_views[i]) >= kExplainedFraction ? 1 : 0;
+      explained[i] =
+          ExplainedFraction(weak_segment_views[i], options_.second_look_below) >= kExplainedFraction ? 1 : 0;
     });
     std::vector<std::vector<int32_t>> again;
     size_t first_region = 0;
