@@ -115,9 +115,10 @@ struct PerceptionOptions {
   // class that fits it, with second_look_search; what it finds competes with
   // the detections so far by score. 0 = off. Measured (`binpick eval`, seeds
   // 1-10 / 11-40 / 41-70, docs/perception_pipeline.md): recall 0.951 / 0.950
-  // / 0.955 against 0.933 / 0.942 / 0.934 with it off, precision 0.988 /
-  // 0.979 / 0.987 against 0.988 / 0.981 / 0.984. The recall comes from the
-  // coarse poses ranked 5-12 by PPF votes.
+  // / 0.955 against 0.933 / 0.942 / 0.936 with it off, precision 0.988 /
+  // 0.979 / 0.987 against 0.988 / 0.981 / 0.986, about 20 ms more per
+  // frame (median). The recall comes from the coarse poses ranked 5-12 by
+  // PPF votes.
   double second_look_below = 0.9;
   int second_look_min_points = 450;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
