@@ -564,10 +564,15 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // detection it conflicts with scores as well, else it replaces them all
   // (they came from an earlier wave or the second look came after them).
   std::vector<uint16_t> claims(pts.size(), 0);  // accepted detections supported by each point
-  std::vector<uint8_t> dropped;                 // per result.detections entry: replaced
   std::vector<uint8_t> mark(pts.size(), 0);     // scratch: a candidate's support
-  std::vector<double> accepted_diameter;
-  std::vector<Eigen::Vector3d> accepted_centre;
+  // Per result.detections entry.
+  struct Accepted {
+    double diameter = 0.0;
+    Eigen::Vector3d centre_B;                // of the part's surface
+    std::vector<Eigen::Vector3f> surface_B;  // the model's surface samples at the detection
+    bool dropped = false;                    // replaced by a later, better candidate
+  };
+  std::vector<Accepted> accepted;
   const auto model_of = [&](int class_id) -> const ClassModel* {
     for (const ClassModel* m : models) {
       if (m->class_id() == class_id) return m;
@@ -582,7 +587,6 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     for (size_t i = 0; i < s.size(); ++i) out[i] = R * s[i] + t;
     return out;
   };
-  std::vector<std::vector<Eigen::Vector3f>> accepted_surface;
   // The accepted detections c interpenetrates (kInsideDepth, kMaxInsideFraction).
   const auto Interpenetrated = [&](const Candidate& c) {
     std::vector<size_t> hit;
@@ -590,15 +594,15 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     if (cm == nullptr) return hit;
     std::vector<Eigen::Vector3f> mine;
     for (size_t k = 0; k < result.detections.size(); ++k) {
-      if (dropped[k]) continue;
-      if ((accepted_centre[k] - c.centre_B).norm() > 0.5 * (c.diameter + accepted_diameter[k])) continue;
+      const Accepted& a = accepted[k];
+      if (a.dropped || (a.centre_B - c.centre_B).norm() > 0.5 * (c.diameter + a.diameter)) continue;
       const ClassModel* km = model_of(result.detections[k].class_id);
       if (km == nullptr) continue;
       if (mine.empty()) mine = surface_B(*cm, c.h.X_BO);
       const double limit_mine = kMaxInsideFraction * static_cast<double>(mine.size());
-      const double limit_theirs = kMaxInsideFraction * static_cast<double>(accepted_surface[k].size());
+      const double limit_theirs = kMaxInsideFraction * static_cast<double>(a.surface_B.size());
       if (static_cast<double>(km->CountInside(result.detections[k].X_BO, mine, kInsideDepth)) > limit_mine ||
-          static_cast<double>(cm->CountInside(c.h.X_BO, accepted_surface[k], kInsideDepth)) > limit_theirs) {
+          static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, kInsideDepth)) > limit_theirs) {
         hit.push_back(k);
       }
     }
@@ -612,10 +616,14 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       // NMS distance, a share of c's support when more than
       // kMaxSharedSupport of it is claimed, or interpenetration.
       std::vector<size_t> conflicts;
-      for (size_t k = 0; k < result.detections.size(); ++k) {
-        if (dropped[k]) continue;
-        const double dist = (accepted_centre[k] - c.centre_B).norm();
-        if (dist < kNmsRelativeDistance * std::max(c.diameter, accepted_diameter[k])) conflicts.push_back(k);
+      const auto conflict = [&conflicts](size_t k) {
+        if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
+      };
+      for (size_t k = 0; k < accepted.size(); ++k) {
+        const Accepted& a = accepted[k];
+        if (!a.dropped && (a.centre_B - c.centre_B).norm() < kNmsRelativeDistance * std::max(c.diameter, a.diameter)) {
+          conflicts.push_back(k);
+        }
       }
       if (!c.support_roi.empty()) {
         size_t shared = 0;
@@ -624,21 +632,19 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           for (int32_t i : c.support_roi) mark[static_cast<size_t>(i)] = 1;
           bool attributed = false;
           for (size_t k = 0; k < result.detections.size(); ++k) {
-            if (dropped[k]) continue;
+            if (accepted[k].dropped) continue;
             size_t overlap = 0;
             for (int32_t i : result.detections[k].support) overlap += mark[static_cast<size_t>(i)];
             if (static_cast<double>(overlap) >= kSharedOwner * static_cast<double>(c.support_roi.size())) {
               attributed = true;
-              if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
+              conflict(k);
             }
           }
           for (int32_t i : c.support_roi) mark[static_cast<size_t>(i)] = 0;
           if (!attributed) continue;
         }
       }
-      for (size_t k : Interpenetrated(c)) {
-        if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
-      }
+      for (size_t k : Interpenetrated(c)) conflict(k);
       // Greedy by score across the waves: c loses to any conflicting
       // detection that scores as well, else replaces them all.
       if (std::any_of(conflicts.begin(), conflicts.end(),
@@ -646,17 +652,12 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         continue;
       }
       for (size_t k : conflicts) {
-        dropped[k] = 1;
+        accepted[k].dropped = true;
         for (int32_t i : result.detections[k].support) --claims[static_cast<size_t>(i)];
       }
       for (int32_t i : c.support_roi) ++claims[static_cast<size_t>(i)];
-      accepted_diameter.push_back(c.diameter);
-      accepted_centre.push_back(c.centre_B);
-      if (const ClassModel* m = model_of(c.class_id)) {
-        accepted_surface.push_back(surface_B(*m, c.h.X_BO));
-      } else {
-        accepted_surface.emplace_back();
-      }
+      const ClassModel* m = model_of(c.class_id);
+      accepted.push_back({c.diameter, c.centre_B, m ? surface_B(*m, c.h.X_BO) : std::vector<Eigen::Vector3f>{}});
       Detection d;
       d.class_id = c.class_id;
       d.X_BO = c.h.X_BO;
@@ -664,7 +665,6 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       d.visible_fraction = c.h.visible_fraction;
       d.support = std::move(c.support_roi);
       result.detections.push_back(std::move(d));
-      dropped.push_back(0);
     }
   };
 
@@ -684,9 +684,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     for (const Eigen::Vector3f& p : points) radius = std::max(radius, (p.cast<double>() - centre).norm());
     std::vector<uint8_t> on(points.size(), 0);
     for (size_t d = 0; d < result.detections.size(); ++d) {
-      if (dropped[d] || result.detections[d].score < min_score) continue;
+      const Accepted& a = accepted[d];
+      if (a.dropped || result.detections[d].score < min_score) continue;
       // The part lies within a diameter of its surface centroid.
-      if ((accepted_centre[d] - centre).norm() > radius + accepted_diameter[d]) continue;
+      if ((a.centre_B - centre).norm() > radius + a.diameter) continue;
       if (const ClassModel* m = model_of(result.detections[d].class_id)) {
         m->MarkOnSurface(result.detections[d].X_BO, points, kExplainedDistance, &on);
       }
@@ -800,7 +801,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   {
     size_t kept = 0;
     for (size_t k = 0; k < result.detections.size(); ++k) {
-      if (dropped[k]) continue;
+      if (accepted[k].dropped) continue;
       if (kept != k) result.detections[kept] = std::move(result.detections[k]);
       ++kept;
     }
