@@ -393,6 +393,31 @@ void SortByMortonCode(internal::OrientedPoints& s) {
   s = std::move(sorted);
 }
 
+// A sample maps onto the surface under a near symmetry when its image lies
+// within this of a dense sample whose normal is within kNearSymmetryDeg.
+constexpr float kNearSymmetryDistance = 0.001f;
+constexpr double kNearSymmetryDeg = 30.0;
+// Two transforms of O are one near symmetry (or one is the identity modulo
+// the declared symmetry) within this rotation and this fraction of the
+// diameter at the centroid.
+constexpr double kSameTransformDeg = 10.0;
+constexpr double kSameTransformRelative = 0.05;
+// Plates: two antiparallel faces at most this fraction of the diameter apart
+// whose boxes overlap.
+constexpr double kPlateRelativeThickness = 0.2;
+// A near-symmetric turn of a hypothesis is refined only when, at a quick
+// look (every third verification sample), it explains at least this fraction
+// of what the hypothesis does.
+constexpr double kNearSymmetryScreen = 0.8;
+
+// The 180 deg turn about the line through c along unit axis a.
+Pose HalfTurn(const Eigen::Vector3f& a, const Eigen::Vector3f& c) {
+  const Eigen::Vector3d ad = a.cast<double>().normalized();
+  const Eigen::Matrix3d R = 2.0 * ad * ad.transpose() - Eigen::Matrix3d::Identity();
+  const Eigen::Vector3d cd = c.cast<double>();
+  return MakePose(R, cd - R * cd);
+}
+
 }  // namespace
 
 bool PoseEstimatorOptions::IsValid(std::string* error) const {
@@ -409,6 +434,10 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
   if (!(visible_min_cos >= 0 && visible_min_cos < 1)) return fail("visible_min_cos must be in [0, 1)");
+  if (!(near_symmetry_min_overlap >= 0 && near_symmetry_min_overlap <= 1) || max_near_symmetries < 0 ||
+      !(near_symmetry_score_slack >= 0 && near_symmetry_score_slack < 1)) {
+    return fail("near_symmetry_min_overlap must be in [0, 1], near_symmetry_score_slack in [0, 1), max_near_symmetries >= 0");
+  }
   return true;
 }
 
@@ -445,6 +474,10 @@ struct PoseEstimator::Impl {
   void AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n, const SceneView& view,
                        const internal::PointHash& support_hash, const SegmentDepth& segment_depth, int keep,
                        std::vector<internal::CoarsePose>& coarse) const;
+
+  std::vector<Pose> near_symmetries;  // PoseEstimatorOptions::near_symmetry_min_overlap
+  // Finds them (after faces, field, dense and verify are built).
+  std::vector<Pose> NearSymmetries() const;
 
   // Visible-surface test, support and free-space test for one pose.
   // stride > 1 checks every stride-th verification sample (a quick pass).
@@ -500,6 +533,69 @@ int PoseEstimator::model_point_count() const { return static_cast<int>(impl_->pp
 const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { return impl_->verify.points; }
 Eigen::Vector3f PoseEstimator::centroid_O() const { return impl_->centroid_O; }
 const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
+const std::vector<Pose>& PoseEstimator::near_symmetries() const { return impl_->near_symmetries; }
+
+std::vector<Pose> PoseEstimator::Impl::NearSymmetries() const {
+  if (options.max_near_symmetries <= 0 || !(options.near_symmetry_min_overlap > 0) || faces.empty()) return {};
+  std::vector<Pose> candidates;
+  for (const PlanarFace& f : faces) {
+    if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
+    // The centre of the face's box (holes pull its centroid off it).
+    const Eigen::Vector3f box_c = f.c + 0.5f * (f.lo.x() + f.hi.x()) * f.u + 0.5f * (f.lo.y() + f.hi.y()) * f.v;
+    candidates.push_back(HalfTurn(f.n, box_c));
+    // A plate: the antiparallel face nearest behind this one whose box
+    // overlaps it; turns about the in-plane axes through the mid-plane.
+    const PlanarFace* back = nullptr;
+    float thickness = 0.f;
+    for (const PlanarFace& g : faces) {
+      if (f.n.dot(g.n) > -0.99f) continue;
+      const float t = f.n.dot(f.c - g.c);
+      if (!(t > 0.f) || t > static_cast<float>(kPlateRelativeThickness * diameter)) continue;
+      const Eigen::Vector3f d = g.c - f.c;
+      const Eigen::Vector2f gc(d.dot(f.u), d.dot(f.v));
+      if ((gc.array() < f.lo.array()).any() || (gc.array() > f.hi.array()).any()) continue;
+      if (back == nullptr || t < thickness) {
+        back = &g;
+        thickness = t;
+      }
+    }
+    if (back == nullptr) continue;
+    const Eigen::Vector3f mid = box_c - 0.5f * thickness * f.n;
+    candidates.push_back(HalfTurn(f.u, mid));
+    candidates.push_back(HalfTurn(f.v, mid));
+  }
+  const Eigen::Vector3d centroid = centroid_O.cast<double>();
+  const auto same = [&](const Pose& a, const Pose& b) {
+    return SymmetricRotationError(a, b, symmetry) < kSameTransformDeg * kDeg &&
+           (a * centroid - b * centroid).norm() < kSameTransformRelative * diameter;
+  };
+  const float cos_normal = static_cast<float>(std::cos(kNearSymmetryDeg * kDeg));
+  std::vector<std::pair<double, Pose>> scored;
+  for (const Pose& F : candidates) {
+    if (same(F, Pose::Identity())) continue;
+    const Eigen::Matrix3f R = F.linear().cast<float>();
+    const Eigen::Vector3f t = F.translation().cast<float>();
+    size_t on = 0;
+    for (size_t i = 0; i < verify.size(); ++i) {
+      const Eigen::Vector3f q = R * verify.points[i] + t;
+      const int idx = field.Nearest(q, dense.points);
+      if (idx < 0) continue;
+      on += (q - dense.points[static_cast<size_t>(idx)]).squaredNorm() <= kNearSymmetryDistance * kNearSymmetryDistance &&
+            (R * verify.normals[i]).dot(dense.normals[static_cast<size_t>(idx)]) >= cos_normal;
+    }
+    const double overlap = static_cast<double>(on) / static_cast<double>(std::max<size_t>(1, verify.size()));
+    if (overlap >= options.near_symmetry_min_overlap) scored.emplace_back(overlap, F);
+  }
+  std::stable_sort(scored.begin(), scored.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<Pose> out;
+  for (const auto& [overlap, F] : scored) {
+    if (static_cast<int>(out.size()) >= options.max_near_symmetries) break;
+    bool duplicate = false;
+    for (const Pose& G : out) duplicate |= same(F, G);
+    if (!duplicate) out.push_back(F);
+  }
+  return out;
+}
 
 void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> scene,
                                               std::span<const Eigen::Vector3f> sub_p,
@@ -799,6 +895,8 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
       }
     }
   }
+
+  impl->near_symmetries = impl->NearSymmetries();
 
   internal::PpfParams params;
   params.distance_step = impl->step;
@@ -1276,6 +1374,39 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
       continue;
+    }
+    if (search.near_symmetries && !m.near_symmetries.empty()) {
+      // The part turned by a near symmetry may explain the view better (an
+      // L-bracket turned over about its upright): a turn that explains
+      // nearly as much at a quick look (kNearSymmetryScreen) is refined
+      // and replaces the pose when it explains more of the view (supported
+      // minus free-space model points) and scores at most
+      // near_symmetry_score_slack lower. By score alone the turn that hides
+      // more of the part (its denominator) wins: precision fell.
+      const auto net = [](const VerifyStats& v) { return v.supported - v.free_space; };
+      const Pose X = c.X_BO;
+      VerifyStats quick;
+      timed(verify_ms, [&] { quick = m.Verify(X, view, support_hash, segment_depth, 3, search.unmeasured_is_no_evidence); });
+      for (const Pose& F : m.near_symmetries) {
+        VerifyStats q;
+        timed(verify_ms, [&] { q = m.Verify(X * F, view, support_hash, segment_depth, 3, search.unmeasured_is_no_evidence); });
+        if (net(q) < kNearSymmetryScreen * net(quick)) continue;
+        internal::IcpResult alt;
+        timed(refine_ms, [&] {
+          alt = m.Refine(fine, fine_boundary, X * F, camera_B, std::max(gate1, 0.75f * m.step), gate1,
+                         opt.icp_iterations);
+        });
+        if (!alt.ok || !alt.X_BO.matrix().allFinite()) continue;
+        VerifyStats st;
+        timed(verify_ms, [&] { st = m.Verify(alt.X_BO, view, support_hash, segment_depth, 1,
+                                          search.unmeasured_is_no_evidence); });
+        if (passes(st, min_score) && net(st) > net(c.stats) &&
+            st.score >= c.stats.score - opt.near_symmetry_score_slack) {
+          c.X_BO = alt.X_BO;
+          c.icp = alt;
+          c.stats = st;
+        }
+      }
     }
     finals.push_back(c);
   }

@@ -165,6 +165,8 @@ int Run(const EvalCliOptions& opt) {
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
     if (spdlog::should_log(spdlog::level::debug)) {
+      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} second looks", i,
+                    result->views, result->views_explained, result->estimator_calls, result->second_looks);
       std::vector<int> matched;
       for (const DetectionOutcome& d : evaluations.back().detections) matched.push_back(d.truth_instance);
       for (const PartTruth& p : frame->truth->parts) {
@@ -175,6 +177,17 @@ int Run(const EvalCliOptions& opt) {
                       "{:.2f})",
                       i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
                       p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
+        // A detection of the same class near it: how it is off, in the part's frame.
+        for (const Detection& d : result->detections) {
+          if (d.class_id != p.class_id || (d.X_BO.translation() - p.X_BO.translation()).norm() > 0.1) continue;
+          const Pose X_TD = p.X_BO.inverse() * d.X_BO;
+          const Eigen::AngleAxisd aa(X_TD.rotation());
+          spdlog::debug("frame {} missed inst {}: detection score {:.2f} is off by {:.0f} deg about ({:.2f}, {:.2f}, "
+                        "{:.2f}) and ({:.1f}, {:.1f}, {:.1f}) mm in the part frame",
+                        i, p.instance_id, d.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(),
+                        aa.axis().z(), X_TD.translation().x() * 1000, X_TD.translation().y() * 1000,
+                        X_TD.translation().z() * 1000);
+        }
       }
       for (const Detection& d : result->detections) {
         double best = 1e9;

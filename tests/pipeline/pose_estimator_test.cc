@@ -1,6 +1,7 @@
 #include "pipeline/pose_estimator.h"
 
 #include <cmath>
+#include <functional>
 #include <future>
 #include <limits>
 #include <random>
@@ -370,6 +371,48 @@ TEST(PoseEstimator, CountInsideCountsPointsInTheMaterialOnly) {
   const Pose apart = X_BO * MakePose(Mat3::Identity(), Vec3(0.061, 0, 0));
   EXPECT_GT(block.CountInside(shifted, surface_B, 0.001f), surface_B.size() / 20);
   EXPECT_EQ(block.CountInside(apart, surface_B, 0.001f), 0u);
+}
+
+// The shipped L-bracket (base x in [0, 90], z in [0, 5]; upright x in
+// [0, 5], z in [0, 60]; y in [-25, 25] mm) has, among its near symmetries,
+// the turn over about its upright, (x, y, z) -> (x, -y, 60 - z), and the
+// turn end for end about its base plate, (x, y, z) -> (90 - x, y, 5 - z).
+// The bushing, revolute about z, is nearly the same upside down; no near
+// symmetry of it is a turn about its axis (that is its symmetry).
+TEST(PoseEstimator, FindsTheNearSymmetriesOfTheShippedParts) {
+  auto bracket = PoseEstimator::Build(MakeLBracket(), Symmetry{});
+  ASSERT_TRUE(bracket.ok()) << bracket.status().ToString();
+  const std::vector<Pose>& F = (*bracket)->near_symmetries();
+  EXPECT_LE(F.size(), 4u);
+  const auto has = [&](const std::function<Vec3(const Vec3&)>& map) {
+    for (const Pose& f : F) {
+      double worst = 0;
+      for (const Vec3& c : {Vec3(0, -0.025, 0), Vec3(0.09, 0.025, 0.005), Vec3(0.005, 0.025, 0.06), Vec3(0.05, 0, 0.03)}) {
+        worst = std::max(worst, (f * c - map(c)).norm());
+      }
+      if (worst < 0.0015) return true;
+    }
+    return false;
+  };
+  EXPECT_TRUE(has([](const Vec3& p) { return Vec3(p.x(), -p.y(), 0.06 - p.z()); }));
+  EXPECT_TRUE(has([](const Vec3& p) { return Vec3(0.09 - p.x(), p.y(), 0.005 - p.z()); }));
+  EXPECT_FALSE(has([](const Vec3& p) { return p; }));
+
+  auto bushing = PoseEstimator::Build(MakeFlangedBushing(), testing::RevoluteZ());
+  ASSERT_TRUE(bushing.ok()) << bushing.status().ToString();
+  ASSERT_FALSE((*bushing)->near_symmetries().empty());
+  for (const Pose& f : (*bushing)->near_symmetries()) {
+    EXPECT_LT(f.rotation().col(2).z(), -0.99) << "a near symmetry that keeps the axis is the symmetry itself";
+  }
+
+  PoseEstimatorOptions none;
+  none.max_near_symmetries = 0;
+  auto plain = PoseEstimator::Build(MakeLBracket(), Symmetry{}, none);
+  ASSERT_TRUE(plain.ok());
+  EXPECT_TRUE((*plain)->near_symmetries().empty());
+  PoseEstimatorOptions bad;
+  bad.near_symmetry_min_overlap = 1.5;
+  EXPECT_EQ(PoseEstimator::Build(MakeLBracket(), Symmetry{}, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
 TEST(SymmetricPoseError, RevolutePartRotatedAboutItsAxisHasZeroError) {
