@@ -1132,9 +1132,9 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     }
   }
 
-  // Scene hash (normals, support), voxel subsampling at the PPF distance step.
+  // Scene hash (PCA normals, when the view has none), voxel subsampling at the PPF distance step.
   internal::PointHash hash;  // normal estimation: radius step visits 2 x 2 x 2 cells
-  hash.Build(pts, 2.f * m.step);
+  if (view.normals_B.empty()) hash.Build(pts, 2.f * m.step);
   const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
   std::vector<Eigen::Vector3f> sub_p, sub_n;
   // Per finite point: index of its voxel's subsampled point, -1 if none.
