@@ -112,9 +112,10 @@ struct PoseEstimatorOptions {
   // (`binpick eval`, 10 scenes seed 1, 30 scenes seeds 11 / 41 / 71 / 101):
   // recall 0.951 / 0.950 / 0.957 / 0.944 / 0.943 against 0.951 / 0.950 /
   // 0.955 / 0.938 / 0.933 without, precision 0.988 / 0.981 / 0.990 / 0.980
-  // / 0.984 against 0.988 / 0.979 / 0.987 / 0.976 / 0.973. By score alone
-  // (no net-evidence test) precision fell to 0.976 / 0.979 / 0.981 on the
-  // first three: the turn that hides more of the part scores higher.
+  // / 0.984 against 0.988 / 0.979 / 0.987 / 0.976 / 0.973. Keeping the
+  // better score instead gave recall 0.939 / 0.952 / 0.949, precision 0.977
+  // / 0.981 / 0.983 on the first three: the turn that hides more of the
+  // part scores higher.
   // max_near_symmetries = 0: none.
   double near_symmetry_min_overlap = 0.35;
   int max_near_symmetries = 4;
