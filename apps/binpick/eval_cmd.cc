@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -16,15 +17,36 @@
 
 #include "apps/binpick/command.h"
 #include "core/cell.h"
+#include "core/mesh.h"
 #include "pipeline/capture_source.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
 #include "pipeline/perception.h"
+#include "pipeline/pose_estimator.h"
 #include "pipeline/synthetic_source.h"
 
 namespace bp::cli {
 namespace {
+
+// Debug diagnostics only: the class's pose estimator, built on first use
+// (hundreds of ms per part); null if its mesh does not load.
+const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id) {
+  static std::map<int, std::unique_ptr<PoseEstimator>> built;
+  auto it = built.find(class_id);
+  if (it == built.end()) {
+    std::unique_ptr<PoseEstimator> est;
+    for (const PartSpec& part : cell.parts) {
+      if (part.class_id != class_id) continue;
+      Result<TriangleMesh> mesh = LoadMesh(part.mesh);
+      if (!mesh.ok()) break;
+      auto e = PoseEstimator::Build(*mesh, part.symmetry);
+      if (e.ok()) est = std::move(e).value();
+    }
+    it = built.emplace(class_id, std::move(est)).first;
+  }
+  return it->second.get();
+}
 
 struct EvalCliOptions {
   std::string cell_path;
@@ -177,7 +199,8 @@ int Run(const EvalCliOptions& opt) {
                       "{:.2f})",
                       i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
                       p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
-        // A detection of the same class near it: how it is off, in the part's frame.
+        // A detection of the same class near it: how it is off, in the part's
+        // frame, and how the truth and it verify against its support.
         for (const Detection& d : result->detections) {
           if (d.class_id != p.class_id || (d.X_BO.translation() - p.X_BO.translation()).norm() > 0.1) continue;
           const Pose X_TD = p.X_BO.inverse() * d.X_BO;
@@ -187,6 +210,25 @@ int Run(const EvalCliOptions& opt) {
                         i, p.instance_id, d.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(),
                         aa.axis().z(), X_TD.translation().x() * 1000, X_TD.translation().y() * 1000,
                         X_TD.translation().z() * 1000);
+          const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id);
+          if (est == nullptr) continue;
+          std::vector<Eigen::Vector3f> support;
+          for (int32_t k : d.support) support.push_back(result->roi_points_B[static_cast<size_t>(k)]);
+          SceneView view;
+          view.points_B = support;
+          view.X_BC = frame->X_BC;
+          if (frame->organized()) {
+            view.depth = &frame->depth;
+            view.intrinsics = frame->intrinsics;
+          }
+          for (const auto& [what, X] : {std::pair{"truth", p.X_BO}, std::pair{"detection", d.X_BO}}) {
+            const Result<PoseHypothesis> h = est->Score(view, X);
+            if (!h.ok()) continue;
+            spdlog::debug("frame {} missed inst {}: {} on the detection's support: score {:.3f}, visible {}, "
+                          "occluded {}, supported {}, free space {}",
+                          i, p.instance_id, what, h->score, h->visible_points, h->occluded_points,
+                          h->supported_points, h->free_space_points);
+          }
         }
       }
       for (const Detection& d : result->detections) {
