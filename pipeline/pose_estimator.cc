@@ -545,8 +545,7 @@ std::vector<Pose> PoseEstimator::Impl::NearSymmetries() const {
     candidates.push_back(HalfTurn(f.n, box_c));
     // A plate: the antiparallel face nearest behind this one whose box
     // overlaps it; turns about the in-plane axes through the mid-plane.
-    const PlanarFace* back = nullptr;
-    float thickness = 0.f;
+    float thickness = std::numeric_limits<float>::infinity();
     for (const PlanarFace& g : faces) {
       if (f.n.dot(g.n) > -0.99f) continue;
       const float t = f.n.dot(f.c - g.c);
@@ -554,12 +553,9 @@ std::vector<Pose> PoseEstimator::Impl::NearSymmetries() const {
       const Eigen::Vector3f d = g.c - f.c;
       const Eigen::Vector2f gc(d.dot(f.u), d.dot(f.v));
       if ((gc.array() < f.lo.array()).any() || (gc.array() > f.hi.array()).any()) continue;
-      if (back == nullptr || t < thickness) {
-        back = &g;
-        thickness = t;
-      }
+      thickness = std::min(thickness, t);
     }
-    if (back == nullptr) continue;
+    if (!std::isfinite(thickness)) continue;
     const Eigen::Vector3f mid = box_c - 0.5f * thickness * f.n;
     candidates.push_back(HalfTurn(f.u, mid));
     candidates.push_back(HalfTurn(f.v, mid));

@@ -29,10 +29,10 @@
 namespace bp::cli {
 namespace {
 
-// Debug diagnostics only: the class's pose estimator, built on first use
-// (hundreds of ms per part); null if its mesh does not load.
-const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id) {
-  static std::map<int, std::unique_ptr<PoseEstimator>> built;
+// Debug diagnostics only: the class's pose estimator, built into `built` on
+// first use (hundreds of ms per part); null if its mesh does not load.
+const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id,
+                                         std::map<int, std::unique_ptr<PoseEstimator>>& built) {
   auto it = built.find(class_id);
   if (it == built.end()) {
     std::unique_ptr<PoseEstimator> est;
@@ -158,6 +158,7 @@ int Run(const EvalCliOptions& opt) {
   if (!models.ok()) return Fail(cmd, models.status());
 
   tbb::task_arena arena(opt.threads);
+  std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
@@ -210,7 +211,7 @@ int Run(const EvalCliOptions& opt) {
                         i, p.instance_id, d.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(),
                         aa.axis().z(), X_TD.translation().x() * 1000, X_TD.translation().y() * 1000,
                         X_TD.translation().z() * 1000);
-          const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id);
+          const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id, diagnostic_estimators);
           if (est == nullptr) continue;
           std::vector<Eigen::Vector3f> support;
           for (int32_t k : d.support) support.push_back(result->roi_points_B[static_cast<size_t>(k)]);
