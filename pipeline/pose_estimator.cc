@@ -932,7 +932,18 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
   };
   std::vector<Cand> cands;
   cands.reserve(verify.size() / 2 + 1);
+  // Most samples that face away are rejected in O first, without the
+  // transform, the root or the division; the margin leaves every sample near
+  // the limit to the exact test in B below, so the result is the same.
+  const Eigen::Vector3f c_O = R.transpose() * (c - t);
+  const bool prefilter = min_cos > 0.01f;
+  const float lo = min_cos - 1e-3f, lo2 = lo * lo;
   for (size_t i = 0; i < verify.size(); i += static_cast<size_t>(std::max(1, stride))) {
+    if (prefilter) {
+      const Eigen::Vector3f v = c_O - verify.points[i];
+      const float dot = verify.normals[i].dot(v);
+      if (dot <= 0.f || dot * dot < lo2 * v.squaredNorm()) continue;
+    }
     const Eigen::Vector3f p = R * verify.points[i] + t;
     const Eigen::Vector3f n = R * verify.normals[i];
     const Eigen::Vector3f to_cam = c - p;
