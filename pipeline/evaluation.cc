@@ -111,6 +111,7 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
   for (size_t k : order) {
     const Detection& d = result.detections[k];
     DetectionOutcome o;
+    o.detection = k;
     o.class_id = d.class_id;
     const EvalPartModel* model = FindModel(models, d.class_id);
     if (model != nullptr) {

@@ -50,6 +50,7 @@ struct EvalOptions {
 };
 
 struct DetectionOutcome {
+  size_t detection = 0;     // index into PerceptionResult::detections (outcomes are in score order)
   int class_id = 0;
   int truth_instance = -1;  // matched ground-truth instance, -1 = false positive
   bool target = false;      // the matched part is a recall target

@@ -232,7 +232,10 @@ int Run(const EvalCliOptions& opt) {
           }
         }
       }
-      for (const Detection& d : result->detections) {
+      std::vector<bool> true_detection(result->detections.size(), false);
+      for (const DetectionOutcome& o : evaluations.back().detections) true_detection[o.detection] = o.truth_instance >= 0;
+      for (size_t di = 0; di < result->detections.size(); ++di) {
+        const Detection& d = result->detections[di];
         double best = 1e9;
         const PartTruth* near = nullptr;
         for (const PartTruth& p : frame->truth->parts) {
@@ -243,10 +246,11 @@ int Run(const EvalCliOptions& opt) {
           }
         }
         if (near != nullptr) {
-          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm -> nearest "
-                        "inst {} class {} vis {:.2f} at {:.1f} mm",
+          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
+                        "nearest inst {} class {} vis {:.2f} at {:.1f} mm",
                         i, d.class_id, d.score, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
-                        1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(), near->instance_id,
+                        1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(),
+                        true_detection[di] ? "true" : "false positive", near->instance_id,
                         near->class_id, near->visible_fraction, best * 1000);
         }
       }

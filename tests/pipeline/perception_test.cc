@@ -287,6 +287,28 @@ TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
   EXPECT_NEAR(all.precision, 2.0 / 3.0, 1e-12);
 }
 
+TEST(PerceptionEvaluation, OutcomesAreInScoreOrderAndNameTheirDetection) {
+  auto cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok());
+  auto models = LoadEvalModels(*cell);
+  ASSERT_TRUE(models.ok()) << models.status().ToString();
+  GroundTruth truth;
+  truth.parts.push_back({1, 0, "flanged_bushing", PoseW(0.7, 0, 0.05, 0), 100, 100, 1.0});
+  truth.parts.push_back({2, 1, "l_bracket", PoseW(0.8, 0, 0.05, 0), 100, 100, 1.0});
+  PerceptionResult result;
+  result.detections.push_back({0, PoseW(0.5, 0, 0.05, 0), 0.75, 1.0, {}});  // nothing there
+  result.detections.push_back({1, PoseW(0.8, 0, 0.05, 0), 0.95, 1.0, {}});  // the bracket
+  result.detections.push_back({0, PoseW(0.7, 0, 0.05, 0), 0.85, 1.0, {}});  // the bushing
+  const FrameEvaluation fe = EvaluateFrame(result, truth, *models);
+  ASSERT_EQ(fe.detections.size(), 3u);
+  EXPECT_EQ(fe.detections[0].detection, 1u);
+  EXPECT_EQ(fe.detections[0].truth_instance, 2);
+  EXPECT_EQ(fe.detections[1].detection, 2u);
+  EXPECT_EQ(fe.detections[1].truth_instance, 1);
+  EXPECT_EQ(fe.detections[2].detection, 0u);
+  EXPECT_EQ(fe.detections[2].truth_instance, -1);
+}
+
 TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   // Tilted so that every face constrains the pose (a flat-lying bracket shows
   // its upright only edge-on).
