@@ -255,20 +255,33 @@ TEST(PerceptionEvaluation, SymmetricPartErrorIsMeasuredModuloItsSymmetry) {
   EXPECT_GT(SymmetryAwareRotationError(flipped, X, tee), 170 * kDeg);
 }
 
-TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
+// The default cell's evaluation models, and ground truth holding a fully
+// visible bushing (instance 1) at x = 0.7 m and L-bracket (2) at x = 0.8 m.
+struct EvalScene {
+  std::vector<EvalPartModel> models;
+  GroundTruth truth;
+};
+void MakeBushingAndBracket(EvalScene* scene) {
   auto cell = LoadDefaultCell();
   ASSERT_TRUE(cell.ok());
   auto models = LoadEvalModels(*cell);
   ASSERT_TRUE(models.ok()) << models.status().ToString();
-  GroundTruth truth;
-  truth.parts.push_back({1, 0, "flanged_bushing", PoseW(0.7, 0, 0.05, 0), 100, 100, 1.0});
-  truth.parts.push_back({2, 1, "l_bracket", PoseW(0.8, 0, 0.05, 0), 100, 100, 1.0});
+  scene->models = std::move(*models);
+  scene->truth.parts.push_back({1, 0, "flanged_bushing", PoseW(0.7, 0, 0.05, 0), 100, 100, 1.0});
+  scene->truth.parts.push_back({2, 1, "l_bracket", PoseW(0.8, 0, 0.05, 0), 100, 100, 1.0});
+}
+
+TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
+  EvalScene scene;
+  ASSERT_NO_FATAL_FAILURE(MakeBushingAndBracket(&scene));
+  GroundTruth& truth = scene.truth;
+  const std::vector<EvalPartModel>& models = scene.models;
   truth.parts.push_back({3, 2, "pipe_tee", PoseW(0.6, 0, 0.05, 0), 10, 100, 0.1});  // not a target
   PerceptionResult result;
   result.detections.push_back({0, PoseW(0.7005, 0, 0.05, 33), 0.9, 1.0, {}});  // revolute: yaw is free
   result.detections.push_back({2, PoseW(0.8, 0, 0.05, 0), 0.8, 1.0, {}});      // wrong class
   result.detections.push_back({2, PoseW(0.6, 0, 0.05, 180), 0.7, 1.0, {}});    // tee, symmetric turn
-  const FrameEvaluation fe = EvaluateFrame(result, truth, *models);
+  const FrameEvaluation fe = EvaluateFrame(result, truth, models);
   ASSERT_EQ(fe.detections.size(), 3u);
   EXPECT_EQ(fe.detections[0].truth_instance, 1);
   EXPECT_NEAR(fe.detections[0].translation_error, 0.0005, 1e-9);
@@ -278,7 +291,7 @@ TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
   EXPECT_EQ(fe.detections[2].truth_instance, 3);
   EXPECT_FALSE(fe.detections[2].target);
   EXPECT_NEAR(fe.detections[2].rotation_error, 0.0, 1e-9);
-  const EvalReport report = Summarize({fe}, *models);
+  const EvalReport report = Summarize({fe}, models);
   const ClassFigures& all = report.classes.back();
   EXPECT_EQ(all.name, "all");
   EXPECT_EQ(all.targets, 2);
@@ -288,18 +301,13 @@ TEST(PerceptionEvaluation, MatchesDetectionsToTruthByClassAndDistance) {
 }
 
 TEST(PerceptionEvaluation, OutcomesAreInScoreOrderAndNameTheirDetection) {
-  auto cell = LoadDefaultCell();
-  ASSERT_TRUE(cell.ok());
-  auto models = LoadEvalModels(*cell);
-  ASSERT_TRUE(models.ok()) << models.status().ToString();
-  GroundTruth truth;
-  truth.parts.push_back({1, 0, "flanged_bushing", PoseW(0.7, 0, 0.05, 0), 100, 100, 1.0});
-  truth.parts.push_back({2, 1, "l_bracket", PoseW(0.8, 0, 0.05, 0), 100, 100, 1.0});
+  EvalScene scene;
+  ASSERT_NO_FATAL_FAILURE(MakeBushingAndBracket(&scene));
   PerceptionResult result;
   result.detections.push_back({0, PoseW(0.5, 0, 0.05, 0), 0.75, 1.0, {}});  // nothing there
   result.detections.push_back({1, PoseW(0.8, 0, 0.05, 0), 0.95, 1.0, {}});  // the bracket
   result.detections.push_back({0, PoseW(0.7, 0, 0.05, 0), 0.85, 1.0, {}});  // the bushing
-  const FrameEvaluation fe = EvaluateFrame(result, truth, *models);
+  const FrameEvaluation fe = EvaluateFrame(result, scene.truth, scene.models);
   ASSERT_EQ(fe.detections.size(), 3u);
   EXPECT_EQ(fe.detections[0].detection, 1u);
   EXPECT_EQ(fe.detections[0].truth_instance, 2);
