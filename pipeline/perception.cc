@@ -5,7 +5,10 @@
 #include <chrono>
 #include <cmath>
 #include <map>
+#include <limits>
 #include <numeric>
+#include <tuple>
+#include <utility>
 
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
@@ -66,6 +69,54 @@ constexpr double kFragmentShare = 0.25;
 // surface is a piece of a part already found and is not matched.
 constexpr double kExplainedFraction = 0.6;
 constexpr float kExplainedDistance = 0.0025f;
+// The depth noise of the camera config that captured a frame (organized: the
+// one whose intrinsics it has), else of the default config; nullptr when the
+// cell has no config.
+const NoiseModel* FrameNoise(const CameraSpec& camera, const Frame& frame) {
+  if (frame.organized()) {
+    const Intrinsics& k = frame.intrinsics;
+    for (const CameraConfig& c : camera.configs) {
+      const Intrinsics& i = c.intrinsics;
+      if (i.width == k.width && i.height == k.height && i.fx == k.fx && i.fy == k.fy && i.cx == k.cx && i.cy == k.cy) {
+        return &c.noise;
+      }
+    }
+  }
+  if (const CameraConfig* c = camera.FindConfig(camera.default_config)) return &c->noise;
+  return camera.configs.empty() ? nullptr : &camera.configs.front().noise;
+}
+
+// Axial noise of an organized frame, measured: the median absolute second
+// difference along rows (z[u-1] - 2 z[u] + z[u+1], variance 6 sigma^2 for
+// independent noise; edges and curvature are outliers the median ignores)
+// over a sparse lattice of pixels. Returns {sigma, median depth}; {0, 0} for
+// too few samples.
+std::pair<double, double> MeasureDepthNoise(const DepthImage& depth) {
+  constexpr int kTargetSamples = 20000;
+  constexpr float kMaxStep = 0.004f;  // neighbours farther apart in depth: an edge
+  const int64_t pixels = static_cast<int64_t>(depth.width) * depth.height;
+  const int step = std::max(1, static_cast<int>(std::sqrt(static_cast<double>(pixels) / kTargetSamples)));
+  std::vector<float> second, z;
+  second.reserve(kTargetSamples * 2);
+  z.reserve(kTargetSamples * 2);
+  for (int v = 0; v < depth.height; v += step) {
+    for (int u = 1; u + 1 < depth.width; u += step) {
+      const float a = depth.at(u - 1, v), b = depth.at(u, v), c = depth.at(u + 1, v);
+      if (!std::isfinite(a) || !std::isfinite(b) || !std::isfinite(c)) continue;
+      if (std::abs(a - b) > kMaxStep || std::abs(c - b) > kMaxStep) continue;
+      second.push_back(std::abs(a - 2.f * b + c));
+      z.push_back(b);
+    }
+  }
+  if (second.size() < 1000) return {0.0, 0.0};
+  const auto median = [](std::vector<float>& x) {
+    std::nth_element(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(x.size() / 2), x.end());
+    return static_cast<double>(x[x.size() / 2]);
+  };
+  // sigma = MAD / (0.6745 sqrt(6)) for a Gaussian of variance 6 sigma^2.
+  return {median(second) / (0.67449 * std::sqrt(6.0)), median(z)};
+}
+
 // Unorganized clouds are grouped by voxel connectivity at this voxel size
 // (fine enough that 5000 points scattered through the bin stay isolated).
 constexpr float kUnorganizedVoxel = 0.003f;
@@ -166,6 +217,27 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   const Eigen::Vector3f z_W_in_B = cell_.bin.X_BW.linear().col(2).cast<float>();
   const float floor_d = static_cast<float>(-cell_.bin.X_BW.translation().dot(cell_.bin.X_BW.linear().col(2)));
   const Eigen::Vector4d floor_plane_B(z_W_in_B.x(), z_W_in_B.y(), z_W_in_B.z(), floor_d);
+  // The largest fit residual a hypothesis may leave (max_fit_rms_sigmas),
+  // from the depth noise at its surface centroid.
+  // sigma_z(z) is the config's model, times measured / modelled noise at the
+  // median depth when the frame is noisier than modelled.
+  const bool limit_fit = options_.max_fit_rms_sigmas > 0.0;
+  const NoiseModel* noise = limit_fit ? FrameNoise(cell_.camera, frame) : nullptr;
+  if (limit_fit && frame.organized()) {
+    std::tie(result.depth_noise_sigma, result.depth_noise_at) = MeasureDepthNoise(frame.depth);
+  }
+  const auto model_sigma = [&](double z) {
+    return noise == nullptr ? 0.0 : noise->axial_sigma_base + noise->axial_sigma_quadratic * z * z;
+  };
+  const double at_median = model_sigma(result.depth_noise_at);
+  const double noise_scale = at_median > 0.0 ? std::max(1.0, result.depth_noise_sigma / at_median) : 1.0;
+  const Pose X_CB = frame.X_BC.inverse();
+  const auto fit_rms_limit = [&](const ClassModel& m, const Pose& X_BO) {
+    const double z = (X_CB * (X_BO * m.centroid_O().cast<double>())).z();
+    const double sigma = at_median > 0.0 ? noise_scale * model_sigma(z) : result.depth_noise_sigma;
+    if (!(sigma > 0.0)) return std::numeric_limits<double>::infinity();  // no noise figure: no limit
+    return std::max(options_.min_fit_rms_limit, options_.max_fit_rms_sigmas * sigma);
+  };
   const Eigen::Vector3f viewpoint_B = frame.X_BC.translation().cast<float>();
   const float max_jump = static_cast<float>(options_.segment_max_jump);
 
@@ -485,7 +557,16 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           Job& job = done[base + r - from];
           job.model = ms[r];
           job.too_small = too_small;
-          job.estimate = models[static_cast<size_t>(ms[r])]->Estimate(view);
+          const ClassModel& model = *models[static_cast<size_t>(ms[r])];
+          job.estimate = model.Estimate(view);
+          if (limit_fit && !job.estimate.hypotheses.empty()) {
+            std::erase_if(job.estimate.hypotheses, [&](const internal::ClassHypothesis& h) {
+              return h.rms_residual > fit_rms_limit(model, h.X_BO);
+            });
+            if (job.estimate.hypotheses.empty()) {
+              job.estimate.reason = "every hypothesis fits worse than the depth noise allows (max_fit_rms_sigmas)";
+            }
+          }
         });
       };
       if (early_exit && !order[v].empty()) {
@@ -663,6 +744,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       d.X_BO = c.h.X_BO;
       d.score = c.h.score;
       d.visible_fraction = c.h.visible_fraction;
+      d.rms_residual = c.h.rms_residual;
       d.support = std::move(c.support_roi);
       result.detections.push_back(std::move(d));
     }

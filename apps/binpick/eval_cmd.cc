@@ -66,6 +66,7 @@ struct EvalCliOptions {
   bool regions = false;
   bool thorough = false;
   double second_look = PerceptionOptions{}.second_look_below;
+  double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -152,6 +153,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
+  popt.max_fit_rms_sigmas = opt.fit_rms;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -188,8 +190,10 @@ int Run(const EvalCliOptions& opt) {
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
     if (spdlog::should_log(spdlog::level::debug)) {
-      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} second looks", i,
-                    result->views, result->views_explained, result->estimator_calls, result->second_looks);
+      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} second looks, depth noise {:.3f} mm "
+                    "at {:.3f} m",
+                    i, result->views, result->views_explained, result->estimator_calls, result->second_looks,
+                    result->depth_noise_sigma * 1000, result->depth_noise_at);
       std::vector<int> matched;
       for (const DetectionOutcome& d : evaluations.back().detections) matched.push_back(d.truth_instance);
       for (const PartTruth& p : frame->truth->parts) {
@@ -246,9 +250,9 @@ int Run(const EvalCliOptions& opt) {
           }
         }
         if (near != nullptr) {
-          spdlog::debug("frame {} det class {} score {:.2f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
+          spdlog::debug("frame {} det class {} score {:.2f} rms {:.3f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
                         "nearest inst {} class {} vis {:.2f} at {:.1f} mm",
-                        i, d.class_id, d.score, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
+                        i, d.class_id, d.score, d.rms_residual * 1000, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
                         1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(),
                         true_detection[di] ? "true" : "false positive", near->instance_id,
                         near->class_id, near->visible_fraction, best * 1000);
@@ -300,6 +304,10 @@ Command EvalCommand() {
                                   "match views whose best score is below this again with a wider coarse search "
                                   "(PerceptionOptions::second_look_below; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 2.0));
+                   sub.add_option("--fit-rms", opt->fit_rms,
+                                  "largest fit residual, in sigma_z of the depth noise "
+                                  "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
+                       ->check(CLI::Range(0.0, 100.0));
                    sub.add_flag("--thorough", opt->thorough,
                                 "run the thorough search (the planner's retry) on every frame (tuning)");
                    return [opt] { return Run(*opt); };

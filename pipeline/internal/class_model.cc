@@ -64,6 +64,7 @@ class PpfClassModel final : public ClassModel {
       ClassHypothesis c;
       c.X_BO = h.X_BO;
       c.score = h.score;
+      c.rms_residual = h.rms_residual;
       const int seen = h.visible_points - h.occluded_points;
       c.visible_fraction = h.visible_points > 0 ? static_cast<double>(std::max(0, seen)) / h.visible_points : 0.0;
       c.support = std::move(h.supporting_indices);

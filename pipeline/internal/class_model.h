@@ -33,6 +33,7 @@ struct ClassHypothesis {
   Pose X_BO = Pose::Identity();
   double score = 0.0;
   double visible_fraction = 0.0;
+  double rms_residual = 0.0;
   std::vector<int> support;  // indices into SegmentView::points_B
 };
 
