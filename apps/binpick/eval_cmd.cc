@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <set>
 #include <memory>
 #include <string>
 #include <vector>
@@ -249,13 +250,33 @@ int Run(const EvalCliOptions& opt) {
             near = &p;
           }
         }
+        // The other detection sharing most of its support, and how much.
+        std::string shares;
+        if (!d.support.empty()) {
+          std::set<int32_t> mine(d.support.begin(), d.support.end());
+          size_t best_shared = 0, best_k = 0;
+          for (size_t k = 0; k < result->detections.size(); ++k) {
+            if (k == di) continue;
+            size_t n = 0;
+            for (int32_t s : result->detections[k].support) n += mine.count(s);
+            if (n > best_shared) {
+              best_shared = n;
+              best_k = k;
+            }
+          }
+          if (best_shared > 0) {
+            shares = fmt::format(", shares {:.0f}% of its support with class {} score {:.2f}",
+                                 100.0 * static_cast<double>(best_shared) / static_cast<double>(d.support.size()),
+                                 result->detections[best_k].class_id, result->detections[best_k].score);
+          }
+        }
         if (near != nullptr) {
           spdlog::debug("frame {} det class {} score {:.2f} rms {:.3f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
-                        "nearest inst {} class {} vis {:.2f} at {:.1f} mm",
+                        "nearest inst {} class {} vis {:.2f} at {:.1f} mm{}",
                         i, d.class_id, d.score, d.rms_residual * 1000, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
                         1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(),
                         true_detection[di] ? "true" : "false positive", near->instance_id,
-                        near->class_id, near->visible_fraction, best * 1000);
+                        near->class_id, near->visible_fraction, best * 1000, shares);
         }
       }
     }

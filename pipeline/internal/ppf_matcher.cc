@@ -150,10 +150,15 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   std::vector<Pair> pairs;
   pairs.reserve(ns);
   const float fNA = static_cast<float>(NA);
-  // Every partner_stride-th point pairs with a reference point (offset by the
-  // reference point, so that the references together use every point).
+  // Of the points within the model's diameter of a reference point (no pair
+  // farther apart is in the table), every partner_stride-th pairs with it
+  // (offset by the reference point, so that the references together use
+  // every point): a view of two parts spends the partners on the reference
+  // point's own neighbourhood.
   const size_t max_partners = static_cast<size_t>(std::max(1, options.max_partners));
-  const size_t partner_stride = (ns + max_partners - 1) / max_partners;
+  const float max_d2 = max_distance_ * max_distance_;
+  std::vector<uint32_t> in_range;
+  in_range.reserve(ns);
   for (size_t ri = 0; ri < refs.size(); ri += stride) {
     const size_t r = refs[ri];
     const Eigen::Vector3f& sr = points[r];
@@ -163,8 +168,13 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     for (const uint32_t cell : touched) acc[cell] = 0;
     pairs.clear();
     size_t votes = 0;
-    for (size_t i = r % partner_stride; i < ns; i += partner_stride) {
-      if (i == r) continue;
+    in_range.clear();
+    for (size_t i = 0; i < ns; ++i) {
+      if (i != r && (points[i] - sr).squaredNorm() < max_d2) in_range.push_back(static_cast<uint32_t>(i));
+    }
+    const size_t partner_stride = std::max<size_t>(1, (in_range.size() + max_partners - 1) / max_partners);
+    for (size_t j = r % partner_stride; j < in_range.size(); j += partner_stride) {
+      const size_t i = in_range[j];
       const int k = Key(sr, nr, points[i], normals[i]);
       if (k < 0) continue;
       const uint32_t begin = offsets_[k], end = offsets_[k + 1];
