@@ -410,6 +410,30 @@ constexpr double kPlateRelativeThickness = 0.2;
 // of what the hypothesis does.
 constexpr double kNearSymmetryScreen = 0.8;
 
+// A model point counts as in free space only when the measured surface lies
+// beyond it at the pixel and at the pixels about kFreeSpaceReach (metres)
+// around it: one pixel off the part's silhouette, where the depth jumps to
+// what is behind, is an alignment error of a pixel, not evidence against the
+// pose.
+constexpr double kFreeSpaceReach = 0.0013;
+
+// True if every finite depth at (u, v) and at the 8 pixels `reach` away is
+// beyond `limit`.
+bool FreeAround(const DepthImage& depth, int u, int v, float limit, double reach_px) {
+  const int r = std::max(1, static_cast<int>(std::lround(reach_px)));
+  for (int dv = -r; dv <= r; dv += r) {
+    const int vv = v + dv;
+    if (vv < 0 || vv >= depth.height) continue;
+    for (int du = -r; du <= r; du += r) {
+      const int uu = u + du;
+      if (uu < 0 || uu >= depth.width) continue;
+      const float z = depth.at(uu, vv);
+      if (std::isfinite(z) && z > 0 && z <= limit) return false;
+    }
+  }
+  return true;
+}
+
 // The 180 deg turn about the line through c along unit axis a.
 Pose HalfTurn(const Eigen::Vector3f& a, const Eigen::Vector3f& c) {
   const Eigen::Vector3d ad = a.cast<double>().normalized();
@@ -1006,8 +1030,12 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
             supported = std::abs(zm - pc.z()) < support + slack;
             if (!supported) supported = scene_hash.AnyWithin(cands[i].p, support);
             if (!supported) {
-              if (zm < pc.z() - free_thr - slack) ++s.occluded;
-              else if (zm > pc.z() + free_thr + slack) ++s.free_space;
+              if (zm < pc.z() - free_thr - slack) {
+                ++s.occluded;
+              } else if (zm > pc.z() + free_thr + slack && FreeAround(*view.depth, u, v, pc.z() + free_thr + slack,
+                                                                       kFreeSpaceReach * K.fx / pc.z())) {
+                ++s.free_space;
+              }
             }
           } else {
             supported = scene_hash.AnyWithin(cands[i].p, support);
