@@ -159,6 +159,8 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   const float max_d2 = max_distance_ * max_distance_;
   std::vector<uint32_t> in_range;
   in_range.reserve(ns);
+  std::vector<std::pair<uint32_t, int>> keyed;  // (partner, key)
+  keyed.reserve(std::min(ns, max_partners + 1));
   for (size_t ri = 0; ri < refs.size(); ri += stride) {
     const size_t r = refs[ri];
     const Eigen::Vector3f& sr = points[r];
@@ -173,12 +175,22 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
       if (i != r && (points[i] - sr).squaredNorm() < max_d2) in_range.push_back(static_cast<uint32_t>(i));
     }
     const size_t partner_stride = std::max<size_t>(1, (in_range.size() + max_partners - 1) / max_partners);
+    // The partners' keys first, their table offsets prefetched (the offsets
+    // and the entries are cache misses; one loop per step lets many be in
+    // flight at once), then their entry ranges, whose first entries are
+    // prefetched for the vote.
+    keyed.clear();
     for (size_t j = r % partner_stride; j < in_range.size(); j += partner_stride) {
-      const size_t i = in_range[j];
+      const uint32_t i = in_range[j];
       const int k = Key(sr, nr, points[i], normals[i]);
       if (k < 0) continue;
+      __builtin_prefetch(offsets_.data() + k);
+      keyed.emplace_back(i, k);
+    }
+    for (const auto& [i, k] : keyed) {
       const uint32_t begin = offsets_[k], end = offsets_[k + 1];
       if (begin == end) continue;
+      __builtin_prefetch(entries_.data() + begin);
       pairs.push_back(Pair{begin, end, Alpha(Rs, points[i] - sr) * alpha_scale});
       votes += end - begin;
     }
