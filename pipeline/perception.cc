@@ -495,8 +495,14 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // views[first_region_view..] are region views (see match_regions).
   // best_out (optional): per view, the best score over the classes tried (-1
   // for none). second_look: every class that fits, with second_look_search.
+  // tried (optional): per view and class model index, the coarse poses
+  // refined; in, PoseSearch::skip_coarse of the view's estimates (second
+  // look), else out.
+  using TriedPoses = std::vector<std::vector<Pose>>;  // per class model index
+  std::atomic<int> coarse_skipped{0}, coarse_refined{0};
   const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view,
-                            std::vector<double>* best_out = nullptr, bool second_look = false) {
+                            std::vector<double>* best_out = nullptr, bool second_look = false,
+                            std::vector<TriedPoses>* tried = nullptr) {
     // Per view: the classes that can fit it (SegmentFitsClass), ordered by
     // how well the view's principal extents match each model's.
     const size_t n_models = models.size();
@@ -536,6 +542,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<std::vector<Job>> per_view(views.size());
     const bool early_exit = options_.early_exit_score > 0.0 && !thorough && !second_look;
     if (best_out != nullptr) best_out->assign(views.size(), -1.0);
+    const bool skip_tried = second_look && tried != nullptr && tried->size() == views.size();
+    if (tried != nullptr && !skip_tried) tried->assign(views.size(), TriedPoses(n_models));
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points, normals;
       gather(views[v], &points, &normals);
@@ -558,7 +566,18 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           job.model = ms[r];
           job.too_small = too_small;
           const ClassModel& model = *models[static_cast<size_t>(ms[r])];
-          job.estimate = model.Estimate(view);
+          const size_t mi = static_cast<size_t>(ms[r]);
+          const std::vector<Pose>* skip = skip_tried && mi < (*tried)[v].size() ? &(*tried)[v][mi] : nullptr;
+          if (skip != nullptr && !skip->empty() && view.search) {
+            internal::SegmentView with_skip = view;
+            with_skip.search->skip_coarse = *skip;
+            job.estimate = model.Estimate(with_skip);
+          } else {
+            job.estimate = model.Estimate(view);
+          }
+          if (tried != nullptr && !skip_tried) (*tried)[v][mi] = job.estimate.coarse_poses;
+          coarse_skipped += job.estimate.coarse_skipped;
+          coarse_refined += static_cast<int>(job.estimate.coarse_poses.size());
           if (limit_fit && !job.estimate.hypotheses.empty()) {
             std::erase_if(job.estimate.hypotheses, [&](const internal::ClassHypothesis& h) {
               return h.rms_residual > fit_rms_limit(model, h.X_BO);
@@ -790,6 +809,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   });
   std::vector<int> wave_min = options_.view_waves;
   std::vector<std::vector<int32_t>> weak_segment_views, weak_region_views;  // for the second look
+  std::vector<TriedPoses> weak_segment_tried, weak_region_tried;          // their coarse poses
   wave_min.push_back(0);
   double pose_ms = 0.0, verify_ms = 0.0;
   size_t next_view = 0;
@@ -822,7 +842,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       wave_views.push_back(std::move(view_of_segment[v]));
     }
     std::vector<double> best;
-    std::vector<Candidate> candidates = estimate(wave_views, first_region, &best);
+    std::vector<TriedPoses> wave_tried;
+    std::vector<Candidate> candidates = estimate(wave_views, first_region, &best, false,
+                                                 options_.second_look_skip_tried ? &wave_tried : nullptr);
     const Clock::time_point t1 = Clock::now();
     accept(std::move(candidates));
     pose_ms += Ms(t0, t1);
@@ -830,7 +852,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     if (!thorough && options_.second_look_below > 0.0) {
       for (size_t i = 0; i < wave_views.size(); ++i) {
         if (best[i] < options_.second_look_below) {
-          (i < first_region ? weak_segment_views : weak_region_views).push_back(std::move(wave_views[i]));
+          const bool segment = i < first_region;
+          (segment ? weak_segment_views : weak_region_views).push_back(std::move(wave_views[i]));
+          (segment ? weak_segment_tried : weak_region_tried)
+              .push_back(i < wave_tried.size() ? std::move(wave_tried[i]) : TriedPoses{});
         }
       }
     }
@@ -847,21 +872,28 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   {
     const size_t n_weak_segments = weak_segment_views.size();
     for (auto& view : weak_region_views) weak_segment_views.push_back(std::move(view));
+    for (auto& tried : weak_region_tried) weak_segment_tried.push_back(std::move(tried));
     std::vector<uint8_t> explained(weak_segment_views.size(), 0);
     tbb::parallel_for(size_t{0}, weak_segment_views.size(), [&](size_t i) {
       explained[i] =
           ExplainedFraction(weak_segment_views[i], options_.second_look_below) >= kExplainedFraction ? 1 : 0;
     });
     std::vector<std::vector<int32_t>> again;
+    std::vector<TriedPoses> again_tried;
     size_t first_region = 0;
     for (size_t i = 0; i < weak_segment_views.size(); ++i) {
       if (explained[i]) continue;
       if (static_cast<int>(weak_segment_views[i].size()) < options_.second_look_min_points) continue;
       first_region += i < n_weak_segments ? 1 : 0;
       again.push_back(std::move(weak_segment_views[i]));
+      again_tried.push_back(std::move(weak_segment_tried[i]));
     }
     result.second_looks = static_cast<int>(again.size());
-    if (!again.empty()) accept(estimate(again, first_region, nullptr, /*second_look=*/true));
+    if (!again.empty()) {
+      accept(estimate(again, first_region, nullptr, /*second_look=*/true,
+                      options_.second_look_skip_tried ? &again_tried : nullptr));
+    }
+    result.coarse_skipped = coarse_skipped.load();
   }
   t = stage("second_look", t);
 
@@ -880,6 +912,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   }
   if (!residual.empty()) accept(estimate(residual, residual.size()));
   stage("residual", t);
+  result.coarse_refined = coarse_refined.load();
   {
     size_t kept = 0;
     for (size_t k = 0; k < result.detections.size(); ++k) {

@@ -50,6 +50,8 @@ struct PerceptionResult {
   int views_explained = 0;    // of those, skipped as pieces of parts already found (view_waves)
   int estimator_calls = 0;    // (view, class) pose estimates run
   int second_looks = 0;       // views matched again (PerceptionOptions::second_look_below)
+  int coarse_refined = 0;     // coarse poses and seeds refined (first ICP pass) over all estimates
+  int coarse_skipped = 0;     // second look: coarse poses not refined again (second_look_skip_tried)
   // Axial depth noise measured in the frame (organized frames; 0 otherwise):
   // sigma (metres) from second differences along the rows, at the median
   // depth depth_noise_at (metres). Above the camera config's NoiseModel, it
@@ -145,6 +147,9 @@ struct PerceptionOptions {
   int second_look_min_points = 450;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
                                 .peaks_examined = 16};
+  // The second look does not refine again the coarse poses the view's
+  // estimate in its wave refined (per class; PoseSearch::skip_coarse).
+  bool second_look_skip_tried = true;
   // A thorough run (PerceptionEffort::kThorough) tries every class on every
   // view (no early exit) with this wider coarse search. The grasp planner
   // retries with it when a normal run leaves nothing to pick in a bin that is

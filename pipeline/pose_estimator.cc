@@ -1355,6 +1355,24 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   if (search.face_seeds > 0 && view_plane && !m.faces.empty()) {
     timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, support_hash, segment_depth, search.face_seeds, coarse); });
   }
+  if (!search.skip_coarse.empty()) {
+    const double skip_t = opt.cluster_relative_translation * m.diameter;
+    const double skip_r = opt.cluster_rotation_deg * M_PI / 180.0;
+    const size_t before = coarse.size();
+    std::erase_if(coarse, [&](const internal::CoarsePose& cp) {
+      return std::any_of(search.skip_coarse.begin(), search.skip_coarse.end(), [&](const Pose& X) {
+        return (X.translation() - cp.X_BO.translation()).norm() < skip_t &&
+               SymmetricRotationError(X, cp.X_BO, m.symmetry) < skip_r;
+      });
+    });
+    out.coarse_skipped = static_cast<int>(before - coarse.size());
+    if (coarse.empty()) {
+      out.no_result_reason = "every coarse pose was refined by an earlier estimate (PoseSearch::skip_coarse)";
+      return out;
+    }
+  }
+  out.coarse_poses.reserve(coarse.size());
+  for (const internal::CoarsePose& cp : coarse) out.coarse_poses.push_back(cp.X_BO);
   std::vector<Candidate> first;
   for (const internal::CoarsePose& cp : coarse) {
     internal::IcpResult icp;

@@ -200,6 +200,12 @@ struct PoseSearch {
   // Also try each verified hypothesis turned by the model's near symmetries
   // (PoseEstimatorOptions::near_symmetry_min_overlap) and keep the better.
   bool near_symmetries = true;
+  // Coarse poses an earlier estimate of the same view already refined
+  // (its PoseEstimates::coarse_poses): a coarse pose (or seed) within the
+  // pose clustering thresholds of one of them is not refined again, since
+  // it would converge to a hypothesis that estimate already returned or
+  // rejected. Must outlive the call.
+  std::span<const Pose> skip_coarse = {};
 };
 
 struct PoseTimings {
@@ -231,6 +237,9 @@ struct PoseEstimates {
   PoseTimings timings;
   int scene_points = 0;       // finite input points
   int sampled_points = 0;     // after subsampling
+  // The coarse poses and seeds refined, for PoseSearch::skip_coarse.
+  std::vector<Pose> coarse_poses;
+  int coarse_skipped = 0;     // left out by PoseSearch::skip_coarse
 };
 
 class PoseEstimator {

@@ -68,6 +68,7 @@ struct EvalCliOptions {
   bool thorough = false;
   double second_look = PerceptionOptions{}.second_look_below;
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
+  bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
 
 void Progress(int done, int total, double last_ms) {
@@ -155,6 +156,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
   popt.max_fit_rms_sigmas = opt.fit_rms;
+  popt.second_look_skip_tried = opt.second_look_skip_tried;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
@@ -191,9 +193,10 @@ int Run(const EvalCliOptions& opt) {
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
     if (spdlog::should_log(spdlog::level::debug)) {
-      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} second looks, depth noise {:.3f} mm "
-                    "at {:.3f} m",
-                    i, result->views, result->views_explained, result->estimator_calls, result->second_looks,
+      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
+                    "looks ({} coarse poses skipped), depth noise {:.3f} mm at {:.3f} m",
+                    i, result->views, result->views_explained, result->estimator_calls, result->coarse_refined,
+                    result->second_looks, result->coarse_skipped,
                     result->depth_noise_sigma * 1000, result->depth_noise_at);
       std::vector<int> matched;
       for (const DetectionOutcome& d : evaluations.back().detections) matched.push_back(d.truth_instance);
@@ -329,6 +332,10 @@ Command EvalCommand() {
                                   "largest fit residual, in sigma_z of the depth noise "
                                   "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 100.0));
+                   sub.add_option("--second-look-skip", opt->second_look_skip_tried,
+                                  "1: the second look does not refine again the coarse poses the waves refined "
+                                  "(PerceptionOptions::second_look_skip_tried; tuning)")
+                       ->capture_default_str();
                    sub.add_flag("--thorough", opt->thorough,
                                 "run the thorough search (the planner's retry) on every frame (tuning)");
                    return [opt] { return Run(*opt); };

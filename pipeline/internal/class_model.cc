@@ -71,6 +71,8 @@ class PpfClassModel final : public ClassModel {
       out.hypotheses.push_back(std::move(c));
     }
     if (out.hypotheses.empty()) out.reason = est->no_result_reason;
+    out.coarse_poses = std::move(est->coarse_poses);
+    out.coarse_skipped = est->coarse_skipped;
     return out;
   }
 

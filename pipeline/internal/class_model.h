@@ -40,6 +40,8 @@ struct ClassHypothesis {
 struct ClassEstimate {
   std::vector<ClassHypothesis> hypotheses;  // verified, best first
   std::string reason;                       // when empty
+  std::vector<Pose> coarse_poses;           // refined (PoseSearch::skip_coarse)
+  int coarse_skipped = 0;
 };
 
 // Thread-safe: Estimate is called concurrently for different segments.

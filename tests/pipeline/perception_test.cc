@@ -587,18 +587,22 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   auto without = Perception::Build(f.cell, options);
   ASSERT_TRUE(without.ok()) << without.status().ToString();
   std::vector<FrameEvaluation> normal, with_second_look;
-  int second_looks = 0;
+  int second_looks = 0, coarse_skipped = 0;
   for (uint64_t seed : {3u, 6u}) {
     const Frame frame = f.Pile(seed);
     ASSERT_TRUE(frame.truth.has_value());
     const PerceptionResult off = Fixture::RunWith(**without, frame);
     const PerceptionResult on = Fixture::RunWith(*f.perception, frame);
     EXPECT_EQ(off.second_looks, 0);
+    EXPECT_EQ(off.coarse_skipped, 0);
     second_looks += on.second_looks;
+    coarse_skipped += on.coarse_skipped;
     normal.push_back(EvaluateFrame(off, *frame.truth, f.models));
     with_second_look.push_back(EvaluateFrame(on, *frame.truth, f.models));
   }
   EXPECT_GT(second_looks, 0);
+  // The second look leaves out the coarse poses the waves refined.
+  EXPECT_GT(coarse_skipped, 0);
   const ClassFigures a = Summarize(normal, f.models).classes.back();
   const ClassFigures b = Summarize(with_second_look, f.models).classes.back();
   EXPECT_GE(b.found, a.found + 2);

@@ -138,6 +138,47 @@ TEST(PoseEstimator, FindsTheShippedPartsAtKnownPoses) {
   }
 }
 
+// A wider search of the same view (as the perception's second look) does
+// not refine again the coarse poses an earlier estimate refined.
+TEST(PoseEstimator, SkipsTheCoarsePosesAnEarlierEstimateRefined) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[0];
+  std::mt19937_64 rng{5};
+  const Pose X_BO = MakePose(testing::RandomRotation(rng, 60 * kDeg), Vec3(0.0, 0.01, 0.03));
+  const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0003, 3);
+  const SceneView view = ViewOf(scene.points_B, cam);
+  const PoseEstimator& est = Estimator(0);
+  auto first = est.Estimate(view);
+  ASSERT_TRUE(first.ok());
+  ASSERT_FALSE(first->coarse_poses.empty());
+  EXPECT_EQ(first->coarse_skipped, 0);
+
+  PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2, .peaks_examined = 16};
+  auto all = est.Estimate(view, wide);
+  ASSERT_TRUE(all.ok());
+  wide.skip_coarse = first->coarse_poses;
+  auto rest = est.Estimate(view, wide);
+  ASSERT_TRUE(rest.ok());
+  EXPECT_GT(rest->coarse_skipped, 0);
+  EXPECT_EQ(rest->coarse_poses.size() + static_cast<size_t>(rest->coarse_skipped), all->coarse_poses.size());
+  const double near_t = PoseEstimatorOptions{}.cluster_relative_translation * est.diameter();
+  const double near_r = PoseEstimatorOptions{}.cluster_rotation_deg * kDeg;
+  for (const Pose& X : rest->coarse_poses) {
+    for (const Pose& Y : first->coarse_poses) {
+      EXPECT_FALSE((X.translation() - Y.translation()).norm() < near_t &&
+                   SymmetricRotationError(X, Y, part.symmetry) < near_r);
+    }
+  }
+
+  // Everything skipped: no hypothesis, and the reason says why.
+  wide.skip_coarse = all->coarse_poses;
+  auto none = est.Estimate(view, wide);
+  ASSERT_TRUE(none.ok());
+  EXPECT_TRUE(none->hypotheses.empty());
+  EXPECT_EQ(none->coarse_skipped, static_cast<int>(all->coarse_poses.size()));
+  EXPECT_NE(none->no_result_reason.find("skip_coarse"), std::string::npos) << none->no_result_reason;
+}
+
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
   // The stable resting poses: plane faces seen head-on leave the in-plane
   // position to the silhouette only.
