@@ -149,6 +149,9 @@ struct PerceptionOptions {
                                 .peaks_examined = 16};
   // The second look does not refine again the coarse poses the view's
   // estimate in its wave refined (per class; PoseSearch::skip_coarse).
+  // Measured (all 130 scenes of docs/perception_pipeline.md): 11.8% fewer
+  // first-pass ICPs (coarse_refined), recall 0.9515 -> 0.9524, precision
+  // 0.9875 -> 0.9871, the same true positives.
   bool second_look_skip_tried = true;
   // A thorough run (PerceptionEffort::kThorough) tries every class on every
   // view (no early exit) with this wider coarse search. The grasp planner
