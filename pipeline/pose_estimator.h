@@ -202,9 +202,10 @@ struct PoseSearch {
   bool near_symmetries = true;
   // Coarse poses an earlier estimate of the same view already refined
   // (its PoseEstimates::coarse_poses): a coarse pose (or seed) within the
-  // pose clustering thresholds of one of them is not refined again, since
-  // it would converge to a hypothesis that estimate already returned or
-  // rejected. Must outlive the call.
+  // pose clustering thresholds of one of them is not refined again: it
+  // would most likely converge to a hypothesis that estimate already
+  // returned or rejected (measured in docs/perception_pipeline.md, "Second
+  // look"). Must outlive the call.
   std::span<const Pose> skip_coarse = {};
 };
 
