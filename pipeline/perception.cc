@@ -496,8 +496,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // best_out (optional): per view, the best score over the classes tried (-1
   // for none). second_look: every class that fits, with second_look_search.
   // tried (optional): per view and class model index, the coarse poses
-  // refined; in, PoseSearch::skip_coarse of the view's estimates (second
-  // look), else out.
+  // refined; out from a wave, in (PoseSearch::skip_coarse) to the second
+  // look.
   using TriedPoses = std::vector<std::vector<Pose>>;  // per class model index
   std::atomic<int> coarse_skipped{0}, coarse_refined{0};
   const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view,
@@ -542,7 +542,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<std::vector<Job>> per_view(views.size());
     const bool early_exit = options_.early_exit_score > 0.0 && !thorough && !second_look;
     if (best_out != nullptr) best_out->assign(views.size(), -1.0);
-    const bool skip_tried = second_look && tried != nullptr && tried->size() == views.size();
+    const bool skip_tried = second_look && tried != nullptr;
     if (tried != nullptr && !skip_tried) tried->assign(views.size(), TriedPoses(n_models));
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points, normals;
@@ -575,9 +575,9 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           } else {
             job.estimate = model.Estimate(view);
           }
-          if (tried != nullptr && !skip_tried) (*tried)[v][mi] = job.estimate.coarse_poses;
           coarse_skipped += job.estimate.coarse_skipped;
           coarse_refined += static_cast<int>(job.estimate.coarse_poses.size());
+          if (tried != nullptr && !skip_tried) (*tried)[v][mi] = std::move(job.estimate.coarse_poses);
           if (limit_fit && !job.estimate.hypotheses.empty()) {
             std::erase_if(job.estimate.hypotheses, [&](const internal::ClassHypothesis& h) {
               return h.rms_residual > fit_rms_limit(model, h.X_BO);
@@ -842,9 +842,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       wave_views.push_back(std::move(view_of_segment[v]));
     }
     std::vector<double> best;
-    std::vector<TriedPoses> wave_tried;
-    std::vector<Candidate> candidates = estimate(wave_views, first_region, &best, false,
-                                                 options_.second_look_skip_tried ? &wave_tried : nullptr);
+    std::vector<TriedPoses> wave_tried;  // kept only for a second look that skips them
+    const bool keep_tried = !thorough && options_.second_look_below > 0.0 && options_.second_look_skip_tried;
+    std::vector<Candidate> candidates =
+        estimate(wave_views, first_region, &best, false, keep_tried ? &wave_tried : nullptr);
     const Clock::time_point t1 = Clock::now();
     accept(std::move(candidates));
     pose_ms += Ms(t0, t1);
