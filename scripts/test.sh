@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The README's test command (and CI's, through .ci/run). Stages, in order:
-#   build  normal build (scripts/build.sh), every test (ctest), bounded load
-#          test (bp_load: 8 robots, 5 s, fails on any error)
+#   build  normal build (scripts/build.sh), every test (each test binary
+#          once, all its tests in one process; with arguments, ctest with
+#          them instead), bounded load test (bp_load: 8 robots, 5 s, fails
+#          on any error)
 #   asan   every test under AddressSanitizer + UBSan (build-asan/, all but
 #          the benches)
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
@@ -11,9 +13,9 @@
 #          inputs or FUZZ_SECONDS (12) each, whichever ends first
 #          (scripts/fuzz.sh, build-fuzz/)
 # BINPICK_TEST_STAGES picks stages (default: all four, "build asan tsan
-# fuzz"; timings in docs/reliability.md); extra arguments go to the normal
-# ctest run. Each stage logs its start and its duration; the first failure
-# stops the run.
+# fuzz"; timings in docs/reliability.md); extra arguments go to a ctest run
+# of the normal build (e.g. `scripts/test.sh -R Perception`). Each stage logs
+# its start and its duration; the first failure stops the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 STAGES="${BINPICK_TEST_STAGES:-build asan tsan fuzz}"
@@ -34,9 +36,36 @@ run_stage() {
   echo "=== test.sh: stage '$name' passed in ${dt} s"
 }
 
+# Runs every test binary of build dir $1 once, all its tests in one process
+# ($JOBS binaries at a time; ctest's process per test rebuilds the
+# perception model tables for every test: 181 s against 85 s for the normal
+# build, and ~50 s per test under ASan). Each binary gets TEST_TIMEOUT
+# seconds (a hang fails the stage, it does not stall CI). Logs go to
+# $1/test-logs/; a failing binary's log tail is printed.
+run_test_binaries() {
+  local dir="$1" logs="$1/test-logs" failed=0 t
+  rm -rf "$logs" && mkdir -p "$logs"
+  export BINPICK_ASSETS="$PWD/assets" TEST_TIMEOUT="${TEST_TIMEOUT:-900}"
+  ls "$dir/bin/" | grep '_tests$' | xargs -P "$JOBS" -I{} sh -c \
+    'cd "$0" && timeout "$TEST_TIMEOUT" bin/{} --gtest_brief=1 >test-logs/{}.log 2>&1 && echo "--- $0: {} passed" \
+     || { echo "--- $0: {} FAILED (exit $?)"; exit 1; }' "$dir" || failed=1
+  if [ "$failed" != 0 ]; then
+    for t in "$logs"/*.log; do
+      if ! grep -q '^\[  PASSED  \]' "$t" || grep -q 'FAILED\|ERROR: \(Address\|Leak\|Thread\)Sanitizer\|runtime error:' "$t"; then
+        echo "=== $t"; tail -n 80 "$t"
+      fi
+    done
+    return 1
+  fi
+}
+
 stage_build() {
   scripts/build.sh
-  (cd build && ctest --output-on-failure --parallel "$JOBS" --timeout 300 "$@")
+  if [ $# -gt 0 ]; then
+    (cd build && ctest --output-on-failure --parallel "$JOBS" --timeout 300 "$@")
+  else
+    run_test_binaries build
+  fi
   build/bin/bp_load --robots 8 --seconds 5
 }
 
@@ -45,27 +74,10 @@ stage_asan() {
   # Everything but the benches (the preset turns them off): the tests run
   # binpickd, binpick and binpick-robot too.
   cmake --build build-asan --parallel "$JOBS"
-  # Each test binary runs once, all its tests in one process ($JOBS binaries
-  # at a time): under ASan, building the perception model tables takes ~50 s,
-  # which ctest's process per test would pay for every test.
-  local logs=build-asan/test-logs
-  rm -rf "$logs" && mkdir -p "$logs"
   export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp"
   export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
   export ASAN_OPTIONS="detect_leaks=1:abort_on_error=0"
-  export BINPICK_ASSETS="$PWD/assets"
-  local failed=0 t
-  ls build-asan/bin/ | grep '_tests$' | xargs -P "$JOBS" -I{} sh -c \
-    'cd build-asan && bin/{} --gtest_brief=1 >test-logs/{}.log 2>&1 && echo "--- asan: {} passed" \
-     || { echo "--- asan: {} FAILED"; exit 1; }' || failed=1
-  if [ "$failed" != 0 ]; then
-    for t in "$logs"/*.log; do
-      if ! grep -q '^\[  PASSED  \]' "$t" || grep -q 'FAILED\|ERROR: \(Address\|Leak\)Sanitizer\|runtime error:' "$t"; then
-        echo "=== $t"; tail -n 80 "$t"
-      fi
-    done
-    return 1
-  fi
+  run_test_binaries build-asan
 }
 
 stage_tsan() {
