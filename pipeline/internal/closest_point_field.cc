@@ -66,11 +66,35 @@ void ClosestPointField::Build(std::span<const Eigen::Vector3f> points, float vox
       }
     }
   }
-  if (points.size() < kNone16) {
-    cells16_.resize(cells_.size());
-    for (size_t k = 0; k < cells_.size(); ++k) cells16_[k] = cells_[k] < 0 ? kNone16 : static_cast<uint16_t>(cells_[k]);
-    std::vector<int32_t>().swap(cells_);
+  // Row-major (above) to bricks, padded to whole bricks.
+  const int bx = (nx + kBrick - 1) / kBrick, by = (ny + kBrick - 1) / kBrick, bz = (nz + kBrick - 1) / kBrick;
+  const size_t brick_cells = size_t{1} << (3 * kBrickBits);
+  brick_stride_[0] = brick_cells;
+  brick_stride_[1] = brick_cells * static_cast<size_t>(bx);
+  brick_stride_[2] = brick_cells * static_cast<size_t>(bx) * static_cast<size_t>(by);
+  const size_t stored = brick_stride_[2] * static_cast<size_t>(bz);
+  const bool narrow = points.size() < kNone16;
+  std::vector<int32_t> wide;
+  if (narrow) {
+    cells16_.assign(stored, kNone16);
+  } else {
+    wide.assign(stored, -1);
   }
+  for (int z = 0; z < nz; ++z) {
+    for (int y = 0; y < ny; ++y) {
+      const int32_t* row = cells_.data() + (static_cast<size_t>(z) * ny + y) * nx;
+      const size_t base = AxisOffset(y, 1) + AxisOffset(z, 2);
+      for (int x = 0; x < nx; ++x) {
+        const size_t k = base + AxisOffset(x, 0);
+        if (narrow) {
+          cells16_[k] = row[x] < 0 ? kNone16 : static_cast<uint16_t>(row[x]);
+        } else {
+          wide[k] = row[x];
+        }
+      }
+    }
+  }
+  cells_.swap(wide);
 }
 
 }  // namespace bp::internal

@@ -24,7 +24,7 @@ class ClosestPointField {
     const Eigen::Vector3f g = (q - origin_) * inv_voxel_;
     const int x = static_cast<int>(g.x()), y = static_cast<int>(g.y()), z = static_cast<int>(g.z());
     if (g.x() < 0 || g.y() < 0 || g.z() < 0 || x >= dims_.x() || y >= dims_.y() || z >= dims_.z()) return -1;
-    return Cell((static_cast<size_t>(z) * dims_.y() + y) * dims_.x() + x);
+    return Cell(AxisOffset(x, 0) + AxisOffset(y, 1) + AxisOffset(z, 2));
   }
   // Nearer to exact: the best, measured from q itself, of the samples stored
   // in the 8 voxels whose centres surround q. -1 if none.
@@ -35,14 +35,15 @@ class ClosestPointField {
     if (x0 + 1 >= dims_.x() || y0 + 1 >= dims_.y() || z0 + 1 >= dims_.z()) return -1;
     // Without branches on the data (which voxels are empty, which sample is
     // nearer): those were mispredicted about half the time and cost more
-    // than the arithmetic. The first strictly nearest sample wins, as before.
-    const size_t sx = 1, sy = static_cast<size_t>(dims_.x()), sz = sy * static_cast<size_t>(dims_.y());
-    const size_t base = static_cast<size_t>(z0) * sz + static_cast<size_t>(y0) * sy + static_cast<size_t>(x0);
-    const size_t offsets[8] = {0, sx, sy, sy + sx, sz, sz + sx, sz + sy, sz + sy + sx};
+    // than the arithmetic. The first strictly nearest sample wins, as before
+    // (x fastest, then y, then z).
+    const size_t ox[2] = {AxisOffset(x0, 0), AxisOffset(x0 + 1, 0)};
+    const size_t oy[2] = {AxisOffset(y0, 1), AxisOffset(y0 + 1, 1)};
+    const size_t oz[2] = {AxisOffset(z0, 2), AxisOffset(z0 + 1, 2)};
     int best = -1;
     float best_d2 = std::numeric_limits<float>::infinity();
-    for (size_t o : offsets) {
-      const int idx = Cell(base + o);
+    for (int k = 0; k < 8; ++k) {
+      const int idx = Cell(oz[k >> 2] + oy[(k >> 1) & 1] + ox[k & 1]);
       const Eigen::Vector3f& p = points[static_cast<size_t>(idx < 0 ? 0 : idx)];
       const float d2 = idx < 0 ? std::numeric_limits<float>::infinity() : (p - q).squaredNorm();
       const bool nearer = d2 < best_d2;
@@ -55,17 +56,31 @@ class ClosestPointField {
   size_t memory_bytes() const { return cells16_.size() * sizeof(uint16_t) + cells_.size() * sizeof(int32_t); }
 
  private:
+  // Voxels are stored in bricks of kBrick^3 (brick after brick, x fastest
+  // within and between bricks): the 8 voxels around a point, and the voxels
+  // of the neighbouring points ICP looks up next, mostly lie in one brick
+  // (1 KB of 16-bit indices) where row-major order put them in four cache
+  // lines on pages about 30 KB apart. ICP's lookups are cache misses; the
+  // bricks made `BM_PerceptionRun` 640x480 about 7% faster (4^3 bricks
+  // about 6%), with the same lookups (docs/perception.md, "Refinement").
+  static constexpr int kBrickBits = 3, kBrick = 1 << kBrickBits;
+  // The part of a voxel's storage index that its coordinate c along axis a
+  // gives: brick stride times c / kBrick plus the within-brick stride times
+  // c % kBrick; a voxel's index is the sum over its three axes.
+  size_t AxisOffset(int c, int a) const {
+    return static_cast<size_t>(c >> kBrickBits) * brick_stride_[a] +
+           (static_cast<size_t>(c & (kBrick - 1)) << (kBrickBits * a));
+  }
   // Sample index of a voxel, -1 for none.
   int Cell(size_t i) const {
     if (!cells16_.empty()) return cells16_[i] == kNone16 ? -1 : static_cast<int>(cells16_[i]);
     return cells_[i];
   }
-  // Fewer than kNone16 samples: 16-bit indices (half the memory, and ICP's
-  // lookups are cache misses), else 32-bit.
   static constexpr uint16_t kNone16 = 0xFFFF;
   Eigen::Vector3f origin_ = Eigen::Vector3f::Zero();
   float inv_voxel_ = 1.f, band_ = 0.f;
   Eigen::Vector3i dims_ = Eigen::Vector3i::Zero();
+  size_t brick_stride_[3] = {0, 0, 0};  // storage distance between bricks along x, y, z
   std::vector<int32_t> cells_;
   std::vector<uint16_t> cells16_;
 };
