@@ -13,6 +13,7 @@
 // handler, the queues and the network threads, not perception.
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
+#include <tbb/global_control.h>
 
 #include <algorithm>
 #include <atomic>
@@ -26,6 +27,7 @@
 #include <vector>
 
 #include "comms/daoai_server.h"
+#include "comms/request_handler.h"
 #include "comms/robot_client.h"
 #include "tests/testing/scripted_planner.h"
 
@@ -66,6 +68,14 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", log_level, "server log level in-process (default warn)");
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::from_str(log_level));
+
+  // As in binpickd: oneTBB caps its workers at cores - 1, and the handler's
+  // detection arena asks for detection_threads workers of its own (without
+  // this, on 2 cores, one detection ran at a time and oneTBB warned).
+  const size_t parallelism = std::max<size_t>(
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
+      static_cast<size_t>(bp::RequestHandlerOptions{}.detection_threads) + 1);
+  tbb::global_control allow_workers(tbb::global_control::max_allowed_parallelism, parallelism);
 
   std::shared_ptr<bp::testing::ScriptedPlanner> planner;
   std::unique_ptr<bp::RequestHandler> handler;
