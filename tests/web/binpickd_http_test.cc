@@ -2,9 +2,12 @@
 // cell (synthetic pile, real perception), a simulated robot picking through
 // the DaoAI socket, then the JSON API, /metrics and the page in Chromium
 // checked against what the robot was told.
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -28,9 +31,18 @@ namespace {
 using json = nlohmann::json;
 
 int FreePort() {
-  boost::asio::io_context io;
-  boost::asio::ip::tcp::acceptor a(io, {boost::asio::ip::make_address("127.0.0.1"), 0});
-  return a.local_endpoint().port();
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  socklen_t len = sizeof(addr);
+  int port = 0;
+  if (fd >= 0 && ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0 &&
+      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0) {
+    port = ntohs(addr.sin_port);
+  }
+  if (fd >= 0) ::close(fd);
+  return port;
 }
 
 // binpickd as a child process; stdout (the ready line) through a pipe.
@@ -180,11 +192,11 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
                 dir + "/binpickd.log");
   const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
   ASSERT_GT(http, 0);
-  const webtest::HttpResult refused = webtest::HttpRequest(http, "/metrics", boost::beast::http::verb::get,
+  const webtest::HttpResult refused = webtest::HttpRequest(http, "/metrics", "GET",
                                                            "127.0.0.1");
   EXPECT_EQ(refused.status, 0);
   EXPECT_NE(refused.error, "");
-  const webtest::HttpResult metrics = webtest::HttpRequest(http, "/metrics", boost::beast::http::verb::get,
+  const webtest::HttpResult metrics = webtest::HttpRequest(http, "/metrics", "GET",
                                                            "127.0.0.2");
   ASSERT_EQ(metrics.status, 200) << metrics.error;
   std::map<std::string, double> s;

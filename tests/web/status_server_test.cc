@@ -2,6 +2,9 @@
 // RequestHandler driving a scripted planner with real frames.
 #include "web/status_server.h"
 
+#include <boost/asio.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/sinks/base_sink.h>
@@ -226,9 +229,9 @@ TEST(StatusServer, BadRequestsGet4xxAndTheServerKeepsServing) {
   options.idle_timeout = std::chrono::milliseconds(300);
   Stack s(options);
   EXPECT_EQ(webtest::HttpRequest(s.port(), "/nope").status, 404);
-  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::post).status, 405);
-  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::delete_).status, 405);
-  const webtest::HttpResult head = webtest::HttpRequest(s.port(), "/api/status", http::verb::head);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", "POST").status, 405);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", "DELETE").status, 405);
+  const webtest::HttpResult head = webtest::HttpRequest(s.port(), "/api/status", "HEAD");
   EXPECT_EQ(head.status, 200);
   EXPECT_EQ(head.body, "");
 
@@ -342,12 +345,12 @@ TEST(StatusServer, PeersNotInTheAllowlistAreClosedAtAcceptAndCounted) {
   // 127.0.0.2 is not listed: closed before a byte is read or written (a
   // request would get no answer either).
   for (int i = 0; i < 5; ++i) EXPECT_EQ(BytesBeforeClose(s.port(), "127.0.0.2"), "") << i;
-  const webtest::HttpResult refused = webtest::HttpRequest(s.port(), "/api/status", http::verb::get, "127.0.0.2");
+  const webtest::HttpResult refused = webtest::HttpRequest(s.port(), "/api/status", "GET", "127.0.0.2");
   EXPECT_EQ(refused.status, 0);
   EXPECT_NE(refused.error, "");
   // The allowed browser is unaffected, on its open connection and on new ones.
   EXPECT_EQ(browser.Get("/api/status"), 200);
-  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", http::verb::get, "127.0.0.1").status, 200);
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/status", "GET", "127.0.0.1").status, 200);
   const std::map<std::string, double> samples = Samples(s.port());
   EXPECT_EQ(samples.at("binpick_http_refused_connections_total{reason=\"allowlist\"}"), 6);
   EXPECT_EQ(samples.at("binpick_http_refused_connections_total{reason=\"max_connections\"}"), 0);
@@ -359,7 +362,7 @@ TEST(StatusServer, AnAllowlistWithoutTheLoopbackPeerRefusesItAndServesTheListedO
   Stack s(options);
   EXPECT_EQ(BytesBeforeClose(s.port(), "127.0.0.1"), "");
   EXPECT_NE(webtest::HttpRequest(s.port(), "/metrics").error, "");
-  const webtest::HttpResult r = webtest::HttpRequest(s.port(), "/metrics", http::verb::get, "127.0.0.2");
+  const webtest::HttpResult r = webtest::HttpRequest(s.port(), "/metrics", "GET", "127.0.0.2");
   ASSERT_EQ(r.status, 200) << r.error;
   std::map<std::string, double> samples;
   EXPECT_EQ(webtest::CheckPrometheusText(r.body, &samples), std::vector<std::string>{});
