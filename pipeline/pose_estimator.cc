@@ -765,8 +765,9 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
     }
     std::stable_sort(edges.begin(), edges.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
     const float same = static_cast<float>(kFaceEdgeMergeDeg * kDeg), quarter = static_cast<float>(M_PI / 2);
-    for (const auto& [len, ang] : edges) {
+    for (const auto& [len, edge_ang] : edges) {
       if (len < kMinFaceExtent || static_cast<int>(angles.size()) > kFaceEdgeDirections) break;
+      const float ang = edge_ang;  // a copy: clang 14 cannot capture a structured binding
       const bool known = std::any_of(angles.begin(), angles.end(), [&](float x) {
         const float d = std::abs(x - ang);
         return std::min(d, quarter - d) < same;

@@ -1,17 +1,22 @@
 #!/usr/bin/env bash
 # The README's test command (and CI's, through .ci/run). Stages, in order:
-#   build  normal build (scripts/build.sh), every test (each test binary
-#          once, all its tests in one process; with arguments, ctest with
-#          them instead), bounded load test (bp_load: 8 robots, 5 s, fails
-#          on any error)
+#   build  normal build of the programs and benches (scripts/build.sh,
+#          target bp_programs), bounded load test (bp_load: 8 robots, 5 s,
+#          fails on any error); with arguments, the whole build and a ctest
+#          run with them (e.g. `scripts/test.sh -R Perception`)
 #   asan   every test under AddressSanitizer + UBSan (build-asan/, all but
-#          the benches)
+#          the benches; each test binary once, all its tests in one process).
+#          The tests run here only, not also in the normal build: compiling
+#          them twice cost about 4 min of CI (docs/reliability.md, "Timings")
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
 #          ThreadSanitizer (build-tsan/; oneTBB runs serially there, see
 #          tests/testing/tsan_serial_tbb.cc and scripts/tsan.supp)
 #   fuzz   every libFuzzer target, gate mode: seed 1, FUZZ_RUNS (300000)
 #          inputs or FUZZ_SECONDS (12) each, whichever ends first
 #          (scripts/fuzz.sh, build-fuzz/)
+# and, not in the default run:
+#   tests  every test in the normal build, each binary once (the quick
+#          check while working: no sanitizer build)
 # BINPICK_TEST_STAGES picks stages (default: all four, "build asan tsan
 # fuzz"; timings in docs/reliability.md); extra arguments go to a ctest run
 # of the normal build (e.g. `scripts/test.sh -R Perception`). Each stage logs
@@ -63,16 +68,26 @@ run_test_binaries() {
 }
 
 stage_build() {
-  scripts/build.sh
   if [ $# -gt 0 ]; then
+    scripts/build.sh
     (cd build && ctest --output-on-failure --parallel "$JOBS" --timeout 300 "$@")
   else
-    run_test_binaries build
+    scripts/build.sh --target bp_programs
   fi
   build/bin/bp_load --robots 8 --seconds 5
 }
 
+stage_tests() {
+  scripts/build.sh
+  run_test_binaries build
+}
+
 stage_asan() {
+  # The preset's compiler is clang-14 since 2026-12-03; a tree configured
+  # with GCC before is configured again.
+  if [ -f build-asan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-asan/CMakeCache.txt; then
+    rm -rf build-asan
+  fi
   if [ ! -f build-asan/CMakeCache.txt ]; then cmake --preset asan >/dev/null; fi
   # Everything but the benches (the preset turns them off): the tests run
   # binpickd, binpick and binpick-robot too.
@@ -98,10 +113,11 @@ stage_fuzz() {
 for s in $STAGES; do
   case "$s" in
     build) run_stage build stage_build "$@" ;;
+    tests) run_stage tests stage_tests ;;
     asan) run_stage asan stage_asan ;;
     tsan) run_stage tsan stage_tsan ;;
     fuzz) run_stage fuzz stage_fuzz ;;
-    *) echo "test.sh: unknown stage '$s' (build asan tsan fuzz)"; exit 2 ;;
+    *) echo "test.sh: unknown stage '$s' (build tests asan tsan fuzz)"; exit 2 ;;
   esac
 done
 echo "=== test.sh: all stages passed"
