@@ -1,12 +1,14 @@
 #include "pipeline/pose_estimator.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
 #include <limits>
 #include <numeric>
 #include <sstream>
+#include <tuple>
 
 #include <Eigen/Eigenvalues>
 
@@ -290,17 +292,93 @@ void PlaneFrame(std::span<const Eigen::Vector3f> pts, const Eigen::Vector3f& n, 
   }
 }
 
+// A point of a planar face's plane in one of its holes (PoseEstimatorOptions::hole_max_filled).
+struct HolePoint {
+  Eigen::Vector3f p;  // O
+  Eigen::Vector3f n;  // the face's outward normal, O
+};
+// Hole points are laid on a grid of this pitch (metres) in the face's plane.
+constexpr float kHolePitch = 0.001f;
+// A hole point in view faces the camera by at least this cosine (its face does).
+constexpr float kHoleMinCos = 0.3f;
+
+// Distance from q to the triangle (a, b, c) in 2D (0 inside).
+float DistanceToTriangle2(const Eigen::Vector2f& q, const Eigen::Vector2f& a, const Eigen::Vector2f& b,
+                          const Eigen::Vector2f& c) {
+  auto cross = [](const Eigen::Vector2f& x, const Eigen::Vector2f& y) { return x.x() * y.y() - x.y() * y.x(); };
+  const float d1 = cross(b - a, q - a), d2 = cross(c - b, q - b), d3 = cross(a - c, q - c);
+  const bool neg = d1 < 0 || d2 < 0 || d3 < 0, pos = d1 > 0 || d2 > 0 || d3 > 0;
+  if (!(neg && pos)) return 0.f;
+  auto seg = [&](const Eigen::Vector2f& x, const Eigen::Vector2f& y) {
+    const Eigen::Vector2f e = y - x;
+    const float t = std::clamp(e.dot(q - x) / std::max(e.squaredNorm(), 1e-20f), 0.f, 1.f);
+    return (x + t * e - q).norm();
+  };
+  return std::min({seg(a, b), seg(b, c), seg(c, a)});
+}
+
+// The hole points of one face (triangles `tris` of `mesh`, frame of `f`):
+// grid points of the face's box that no triangle covers, at least `margin`
+// from every triangle, with covered grid points on both sides along both
+// in-plane axes (enclosed: a bore, not the notch of an L-shaped face).
+std::vector<HolePoint> FaceHoles(const TriangleMesh& mesh, const std::vector<int>& tris, const PlanarFace& f,
+                                 float margin) {
+  std::vector<std::array<Eigen::Vector2f, 3>> t2;
+  for (int ti : tris) {
+    std::array<Eigen::Vector2f, 3> t;
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector3f p = mesh.vertices[mesh.triangles[ti][k]] - f.c;
+      t[k] = Eigen::Vector2f(f.u.dot(p), f.v.dot(p));
+    }
+    t2.push_back(t);
+  }
+  const int nx = static_cast<int>(std::floor((f.hi.x() - f.lo.x()) / kHolePitch)) + 1;
+  const int ny = static_cast<int>(std::floor((f.hi.y() - f.lo.y()) / kHolePitch)) + 1;
+  std::vector<float> dist(static_cast<size_t>(nx) * ny);
+  for (int y = 0; y < ny; ++y) {
+    for (int x = 0; x < nx; ++x) {
+      const Eigen::Vector2f q = f.lo + kHolePitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
+      float d = std::numeric_limits<float>::infinity();
+      for (const auto& t : t2) {
+        d = std::min(d, DistanceToTriangle2(q, t[0], t[1], t[2]));
+        if (d == 0.f) break;
+      }
+      dist[static_cast<size_t>(y) * nx + x] = d;
+    }
+  }
+  auto covered = [&](int x, int y) { return dist[static_cast<size_t>(y) * nx + x] == 0.f; };
+  std::vector<HolePoint> holes;
+  for (int y = 0; y < ny; ++y) {
+    for (int x = 0; x < nx; ++x) {
+      if (dist[static_cast<size_t>(y) * nx + x] < margin) continue;
+      bool left = false, right = false, down = false, up = false;
+      for (int k = 0; k < x && !left; ++k) left = covered(k, y);
+      for (int k = x + 1; k < nx && !right; ++k) right = covered(k, y);
+      for (int k = 0; k < y && !down; ++k) down = covered(x, k);
+      for (int k = y + 1; k < ny && !up; ++k) up = covered(x, k);
+      if (!(left && right && down && up)) continue;
+      const Eigen::Vector2f q = f.lo + kHolePitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
+      holes.push_back({f.c + q.x() * f.u + q.y() * f.v, f.n});
+    }
+  }
+  return holes;
+}
+
 // The part's large planar faces: mesh triangles grouped by normal and plane,
-// each group with the dense samples on it.
-std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoints& dense) {
+// each group with the dense samples on it. Appends the faces' hole points
+// (FaceHoles) to `holes`.
+std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoints& dense, float hole_margin,
+                                    std::vector<HolePoint>* holes) {
   struct Group {
     Eigen::Vector3f n;
     float d;
     float area;
+    std::vector<int> tris;
   };
   std::vector<Group> groups;
   const float cos_tol = static_cast<float>(std::cos(kFaceNormalDeg * kDeg));
-  for (const Eigen::Vector3i& t : mesh.triangles) {
+  for (size_t ti = 0; ti < mesh.triangles.size(); ++ti) {
+    const Eigen::Vector3i& t = mesh.triangles[ti];
     const Eigen::Vector3f& a = mesh.vertices[t[0]];
     const Eigen::Vector3f cr = (mesh.vertices[t[1]] - a).cross(mesh.vertices[t[2]] - a);
     if (!(cr.norm() > 1e-12f)) continue;
@@ -309,9 +387,10 @@ std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoin
     auto g = std::find_if(groups.begin(), groups.end(),
                           [&](const Group& e) { return e.n.dot(n) > cos_tol && std::abs(e.d - d) < kFacePlaneTol; });
     if (g == groups.end()) {
-      groups.push_back({n, d, 0.5f * cr.norm()});
+      groups.push_back({n, d, 0.5f * cr.norm(), {static_cast<int>(ti)}});
     } else {
       g->area += 0.5f * cr.norm();
+      g->tris.push_back(static_cast<int>(ti));
     }
   }
   std::vector<PlanarFace> faces;
@@ -329,6 +408,10 @@ std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoin
     PlaneFrame(on, g.n, &f.c, &f.u, &f.v, &f.lo, &f.hi);
     if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
     faces.push_back(f);
+    if (holes) {
+      const std::vector<HolePoint> h = FaceHoles(mesh, g.tris, f, hole_margin);
+      holes->insert(holes->end(), h.begin(), h.end());
+    }
   }
   return faces;
 }
@@ -462,6 +545,9 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
       !(near_symmetry_score_slack >= 0 && near_symmetry_score_slack < 1)) {
     return fail("near_symmetry_min_overlap must be in [0, 1], near_symmetry_score_slack in [0, 1), max_near_symmetries >= 0");
   }
+  if (!(hole_margin > 0) || hole_min_visible < 1 || !(hole_max_filled >= 0)) {
+    return fail("hole_margin must be > 0, hole_min_visible >= 1, hole_max_filled >= 0");
+  }
   return true;
 }
 
@@ -481,6 +567,11 @@ struct PoseEstimator::Impl {
   internal::PpfModel ppf;
   std::vector<RestingPose> rests;  // over the dense samples
   std::vector<PlanarFace> faces;   // PoseSearch::face_seeds
+  // PoseEstimatorOptions::hole_max_filled; only those farther than
+  // hole_margin from the rest of the part's surface.
+  std::vector<HolePoint> holes;
+  // Hole points in view and, of those, filled, for a pose (depth image only).
+  std::pair<int, int> HoleStats(const Pose& X_BO, const SceneView& view) const;
 
   // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
   // towards the parts) in each resting orientation, centred on the segment.
@@ -858,7 +949,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
                                   static_cast<float>(2 * options.icp_model_spacing));
   impl->verify = internal::VoxelDownsample(impl->dense, options.verify_model_spacing, 45.0);
   impl->ppf_points = internal::VoxelDownsample(impl->dense, impl->step, 30.0);
-  impl->faces = PlanarFaces(mesh, impl->dense);
+  impl->faces = PlanarFaces(mesh, impl->dense, static_cast<float>(options.hole_margin), &impl->holes);
   impl->ppf_extreme = ExtremePoints(impl->ppf_points.points);
   impl->verify_extreme = ExtremePoints(impl->verify.points);
   const float cos_face = static_cast<float>(std::cos(kTiltedFaceDeg * kDeg));
@@ -887,6 +978,15 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
   const float band = std::max(static_cast<float>(options.icp_initial_relative_distance) * impl->step,
                               static_cast<float>(2 * options.icp_final_distance));
   impl->field.Build(impl->dense.points, std::max(0.001f, static_cast<float>(options.icp_model_spacing)), band);
+  {
+    // Hole points on or next to other parts of the surface (the bore's wall
+    // where it meets the face's plane) say nothing.
+    const float margin = static_cast<float>(options.hole_margin);
+    std::erase_if(impl->holes, [&](const HolePoint& h) {
+      const int idx = impl->field.Lookup(h.p);
+      return idx >= 0 && (impl->dense.points[idx] - h.p).norm() < margin;
+    });
+  }
 
   {
     // Convex sharp edges: neighbours whose normal is > 30 deg off and that lie
@@ -1067,6 +1167,48 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
   return s;
 }
 
+std::pair<int, int> PoseEstimator::Impl::HoleStats(const Pose& X_BO, const SceneView& view) const {
+  int in_view = 0, filled = 0;
+  if (holes.empty() || view.depth == nullptr || view.depth->empty() || !view.intrinsics.valid()) return {0, 0};
+  const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+  const Eigen::Vector3f t = X_BO.translation().cast<float>();
+  const Eigen::Vector3f c = view.X_BC.translation().cast<float>();
+  const Pose X_CB = view.X_BC.inverse();
+  const Eigen::Matrix3f R_CB = X_CB.linear().cast<float>();
+  const Eigen::Vector3f t_CB = X_CB.translation().cast<float>();
+  // Measured points back to O: p_O = R^T (X_BC p_C - t).
+  const Eigen::Matrix3f R_OC = R.transpose() * view.X_BC.linear().cast<float>();
+  const Eigen::Vector3f t_OC = R.transpose() * (view.X_BC.translation().cast<float>() - t);
+  const Intrinsics& K = view.intrinsics;
+  const float support = static_cast<float>(options.support_distance);
+  const float free_thr = static_cast<float>(options.free_space_distance);
+  const float margin = static_cast<float>(options.hole_margin);
+  for (const HolePoint& h : holes) {
+    const Eigen::Vector3f p = R * h.p + t;
+    const Eigen::Vector3f to_cam = c - p;
+    const float dist = to_cam.norm();
+    const float cs = (R * h.n).dot(to_cam) / std::max(dist, 1e-9f);
+    if (cs < kHoleMinCos) continue;
+    const Eigen::Vector3f pc = R_CB * p + t_CB;
+    if (!(pc.z() > 0)) continue;
+    const int u = static_cast<int>(std::lround(K.fx * pc.x() / pc.z() + K.cx));
+    const int v = static_cast<int>(std::lround(K.fy * pc.y() / pc.z() + K.cy));
+    if (u < 0 || v < 0 || u >= view.depth->width || v >= view.depth->height) continue;
+    const float zm = view.depth->at(u, v);
+    if (!std::isfinite(zm) || !(zm > 0)) continue;
+    const float slack = static_cast<float>(pc.z() / K.fx) * std::sqrt(std::max(0.f, 1 - cs * cs)) / cs;
+    if (zm < pc.z() - free_thr - slack) continue;  // something in front: no evidence
+    ++in_view;
+    if (std::abs(zm - pc.z()) >= support + slack) continue;
+    const Eigen::Vector3f m_C((static_cast<float>(u) - static_cast<float>(K.cx)) / static_cast<float>(K.fx) * zm,
+                              (static_cast<float>(v) - static_cast<float>(K.cy)) / static_cast<float>(K.fy) * zm, zm);
+    const Eigen::Vector3f m_O = R_OC * m_C + t_OC;
+    const int idx = field.Lookup(m_O);
+    if (idx < 0 || (dense.points[idx] - m_O).norm() > margin) ++filled;
+  }
+  return {in_view, filled};
+}
+
 Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X_BO) const {
   const Impl& m = *impl_;
   if (!X_BO.matrix().allFinite()) return Status::InvalidArgument("Score: X_BO is not finite");
@@ -1090,6 +1232,7 @@ Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X
   h.supported_points = st.supported;
   h.free_space_points = st.free_space;
   h.unmeasured_points = st.unmeasured;
+  std::tie(h.hole_points, h.filled_hole_points) = m.HoleStats(X_BO, view);
   return h;
 }
 
@@ -1331,6 +1474,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     VerifyStats stats;
     internal::IcpResult icp;
     int votes = 0;
+    std::pair<int, int> holes{0, 0};  // in view, filled
   };
   double refine_ms = 0, verify_ms = 0;
   auto timed = [](double& acc, auto&& f) {
@@ -1389,7 +1533,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   }
   std::stable_sort(first.begin(), first.end(), by_score);
   double best_rejected = -1;
-  int below_support = 0;
+  int below_support = 0, holes_filled = 0;
   std::vector<Candidate> survivors;
   for (const Candidate& c : first) {
     // Loose threshold here: the fine pass usually raises the score.
@@ -1462,6 +1606,13 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
         }
       }
     }
+    if (opt.hole_max_filled < 1 && have_depth) {
+      timed(verify_ms, [&] { c.holes = m.HoleStats(c.X_BO, view); });
+      if (c.holes.first >= opt.hole_min_visible && c.holes.second > opt.hole_max_filled * c.holes.first) {
+        ++holes_filled;
+        continue;
+      }
+    }
     finals.push_back(c);
   }
   std::stable_sort(finals.begin(), finals.end(), by_score);
@@ -1477,6 +1628,8 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     h.supported_points = c.stats.supported;
     h.free_space_points = c.stats.free_space;
     h.unmeasured_points = c.stats.unmeasured;
+    h.hole_points = c.holes.first;
+    h.filled_hole_points = c.holes.second;
     h.rms_residual = c.icp.rms;
     h.coarse_votes = c.votes;
     out.hypotheses.push_back(std::move(h));
@@ -1501,6 +1654,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     std::ostringstream os;
     os << "no hypothesis passed verification (best score " << best_rejected << ", need " << min_score;
     if (below_support > 0) os << "; " << below_support << " below the support plane";
+    if (holes_filled > 0) os << "; " << holes_filled << " with the view's surface through their holes";
     os << ")";
     out.no_result_reason = os.str();
   }

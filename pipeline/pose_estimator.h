@@ -127,6 +127,19 @@ struct PoseEstimatorOptions {
   double near_symmetry_min_overlap = 0.35;
   int max_near_symmetries = 4;
   double near_symmetry_score_slack = 0.02;
+  // Filled holes (depth image only). Points of a large planar face's plane
+  // that the face encloses but does not cover (a bushing's bore, a
+  // bracket's holes, a pipe's opening), at least hole_margin from the face,
+  // are the part's holes. Where a visible hole point's pixel measures a
+  // surface at the hole point's depth (within support_distance) that is not
+  // the part's own surface (farther than hole_margin from it), the view's
+  // surface goes on through where the part has a hole: a flange fitted
+  // into a larger plate. A hypothesis with at least hole_min_visible such
+  // points in view, more than hole_max_filled of them filled, is rejected.
+  // hole_max_filled >= 1: off.
+  double hole_margin = 0.0015;
+  int hole_min_visible = 8;
+  double hole_max_filled = 0.5;
 
   // Returns false with a message if a value is out of range.
   bool IsValid(std::string* error) const;
@@ -226,6 +239,8 @@ struct PoseHypothesis {
   int supported_points = 0;  // of those, with a scene point within support_distance
   int free_space_points = 0; // of those, in front of the measured surface (depth image only)
   int unmeasured_points = 0; // of those, on a grazing face over a pixel without depth (see PoseSearch)
+  int hole_points = 0;        // hole points in view (PoseEstimatorOptions::hole_max_filled)
+  int filled_hole_points = 0; // of those, where the measured surface goes on through the hole
   double rms_residual = 0;   // ICP point-to-plane RMS over supporting points, metres
   int coarse_votes = 0;      // summed PPF votes of the cluster this came from
   // Indices into SceneView::points_B of the points within support_distance.

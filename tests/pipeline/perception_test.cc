@@ -605,7 +605,10 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   EXPECT_GT(coarse_skipped, 0);
   const ClassFigures a = Summarize(normal, f.models).classes.back();
   const ClassFigures b = Summarize(with_second_look, f.models).classes.back();
-  EXPECT_GE(b.found, a.found + 2);
+  // 35 -> 36 parts found; 33 -> 35 before the hole test
+  // (PoseEstimatorOptions::hole_max_filled), with which the normal run finds
+  // two of them itself.
+  EXPECT_GE(b.found, a.found + 1) << a.found << " -> " << b.found;
   EXPECT_LE(b.t_median_mm, 1.0);
 
   PerceptionOptions bad;

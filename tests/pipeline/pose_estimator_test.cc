@@ -456,6 +456,63 @@ TEST(PoseEstimator, FindsTheNearSymmetriesOfTheShippedParts) {
   EXPECT_EQ(PoseEstimator::Build(MakeLBracket(), Symmetry{}, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
+TEST(PoseEstimator, AFlangeFittedIntoALargerPlateFillsTheBoreAndIsRejected) {
+  // The false detection the hole test is for: a bushing upside down with its
+  // flange's bottom face in a plate's top face (its hub inside the plate,
+  // where nothing can be seen). The flange alone explains the plate well;
+  // only the plate's surface going on through the bore says otherwise.
+  auto bushing = PoseEstimator::Build(MakeFlangedBushing(), testing::RevoluteZ());
+  ASSERT_TRUE(bushing.ok()) << bushing.status().ToString();
+  const TestCamera cam = DefaultCamera();
+  const TriangleMesh floor = Floor();
+  // Raised above the floor (on something out of view) so that the hub, 32
+  // mm below the face, stays above the floor.
+  const TriangleMesh plate = testing::MakeBox({-0.06f, -0.05f, 0.055f}, {0.06f, 0.05f, 0.06f});
+  const RenderedScene scene = Render({{&plate, Pose::Identity()}, {&floor, Pose::Identity()}}, cam, 0.0002, 11);
+  const std::vector<Eigen::Vector3f> plate_points = testing::PointsWithLabels(scene, {1});
+  SceneView view = OnFloor(ViewOf(plate_points, cam));
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  const Pose fitted = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.01, 0.0, 0.06));
+  auto h = (*bushing)->Score(view, fitted);
+  ASSERT_TRUE(h.ok());
+  EXPECT_GT(h->score, 0.9) << "the flange explains the plate: without the hole test it would be a detection";
+  EXPECT_GE(h->hole_points, 8);
+  EXPECT_GT(h->filled_hole_points, h->hole_points * 9 / 10);
+  // The full search over the plate finds flanges in it, and the test
+  // rejects every one (the bore lands on the plate wherever the flange is).
+  auto r = (*bushing)->Estimate(view);
+  ASSERT_TRUE(r.ok());
+  EXPECT_TRUE(r->hypotheses.empty()) << r->hypotheses.size() << " bushings on a plain plate";
+  EXPECT_NE(r->no_result_reason.find("holes"), std::string::npos) << r->no_result_reason;
+
+  // A real bushing, either way up on the floor: through the bore the camera
+  // sees the floor 40 mm below, nothing fills it, and it is found.
+  const TriangleMesh part = MakeFlangedBushing();
+  for (const bool upside_down : {false, true}) {
+    const Mat3 R(Eigen::AngleAxisd(upside_down ? M_PI : 0.0, Vec3::UnitX()));
+    const Pose X_BO = Resting(part, R, 0.01, -0.02);
+    const RenderedScene real = Render({{&part, X_BO}, {&floor, Pose::Identity()}}, cam, 0.0002, 12);
+    const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(real, {1});
+    SceneView v = OnFloor(ViewOf(segment, cam));
+    v.depth = &real.depth;
+    v.intrinsics = cam.K;
+    auto truth = (*bushing)->Score(v, X_BO);
+    ASSERT_TRUE(truth.ok());
+    EXPECT_GE(truth->hole_points, 8) << upside_down;
+    EXPECT_EQ(truth->filled_hole_points, 0) << upside_down;
+    auto found = (*bushing)->Estimate(v);
+    ASSERT_TRUE(found.ok());
+    ASSERT_FALSE(found->hypotheses.empty()) << upside_down << ": " << found->no_result_reason;
+    EXPECT_LT(SymmetricTranslationError(found->hypotheses[0].X_BO, X_BO, testing::RevoluteZ()), 0.0005);
+  }
+
+  PoseEstimatorOptions bad;
+  bad.hole_margin = 0;
+  EXPECT_EQ(PoseEstimator::Build(MakeFlangedBushing(), testing::RevoluteZ(), bad).status().code(),
+            Status::Code::kInvalidArgument);
+}
+
 TEST(SymmetricPoseError, RevolutePartRotatedAboutItsAxisHasZeroError) {
   const Symmetry s = testing::RevoluteZ();
   const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized())), Vec3(0.1, 0.2, 0.3));
