@@ -320,44 +320,57 @@ float DistanceToTriangle2(const Eigen::Vector2f& q, const Eigen::Vector2f& a, co
 // The hole points of one face (triangles `tris` of `mesh`, frame of `f`):
 // grid points of the face's box that no triangle covers, at least `margin`
 // from every triangle, with covered grid points on both sides along both
-// in-plane axes (enclosed: a bore, not the notch of an L-shaped face).
+// in-plane axes (enclosed: a bore, not the notch of an L-shaped face). Each
+// triangle visits the grid points of its own box grown by the margin, so
+// the cost follows the face's area, not area x triangles; the pitch grows
+// past kHolePitch to keep a very large face's grid under kMaxHoleGrid points.
+constexpr size_t kMaxHoleGrid = 250000;
 std::vector<HolePoint> FaceHoles(const TriangleMesh& mesh, const std::vector<int>& tris, const PlanarFace& f,
                                  float margin) {
-  std::vector<std::array<Eigen::Vector2f, 3>> t2;
+  const Eigen::Vector2f extent = f.hi - f.lo;
+  const float pitch = std::max(kHolePitch, std::sqrt(extent.x() * extent.y() / static_cast<float>(kMaxHoleGrid)));
+  const int nx = static_cast<int>(std::floor(extent.x() / pitch)) + 1;
+  const int ny = static_cast<int>(std::floor(extent.y() / pitch)) + 1;
+  const auto at = [&](int x, int y) { return static_cast<size_t>(y) * nx + x; };
+  std::vector<float> dist(static_cast<size_t>(nx) * ny, std::numeric_limits<float>::infinity());
   for (int ti : tris) {
     std::array<Eigen::Vector2f, 3> t;
     for (int k = 0; k < 3; ++k) {
       const Eigen::Vector3f p = mesh.vertices[mesh.triangles[ti][k]] - f.c;
       t[k] = Eigen::Vector2f(f.u.dot(p), f.v.dot(p));
     }
-    t2.push_back(t);
-  }
-  const int nx = static_cast<int>(std::floor((f.hi.x() - f.lo.x()) / kHolePitch)) + 1;
-  const int ny = static_cast<int>(std::floor((f.hi.y() - f.lo.y()) / kHolePitch)) + 1;
-  std::vector<float> dist(static_cast<size_t>(nx) * ny);
-  for (int y = 0; y < ny; ++y) {
-    for (int x = 0; x < nx; ++x) {
-      const Eigen::Vector2f q = f.lo + kHolePitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
-      float d = std::numeric_limits<float>::infinity();
-      for (const auto& t : t2) {
+    const Eigen::Vector2f lo = (t[0].cwiseMin(t[1]).cwiseMin(t[2]) - f.lo).array() - margin;
+    const Eigen::Vector2f hi = (t[0].cwiseMax(t[1]).cwiseMax(t[2]) - f.lo).array() + margin;
+    const int x0 = std::max(0, static_cast<int>(std::floor(lo.x() / pitch)));
+    const int y0 = std::max(0, static_cast<int>(std::floor(lo.y() / pitch)));
+    const int x1 = std::min(nx - 1, static_cast<int>(std::ceil(hi.x() / pitch)));
+    const int y1 = std::min(ny - 1, static_cast<int>(std::ceil(hi.y() / pitch)));
+    for (int y = y0; y <= y1; ++y) {
+      for (int x = x0; x <= x1; ++x) {
+        float& d = dist[at(x, y)];
+        if (d == 0.f) continue;
+        const Eigen::Vector2f q = f.lo + pitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
         d = std::min(d, DistanceToTriangle2(q, t[0], t[1], t[2]));
-        if (d == 0.f) break;
       }
-      dist[static_cast<size_t>(y) * nx + x] = d;
     }
   }
-  auto covered = [&](int x, int y) { return dist[static_cast<size_t>(y) * nx + x] == 0.f; };
+  // Enclosed: between the first and the last covered point of its row and of its column.
+  std::vector<int> row_lo(ny, nx), row_hi(ny, -1), col_lo(nx, ny), col_hi(nx, -1);
+  for (int y = 0; y < ny; ++y) {
+    for (int x = 0; x < nx; ++x) {
+      if (dist[at(x, y)] != 0.f) continue;
+      row_lo[y] = std::min(row_lo[y], x);
+      row_hi[y] = std::max(row_hi[y], x);
+      col_lo[x] = std::min(col_lo[x], y);
+      col_hi[x] = std::max(col_hi[x], y);
+    }
+  }
   std::vector<HolePoint> holes;
   for (int y = 0; y < ny; ++y) {
     for (int x = 0; x < nx; ++x) {
-      if (dist[static_cast<size_t>(y) * nx + x] < margin) continue;
-      bool left = false, right = false, down = false, up = false;
-      for (int k = 0; k < x && !left; ++k) left = covered(k, y);
-      for (int k = x + 1; k < nx && !right; ++k) right = covered(k, y);
-      for (int k = 0; k < y && !down; ++k) down = covered(x, k);
-      for (int k = y + 1; k < ny && !up; ++k) up = covered(x, k);
-      if (!(left && right && down && up)) continue;
-      const Eigen::Vector2f q = f.lo + kHolePitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
+      if (dist[at(x, y)] < margin) continue;
+      if (!(row_lo[y] < x && x < row_hi[y] && col_lo[x] < y && y < col_hi[x])) continue;
+      const Eigen::Vector2f q = f.lo + pitch * Eigen::Vector2f(static_cast<float>(x), static_cast<float>(y));
       holes.push_back({f.c + q.x() * f.u + q.y() * f.v, f.n});
     }
   }
