@@ -585,6 +585,12 @@ struct PoseEstimator::Impl {
   std::vector<HolePoint> holes;
   // Hole points in view and, of those, filled, for a pose (depth image only).
   std::pair<int, int> HoleStats(const Pose& X_BO, const SceneView& view) const;
+  // True when q (in O) lies within tol of the part's surface (the nearest
+  // dense sample through the closest-point field; false beyond its band).
+  bool OnSurface(const Eigen::Vector3f& q, float tol) const {
+    const int idx = field.Lookup(q);
+    return idx >= 0 && (q - dense.points[static_cast<size_t>(idx)]).squaredNorm() <= tol * tol;
+  }
 
   // PoseSearch::resting_seeds: appends the part lying on `plane` (n, d; n
   // towards the parts) in each resting orientation, centred on the segment.
@@ -632,12 +638,10 @@ void PoseEstimator::MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vecto
   const Pose X_OB = X_BO.inverse();
   const Eigen::Matrix3f R = X_OB.linear().cast<float>();
   const Eigen::Vector3f t = X_OB.translation().cast<float>();
-  const float tol2 = tolerance * tolerance;
   for (size_t i = 0; i < points_B.size() && i < on_surface->size(); ++i) {
     if ((*on_surface)[i]) continue;
     const Eigen::Vector3f q = R * points_B[i] + t;
-    const int idx = impl_->field.Lookup(q);
-    if (idx >= 0 && (q - impl_->dense.points[static_cast<size_t>(idx)]).squaredNorm() <= tol2) (*on_surface)[i] = 1;
+    if (impl_->OnSurface(q, tolerance)) (*on_surface)[i] = 1;
   }
 }
 size_t PoseEstimator::CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B,
@@ -995,10 +999,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
     // Hole points on or next to other parts of the surface (the bore's wall
     // where it meets the face's plane) say nothing.
     const float margin = static_cast<float>(options.hole_margin);
-    std::erase_if(impl->holes, [&](const HolePoint& h) {
-      const int idx = impl->field.Lookup(h.p);
-      return idx >= 0 && (impl->dense.points[idx] - h.p).norm() < margin;
-    });
+    std::erase_if(impl->holes, [&](const HolePoint& h) { return impl->OnSurface(h.p, margin); });
   }
 
   {
@@ -1215,9 +1216,7 @@ std::pair<int, int> PoseEstimator::Impl::HoleStats(const Pose& X_BO, const Scene
     if (std::abs(zm - pc.z()) >= support + slack) continue;
     const Eigen::Vector3f m_C((static_cast<float>(u) - static_cast<float>(K.cx)) / static_cast<float>(K.fx) * zm,
                               (static_cast<float>(v) - static_cast<float>(K.cy)) / static_cast<float>(K.fy) * zm, zm);
-    const Eigen::Vector3f m_O = R_OC * m_C + t_OC;
-    const int idx = field.Lookup(m_O);
-    if (idx < 0 || (dense.points[idx] - m_O).norm() > margin) ++filled;
+    if (!OnSurface(R_OC * m_C + t_OC, margin)) ++filled;
   }
   return {in_view, filled};
 }
@@ -1655,9 +1654,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     const Eigen::Matrix3f R = X_OB.linear().cast<float>();
     const Eigen::Vector3f t = X_OB.translation().cast<float>();
     for (size_t i = 0; i < pts.size(); ++i) {
-      const Eigen::Vector3f q = R * pts[i] + t;
-      const int idx = m.field.Lookup(q);
-      if (idx >= 0 && (q - m.dense.points[idx]).squaredNorm() <= sup * sup) h.supporting_indices.push_back(index[i]);
+      if (m.OnSurface(R * pts[i] + t, sup)) h.supporting_indices.push_back(index[i]);
     }
   }
   verify_ms += Ms(t3, Clock::now());
