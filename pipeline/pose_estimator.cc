@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -454,6 +455,46 @@ std::vector<Eigen::Vector3f> ExtremePoints(std::span<const Eigen::Vector3f> pts)
     if (extreme[i]) out.push_back(pts[i]);
   }
   return out;
+}
+
+// keys[i] = (voxel key of point i, i), in index order, sorted to what
+// std::sort of the pairs gives (by key, then index) in O(n + m log m) for m
+// distinct keys: the points are counted per key in a hash table, only the
+// distinct keys are sorted, and the points are placed in index order. A
+// segment of a few thousand points has a few hundred voxels (`binpick eval
+// --scenes 10 --seed 1`, 488 estimates: the subsampling 80 -> 56 ms in all).
+void SortVoxelKeys(std::vector<std::pair<uint64_t, int>>& keys) {
+  const size_t n = keys.size();
+  struct Slot {
+    uint64_t key = ~0ull;
+    uint32_t count = 0;
+  };
+  const size_t slots = std::bit_ceil(std::max<size_t>(16, 2 * n));
+  const uint64_t mask = slots - 1;
+  std::vector<Slot> table(slots);
+  std::vector<uint32_t> slot_of(n);
+  for (size_t i = 0; i < n; ++i) {
+    const uint64_t key = keys[i].first;
+    uint64_t h = (key * 0x9E3779B97F4A7C15ULL) >> 20 & mask;
+    while (table[h].key != key && table[h].key != ~0ull) h = (h + 1) & mask;
+    table[h].key = key;
+    ++table[h].count;
+    slot_of[i] = static_cast<uint32_t>(h);
+  }
+  std::vector<std::pair<uint64_t, uint32_t>> distinct;  // (key, slot)
+  for (size_t h = 0; h < slots; ++h) {
+    if (table[h].key != ~0ull) distinct.emplace_back(table[h].key, static_cast<uint32_t>(h));
+  }
+  std::sort(distinct.begin(), distinct.end());
+  std::vector<uint32_t> cursor(slots);
+  uint32_t begin = 0;
+  for (const auto& [key, h] : distinct) {
+    cursor[h] = begin;
+    begin += table[h].count;
+  }
+  std::vector<std::pair<uint64_t, int>> sorted(n);
+  for (size_t i = 0; i < n; ++i) sorted[cursor[slot_of[i]]++] = keys[i];
+  keys.swap(sorted);
 }
 
 // Reorders the samples along a Morton (Z-order) curve over 2 mm cells, so
@@ -1339,7 +1380,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
       };
       keys[i] = {c(pts[i].x()) | (c(pts[i].y()) << 21) | (c(pts[i].z()) << 42), static_cast<int>(i)};
     }
-    std::sort(keys.begin(), keys.end());
+    SortVoxelKeys(keys);
     for (size_t k = 0; k < keys.size();) {
       size_t e = k;
       Eigen::Vector3f sum = Eigen::Vector3f::Zero();

@@ -15,28 +15,39 @@ inline uint64_t Mix(uint64_t k) {
 }  // namespace
 
 void PointHash::Build(std::span<const Eigen::Vector3f> points, float cell) {
-  points_ = points;
   cell_ = cell;
   inv_cell_ = 1.f / cell;
   const size_t n = points.size();
-  std::vector<uint64_t> keys(n);
-  for (size_t i = 0; i < n; ++i) {
-    keys[i] = Key(CellCoord(points[i].x()), CellCoord(points[i].y()), CellCoord(points[i].z()));
-  }
-  order_.resize(n);
-  for (size_t i = 0; i < n; ++i) order_[i] = static_cast<uint32_t>(i);
-  std::sort(order_.begin(), order_.end(), [&](uint32_t a, uint32_t b) { return keys[a] < keys[b]; });
+  // Counting sort through the table itself, O(n): each point finds (or
+  // opens) its cell's slot and counts in it; the slots' runs in order_ are
+  // laid out in slot order; the points are scattered in index order, so
+  // within a cell they keep index order. (Sorting (key, index) pairs cost
+  // about as much as all the queries of a pose estimate.)
   const size_t slots = std::bit_ceil(std::max<size_t>(16, 2 * n));
   table_.assign(slots, Slot{});
   mask_ = slots - 1;
-  for (size_t k = 0; k < n;) {
-    const uint64_t key = keys[order_[k]];
-    size_t e = k + 1;
-    while (e < n && keys[order_[e]] == key) ++e;
+  std::vector<uint32_t> slot_of(n);
+  for (size_t i = 0; i < n; ++i) {
+    const uint64_t key = Key(CellCoord(points[i].x()), CellCoord(points[i].y()), CellCoord(points[i].z()));
     uint64_t h = Mix(key) & mask_;
-    while (table_[h].key != ~0ull) h = (h + 1) & mask_;
-    table_[h] = Slot{key, static_cast<uint32_t>(k), static_cast<uint32_t>(e)};
-    k = e;
+    while (table_[h].key != key && table_[h].key != ~0ull) h = (h + 1) & mask_;
+    table_[h].key = key;
+    ++table_[h].end;  // the count, for now
+    slot_of[i] = static_cast<uint32_t>(h);
+  }
+  uint32_t begin = 0;
+  for (Slot& slot : table_) {
+    if (slot.key == ~0ull) continue;
+    slot.begin = begin;
+    begin += slot.end;
+    slot.end = slot.begin;  // the fill cursor, for now; the run's end once filled
+  }
+  order_.resize(n);
+  sorted_.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t k = table_[slot_of[i]].end++;
+    order_[k] = static_cast<uint32_t>(i);
+    sorted_[k] = points[i];
   }
 }
 

@@ -1,7 +1,8 @@
 // A uniform hash grid over a point set for fixed-radius queries (radius <=
 // cell size; radius <= cell / 2 visits 8 cells instead of 27, which is what
-// costs: each cell is a hash probe). Built in O(n log n) by sorting cell keys; no per-point heap
-// allocation. Immutable after Build, so const queries are thread-safe.
+// costs: each cell is a hash probe). Built in O(n) by a counting sort through
+// the table; no per-point heap allocation. Keeps a copy of the points in cell
+// order (the caller's need not outlive it). Immutable after Build, so const queries are thread-safe.
 #pragma once
 
 #include <cmath>
@@ -32,9 +33,8 @@ class PointHash {
         for (int x = x0; x <= x1; ++x) {
           const auto [begin, end] = Range(Key(x, y, z));
           for (uint32_t k = begin; k < end; ++k) {
-            const uint32_t i = order_[k];
-            const float d2 = (points_[i] - q).squaredNorm();
-            if (d2 <= r2) f(static_cast<int>(i), d2);
+            const float d2 = (sorted_[k] - q).squaredNorm();
+            if (d2 <= r2) f(static_cast<int>(order_[k]), d2);
           }
         }
       }
@@ -46,7 +46,7 @@ class PointHash {
   bool AnyWithin(const Eigen::Vector3f& q, float radius) const;
 
   float cell() const { return cell_; }
-  size_t size() const { return points_.size(); }
+  size_t size() const { return sorted_.size(); }
 
  private:
   int CellCoord(float v) const { return static_cast<int>(std::floor(v * inv_cell_)); }
@@ -58,9 +58,9 @@ class PointHash {
   }
   std::pair<uint32_t, uint32_t> Range(uint64_t key) const;
 
-  std::span<const Eigen::Vector3f> points_;
   float cell_ = 1.f, inv_cell_ = 1.f;
   std::vector<uint32_t> order_;  // point indices sorted by cell
+  std::vector<Eigen::Vector3f> sorted_;  // the points in that order (a query reads one run per cell)
   // Open-addressing table: cell key -> [begin, end) in order_.
   struct Slot {
     uint64_t key = ~0ull;

@@ -6,8 +6,17 @@
 #include <unordered_map>
 
 #include <Eigen/Geometry>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 namespace bp::internal {
+namespace {
+// CropToRoi: row bands of at least this many rows, at most this many bands.
+constexpr int kRoiBandRows = 32;
+constexpr int kMaxRoiBands = 64;
+// SpreadLabels: points per task.
+constexpr size_t kSpreadGrain = 16384;
+}  // namespace
 
 RoiBox MakeRoiBox(const Cell& cell) {
   const Vec3 half = 0.5 * cell.bin.inner_size;
@@ -49,8 +58,6 @@ void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud
   out->width = w;
   out->height = h;
   out->point_of_pixel.assign(static_cast<size_t>(w) * h, -1);
-  out->points_B.reserve(static_cast<size_t>(w) * h / 2);
-  out->pixel_of_point.reserve(static_cast<size_t>(w) * h / 2);
   // p_C = z * (x_u, y_v, 1), so p_W = z * (x_u * R_WC.col(0) + y_v * R_WC.col(1) + R_WC.col(2)) + t_WC:
   // the ray direction in W is a per-column term plus a per-row term (same in B).
   const Intrinsics& K = frame.intrinsics;
@@ -60,24 +67,55 @@ void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud
     col_W[static_cast<size_t>(u)] = x * R_WC.col(0);
     col_B[static_cast<size_t>(u)] = x * R_BC.col(0);
   }
-  int64_t valid = 0;
-  for (int v = 0; v < h; ++v) {
-    const float* row = frame.depth.data.data() + static_cast<size_t>(v) * w;
-    const float y = static_cast<float>((v - K.cy) / K.fy);
-    const Eigen::Vector3f row_W = y * R_WC.col(1) + R_WC.col(2);
-    const Eigen::Vector3f row_B = y * R_BC.col(1) + R_BC.col(2);
-    for (int u = 0; u < w; ++u) {
-      const float z = row[u];
-      if (!(z > 0.f) || !std::isfinite(z)) continue;  // NaN fails z > 0
-      ++valid;
-      const Eigen::Vector3f p_W = z * (col_W[static_cast<size_t>(u)] + row_W) + t_WC;
-      if (!inside(p_W)) continue;
-      const int32_t pixel = v * w + u;
-      out->point_of_pixel[static_cast<size_t>(pixel)] = static_cast<int32_t>(out->points_B.size());
-      out->pixel_of_point.push_back(pixel);
-      out->points_B.push_back(z * (col_B[static_cast<size_t>(u)] + row_B) + t_BC);
+  // Bands of rows in parallel (on the caller's arena), each into buffers of
+  // its own, joined in row order: the same points in the same order as one
+  // pass over the image.
+  struct Band {
+    std::vector<Eigen::Vector3f> points_B;
+    std::vector<int32_t> pixels;
+    int64_t valid = 0;
+  };
+  const int n_bands = std::clamp(h / kRoiBandRows, 1, kMaxRoiBands);
+  std::vector<Band> bands(static_cast<size_t>(n_bands));
+  tbb::parallel_for(0, n_bands, [&](int b) {
+    Band& band = bands[static_cast<size_t>(b)];
+    const int v0 = static_cast<int>(static_cast<int64_t>(h) * b / n_bands);
+    const int v1 = static_cast<int>(static_cast<int64_t>(h) * (b + 1) / n_bands);
+    band.points_B.reserve(static_cast<size_t>(v1 - v0) * w / 2);
+    band.pixels.reserve(static_cast<size_t>(v1 - v0) * w / 2);
+    for (int v = v0; v < v1; ++v) {
+      const float* row = frame.depth.data.data() + static_cast<size_t>(v) * w;
+      const float y = static_cast<float>((v - K.cy) / K.fy);
+      const Eigen::Vector3f row_W = y * R_WC.col(1) + R_WC.col(2);
+      const Eigen::Vector3f row_B = y * R_BC.col(1) + R_BC.col(2);
+      for (int u = 0; u < w; ++u) {
+        const float z = row[u];
+        if (!(z > 0.f) || !std::isfinite(z)) continue;  // NaN fails z > 0
+        ++band.valid;
+        const Eigen::Vector3f p_W = z * (col_W[static_cast<size_t>(u)] + row_W) + t_WC;
+        if (!inside(p_W)) continue;
+        band.pixels.push_back(v * w + u);
+        band.points_B.push_back(z * (col_B[static_cast<size_t>(u)] + row_B) + t_BC);
+      }
     }
+  });
+  std::vector<size_t> offset(static_cast<size_t>(n_bands) + 1, 0);
+  int64_t valid = 0;
+  for (size_t b = 0; b < bands.size(); ++b) {
+    offset[b + 1] = offset[b] + bands[b].pixels.size();
+    valid += bands[b].valid;
   }
+  out->points_B.resize(offset.back());
+  out->pixel_of_point.resize(offset.back());
+  tbb::parallel_for(size_t{0}, bands.size(), [&](size_t b) {
+    const Band& band = bands[b];
+    const size_t base = offset[b];
+    std::copy(band.points_B.begin(), band.points_B.end(), out->points_B.begin() + static_cast<std::ptrdiff_t>(base));
+    std::copy(band.pixels.begin(), band.pixels.end(), out->pixel_of_point.begin() + static_cast<std::ptrdiff_t>(base));
+    for (size_t k = 0; k < band.pixels.size(); ++k) {
+      out->point_of_pixel[static_cast<size_t>(band.pixels[k])] = static_cast<int32_t>(base + k);
+    }
+  });
   out->valid_points = valid;
 }
 
@@ -264,23 +302,27 @@ void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector
   if (b_of_point != nullptr) b_of_point->assign(roi.points_B.size(), -1);
   const float jump2 = max_jump * max_jump;
   const int s = grid.stride;
-  for (size_t i = 0; i < roi.points_B.size(); ++i) {
-    const int32_t pixel = roi.pixel_of_point[i];
-    const int u = pixel % roi.width, v = pixel / roi.width;
-    // The nearest grid cell (rounded), then the cell the pixel's block starts at.
-    const int cands[2][2] = {{(u + s / 2) / s, (v + s / 2) / s}, {u / s, v / s}};
-    for (const auto& cand : cands) {
-      if (cand[0] >= grid.width || cand[1] >= grid.height) continue;
-      const size_t cell = static_cast<size_t>(cand[1]) * grid.width + cand[0];
-      const int32_t q = grid.point_of_cell[cell];
-      if (q < 0 || (a_of_cell[cell] < 0 && (b_of_point == nullptr || b_of_cell[cell] < 0))) continue;
-      if ((roi.points_B[static_cast<size_t>(q)] - roi.points_B[i]).squaredNorm() <= jump2) {
-        (*a_of_point)[i] = a_of_cell[cell];
-        if (b_of_point != nullptr) (*b_of_point)[i] = b_of_cell[cell];
-        break;
+  // Each point writes only its own labels: in parallel on the caller's arena.
+  const auto spread = [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i != range.end(); ++i) {
+      const int32_t pixel = roi.pixel_of_point[i];
+      const int u = pixel % roi.width, v = pixel / roi.width;
+      // The nearest grid cell (rounded), then the cell the pixel's block starts at.
+      const int cands[2][2] = {{(u + s / 2) / s, (v + s / 2) / s}, {u / s, v / s}};
+      for (const auto& cand : cands) {
+        if (cand[0] >= grid.width || cand[1] >= grid.height) continue;
+        const size_t cell = static_cast<size_t>(cand[1]) * grid.width + cand[0];
+        const int32_t q = grid.point_of_cell[cell];
+        if (q < 0 || (a_of_cell[cell] < 0 && (b_of_point == nullptr || b_of_cell[cell] < 0))) continue;
+        if ((roi.points_B[static_cast<size_t>(q)] - roi.points_B[i]).squaredNorm() <= jump2) {
+          (*a_of_point)[i] = a_of_cell[cell];
+          if (b_of_point != nullptr) (*b_of_point)[i] = b_of_cell[cell];
+          break;
+        }
       }
     }
-  }
+  };
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, roi.points_B.size(), kSpreadGrain), spread);
 }
 
 void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector<int32_t>& label_of_cell,

@@ -1,0 +1,94 @@
+// PointHash against brute force: fixed-radius queries find exactly the points
+// within the radius, each once, and within a cell in index order (which the
+// pose estimator's float sums and nearest-point ties depend on).
+#include "pipeline/internal/point_hash.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+#include <utility>
+#include <vector>
+
+namespace bp::internal {
+namespace {
+
+std::vector<Eigen::Vector3f> Cloud(uint32_t seed, size_t n) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-0.05f, 0.05f);
+  std::vector<Eigen::Vector3f> p;
+  for (size_t i = 0; i < n; ++i) p.emplace_back(u(rng), u(rng), 0.3f * u(rng));
+  // Duplicates and points exactly on cell borders.
+  for (size_t i = 0; i < n / 10; ++i) p.push_back(p[i * 7 % n]);
+  for (int i = -3; i <= 3; ++i) p.emplace_back(0.004f * static_cast<float>(i), 0.f, -0.004f);
+  return p;
+}
+
+TEST(PointHash, QueriesFindExactlyThePointsWithinTheRadius) {
+  for (uint32_t seed : {1u, 2u, 3u}) {
+    const std::vector<Eigen::Vector3f> pts = Cloud(seed, 3000);
+    PointHash hash;
+    hash.Build(pts, 0.004f);
+    ASSERT_EQ(hash.size(), pts.size());
+    std::mt19937 rng(seed + 100);
+    std::uniform_real_distribution<float> u(-0.06f, 0.06f);
+    for (int q = 0; q < 300; ++q) {
+      const Eigen::Vector3f c = q % 3 == 0 ? pts[static_cast<size_t>(q)] : Eigen::Vector3f(u(rng), u(rng), u(rng) * 0.3f);
+      const float radius = q % 2 == 0 ? 0.002f : 0.004f;
+      std::vector<int> expected;
+      int nearest = -1;
+      float nearest_d2 = radius * radius;
+      for (size_t i = 0; i < pts.size(); ++i) {
+        const float d2 = (pts[i] - c).squaredNorm();
+        if (d2 <= radius * radius) expected.push_back(static_cast<int>(i));
+        if (d2 < nearest_d2) {
+          nearest_d2 = d2;
+          nearest = static_cast<int>(i);
+        }
+      }
+      std::vector<int> got;
+      std::vector<std::pair<int, float>> visits;
+      hash.ForEachWithin(c, radius, [&](int i, float d2) {
+        got.push_back(i);
+        visits.emplace_back(i, d2);
+      });
+      std::vector<int> sorted = got;
+      std::sort(sorted.begin(), sorted.end());
+      EXPECT_EQ(sorted, expected) << "seed " << seed << " query " << q;
+      for (const auto& [i, d2] : visits) EXPECT_FLOAT_EQ(d2, (pts[static_cast<size_t>(i)] - c).squaredNorm());
+      EXPECT_EQ(hash.AnyWithin(c, radius), !expected.empty());
+      float d2 = -1;
+      const int n = hash.Nearest(c, radius, &d2);
+      if (nearest < 0) {
+        EXPECT_EQ(n, -1);
+      } else {
+        ASSERT_GE(n, 0);
+        EXPECT_FLOAT_EQ((pts[static_cast<size_t>(n)] - c).squaredNorm(), nearest_d2);
+        EXPECT_FLOAT_EQ(d2, nearest_d2);
+      }
+    }
+  }
+}
+
+TEST(PointHash, PointsOfOneCellComeInIndexOrder) {
+  // Every point in one cell (cell 1 m): a query visits them in index order.
+  std::vector<Eigen::Vector3f> pts;
+  for (int i = 0; i < 50; ++i) pts.emplace_back(0.1f + 0.001f * static_cast<float>((i * 17) % 50), 0.2f, 0.3f);
+  PointHash hash;
+  hash.Build(pts, 1.f);
+  std::vector<int> got;
+  hash.ForEachWithin(Eigen::Vector3f(0.12f, 0.2f, 0.3f), 0.5f, [&](int i, float) { got.push_back(i); });
+  ASSERT_EQ(got.size(), pts.size());
+  EXPECT_TRUE(std::is_sorted(got.begin(), got.end()));
+}
+
+TEST(PointHash, EmptySetFindsNothing) {
+  PointHash hash;
+  hash.Build({}, 0.01f);
+  EXPECT_EQ(hash.size(), 0u);
+  EXPECT_FALSE(hash.AnyWithin(Eigen::Vector3f::Zero(), 0.01f));
+  EXPECT_EQ(hash.Nearest(Eigen::Vector3f::Zero(), 0.01f), -1);
+}
+
+}  // namespace
+}  // namespace bp::internal
