@@ -353,8 +353,11 @@ TEST_F(FaultTest, RobotThatNeverReadsIsClosedWithoutBlockingOthers) {
   // Meanwhile the bystander is answered as usual.
   for (int i = 0; i < 5; ++i) ExpectBystanderServed();
   // Closed: by the request queue bound, or by the write timeout once the
-  // hog's buffers are full and it stops sending.
-  EXPECT_TRUE(WaitWhileBystanderTalks([&] { return server_->connection_count() == 1; }))
+  // hog's buffers are full and it stops sending. Filling the server's send
+  // buffer (autotuned up to tcp_wmem's maximum, megabytes of 64-byte
+  // answers) took more than 5 s under TSan on a busy 2-core machine (84k
+  // requests; closed 6 ms after a 5 s deadline), hence the long deadline.
+  EXPECT_TRUE(WaitWhileBystanderTalks([&] { return server_->connection_count() == 1; }, 30000ms))
       << "the non-reading robot is still connected after " << sent << " requests";
   stop = true;
   writer.join();
