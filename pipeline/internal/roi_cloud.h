@@ -36,8 +36,10 @@ struct RoiBox {
 RoiBox MakeRoiBox(const Cell& cell);
 
 // One pass over the frame: deprojects (organized) or takes points_C, maps to
-// B with frame.X_BC, keeps finite points inside the ROI box. `out`'s buffers
-// are reused (allocate once per frame at most).
+// B with frame.X_BC, keeps finite points inside the ROI box. Organized
+// frames are cropped in bands of rows in parallel (on the caller's oneTBB
+// arena), each band into buffers of its own, joined in row order: the result
+// is that of one pass. `out`'s buffers are reused.
 void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud* out);
 
 // Grid used by normals and segmentation: every `stride`-th pixel of an

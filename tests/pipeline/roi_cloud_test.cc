@@ -1,0 +1,149 @@
+// The ROI crop and the label spreading (both run in parallel on a oneTBB
+// arena) against one-pass references: the same points in the same order,
+// the same pixel maps, the same labels, whatever the band and task split.
+#include "pipeline/internal/roi_cloud.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <tbb/task_arena.h>
+
+namespace bp::internal {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+// A camera 1 m above a bin floor, looking down, with depths scattered around
+// the ROI's top and bottom, NaNs and zeros among them.
+Frame RandomFrame(int w, int h, uint32_t seed) {
+  Frame f;
+  f.intrinsics.width = w;
+  f.intrinsics.height = h;
+  f.intrinsics.fx = f.intrinsics.fy = 2.0 * w;
+  f.intrinsics.cx = 0.5 * w;
+  f.intrinsics.cy = 0.5 * h;
+  f.depth = DepthImage(w, h, kNaN);
+  f.X_BC = MakePose(Eigen::AngleAxisd(M_PI, Vec3::UnitX()).toRotationMatrix(), Vec3(0.02, -0.01, 1.0));
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> z(0.7f, 1.1f);
+  std::uniform_int_distribution<int> kind(0, 9);
+  for (float& d : f.depth.data) {
+    const int k = kind(rng);
+    d = k == 0 ? kNaN : k == 1 ? 0.f : z(rng);
+  }
+  return f;
+}
+
+RoiBox Box() {
+  RoiBox box;
+  box.min_W = Eigen::Vector3f(-0.2f, -0.15f, 0.01f);
+  box.max_W = Eigen::Vector3f(0.2f, 0.15f, 0.25f);
+  return box;
+}
+
+TEST(RoiCloud, ParallelCropEqualsOnePassInRowOrder) {
+  const Pose X_BW = MakePose(Mat3::Identity(), Vec3(0.0, 0.0, 0.0));
+  const RoiBox box = Box();
+  for (const auto& [w, h] : {std::pair{64, 48}, std::pair{320, 31}, std::pair{640, 480}, std::pair{333, 1201}}) {
+    const Frame f = RandomFrame(w, h, static_cast<uint32_t>(w * h));
+    RoiCloud roi;
+    tbb::task_arena arena(2);
+    arena.execute([&] { CropToRoi(f, X_BW, box, &roi); });
+
+    // One pass, as written before the crop ran in bands.
+    std::vector<Eigen::Vector3f> points;
+    std::vector<int32_t> pixels;
+    int64_t valid = 0;
+    const Pose X_WC = X_BW.inverse() * f.X_BC;
+    for (int v = 0; v < h; ++v) {
+      for (int u = 0; u < w; ++u) {
+        const float z = f.depth.at(u, v);
+        if (!(z > 0.f) || !std::isfinite(z)) continue;
+        ++valid;
+        const Eigen::Vector3f p_C = Deproject(f.intrinsics, static_cast<float>(u), static_cast<float>(v), z);
+        const Eigen::Vector3f p_W = (X_WC.cast<float>() * p_C);
+        // Inside with a margin either way: the crop computes p_W in another
+        // order of operations; points within float rounding of a face are
+        // left out of the comparison below.
+        if ((p_W.array() < box.min_W.array()).any() || (p_W.array() > box.max_W.array()).any()) continue;
+        pixels.push_back(v * w + u);
+        points.push_back((f.X_BC.cast<float>() * p_C));
+      }
+    }
+    EXPECT_EQ(roi.valid_points, valid) << w << "x" << h;
+    ASSERT_EQ(roi.pixel_of_point.size(), roi.points_B.size());
+    ASSERT_EQ(roi.point_of_pixel.size(), static_cast<size_t>(w) * h);
+    // Row order, and the pixel map is the inverse of pixel_of_point.
+    for (size_t i = 1; i < roi.pixel_of_point.size(); ++i) ASSERT_LT(roi.pixel_of_point[i - 1], roi.pixel_of_point[i]);
+    size_t mapped = 0;
+    for (size_t p = 0; p < roi.point_of_pixel.size(); ++p) {
+      const int32_t i = roi.point_of_pixel[p];
+      if (i < 0) continue;
+      ++mapped;
+      ASSERT_EQ(roi.pixel_of_point[static_cast<size_t>(i)], static_cast<int32_t>(p));
+    }
+    EXPECT_EQ(mapped, roi.points_B.size());
+    // The same pixels (up to points on a face of the box) and the same points.
+    size_t j = 0, differing = 0;
+    for (size_t i = 0; i < roi.pixel_of_point.size(); ++i) {
+      while (j < pixels.size() && pixels[j] < roi.pixel_of_point[i]) ++j, ++differing;
+      if (j < pixels.size() && pixels[j] == roi.pixel_of_point[i]) {
+        EXPECT_LT((roi.points_B[i] - points[j]).norm(), 1e-5f);
+        ++j;
+      } else {
+        ++differing;
+      }
+    }
+    EXPECT_LE(differing + (pixels.size() - j), pixels.size() / 1000 + 1) << w << "x" << h;
+    EXPECT_GT(roi.points_B.size(), static_cast<size_t>(w) * h / 20) << "the frame should put many points in the ROI";
+  }
+}
+
+TEST(RoiCloud, ParallelLabelSpreadingEqualsOnePass) {
+  const Frame f = RandomFrame(640, 480, 7);
+  RoiCloud roi;
+  CropToRoi(f, Pose::Identity(), Box(), &roi);
+  ASSERT_GT(roi.points_B.size(), 10000u);
+  for (int stride : {1, 2, 3}) {
+    const SampleGrid grid = MakeSampleGrid(roi, stride);
+    std::vector<int32_t> a(grid.point_of_cell.size()), b(grid.point_of_cell.size());
+    for (size_t c = 0; c < a.size(); ++c) {
+      a[c] = static_cast<int32_t>(c % 7) - 1;   // -1 on some cells
+      b[c] = static_cast<int32_t>(c % 5) - 1;
+    }
+    const float jump = 0.05f;
+    std::vector<int32_t> got_a, got_b;
+    tbb::task_arena arena(2);
+    arena.execute([&] { SpreadLabels(roi, grid, a, b, jump, &got_a, &got_b); });
+    ASSERT_EQ(got_a.size(), roi.points_B.size());
+    size_t labelled = 0;
+    for (size_t i = 0; i < roi.points_B.size(); ++i) {
+      int32_t ea = -1, eb = -1;
+      const int u = roi.pixel_of_point[i] % roi.width, v = roi.pixel_of_point[i] / roi.width;
+      const int cands[2][2] = {{(u + stride / 2) / stride, (v + stride / 2) / stride}, {u / stride, v / stride}};
+      for (const auto& cand : cands) {
+        if (cand[0] >= grid.width || cand[1] >= grid.height) continue;
+        const size_t cell = static_cast<size_t>(cand[1]) * grid.width + cand[0];
+        const int32_t q = grid.point_of_cell[cell];
+        if (q < 0 || (a[cell] < 0 && b[cell] < 0)) continue;
+        if ((roi.points_B[static_cast<size_t>(q)] - roi.points_B[i]).squaredNorm() <= jump * jump) {
+          ea = a[cell];
+          eb = b[cell];
+          break;
+        }
+      }
+      ASSERT_EQ(got_a[i], ea) << "stride " << stride << " point " << i;
+      ASSERT_EQ(got_b[i], eb) << "stride " << stride << " point " << i;
+      labelled += ea >= 0 ? 1 : 0;
+    }
+    EXPECT_GT(labelled, roi.points_B.size() / 4) << "stride " << stride;
+  }
+}
+
+}  // namespace
+}  // namespace bp::internal
