@@ -21,8 +21,9 @@ void PointHash::Build(std::span<const Eigen::Vector3f> points, float cell) {
   // Counting sort through the table itself, O(n): each point finds (or
   // opens) its cell's slot and counts in it; the slots' runs in order_ are
   // laid out in slot order; the points are scattered in index order, so
-  // within a cell they keep index order. (Sorting (key, index) pairs cost
-  // about as much as all the queries of a pose estimate.)
+  // within a cell they keep index order. Measured (`binpick eval --scenes 10
+  // --seed 1`, the support hashes of 488 pose estimates): 68 ms in all with
+  // a sort of (key, index) pairs, 35 ms so.
   const size_t slots = std::bit_ceil(std::max<size_t>(16, 2 * n));
   table_.assign(slots, Slot{});
   mask_ = slots - 1;
