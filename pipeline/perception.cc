@@ -257,31 +257,39 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     const double spacing = footprint * stride;
     const float grid_jump = std::max(max_jump, static_cast<float>(2.5 * spacing));
 
-    // Connected regions and normals are independent: one task each (the
-    // stage "regions" covers both).
+    // Two tasks (the stage "regions" covers both): the connected regions
+    // (depth continuity only), and the normals followed by the segments'
+    // region growing, which needs the normals but not the connected regions.
+    // Measured (`binpick eval --scenes 10 --seed 1`, interleaved runs): the
+    // stages regions + segment 15.3-15.4 -> 14.0-14.4 ms median, against the
+    // growing after both tasks.
     std::vector<int32_t> region_of_cell;
     const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
     std::vector<Eigen::Vector3f> normals;
+    std::vector<int32_t> segment_of_cell;
+    int n_regions = 0;
     tbb::parallel_invoke([&] { internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
-                         [&] { internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals); });
+                         [&] {
+                           internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
+                           // Floor band: near the floor and facing up.
+                           std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
+                           for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
+                             const int32_t i = grid.point_of_cell[c];
+                             if (i < 0) continue;
+                             const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(i)];
+                             const float height = z_W_in_B.dot(p) + floor_d;
+                             if (height < kFloorBand && normals[c].allFinite() &&
+                                 std::abs(normals[c].dot(z_W_in_B)) > kFloorMinNormalZ) {
+                               excluded[c] = 1;
+                             }
+                           }
+                           const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
+                           n_regions = internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded,
+                                                             &segment_of_cell,
+                                                             static_cast<float>(options_.segment_convex_tolerance));
+                         });
     t = stage("regions", t);
 
-    // Floor band: near the floor and facing up.
-    std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
-    for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
-      const int32_t i = grid.point_of_cell[c];
-      if (i < 0) continue;
-      const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(i)];
-      const float height = z_W_in_B.dot(p) + floor_d;
-      if (height < kFloorBand && normals[c].allFinite() && std::abs(normals[c].dot(z_W_in_B)) > kFloorMinNormalZ) {
-        excluded[c] = 1;
-      }
-    }
-    std::vector<int32_t> segment_of_cell;
-    const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
-    const int n_regions =
-        internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
-                              static_cast<float>(options_.segment_convex_tolerance));
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
     for (int32_t s : segment_of_cell) {
       if (s >= 0) ++size[static_cast<size_t>(s)];
