@@ -268,26 +268,25 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<Eigen::Vector3f> normals;
     std::vector<int32_t> segment_of_cell;
     int n_regions = 0;
+    const auto normals_then_segments = [&] {
+      internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
+      // Floor band: near the floor and facing up.
+      std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
+      for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
+        const int32_t i = grid.point_of_cell[c];
+        if (i < 0) continue;
+        const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(i)];
+        const float height = z_W_in_B.dot(p) + floor_d;
+        if (height < kFloorBand && normals[c].allFinite() && std::abs(normals[c].dot(z_W_in_B)) > kFloorMinNormalZ) {
+          excluded[c] = 1;
+        }
+      }
+      const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
+      n_regions = internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
+                                        static_cast<float>(options_.segment_convex_tolerance));
+    };
     tbb::parallel_invoke([&] { internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
-                         [&] {
-                           internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
-                           // Floor band: near the floor and facing up.
-                           std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
-                           for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
-                             const int32_t i = grid.point_of_cell[c];
-                             if (i < 0) continue;
-                             const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(i)];
-                             const float height = z_W_in_B.dot(p) + floor_d;
-                             if (height < kFloorBand && normals[c].allFinite() &&
-                                 std::abs(normals[c].dot(z_W_in_B)) > kFloorMinNormalZ) {
-                               excluded[c] = 1;
-                             }
-                           }
-                           const float angle = static_cast<float>(options_.segment_normal_angle_deg * kPi / 180.0);
-                           n_regions = internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded,
-                                                             &segment_of_cell,
-                                                             static_cast<float>(options_.segment_convex_tolerance));
-                         });
+                         normals_then_segments);
     t = stage("regions", t);
 
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);

@@ -52,6 +52,18 @@ void PointHash::Build(std::span<const Eigen::Vector3f> points, float cell) {
   }
 }
 
+std::vector<std::pair<uint32_t, uint32_t>> PointHash::CellRunsByKey() const {
+  std::vector<const Slot*> cells;
+  for (const Slot& slot : table_) {
+    if (slot.key != ~0ull) cells.push_back(&slot);
+  }
+  std::sort(cells.begin(), cells.end(), [](const Slot* a, const Slot* b) { return a->key < b->key; });
+  std::vector<std::pair<uint32_t, uint32_t>> runs;
+  runs.reserve(cells.size());
+  for (const Slot* slot : cells) runs.emplace_back(slot->begin, slot->end);
+  return runs;
+}
+
 std::pair<uint32_t, uint32_t> PointHash::Range(uint64_t key) const {
   if (table_.empty()) return {0, 0};
   uint64_t h = Mix(key) & mask_;

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -44,6 +45,12 @@ class PointHash {
   // Nearest point within radius, or -1. *d2 gets its squared distance.
   int Nearest(const Eigen::Vector3f& q, float radius, float* d2 = nullptr) const;
   bool AnyWithin(const Eigen::Vector3f& q, float radius) const;
+
+  // The points grouped by cell: the occupied cells' runs [begin, end) of
+  // order(), in ascending cell-key order (z, then y, then x), each run in
+  // point index order. Voxel subsampling walks the cells so.
+  std::vector<std::pair<uint32_t, uint32_t>> CellRunsByKey() const;
+  std::span<const uint32_t> order() const { return order_; }
 
   float cell() const { return cell_; }
   size_t size() const { return sorted_.size(); }

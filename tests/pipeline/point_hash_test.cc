@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -82,12 +84,42 @@ TEST(PointHash, PointsOfOneCellComeInIndexOrder) {
   EXPECT_TRUE(std::is_sorted(got.begin(), got.end()));
 }
 
+TEST(PointHash, CellRunsComeInKeyOrderAndHoldEveryPointOnce) {
+  const std::vector<Eigen::Vector3f> pts = Cloud(4, 2000);
+  const float cell = 0.005f;
+  PointHash hash;
+  hash.Build(pts, cell);
+  // The key PointHash orders by: z, then y, then x cell coordinate.
+  const auto cell_of = [&](uint32_t i) {
+    const Eigen::Vector3f c = (pts[i] * (1.f / cell)).array().floor();  // as PointHash computes it
+    return std::tuple<int, int, int>(static_cast<int>(c.z()), static_cast<int>(c.y()), static_cast<int>(c.x()));
+  };
+  std::vector<int> seen(pts.size(), 0);
+  std::tuple<int, int, int> previous{std::numeric_limits<int>::min(), 0, 0};
+  for (const auto& [begin, end] : hash.CellRunsByKey()) {
+    ASSERT_LT(begin, end);
+    const auto here = cell_of(hash.order()[begin]);
+    EXPECT_LT(previous, here);
+    previous = here;
+    for (uint32_t k = begin; k < end; ++k) {
+      const uint32_t i = hash.order()[k];
+      EXPECT_EQ(cell_of(i), here);
+      if (k > begin) {
+        EXPECT_LT(hash.order()[k - 1], i);
+      }
+      ++seen[i];
+    }
+  }
+  for (size_t i = 0; i < pts.size(); ++i) EXPECT_EQ(seen[i], 1) << i;
+}
+
 TEST(PointHash, EmptySetFindsNothing) {
   PointHash hash;
   hash.Build({}, 0.01f);
   EXPECT_EQ(hash.size(), 0u);
   EXPECT_FALSE(hash.AnyWithin(Eigen::Vector3f::Zero(), 0.01f));
   EXPECT_EQ(hash.Nearest(Eigen::Vector3f::Zero(), 0.01f), -1);
+  EXPECT_TRUE(hash.CellRunsByKey().empty());
 }
 
 }  // namespace
