@@ -561,6 +561,7 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
   if (ppf_max_bucket_entries < 1 || ppf_max_partners < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
   if (icp_iterations < 1 || icp_max_points < 100) return fail("icp_iterations must be >= 1, icp_max_points >= 100");
+  if (!(icp_convergence > 0) || !(icp_coarse_convergence > 0)) return fail("icp_convergence and icp_coarse_convergence must be > 0");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
   if (!(visible_min_cos >= 0 && visible_min_cos < 1)) return fail("visible_min_cos must be in [0, 1)");
@@ -630,13 +631,14 @@ struct PoseEstimator::Impl {
                      bool unmeasured_is_no_evidence = false) const;
   internal::IcpResult Refine(std::span<const Eigen::Vector3f> scene, std::span<const uint8_t> boundary,
                              const Pose& X_BO, const Vec3& camera_B, float initial, float final_gate,
-                             int iterations) const {
+                             int iterations, double convergence) const {
     internal::IcpModel model{dense.points, dense.normals, &field, edge_planes};
     internal::IcpOptions o;
     o.boundary = boundary;
     o.iterations = iterations;
     o.initial_distance = initial;
     o.final_distance = final_gate;
+    o.convergence = static_cast<float>(convergence);
     return internal::RefinePointToPlane(model, scene, X_BO, camera_B, o);
   }
 };
@@ -1531,7 +1533,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     internal::IcpResult icp;
     timed(refine_ms, [&] {
       icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
-                     std::max(4, opt.icp_iterations / 4));
+                     std::max(4, opt.icp_iterations / 4), opt.icp_coarse_convergence);
     });
     if (!icp.ok) continue;
     Candidate c{icp.X_BO, {}, icp, cp.votes};
@@ -1559,7 +1561,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     internal::IcpResult icp;
     timed(refine_ms, [&] {
       icp = m.Refine(fine, fine_boundary, c.X_BO, camera_B, std::max(gate1, 0.75f * m.step), gate1,
-                     opt.icp_iterations);
+                     opt.icp_iterations, opt.icp_convergence);
     });
     if (!icp.ok || !icp.X_BO.matrix().allFinite()) continue;
     const Candidate before = c;
@@ -1600,7 +1602,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
         internal::IcpResult alt;
         timed(refine_ms, [&] {
           alt = m.Refine(fine, fine_boundary, X * F, camera_B, std::max(gate1, 0.75f * m.step), gate1,
-                         opt.icp_iterations);
+                         opt.icp_iterations, opt.icp_convergence);
         });
         if (!alt.ok || !alt.X_BO.matrix().allFinite()) continue;
         VerifyStats st;

@@ -576,9 +576,10 @@ TEST(PerceptionEval, ShortSyntheticRunMeetsThresholds) {
 
 // The second look (PerceptionOptions::second_look_below, on by default)
 // matches the weak views no detection explains again with 12 coarse poses
-// instead of 4. On piles 3 and 6 of the default cell it finds a part each
-// that a run without it misses (measured over piles 1-40: it finds 9 parts
-// more in 9 piles, none fewer).
+// instead of 4. On piles 10 and 24 of the default cell it finds a part each
+// that a run without it misses (measured over piles 1-60 since the looser
+// ICP convergence of 2026-12-03: 15 parts more in 15 piles, none fewer; 9 in
+// piles 1-40, as before it, when piles 3 and 6 were the examples).
 TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
@@ -588,7 +589,7 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   ASSERT_TRUE(without.ok()) << without.status().ToString();
   std::vector<FrameEvaluation> normal, with_second_look;
   int second_looks = 0, coarse_skipped = 0;
-  for (uint64_t seed : {3u, 6u}) {
+  for (uint64_t seed : {10u, 24u}) {
     const Frame frame = f.Pile(seed);
     ASSERT_TRUE(frame.truth.has_value());
     const PerceptionResult off = Fixture::RunWith(**without, frame);
@@ -605,9 +606,7 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
   EXPECT_GT(coarse_skipped, 0);
   const ClassFigures a = Summarize(normal, f.models).classes.back();
   const ClassFigures b = Summarize(with_second_look, f.models).classes.back();
-  // 35 -> 36 parts found; 33 -> 35 before the hole test
-  // (PoseEstimatorOptions::hole_max_filled), with which the normal run finds
-  // two of them itself.
+  // 33 -> 35 parts found.
   EXPECT_GE(b.found, a.found + 1) << a.found << " -> " << b.found;
   EXPECT_LE(b.t_median_mm, 1.0);
 
@@ -758,9 +757,11 @@ TEST_F(PerceptionTest, MeasuresTheDepthNoiseOfTheFrame) {
 // A bushing fitted onto a pipe tee whose run shows only in part (a 36 mm hub
 // on a 40 mm pipe) supports most of its samples within the support distance
 // but leaves residuals above the depth noise (PerceptionOptions::
-// max_fit_rms_sigmas). Measured in piles 15, 54 and 94: with the limit off,
+// max_fit_rms_sigmas). Measured in piles 15, 36 and 94: with the limit off,
 // each has such a false positive; with it, none, and no true detection is lost
-// (piles 1-120: 5 such false bushings, 1.31-1.86 sigma_z).
+// (piles 1-120: 5 such false bushings, 1.31-1.86 sigma_z; piles 1-60 since
+// the looser ICP convergence of 2026-12-03: 5 false positives above the
+// limit, in piles 13, 15, 27, 36 and 42, where pile 54 was one before).
 TEST(PerceptionEval, FitsWorseThanTheDepthNoiseAreRejected) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
@@ -769,7 +770,7 @@ TEST(PerceptionEval, FitsWorseThanTheDepthNoiseAreRejected) {
   const std::unique_ptr<Perception> loose = Perception::Build(f.cell, off).value();
   const NoiseModel& noise = f.cell.camera.FindConfig(1)->noise;
   const double limit_sigmas = PerceptionOptions{}.max_fit_rms_sigmas;
-  for (uint64_t seed : {15u, 54u, 94u}) {
+  for (uint64_t seed : {15u, 36u, 94u}) {
     const Frame frame = f.Pile(seed);
     // Detections (index, rms in sigma_z) that match no part.
     const auto judge = [&](const PerceptionResult& r, int* true_positives) {

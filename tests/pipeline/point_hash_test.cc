@@ -113,6 +113,32 @@ TEST(PointHash, CellRunsComeInKeyOrderAndHoldEveryPointOnce) {
   for (size_t i = 0; i < pts.size(); ++i) EXPECT_EQ(seen[i], 1) << i;
 }
 
+// The extremes of the counting sort: every point in a cell of its own (as
+// many occupied slots as points) and every point in one cell (one run).
+TEST(PointHash, OneCellPerPointAndOneCellForAll) {
+  std::vector<Eigen::Vector3f> lattice;
+  for (int z = 0; z < 10; ++z) {
+    for (int y = 0; y < 20; ++y) {
+      for (int x = 0; x < 20; ++x) lattice.emplace_back(0.01f * (x + 0.5f), 0.01f * (y + 0.5f), 0.01f * (z + 0.5f));
+    }
+  }
+  PointHash sparse;
+  sparse.Build(lattice, 0.01f);
+  EXPECT_EQ(sparse.CellRunsByKey().size(), lattice.size());
+  for (size_t i = 0; i < lattice.size(); ++i) {
+    float d2 = -1.f;
+    EXPECT_EQ(sparse.Nearest(lattice[i] + Eigen::Vector3f(0.001f, 0.f, 0.f), 0.002f, &d2), static_cast<int>(i));
+    EXPECT_NEAR(d2, 1e-6f, 1e-9f);
+  }
+  std::vector<Eigen::Vector3f> clump(500, Eigen::Vector3f(0.25f, 0.25f, 0.25f));
+  PointHash dense;
+  dense.Build(clump, 1.f);
+  ASSERT_EQ(dense.CellRunsByKey().size(), 1u);
+  int found = 0;
+  dense.ForEachWithin(clump[0], 0.1f, [&](int i, float) { EXPECT_EQ(i, found++); });
+  EXPECT_EQ(found, 500);
+}
+
 TEST(PointHash, EmptySetFindsNothing) {
   PointHash hash;
   hash.Build({}, 0.01f);
