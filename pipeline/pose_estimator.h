@@ -81,10 +81,11 @@ struct PoseEstimatorOptions {
   // whose result the fine pass refines again. Both were 20 um. Measured on
   // all 130 scenes of docs/perception_pipeline.md "Measured" (2026-12-03):
   // fine 50 um: fine-pass point-iterations -15% (seeds 1-10), recall 0.9524
-  // -> 0.9529, precision 0.9924 -> 0.9920; and coarse 200 um: coarse-pass
-  // point-iterations -24%, the same recall and precision (one false positive
-  // fewer); median errors 0.042-0.050 mm, 0.056-0.063 deg either way. 100 um
-  // fine lost two parts on seeds 1-10.
+  // -> 0.9529, precision 0.9924 -> 0.9920 (held out 0.946 / 0.990); and
+  // coarse 200 um: coarse-pass point-iterations -24%, the same recall and
+  // false positives (one true positive fewer among the detections; held out
+  // 0.944 / 0.990, one part fewer); median errors 0.042-0.050 mm,
+  // 0.056-0.063 deg either way. 100 um fine lost two parts on seeds 1-10.
   double icp_convergence = 5e-5;
   double icp_coarse_convergence = 2e-4;
 
