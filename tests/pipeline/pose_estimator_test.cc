@@ -378,6 +378,15 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
   PoseEstimatorOptions o;
   o.ppf_relative_sampling = 0;
   EXPECT_FALSE(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, o).ok());
+  for (const double bad : {0.0, -1e-5, std::nan("")}) {
+    PoseEstimatorOptions fine, coarse;
+    fine.icp_convergence = bad;
+    coarse.icp_coarse_convergence = bad;
+    EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, fine).status().code(),
+              Status::Code::kInvalidArgument) << bad;
+    EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, coarse).status().code(),
+              Status::Code::kInvalidArgument) << bad;
+  }
   TriangleMesh flat;  // zero area
   flat.vertices = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}};
   flat.triangles = {{0, 1, 2}};
