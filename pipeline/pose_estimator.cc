@@ -560,7 +560,9 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(icp_model_spacing > 0) || !(verify_model_spacing > 0)) return fail("model spacings must be > 0");
   if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
   if (ppf_max_bucket_entries < 1 || ppf_max_partners < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
-  if (icp_iterations < 1 || icp_max_points < 100) return fail("icp_iterations must be >= 1, icp_max_points >= 100");
+  if (icp_iterations < 1 || icp_max_points < 100 || icp_shrink_iterations < 1) {
+    return fail("icp_iterations and icp_shrink_iterations must be >= 1, icp_max_points >= 100");
+  }
   if (!(icp_convergence > 0) || !(icp_coarse_convergence > 0)) return fail("icp_convergence and icp_coarse_convergence must be > 0");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
@@ -634,6 +636,7 @@ struct PoseEstimator::Impl {
                              int iterations, double convergence) const {
     internal::IcpModel model{dense.points, dense.normals, &field, edge_planes};
     internal::IcpOptions o;
+    o.shrink_iterations = options.icp_shrink_iterations;
     o.boundary = boundary;
     o.iterations = iterations;
     o.initial_distance = initial;

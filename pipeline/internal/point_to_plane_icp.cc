@@ -15,7 +15,8 @@ IcpResult RefinePointToPlane(const IcpModel& model, std::span<const Eigen::Vecto
   result.X_BO = X_BO_init;
   Pose X_OB = X_BO_init.inverse();
   const int iters = std::max(1, options.iterations);
-  const int shrink_iters = std::clamp(iters / 3, 1, 6);
+  const int shrink_iters =
+      options.shrink_iterations > 0 ? std::min(options.shrink_iterations, iters) : std::clamp(iters / 3, 1, 6);
   bool any_ok = false;
   std::vector<Eigen::Vector3f> query(scene_B.size());  // scene points in O, this iteration
   std::vector<int> nearest(scene_B.size());            // their closest sample, -1 for none

@@ -35,7 +35,11 @@ struct IcpModel {
 struct IcpOptions {
   int iterations = 20;
   float initial_distance = 0.005f;  // metres; gate at the first iteration
-  float final_distance = 0.002f;    // metres; gate from iteration min(iterations / 3, 6) on
+  float final_distance = 0.002f;    // metres; gate from iteration shrink_iterations on
+  // The gate shrinks geometrically over this many iterations (at most
+  // `iterations`; 0: min(iterations / 3, 6)). Until it is final, the closest
+  // sample is the voxel's own and the loop does not stop.
+  int shrink_iterations = 0;
   int min_correspondences = 12;
   // Stop once an iteration (at the final gate) changes the point-to-plane
   // residuals and the boundary residuals each by less than this RMS, metres.

@@ -387,6 +387,12 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
     EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, coarse).status().code(),
               Status::Code::kInvalidArgument) << bad;
   }
+  for (const int bad : {0, -3}) {
+    PoseEstimatorOptions shrink;
+    shrink.icp_shrink_iterations = bad;
+    EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, shrink).status().code(),
+              Status::Code::kInvalidArgument) << bad;
+  }
   TriangleMesh flat;  // zero area
   flat.vertices = {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}};
   flat.triangles = {{0, 1, 2}};
