@@ -501,7 +501,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   };
   // views[first_region_view..] are region views (see match_regions).
   // best_out (optional): per view, the best score over the classes tried (-1
-  // for none). second_look: every class that fits, with second_look_search.
+  // for none). second_look: with second_look_search (the classes that fit
+  // in the same order and with the same early exit as in the waves).
   // tried (optional): per view and class model index, the coarse poses
   // refined; out from a wave, in (PoseSearch::skip_coarse) to the second
   // look.
@@ -547,7 +548,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       internal::ClassEstimate estimate;
     };
     std::vector<std::vector<Job>> per_view(views.size());
-    const bool early_exit = options_.early_exit_score > 0.0 && !thorough && !second_look;
+    const bool early_exit = options_.early_exit_score > 0.0 && !thorough;
     if (best_out != nullptr) best_out->assign(views.size(), -1.0);
     const bool skip_tried = second_look && tried != nullptr;
     if (tried != nullptr && !skip_tried) tried->assign(views.size(), TriedPoses(n_models));
