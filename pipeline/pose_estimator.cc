@@ -560,8 +560,8 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(icp_model_spacing > 0) || !(verify_model_spacing > 0)) return fail("model spacings must be > 0");
   if (!(reference_fraction > 0 && reference_fraction <= 1)) return fail("reference_fraction must be in (0, 1]");
   if (ppf_max_bucket_entries < 1 || ppf_max_partners < 1 || max_reference_points < 1 || max_coarse_poses < 1 || max_hypotheses < 1) return fail("counts must be >= 1");
-  if (icp_iterations < 1 || icp_max_points < 100 || icp_shrink_iterations < 1) {
-    return fail("icp_iterations and icp_shrink_iterations must be >= 1, icp_max_points >= 100");
+  if (icp_iterations < 1 || icp_coarse_iterations < 1 || icp_max_points < 100 || icp_shrink_iterations < 1) {
+    return fail("icp_iterations, icp_coarse_iterations and icp_shrink_iterations must be >= 1, icp_max_points >= 100");
   }
   if (!(icp_convergence > 0) || !(icp_coarse_convergence > 0)) return fail("icp_convergence and icp_coarse_convergence must be > 0");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
@@ -1536,7 +1536,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     internal::IcpResult icp;
     timed(refine_ms, [&] {
       icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
-                     std::max(4, opt.icp_iterations / 4), opt.icp_coarse_convergence);
+                     opt.icp_coarse_iterations, opt.icp_coarse_convergence);
     });
     if (!icp.ok) continue;
     Candidate c{icp.X_BO, {}, icp, cp.votes};

@@ -66,8 +66,17 @@ struct PoseEstimatorOptions {
   int max_coarse_poses = 4;
 
   // --- refinement ---
-  // Fine ICP iterations, most stop early (the coarse pass uses a quarter).
+  // Fine ICP iterations, most stop early.
   int icp_iterations = 30;
+  // Coarse-pass ICP iterations (most coarse poses run all of them: they are
+  // wrong, and the quick verification after the pass drops them). Was
+  // max(4, icp_iterations / 4) = 7. Measured with icp_shrink_iterations 3
+  // (2026-12-03): 5 gives `BM_PerceptionRun` 640x480 87.7 -> 82.0 ms, CPU
+  // 153 -> 144 ms per frame (interleaved; 1920x1200 107.6 -> 107.2 ms), all
+  // 130 scenes recall 2003 -> 2002 / 2101, the same 2221 / 2239 true
+  // positives, held out the same (439 / 462, 490 / 494); 6: 2002, 2220 /
+  // 2240; 4: 1999, 2220 / 2241.
+  int icp_coarse_iterations = 5;
   // The fine ICP pass uses at most this many segment points (strided). 800
   // was 3-5 ms faster per frame, but two touching brackets came out 1.01 mm off
   // and a standing one 2.07 mm off (the tests' 1 mm and 2 mm).

@@ -626,7 +626,9 @@ TEST(PerceptionEval, TheSecondLookFindsPartsTheNormalRunMisses) {
 // plate is one of the bracket's near symmetries (PoseSearch::near_symmetries):
 // without face seeds but with those, it is found at 6 of the 7 headings (at
 // every one with 150 PPF partners per reference point or more;
-// PoseEstimatorOptions::ppf_max_partners is 100).
+// PoseEstimatorOptions::ppf_max_partners is 100), 5 since the coarse ICP
+// pass runs 5 iterations instead of 7 (icp_coarse_iterations, 2026-12-03;
+// with face seeds, the default, still all 7).
 TEST_F(PerceptionTest, FaceSeedsFindAnLBracketFromItsBasePlateAlone) {
   auto model = internal::BuildClassModel(fx().cell.parts[1]);
   ASSERT_TRUE(model.ok()) << model.status().ToString();
@@ -674,7 +676,8 @@ TEST_F(PerceptionTest, FaceSeedsFindAnLBracketFromItsBasePlateAlone) {
               with, cases, without, turned);
   EXPECT_EQ(with, cases);
   EXPECT_LT(without, with);
-  EXPECT_GE(turned, cases - 1);
+  EXPECT_GT(turned, without);
+  EXPECT_GE(turned, cases - 2);
 }
 
 // View waves (PerceptionOptions::view_waves): the views of later waves that

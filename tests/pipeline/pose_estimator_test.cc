@@ -388,9 +388,12 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
               Status::Code::kInvalidArgument) << bad;
   }
   for (const int bad : {0, -3}) {
-    PoseEstimatorOptions shrink;
+    PoseEstimatorOptions shrink, coarse_iterations;
     shrink.icp_shrink_iterations = bad;
+    coarse_iterations.icp_coarse_iterations = bad;
     EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, shrink).status().code(),
+              Status::Code::kInvalidArgument) << bad;
+    EXPECT_EQ(PoseEstimator::Build(testing::MakeTestBlock(), Symmetry{}, coarse_iterations).status().code(),
               Status::Code::kInvalidArgument) << bad;
   }
   TriangleMesh flat;  // zero area
