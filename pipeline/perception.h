@@ -150,7 +150,7 @@ struct PerceptionOptions {
   double second_look_below = 0.9;
   int second_look_min_points = 450;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
-                                .peaks_examined = 16};
+                                .peaks_examined = 16, .stop_score = 0.9};
   // The second look does not refine again the coarse poses the view's
   // estimate in its wave refined (per class; PoseSearch::skip_coarse).
   // Measured (all 130 scenes of docs/perception_pipeline.md): 11.8% fewer

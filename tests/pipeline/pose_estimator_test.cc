@@ -179,6 +179,45 @@ TEST(PoseEstimator, SkipsTheCoarsePosesAnEarlierEstimateRefined) {
   EXPECT_NE(none->no_result_reason.find("skip_coarse"), std::string::npos) << none->no_result_reason;
 }
 
+// PoseSearch::stop_score: the first ICP pass ends at the first coarse pose
+// that passes with at least that score and explains the view; the same
+// part comes out, from fewer refined poses.
+TEST(PoseEstimator, StopsTheFirstPassAtAPoseThatExplainsTheView) {
+  const TestCamera cam = DefaultCamera();
+  const std::vector<PartCase> parts = TestParts();
+  std::mt19937_64 rng{21};
+  size_t refined_all = 0, refined_stop = 0;
+  for (size_t k = 0; k < parts.size(); ++k) {
+    for (int trial = 0; trial < 2; ++trial) {
+      const Pose X_BO = MakePose(testing::RandomRotation(rng, 60 * kDeg), Vec3(0.01 * trial, 0.0, 0.03));
+      const RenderedScene scene = Render({{&parts[k].mesh, X_BO}}, cam, 0.0002, 50 + trial);
+      const SceneView view = ViewOf(scene.points_B, cam);
+      PoseSearch search{.max_reference_points = 20, .max_coarse_poses = 4};
+      auto all = Estimator(k).Estimate(view, search);
+      search.stop_score = 0.9;
+      auto stop = Estimator(k).Estimate(view, search);
+      ASSERT_TRUE(all.ok() && stop.ok());
+      ASSERT_FALSE(all->hypotheses.empty() || stop->hypotheses.empty()) << parts[k].name << " trial " << trial;
+      EXPECT_LE(stop->coarse_poses.size(), all->coarse_poses.size());
+      refined_all += all->coarse_poses.size();
+      refined_stop += stop->coarse_poses.size();
+      const Pose& X = stop->hypotheses.front().X_BO;
+      EXPECT_LT(SymmetricTranslationError(X, X_BO, parts[k].symmetry), 0.0005) << parts[k].name << " trial " << trial;
+      EXPECT_LT(SymmetricRotationError(X, X_BO, parts[k].symmetry), 0.5 * kDeg) << parts[k].name << " trial " << trial;
+    }
+  }
+  EXPECT_LT(refined_stop, refined_all);
+  // Out of [0, 1]: InvalidArgument.
+  const RenderedScene scene = Render({{&parts[0].mesh, Pose::Identity()}}, cam, 0.0002, 50);
+  for (const double bad : {-0.1, 1.5, std::nan("")}) {
+    PoseSearch search;
+    search.stop_score = bad;
+    EXPECT_EQ(Estimator(0).Estimate(ViewOf(scene.points_B, cam), search).status().code(),
+              Status::Code::kInvalidArgument)
+        << bad;
+  }
+}
+
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
   // The stable resting poses: plane faces seen head-on leave the in-plane
   // position to the silhouette only.
@@ -275,6 +314,8 @@ TEST(PoseEstimator, GivesOneHypothesisPerPartForTwoTouchingParts) {
   SceneView view = OnFloor(ViewOf(segment, cam));
   view.depth = &scene.depth;
   view.intrinsics = cam.K;
+  // With the default coarse_stop_score: the first good pose explains only
+  // about half the view, so the first pass goes on to the other part.
   auto r = Estimator(0).Estimate(view);
   ASSERT_TRUE(r.ok());
   ASSERT_EQ(r->hypotheses.size(), 2u) << r->no_result_reason;
@@ -389,6 +430,7 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_convergence, bad)) << bad;
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_coarse_convergence, bad)) << bad;
   }
+  for (const double bad : {-0.1, 1.5, std::nan("")}) EXPECT_TRUE(rejects(&PoseEstimatorOptions::coarse_stop_score, bad)) << bad;
   for (const int bad : {0, -3}) {
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_shrink_iterations, bad)) << bad;
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_coarse_iterations, bad)) << bad;
