@@ -276,8 +276,16 @@ constexpr float kMinFaceExtent = 0.015f;
 constexpr int kFaceEdgeDirections = 2;
 constexpr double kFaceEdgeMergeDeg = 5.0;
 // Face seeds are ranked by a verification of every this-many-th sample
-// (measured: 6 ranks as well as 3 on seeds 1-70, at half the cost).
+// (measured: 6 ranks as well as 3 on seeds 1-70, at half the cost), after a
+// screen of every kFaceSeedScreenStride-th sample has kept the best
+// kFaceSeedsScreened. Measured (all 130 scenes of
+// docs/perception_pipeline.md, 2026-12-03): the same detections as ranking
+// every seed at stride 6, for half the face seeds' time (seeds 11-40: 294
+// -> 141 ms over the 30 frames); keeping 4 lost 3 true positives, a screen
+// at stride 48 lost recall (seeds 11-40: 0.952 -> 0.946).
 constexpr int kFaceSeedStride = 6;
+constexpr int kFaceSeedScreenStride = 24;
+constexpr size_t kFaceSeedsScreened = 6;
 // A view is planar when its points' RMS distance from their plane is below
 // this (depth noise on the default cell: ~0.45 mm).
 constexpr double kPlanarViewRms = 0.0010;
@@ -962,7 +970,7 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
             cp.X_BO = Pose::Identity();
             cp.X_BO.linear() = R.cast<double>();
             cp.X_BO.translation() = (c + ox * x + oy * y - R * f.c).cast<double>();
-            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedStride);
+            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedScreenStride);
             if (st.below_support || !(st.score > 0)) continue;
             seeds.emplace_back(st.score, cp);
           }
@@ -970,7 +978,11 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
       }
     }
   }
-  std::stable_sort(seeds.begin(), seeds.end(), [](const auto& p, const auto& q) { return p.first > q.first; });
+  const auto by_score = [](const auto& p, const auto& q) { return p.first > q.first; };
+  std::stable_sort(seeds.begin(), seeds.end(), by_score);
+  if (seeds.size() > kFaceSeedsScreened) seeds.resize(kFaceSeedsScreened);
+  for (auto& [score, cp] : seeds) score = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedStride).score;
+  std::stable_sort(seeds.begin(), seeds.end(), by_score);
   for (size_t i = 0; i < seeds.size() && static_cast<int>(i) < keep; ++i) coarse.push_back(seeds[i].second);
 }
 
@@ -1533,47 +1545,62 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     return false;
   };
 
-  if (search.face_seeds > 0 && view_plane && !m.faces.empty()) {
-    timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, support_hash, segment_depth, search.face_seeds, coarse); });
-  }
-  if (!search.skip_coarse.empty()) {
+  // Coarse poses an earlier estimate of this view refined are left out
+  // (PoseSearch::skip_coarse).
+  const auto drop_tried = [&](std::vector<internal::CoarsePose>& list) {
+    if (search.skip_coarse.empty()) return;
     const double skip_t = opt.cluster_relative_translation * m.diameter;
     const double skip_r = opt.cluster_rotation_deg * M_PI / 180.0;
-    const size_t before = coarse.size();
-    std::erase_if(coarse, [&](const internal::CoarsePose& cp) {
+    const size_t before = list.size();
+    std::erase_if(list, [&](const internal::CoarsePose& cp) {
       return std::any_of(search.skip_coarse.begin(), search.skip_coarse.end(), [&](const Pose& X) {
         return (X.translation() - cp.X_BO.translation()).norm() < skip_t &&
                SymmetricRotationError(X, cp.X_BO, m.symmetry) < skip_r;
       });
     });
-    out.coarse_skipped = static_cast<int>(before - coarse.size());
-    if (coarse.empty()) {
-      out.no_result_reason = "every coarse pose was refined by an earlier estimate (PoseSearch::skip_coarse)";
-      return out;
-    }
-  }
-  out.coarse_poses.reserve(coarse.size());
+    out.coarse_skipped += static_cast<int>(before - list.size());
+  };
   std::vector<Candidate> first;
-  for (const internal::CoarsePose& cp : coarse) {
-    out.coarse_poses.push_back(cp.X_BO);
-    internal::IcpResult icp;
-    timed(refine_ms, [&] {
-      icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
-                     opt.icp_coarse_iterations, opt.icp_coarse_convergence);
-    });
-    if (!icp.ok) continue;
-    Candidate c{icp.X_BO, {}, icp, cp.votes};
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3,
-                                                   search.unmeasured_is_no_evidence); });
-    first.push_back(c);
-    // A pose this good at a quick look that also explains most of the view
-    // ends the first pass (PoseSearch::stop_score): the coarse poses after
-    // it have fewer votes and converge to it or fail. A view of two
-    // touching parts goes on to the other part.
-    if (search.stop_score > 0.0 && c.stats.score >= search.stop_score && passes(c.stats, min_score) &&
-        m.ExplainedFraction(c.X_BO, sub_p) >= kStopExplainedFraction) {
-      break;
+  bool stopped = false;
+  // The first pass over `list`, in order: ICP on the subsampled points, then
+  // a quick verification.
+  const auto refine_first = [&](const std::vector<internal::CoarsePose>& list) {
+    for (const internal::CoarsePose& cp : list) {
+      out.coarse_poses.push_back(cp.X_BO);
+      internal::IcpResult icp;
+      timed(refine_ms, [&] {
+        icp = m.Refine(sub_p, sub_boundary, cp.X_BO, camera_B, gate0, std::max(gate1, 0.5f * m.step),
+                       opt.icp_coarse_iterations, opt.icp_coarse_convergence);
+      });
+      if (!icp.ok) continue;
+      Candidate c{icp.X_BO, {}, icp, cp.votes};
+      timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3,
+                                                     search.unmeasured_is_no_evidence); });
+      first.push_back(c);
+      // A pose this good at a quick look that also explains most of the
+      // view ends the first pass (PoseSearch::stop_score): the coarse poses
+      // after it have fewer votes and converge to it or fail. A view of two
+      // touching parts goes on to the other part.
+      if (search.stop_score > 0.0 && c.stats.score >= search.stop_score && passes(c.stats, min_score) &&
+          m.ExplainedFraction(c.X_BO, sub_p) >= kStopExplainedFraction) {
+        stopped = true;
+        return;
+      }
     }
+  };
+  drop_tried(coarse);
+  refine_first(coarse);
+  // Face seeds come last, and only when no coarse pose ended the pass:
+  // each costs a quick verification of its own.
+  if (!stopped && search.face_seeds > 0 && view_plane && !m.faces.empty()) {
+    std::vector<internal::CoarsePose> seeds;
+    timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, support_hash, segment_depth, search.face_seeds, seeds); });
+    drop_tried(seeds);
+    refine_first(seeds);
+  }
+  if (out.coarse_poses.empty()) {
+    out.no_result_reason = "every coarse pose was refined by an earlier estimate (PoseSearch::skip_coarse)";
+    return out;
   }
   std::stable_sort(first.begin(), first.end(), by_score);
   double best_rejected = -1;
