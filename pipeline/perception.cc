@@ -257,19 +257,23 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     const double spacing = footprint * stride;
     const float grid_jump = std::max(max_jump, static_cast<float>(2.5 * spacing));
 
-    // Two tasks (the stage "regions" covers both): the connected regions
-    // (depth continuity only), and the normals followed by the segments'
-    // region growing, which needs the normals but not the connected regions.
-    // Measured (`binpick eval --scenes 10 --seed 1`, interleaved runs): the
-    // stages regions + segment 15.3-15.4 -> 14.0-14.4 ms median, against the
-    // growing after both tasks.
+    // The normals (bands of rows in parallel), then two tasks (the stage
+    // "regions" covers all three): the connected regions (depth continuity
+    // only), and the floor band and the segments' region growing, which
+    // needs the normals but not the connected regions. Measured (`binpick
+    // eval --scenes 10 --seed 1`): the stages regions + segment 15.3-15.4 ->
+    // 14.0-14.4 ms median with the two tasks against the growing after both
+    // (interleaved runs); the regions stage 8.3-8.7 -> 6.9-7.0 ms with the
+    // normals first on both threads, against the normals serial at the head
+    // of the second task, whose flood fill then ran alone for 4 of its 7 ms
+    // (machine of 2026-12-03, evening).
     std::vector<int32_t> region_of_cell;
     const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
     std::vector<Eigen::Vector3f> normals;
     std::vector<int32_t> segment_of_cell;
     int n_regions = 0;
-    const auto normals_then_segments = [&] {
-      internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
+    internal::GridNormals(roi, grid, radius, grid_jump, viewpoint_B, &normals);
+    const auto segments = [&] {
       // Floor band: near the floor and facing up.
       std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
       for (size_t c = 0; c < grid.point_of_cell.size(); ++c) {
@@ -286,7 +290,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
                                         static_cast<float>(options_.segment_convex_tolerance));
     };
     tbb::parallel_invoke([&] { internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
-                         normals_then_segments);
+                         segments);
     t = stage("regions", t);
 
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);

@@ -16,6 +16,8 @@ constexpr int kRoiBandRows = 32;
 constexpr int kMaxRoiBands = 64;
 // SpreadLabels: points per task.
 constexpr size_t kSpreadGrain = 16384;
+// GridNormals: rows per task (640x480: 15 tasks).
+constexpr int kNormalRowsGrain = 32;
 }  // namespace
 
 RoiBox MakeRoiBox(const Cell& cell) {
@@ -125,6 +127,7 @@ SampleGrid MakeSampleGrid(const RoiCloud& roi, int stride) {
   g.width = (roi.width + g.stride - 1) / g.stride;
   g.height = (roi.height + g.stride - 1) / g.stride;
   g.point_of_cell.assign(static_cast<size_t>(g.width) * g.height, -1);
+  g.cell_points.reserve(g.stride == 1 ? roi.points_B.size() : g.point_of_cell.size());
   for (int gv = 0; gv < g.height; ++gv) {
     for (int gu = 0; gu < g.width; ++gu) {
       const int32_t i = roi.point_of_pixel[static_cast<size_t>(gv * g.stride) * roi.width + gu * g.stride];
@@ -144,44 +147,49 @@ void GridNormals(const RoiCloud& roi, const SampleGrid& grid, int radius, float 
     if (u < 0 || v < 0 || u >= W || v >= H) return -1;
     return grid.point_of_cell[static_cast<size_t>(v) * W + u];
   };
-  for (int v = 0; v < H; ++v) {
-    for (int u = 0; u < W; ++u) {
-      const int32_t c = at(u, v);
-      if (c < 0) continue;
-      const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(c)];
-      // A neighbour at offset k along an axis, searching inwards from `radius`
-      // so that a missing or discontinuous far neighbour falls back to a nearer one.
-      const auto tangent = [&](int du, int dv) -> Eigen::Vector3f {
-        Eigen::Vector3f fwd = Eigen::Vector3f::Zero(), bwd = Eigen::Vector3f::Zero();
-        bool has_f = false, has_b = false;
-        for (int k = radius; k >= 1 && !has_f; --k) {
-          const int32_t n = at(u + k * du, v + k * dv);
-          if (n >= 0 && (roi.points_B[static_cast<size_t>(n)] - p).norm() < max_jump * static_cast<float>(k)) {
-            fwd = roi.points_B[static_cast<size_t>(n)];
-            has_f = true;
+  // Each cell writes only its own normal: bands of rows are tasks on the
+  // caller's arena (the perception runs this beside the connected regions,
+  // and the thread that finishes those takes bands of these).
+  tbb::parallel_for(tbb::blocked_range<int>(0, H, kNormalRowsGrain), [&](const tbb::blocked_range<int>& rows) {
+    for (int v = rows.begin(); v != rows.end(); ++v) {
+      for (int u = 0; u < W; ++u) {
+        const int32_t c = at(u, v);
+        if (c < 0) continue;
+        const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(c)];
+        // A neighbour at offset k along an axis, searching inwards from `radius`
+        // so that a missing or discontinuous far neighbour falls back to a nearer one.
+        const auto tangent = [&](int du, int dv) -> Eigen::Vector3f {
+          Eigen::Vector3f fwd = Eigen::Vector3f::Zero(), bwd = Eigen::Vector3f::Zero();
+          bool has_f = false, has_b = false;
+          for (int k = radius; k >= 1 && !has_f; --k) {
+            const int32_t n = at(u + k * du, v + k * dv);
+            if (n >= 0 && (roi.points_B[static_cast<size_t>(n)] - p).norm() < max_jump * static_cast<float>(k)) {
+              fwd = roi.points_B[static_cast<size_t>(n)];
+              has_f = true;
+            }
           }
-        }
-        for (int k = radius; k >= 1 && !has_b; --k) {
-          const int32_t n = at(u - k * du, v - k * dv);
-          if (n >= 0 && (roi.points_B[static_cast<size_t>(n)] - p).norm() < max_jump * static_cast<float>(k)) {
-            bwd = roi.points_B[static_cast<size_t>(n)];
-            has_b = true;
+          for (int k = radius; k >= 1 && !has_b; --k) {
+            const int32_t n = at(u - k * du, v - k * dv);
+            if (n >= 0 && (roi.points_B[static_cast<size_t>(n)] - p).norm() < max_jump * static_cast<float>(k)) {
+              bwd = roi.points_B[static_cast<size_t>(n)];
+              has_b = true;
+            }
           }
-        }
-        if (has_f && has_b) return fwd - bwd;
-        if (has_f) return fwd - p;
-        if (has_b) return p - bwd;
-        return Eigen::Vector3f::Zero();
-      };
-      const Eigen::Vector3f tu = tangent(1, 0), tv = tangent(0, 1);
-      Eigen::Vector3f n = tu.cross(tv);
-      const float len = n.norm();
-      if (!(len > 1e-12f)) continue;
-      n /= len;
-      if (n.dot(viewpoint_B - p) < 0.f) n = -n;
-      (*normals)[static_cast<size_t>(v) * W + u] = n;
+          if (has_f && has_b) return fwd - bwd;
+          if (has_f) return fwd - p;
+          if (has_b) return p - bwd;
+          return Eigen::Vector3f::Zero();
+        };
+        const Eigen::Vector3f tu = tangent(1, 0), tv = tangent(0, 1);
+        Eigen::Vector3f n = tu.cross(tv);
+        const float len = n.norm();
+        if (!(len > 1e-12f)) continue;
+        n /= len;
+        if (n.dot(viewpoint_B - p) < 0.f) n = -n;
+        (*normals)[static_cast<size_t>(v) * W + u] = n;
+      }
     }
-  }
+  });
 }
 
 int GrowRegions(const RoiCloud& roi, const SampleGrid& grid, const std::vector<Eigen::Vector3f>& normals,
