@@ -131,6 +131,8 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   // a cell's first vote is about every other one, which a branch mispredicts)
   // are read for its peaks and reset after it.
   std::vector<uint16_t> acc(nm * NA, 0);
+  std::vector<uint32_t> cells_buffer(static_cast<size_t>(std::max(1, params_.max_bucket_entries)));
+  uint32_t* const cells = cells_buffer.data();
   std::vector<uint32_t> touched;
   std::vector<CoarsePose> candidates;
   std::vector<std::pair<uint16_t, size_t>> peaks;  // (votes, accumulator cell)
@@ -199,12 +201,18 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     uint16_t* const a_cells = acc.data();
     const Entry* const entries = entries_.data();
     for (const Pair& pr : pairs) {
-      for (uint32_t e = pr.begin; e < pr.end; ++e) {
-        float a = pr.alpha - entries[e].alpha;
+      // The cells first (a loop the compiler vectorizes), then the votes.
+      const uint32_t n = pr.end - pr.begin;
+      const Entry* const pe = entries + pr.begin;
+      for (uint32_t j = 0; j < n; ++j) {
+        float a = pr.alpha - pe[j].alpha;
         a += a < 0.f ? fNA : 0.f;
         int b = static_cast<int>(a);
         b -= b >= NA ? NA : 0;
-        const uint32_t cell = entries[e].cell + static_cast<uint32_t>(b);
+        cells[j] = pe[j].cell + static_cast<uint32_t>(b);
+      }
+      for (uint32_t j = 0; j < n; ++j) {
+        const uint32_t cell = cells[j];
         const uint16_t v = ++a_cells[cell];
         touched[n_touched] = cell;
         n_touched += v == 1;
