@@ -508,9 +508,13 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   // for none). second_look: with second_look_search (the classes that fit
   // in the same order and with the same early exit as in the waves).
   // tried (optional): per view and class model index, the coarse poses
-  // refined; out from a wave, in (PoseSearch::skip_coarse) to the second
-  // look.
-  using TriedPoses = std::vector<std::vector<Pose>>;  // per class model index
+  // refined and what the estimate derived from the view; out from a wave,
+  // in (PoseSearch::skip_coarse, PoseSearch::prepared) to the second look.
+  struct Tried {
+    std::vector<Pose> poses;
+    std::shared_ptr<const PreparedView> prepared;
+  };
+  using TriedPoses = std::vector<Tried>;  // per class model index
   std::atomic<int> coarse_skipped{0}, coarse_refined{0};
   const auto estimate = [&](const std::vector<std::vector<int32_t>>& views, size_t first_region_view,
                             std::vector<double>* best_out = nullptr, bool second_look = false,
@@ -566,6 +570,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       view.floor_plane_B = floor_plane_B;
       if (thorough) view.search = options_.thorough_search;
       if (second_look) view.search = options_.second_look_search;
+      view.keep_prepared = tried != nullptr && !skip_tried;
       std::vector<Job>& done = per_view[v];
       // Runs classes ms[from, to) in parallel.
       const auto run = [&](const std::vector<int>& ms, size_t from, size_t to, bool too_small) {
@@ -579,17 +584,20 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
           job.too_small = too_small;
           const ClassModel& model = *models[static_cast<size_t>(ms[r])];
           const size_t mi = static_cast<size_t>(ms[r]);
-          const std::vector<Pose>* skip = skip_tried && mi < (*tried)[v].size() ? &(*tried)[v][mi] : nullptr;
-          if (skip != nullptr && !skip->empty() && view.search) {
+          const Tried* skip = skip_tried && mi < (*tried)[v].size() ? &(*tried)[v][mi] : nullptr;
+          if (skip != nullptr && (!skip->poses.empty() || skip->prepared) && view.search) {
             internal::SegmentView with_skip = view;
-            with_skip.search->skip_coarse = *skip;
+            with_skip.search->skip_coarse = skip->poses;
+            with_skip.search->prepared = skip->prepared;
             job.estimate = model.Estimate(with_skip);
           } else {
             job.estimate = model.Estimate(view);
           }
           coarse_skipped += job.estimate.coarse_skipped;
           coarse_refined += static_cast<int>(job.estimate.coarse_poses.size());
-          if (tried != nullptr && !skip_tried) (*tried)[v][mi] = std::move(job.estimate.coarse_poses);
+          if (tried != nullptr && !skip_tried) {
+            (*tried)[v][mi] = Tried{std::move(job.estimate.coarse_poses), std::move(job.estimate.prepared)};
+          }
           if (limit_fit && !job.estimate.hypotheses.empty()) {
             std::erase_if(job.estimate.hypotheses, [&](const internal::ClassHypothesis& h) {
               return h.rms_residual > fit_rms_limit(model, h.X_BO);

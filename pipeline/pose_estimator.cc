@@ -563,6 +563,24 @@ Pose HalfTurn(const Eigen::Vector3f& a, const Eigen::Vector3f& c) {
 
 }  // namespace
 
+// What Estimate derives from a view before its search; an estimate of the
+// same view by the same class (the perception's second look) reuses it
+// (PoseSearch::prepared).
+struct PreparedView {
+  const void* owner = nullptr;  // the PoseEstimator::Impl that made it
+  size_t input_points = 0;      // SceneView::points_B.size()
+  std::vector<Eigen::Vector3f> pts;  // finite points
+  std::vector<int> index;            // their indices in SceneView::points_B
+  std::optional<Eigen::Vector3f> view_plane;  // a planar view's normal, towards the camera
+  std::vector<Eigen::Vector3f> sub_p, sub_n;  // subsampled at the PPF step, with normals
+  std::vector<int> sub_of;                    // per finite point: its subsampled point, -1 if none
+  SegmentDepth segment_depth;                 // without a depth image only
+  internal::PointHash support_hash;           // of pts, for the support queries
+  std::vector<uint8_t> sub_boundary;          // per subsampled point
+  std::vector<Eigen::Vector3f> fine;          // the fine ICP pass's points
+  std::vector<uint8_t> fine_boundary;
+};
+
 bool PoseEstimatorOptions::IsValid(std::string* error) const {
   auto fail = [&](const char* what) {
     if (error) *error = what;
@@ -612,6 +630,9 @@ struct PoseEstimator::Impl {
   std::vector<HolePoint> holes;
   // Hole points in view and, of those, filled, for a pose (depth image only).
   std::pair<int, int> HoleStats(const Pose& X_BO, const SceneView& view) const;
+  // Fills w from the view; false (out.no_result_reason set) when the view
+  // cannot be matched.
+  bool Prepare(const SceneView& view, PreparedView& w, PoseEstimates& out) const;
   // True when q (in O) lies within tol of the part's surface (the nearest
   // dense sample through the closest-point field; false beyond its band).
   bool OnSurface(const Eigen::Vector3f& q, float tol) const {
@@ -1290,37 +1311,16 @@ Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X
   return h;
 }
 
-Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
-  PoseSearch search;
-  search.max_reference_points = impl_->options.max_reference_points;
-  search.max_coarse_poses = impl_->options.max_coarse_poses;
-  search.stop_score = impl_->options.coarse_stop_score;
-  return Estimate(view, search);
-}
-
-Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseSearch& search) const {
-  const Impl& m = *impl_;
-  const PoseEstimatorOptions& opt = m.options;
-  PoseEstimates out;
-  if (search.max_reference_points < 1 || search.max_coarse_poses < 1 || search.peaks_per_reference < 1 ||
-      search.peaks_examined < search.peaks_per_reference || !(search.stop_score >= 0.0 && search.stop_score <= 1.0)) {
-    return Status::InvalidArgument(
-        "PoseSearch: counts must be >= 1, peaks_examined >= peaks_per_reference and stop_score in [0, 1]");
-  }
-  if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
-    return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
-                                   " entries for " + std::to_string(view.points_B.size()) + " points");
-  }
-  if (!view.X_BC.matrix().allFinite()) return Status::InvalidArgument("SceneView: X_BC is not finite");
-  if (view.support_plane_B &&
-      (!view.support_plane_B->allFinite() || std::abs(view.support_plane_B->head<3>().norm() - 1.0) > 1e-3)) {
-    return Status::InvalidArgument("SceneView: support_plane_B needs a finite unit normal");
-  }
+bool PoseEstimator::Impl::Prepare(const SceneView& view, PreparedView& w, PoseEstimates& out) const {
+  const Impl& m = *this;
+  const PoseEstimatorOptions& opt = options;
+  w.owner = this;
+  w.input_points = view.points_B.size();
   const auto t0 = Clock::now();
 
   // Finite points only; keep their original indices for supporting_indices.
-  std::vector<Eigen::Vector3f> pts;
-  std::vector<int> index;
+  std::vector<Eigen::Vector3f>& pts = w.pts;
+  std::vector<int>& index = w.index;
   pts.reserve(view.points_B.size());
   index.reserve(view.points_B.size());
   for (size_t i = 0; i < view.points_B.size(); ++i) {
@@ -1333,12 +1333,12 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   if (static_cast<int>(pts.size()) < kMinScenePoints) {
     out.no_result_reason = "too few finite points in the segment (" + std::to_string(pts.size()) + ", need " +
                            std::to_string(kMinScenePoints) + ")";
-    return out;
+    return false;
   }
   // Degenerate geometry: spread along fewer than two directions. A view
   // that is one plane (its normal towards the camera in view_plane) gets face
   // seeds (PoseSearch::face_seeds).
-  std::optional<Eigen::Vector3f> view_plane;
+  std::optional<Eigen::Vector3f>& view_plane = w.view_plane;
   {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     for (const auto& p : pts) mean += p.cast<double>();
@@ -1359,11 +1359,11 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     const double min_spread = 0.05 * m.step;
     if (std::sqrt(ev[1]) < min_spread) {
       out.no_result_reason = "degenerate segment: points are (nearly) collinear";
-      return out;
+      return false;
     }
     if (std::sqrt(ev[2]) < 0.05 * m.diameter) {
       out.no_result_reason = "segment is much smaller than the part";
-      return out;
+      return false;
     }
   }
 
@@ -1371,9 +1371,11 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   internal::PointHash hash;  // normal estimation: radius step visits 2 x 2 x 2 cells
   if (view.normals_B.empty()) hash.Build(pts, 2.f * m.step);
   const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
-  std::vector<Eigen::Vector3f> sub_p, sub_n;
+  std::vector<Eigen::Vector3f>& sub_p = w.sub_p;
+  std::vector<Eigen::Vector3f>& sub_n = w.sub_n;
   // Per finite point: index of its voxel's subsampled point, -1 if none.
-  std::vector<int> sub_of(pts.size(), -1);
+  std::vector<int>& sub_of = w.sub_of;
+  sub_of.assign(pts.size(), -1);
   {
     // The points per voxel of the PPF step, voxels in key order, points in index order.
     internal::PointHash voxels;
@@ -1423,12 +1425,104 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     }
   }
   out.sampled_points = static_cast<int>(sub_p.size());
-  const auto t1 = Clock::now();
-  out.timings.prepare_ms = Ms(t0, t1);
+  out.timings.prepare_ms = Ms(t0, Clock::now());
   if (static_cast<int>(sub_p.size()) < kMinSampledPoints) {
     out.no_result_reason = "too few subsampled points with a normal (" + std::to_string(sub_p.size()) + ")";
-    return out;
+    return false;
   }
+
+  const auto t_aux = Clock::now();
+  const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
+  if (!have_depth) w.segment_depth = BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
+  // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
+  w.support_hash.Build(pts, 2.f * static_cast<float>(opt.support_distance));
+  // Boundary flags on the subsampled points; a full-resolution point takes its
+  // voxel's flag (the ICP boundary term is one-sided, so flagging a few
+  // millimetres of interior next to an edge costs nothing).
+  internal::PointHash sub_hash;
+  sub_hash.Build(sub_p, 4.f * m.step);
+  std::vector<uint8_t>& sub_boundary = w.sub_boundary;
+  sub_boundary = BoundaryFlags(sub_p, sub_p, sub_hash, 2.f * m.step);
+  // Fine ICP points: every boundary point (they carry the in-plane
+  // constraints) plus the rest strided to about icp_max_points in all.
+  std::vector<Eigen::Vector3f>& fine = w.fine;
+  std::vector<uint8_t>& fine_boundary = w.fine_boundary;
+  {
+    size_t n_boundary = 0;
+    for (size_t i = 0; i < pts.size(); ++i) n_boundary += sub_of[i] < 0 || sub_boundary[sub_of[i]];
+    const size_t budget = std::max<size_t>(static_cast<size_t>(opt.icp_max_points), n_boundary + 1) - n_boundary;
+    const size_t interior = pts.size() - n_boundary;
+    const size_t stride = std::max<size_t>(1, (interior + budget - 1) / budget);
+    size_t seen = 0;
+    for (size_t i = 0; i < pts.size(); ++i) {
+      const bool b = sub_of[i] < 0 || sub_boundary[sub_of[i]];
+      if (b || (seen++ % stride) == 0) {
+        fine.push_back(pts[i]);
+        fine_boundary.push_back(b ? 1 : 0);
+      }
+    }
+  }
+  out.timings.prepare_ms += Ms(t_aux, Clock::now());
+  return true;
+}
+
+PoseSearch PoseEstimator::default_search() const {
+  PoseSearch search;
+  search.max_reference_points = impl_->options.max_reference_points;
+  search.max_coarse_poses = impl_->options.max_coarse_poses;
+  search.stop_score = impl_->options.coarse_stop_score;
+  return search;
+}
+
+Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
+  return Estimate(view, default_search());
+}
+
+Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseSearch& search) const {
+  const Impl& m = *impl_;
+  const PoseEstimatorOptions& opt = m.options;
+  PoseEstimates out;
+  if (search.max_reference_points < 1 || search.max_coarse_poses < 1 || search.peaks_per_reference < 1 ||
+      search.peaks_examined < search.peaks_per_reference || !(search.stop_score >= 0.0 && search.stop_score <= 1.0)) {
+    return Status::InvalidArgument(
+        "PoseSearch: counts must be >= 1, peaks_examined >= peaks_per_reference and stop_score in [0, 1]");
+  }
+  if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
+    return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
+                                   " entries for " + std::to_string(view.points_B.size()) + " points");
+  }
+  if (!view.X_BC.matrix().allFinite()) return Status::InvalidArgument("SceneView: X_BC is not finite");
+  if (view.support_plane_B &&
+      (!view.support_plane_B->allFinite() || std::abs(view.support_plane_B->head<3>().norm() - 1.0) > 1e-3)) {
+    return Status::InvalidArgument("SceneView: support_plane_B needs a finite unit normal");
+  }
+  // What the view gives before the search (PreparedView): derived here, or
+  // an earlier estimate's of the same view (PoseSearch::prepared).
+  std::shared_ptr<PreparedView> owned;
+  const PreparedView* prepared = search.prepared.get();
+  if (prepared != nullptr) {
+    if (prepared->owner != impl_.get() || prepared->input_points != view.points_B.size()) {
+      return Status::InvalidArgument("PoseSearch: prepared comes from another estimator or view");
+    }
+  } else {
+    owned = std::make_shared<PreparedView>();
+    if (!m.Prepare(view, *owned, out)) return out;
+    prepared = owned.get();
+  }
+  if (search.keep_prepared) out.prepared = owned ? std::shared_ptr<const PreparedView>(owned) : search.prepared;
+  const std::vector<Eigen::Vector3f>& pts = prepared->pts;
+  const std::vector<int>& index = prepared->index;
+  const std::optional<Eigen::Vector3f>& view_plane = prepared->view_plane;
+  const std::vector<Eigen::Vector3f>& sub_p = prepared->sub_p;
+  const std::vector<Eigen::Vector3f>& sub_n = prepared->sub_n;
+  const internal::PointHash& support_hash = prepared->support_hash;
+  const SegmentDepth& segment_depth = prepared->segment_depth;
+  const std::vector<uint8_t>& sub_boundary = prepared->sub_boundary;
+  const std::vector<Eigen::Vector3f>& fine = prepared->fine;
+  const std::vector<uint8_t>& fine_boundary = prepared->fine_boundary;
+  out.scene_points = static_cast<int>(pts.size());
+  out.sampled_points = static_cast<int>(sub_p.size());
+  const auto t1 = Clock::now();
 
   // Coarse: PPF voting and pose clustering.
   internal::PpfMatchOptions mo;
@@ -1484,39 +1578,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   const Vec3 camera_B = view.X_BC.translation();
   const float gate0 = static_cast<float>(opt.icp_initial_relative_distance) * m.step;
   const float gate1 = static_cast<float>(opt.icp_final_distance);
-  const auto t_aux = Clock::now();
   const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
-  const SegmentDepth segment_depth =
-      have_depth ? SegmentDepth{} : BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
-  // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
-  internal::PointHash support_hash;
-  support_hash.Build(pts, 2.f * static_cast<float>(opt.support_distance));
-  // Boundary flags on the subsampled points; a full-resolution point takes its
-  // voxel's flag (the ICP boundary term is one-sided, so flagging a few
-  // millimetres of interior next to an edge costs nothing).
-  internal::PointHash sub_hash;
-  sub_hash.Build(sub_p, 4.f * m.step);
-  const std::vector<uint8_t> sub_boundary = BoundaryFlags(sub_p, sub_p, sub_hash, 2.f * m.step);
-  // Fine ICP points: every boundary point (they carry the in-plane
-  // constraints) plus the rest strided to about icp_max_points in all.
-  std::vector<Eigen::Vector3f> fine;
-  std::vector<uint8_t> fine_boundary;
-  {
-    size_t n_boundary = 0;
-    for (size_t i = 0; i < pts.size(); ++i) n_boundary += sub_of[i] < 0 || sub_boundary[sub_of[i]];
-    const size_t budget = std::max<size_t>(static_cast<size_t>(opt.icp_max_points), n_boundary + 1) - n_boundary;
-    const size_t interior = pts.size() - n_boundary;
-    const size_t stride = std::max<size_t>(1, (interior + budget - 1) / budget);
-    size_t seen = 0;
-    for (size_t i = 0; i < pts.size(); ++i) {
-      const bool b = sub_of[i] < 0 || sub_boundary[sub_of[i]];
-      if (b || (seen++ % stride) == 0) {
-        fine.push_back(pts[i]);
-        fine_boundary.push_back(b ? 1 : 0);
-      }
-    }
-  }
-  out.timings.prepare_ms += Ms(t_aux, Clock::now());
   struct Candidate {
     Pose X_BO;
     VerifyStats stats;

@@ -24,6 +24,9 @@
 
 namespace bp {
 
+// What an estimate derives from a view before its search (defined in the .cc).
+struct PreparedView;
+
 struct PoseEstimatorOptions {
   // --- model tables (built once by Build) ---
   // PPF sampling distance relative to the model diameter (Drost's tau_d).
@@ -264,6 +267,12 @@ struct PoseSearch {
   // the quick verification with at least this score (in [0, 1]; 0 = every
   // one is refined; PoseEstimatorOptions::coarse_stop_score).
   double stop_score = 0.0;
+  // keep_prepared: the estimate returns what it derived from the view
+  // before the search (PoseEstimates::prepared). prepared: from an earlier
+  // estimate of the same view (the same points) by the same estimator, used
+  // instead of deriving it again (InvalidArgument when it is another's).
+  bool keep_prepared = false;
+  std::shared_ptr<const PreparedView> prepared = nullptr;
 };
 
 struct PoseTimings {
@@ -300,6 +309,7 @@ struct PoseEstimates {
   // The coarse poses and seeds refined, for PoseSearch::skip_coarse.
   std::vector<Pose> coarse_poses;
   int coarse_skipped = 0;     // left out by PoseSearch::skip_coarse
+  std::shared_ptr<const PreparedView> prepared = nullptr;  // with PoseSearch::keep_prepared
 };
 
 class PoseEstimator {
@@ -321,6 +331,8 @@ class PoseEstimator {
   // The same with the coarse search's width given (counts >= 1,
   // peaks_examined >= peaks_per_reference; else InvalidArgument).
   Result<PoseEstimates> Estimate(const SceneView& view, const PoseSearch& search) const;
+  // The search Estimate(view) runs: the options' counts and coarse_stop_score.
+  PoseSearch default_search() const;
   // Verification alone of a given pose against the view (no search, no
   // refinement): the score and counts Estimate gives a hypothesis at X_BO.
   // For diagnostics, e.g. how the true pose of a missed part scores.

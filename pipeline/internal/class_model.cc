@@ -54,7 +54,9 @@ class PpfClassModel final : public ClassModel {
   ClassEstimate Estimate(const SegmentView& view) const override {
     const SceneView scene = ToScene(view);
     ClassEstimate out;
-    Result<PoseEstimates> est = view.search ? estimator_->Estimate(scene, *view.search) : estimator_->Estimate(scene);
+    PoseSearch search = view.search ? *view.search : estimator_->default_search();
+    search.keep_prepared = search.keep_prepared || view.keep_prepared;
+    Result<PoseEstimates> est = estimator_->Estimate(scene, search);
     if (!est.ok()) {
       out.reason = est.status().ToString();
       return out;
@@ -73,6 +75,7 @@ class PpfClassModel final : public ClassModel {
     if (out.hypotheses.empty()) out.reason = est->no_result_reason;
     out.coarse_poses = std::move(est->coarse_poses);
     out.coarse_skipped = est->coarse_skipped;
+    out.prepared = std::move(est->prepared);
     return out;
   }
 

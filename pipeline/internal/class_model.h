@@ -27,6 +27,7 @@ struct SegmentView {
   const Frame* frame = nullptr;                // for the camera pose and the depth image
   std::optional<Eigen::Vector4d> floor_plane_B;  // (n, d): n . x + d = 0, n towards the parts
   std::optional<PoseSearch> search;              // unset: the estimator's options
+  bool keep_prepared = false;                    // PoseSearch::keep_prepared
 };
 
 struct ClassHypothesis {
@@ -42,6 +43,7 @@ struct ClassEstimate {
   std::string reason;                       // when empty
   std::vector<Pose> coarse_poses;           // refined (PoseSearch::skip_coarse)
   int coarse_skipped = 0;
+  std::shared_ptr<const PreparedView> prepared;  // with SegmentView::keep_prepared
 };
 
 // Thread-safe: Estimate is called concurrently for different segments.

@@ -218,6 +218,47 @@ TEST(PoseEstimator, StopsTheFirstPassAtAPoseThatExplainsTheView) {
   }
 }
 
+// PoseSearch::keep_prepared / prepared: a second estimate of the same view
+// (the perception's second look) reuses what the first derived from it and
+// finds what it would have found deriving it again.
+TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
+  const TestCamera cam = DefaultCamera();
+  const PartCase part = TestParts()[0];
+  std::mt19937_64 rng{8};
+  const Pose X_BO = MakePose(testing::RandomRotation(rng, 60 * kDeg), Vec3(0.0, 0.01, 0.03));
+  const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0003, 4);
+  const SceneView view = ViewOf(scene.points_B, cam);
+  const PoseEstimator& est = Estimator(0);
+  PoseSearch first = est.default_search();
+  auto plain = est.Estimate(view, first);
+  ASSERT_TRUE(plain.ok());
+  EXPECT_EQ(plain->prepared, nullptr);
+  first.keep_prepared = true;
+  auto kept = est.Estimate(view, first);
+  ASSERT_TRUE(kept.ok());
+  ASSERT_NE(kept->prepared, nullptr);
+
+  PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2, .peaks_examined = 16};
+  auto fresh = est.Estimate(view, wide);
+  wide.prepared = kept->prepared;
+  auto reused = est.Estimate(view, wide);
+  ASSERT_TRUE(fresh.ok() && reused.ok());
+  EXPECT_EQ(reused->timings.prepare_ms, 0.0);
+  EXPECT_EQ(reused->sampled_points, fresh->sampled_points);
+  ASSERT_EQ(reused->hypotheses.size(), fresh->hypotheses.size());
+  ASSERT_FALSE(fresh->hypotheses.empty());
+  for (size_t i = 0; i < fresh->hypotheses.size(); ++i) {
+    EXPECT_TRUE(reused->hypotheses[i].X_BO.isApprox(fresh->hypotheses[i].X_BO, 1e-12));
+    EXPECT_EQ(reused->hypotheses[i].score, fresh->hypotheses[i].score);
+    EXPECT_EQ(reused->hypotheses[i].supporting_indices, fresh->hypotheses[i].supporting_indices);
+  }
+  // Another estimator's, or another view's: InvalidArgument.
+  EXPECT_EQ(Estimator(1).Estimate(view, wide).status().code(), Status::Code::kInvalidArgument);
+  const std::vector<Eigen::Vector3f> half(scene.points_B.begin(), scene.points_B.begin() + scene.points_B.size() / 2);
+  const SceneView fewer = ViewOf(half, cam);
+  EXPECT_EQ(est.Estimate(fewer, wide).status().code(), Status::Code::kInvalidArgument);
+}
+
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
   // The stable resting poses: plane faces seen head-on leave the in-plane
   // position to the silhouette only.
