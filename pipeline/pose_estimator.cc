@@ -152,6 +152,9 @@ constexpr int kMinSampledPoints = 8;
 // same detections as no such condition, and 0.8 ran 1.2% more first-pass
 // ICPs on seeds 1-40 while a view of two touching parts still gave both.
 constexpr double kStopExplainedFraction = 0.8;
+// PPF peaks kept per reference point for a later search of the same view
+// (PreparedView::votes): the second look examines 16.
+constexpr size_t kRecordedPeaks = 16;
 
 // Without a depth image: the segment's points splatted into an angular grid
 // seen from the camera centre, keeping the nearest depth per cell. Cells
@@ -579,6 +582,10 @@ struct PreparedView {
   std::vector<uint8_t> sub_boundary;          // per subsampled point
   std::vector<Eigen::Vector3f> fine;          // the fine ICP pass's points
   std::vector<uint8_t> fine_boundary;
+  // The first search's PPF peaks (PpfMatchOptions::record), with
+  // kRecordedPeaks per reference point: a wider search (more peaks per
+  // reference point) reads them instead of voting again.
+  internal::PpfVotes votes;
 };
 
 bool PoseEstimatorOptions::IsValid(std::string* error) const {
@@ -1558,6 +1565,12 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     mo.accept = above_support;
     mo.peaks_per_reference = search.peaks_per_reference;
     mo.peaks_examined = search.peaks_examined;
+  }
+  if (owned != nullptr && search.keep_prepared) {
+    mo.record = &owned->votes;
+    mo.record_peaks = kRecordedPeaks;
+  } else if (owned == nullptr) {
+    mo.replay = &prepared->votes;
   }
   std::vector<internal::CoarsePose> coarse = m.ppf.Match(sub_p, sub_n, reference_ok, mo, m.symmetry);
   if (above_support) {

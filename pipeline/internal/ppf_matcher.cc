@@ -135,7 +135,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   uint32_t* const cells = cells_buffer.data();
   std::vector<uint32_t> touched;
   std::vector<CoarsePose> candidates;
-  std::vector<std::pair<uint16_t, size_t>> peaks;  // (votes, accumulator cell)
+  std::vector<std::pair<uint16_t, uint32_t>> peaks;  // (votes, accumulator cell)
 
   // Reference points: every stride-th eligible point, at most max_reference_points.
   std::vector<uint32_t> refs;
@@ -163,6 +163,54 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   in_range.reserve(ns);
   std::vector<std::pair<uint32_t, int>> keyed;  // (partner, key)
   keyed.reserve(std::min(ns, max_partners + 1));
+  // Poses from reference point r's peaks (most votes first, then lowest cell;
+  // at least the first peaks_examined of those above the floor).
+  const auto emit = [&](size_t r, int best, size_t best_bin, std::span<const std::pair<uint16_t, uint32_t>> sorted) {
+    const Eigen::Vector3f& sr = points[r];
+    const Eigen::Matrix3f Rs = AlignToX(normals[r]);
+    // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
+    const auto pose_of = [&](size_t bin) {
+      const size_t mr = bin / NA;
+      const float alpha = (static_cast<float>(bin % NA) + 0.5f) / alpha_scale;
+      const Eigen::Matrix3f R =
+          Rs.transpose() * Eigen::AngleAxisf(alpha, Eigen::Vector3f::UnitX()).toRotationMatrix() * to_canonical_[mr];
+      const Eigen::Vector3f t = sr - R * points_[mr];
+      return MakePose(R.cast<double>(), t.cast<double>());
+    };
+    if (options.peaks_examined <= 1 && !options.accept) {
+      candidates.push_back(CoarsePose{pose_of(best_bin), best});
+      return;
+    }
+    const size_t examine = std::min(sorted.size(), static_cast<size_t>(std::max(1, options.peaks_examined)));
+    int kept = 0;
+    for (size_t p = 0; p < examine && kept < options.peaks_per_reference; ++p) {
+      const Pose X = pose_of(sorted[p].second);
+      if (options.accept && !options.accept(X)) continue;
+      candidates.push_back(CoarsePose{X, sorted[p].first});
+      ++kept;
+    }
+  };
+  const PpfVotes* replay = options.replay;
+  if (replay != nullptr &&
+      (replay->points != ns || replay->reference_stride != options.reference_stride ||
+       replay->max_reference_points != options.max_reference_points || replay->max_partners != options.max_partners ||
+       replay->min_peak_fraction != options.min_peak_fraction ||
+       replay->recorded_peaks < static_cast<size_t>(std::max(1, options.peaks_examined)))) {
+    replay = nullptr;
+  }
+  if (replay != nullptr) {
+    for (const PpfVotes::Reference& ref : replay->references) emit(ref.point, ref.best, ref.best_bin, ref.peaks);
+    refs.clear();  // no voting
+  }
+  if (options.record != nullptr) {
+    *options.record = PpfVotes{};
+    options.record->points = ns;
+    options.record->reference_stride = options.reference_stride;
+    options.record->max_reference_points = options.max_reference_points;
+    options.record->max_partners = options.max_partners;
+    options.record->min_peak_fraction = options.min_peak_fraction;
+    options.record->recorded_peaks = std::max(options.record_peaks, static_cast<size_t>(std::max(1, options.peaks_examined)));
+  }
   for (size_t ri = 0; ri < refs.size(); ri += stride) {
     const size_t r = refs[ri];
     const Eigen::Vector3f& sr = points[r];
@@ -229,17 +277,8 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
       }
     }
     if (best < 3) continue;
-    // X_BO: x -> s_r + Rs^T * Rx(alpha) * Rm * (x - m_r)
-    const auto pose_of = [&](size_t bin) {
-      const size_t mr = bin / NA;
-      const float alpha = (static_cast<float>(bin % NA) + 0.5f) / alpha_scale;
-      const Eigen::Matrix3f R =
-          Rs.transpose() * Eigen::AngleAxisf(alpha, Eigen::Vector3f::UnitX()).toRotationMatrix() * to_canonical_[mr];
-      const Eigen::Vector3f t = sr - R * points_[mr];
-      return MakePose(R.cast<double>(), t.cast<double>());
-    };
-    if (options.peaks_examined <= 1 && !options.accept) {
-      candidates.push_back(CoarsePose{pose_of(best_bin), best});
+    if (options.peaks_examined <= 1 && !options.accept && options.record == nullptr) {
+      emit(r, best, best_bin, {});
       continue;
     }
     peaks.clear();
@@ -247,16 +286,17 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     for (const uint32_t cell : touched) {
       if (acc[cell] >= floor_votes) peaks.emplace_back(acc[cell], cell);
     }
-    const size_t examine = std::min(peaks.size(), static_cast<size_t>(std::max(1, options.peaks_examined)));
-    std::partial_sort(peaks.begin(), peaks.begin() + static_cast<std::ptrdiff_t>(examine), peaks.end(),
+    size_t sorted = static_cast<size_t>(std::max(1, options.peaks_examined));
+    if (options.record != nullptr) sorted = std::max(sorted, options.record->recorded_peaks);
+    sorted = std::min(peaks.size(), sorted);
+    std::partial_sort(peaks.begin(), peaks.begin() + static_cast<std::ptrdiff_t>(sorted), peaks.end(),
                       [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
-    int kept = 0;
-    for (size_t p = 0; p < examine && kept < options.peaks_per_reference; ++p) {
-      const Pose X = pose_of(peaks[p].second);
-      if (options.accept && !options.accept(X)) continue;
-      candidates.push_back(CoarsePose{X, peaks[p].first});
-      ++kept;
+    const std::span<const std::pair<uint16_t, uint32_t>> top(peaks.data(), sorted);
+    if (options.record != nullptr) {
+      options.record->references.push_back(PpfVotes::Reference{static_cast<uint32_t>(r), best,
+                                                               static_cast<uint32_t>(best_bin), {top.begin(), top.end()}});
     }
+    emit(r, best, best_bin, top);
   }
 
   std::stable_sort(candidates.begin(), candidates.end(),

@@ -43,6 +43,26 @@ struct CoarsePose {
   int votes = 0;
 };
 
+// Per reference point, the accumulator's best cells a Match found, so that a
+// later Match of the same points with the same reference points and
+// partners (the perception's second look, with more peaks per reference
+// point) reads them instead of voting again.
+struct PpfVotes {
+  struct Reference {
+    uint32_t point = 0;     // scene point index
+    int best = 0;           // votes of the best cell
+    uint32_t best_bin = 0;  // the best cell (lowest index among ties)
+    std::vector<std::pair<uint16_t, uint32_t>> peaks;  // (votes, cell), most first, then lowest cell
+  };
+  std::vector<Reference> references;  // those with >= 3 votes, in order
+  // What the votes depend on besides the points and the model.
+  size_t points = 0;
+  int reference_stride = 0, max_reference_points = 0, max_partners = 0;
+  float min_peak_fraction = 0;
+  size_t recorded_peaks = 0;  // per reference point, at most
+  bool empty() const { return points == 0; }
+};
+
 struct PpfMatchOptions {
   int reference_stride = 5;          // every k-th scene point is a reference point
   int max_reference_points = 80;
@@ -63,6 +83,13 @@ struct PpfMatchOptions {
   int peaks_examined = 1;
   float min_peak_fraction = 0.5f;
   std::function<bool(const Pose&)> accept;
+  // record: filled with the peaks (at most record_peaks per reference
+  // point). replay: read instead of voting when it was recorded for the
+  // same points and options with at least peaks_examined peaks (else
+  // ignored).
+  PpfVotes* record = nullptr;
+  size_t record_peaks = 16;
+  const PpfVotes* replay = nullptr;
 };
 
 class PpfModel {

@@ -218,16 +218,21 @@ TEST(PoseEstimator, StopsTheFirstPassAtAPoseThatExplainsTheView) {
   }
 }
 
-// PoseSearch::keep_prepared / prepared: a second estimate of the same view
-// (the perception's second look) reuses what the first derived from it and
-// finds what it would have found deriving it again.
+// PoseSearch::keep_prepared / prepared: a second, wider estimate of the
+// same view (the perception's second look) reuses what the first derived
+// from it, PPF peaks included, and finds what it would have found deriving
+// it again.
 TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
   const TestCamera cam = DefaultCamera();
   const PartCase part = TestParts()[0];
-  std::mt19937_64 rng{8};
-  const Pose X_BO = MakePose(testing::RandomRotation(rng, 60 * kDeg), Vec3(0.0, 0.01, 0.03));
-  const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0003, 4);
-  const SceneView view = ViewOf(scene.points_B, cam);
+  const TriangleMesh floor = Floor();
+  const Pose X_BO = Resting(part.mesh, Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), 0.01, 0.0);
+  const RenderedScene scene = Render({{&part.mesh, X_BO}, {&floor, Pose::Identity()}}, cam, 0.0003, 4);
+  const std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1});
+  // As the pipeline calls it, with the floor: several PPF peaks per reference point.
+  SceneView view = OnFloor(ViewOf(segment, cam));
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
   const PoseEstimator& est = Estimator(0);
   PoseSearch first = est.default_search();
   auto plain = est.Estimate(view, first);
@@ -245,6 +250,10 @@ TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
   ASSERT_TRUE(fresh.ok() && reused.ok());
   EXPECT_EQ(reused->timings.prepare_ms, 0.0);
   EXPECT_EQ(reused->sampled_points, fresh->sampled_points);
+  EXPECT_EQ(reused->coarse_poses.size(), fresh->coarse_poses.size());
+  for (size_t i = 0; i < std::min(reused->coarse_poses.size(), fresh->coarse_poses.size()); ++i) {
+    EXPECT_TRUE(reused->coarse_poses[i].isApprox(fresh->coarse_poses[i], 1e-12)) << i;
+  }
   ASSERT_EQ(reused->hypotheses.size(), fresh->hypotheses.size());
   ASSERT_FALSE(fresh->hypotheses.empty());
   for (size_t i = 0; i < fresh->hypotheses.size(); ++i) {
@@ -254,8 +263,8 @@ TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
   }
   // Another estimator's, or another view's: InvalidArgument.
   EXPECT_EQ(Estimator(1).Estimate(view, wide).status().code(), Status::Code::kInvalidArgument);
-  const std::vector<Eigen::Vector3f> half(scene.points_B.begin(), scene.points_B.begin() + scene.points_B.size() / 2);
-  const SceneView fewer = ViewOf(half, cam);
+  const std::vector<Eigen::Vector3f> half(segment.begin(), segment.begin() + segment.size() / 2);
+  const SceneView fewer = OnFloor(ViewOf(half, cam));
   EXPECT_EQ(est.Estimate(fewer, wide).status().code(), Status::Code::kInvalidArgument);
 }
 

@@ -1,0 +1,112 @@
+// PpfModel::Match on the shipped L-bracket: the peaks one Match records
+// (PpfMatchOptions::record) give a later, wider Match of the same points the
+// poses it would have found voting again, and are read only when they were
+// recorded for the same points and reference selection.
+#include "pipeline/internal/ppf_matcher.h"
+
+#include <gtest/gtest.h>
+
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/mesh_gen.h"
+#include "pipeline/internal/model_sampling.h"
+
+namespace bp::internal {
+namespace {
+
+struct PpfScene {
+  PpfModel model;
+  std::vector<Eigen::Vector3f> points, normals;  // the part at a pose, facing the camera
+};
+
+PpfScene MakeScene() {
+  PpfScene s;
+  const OrientedPoints m = SampleSurface(MakeLBracket(), 0.004, 1);
+  const float diameter = static_cast<float>(PointSetDiameter(m.points));
+  PpfParams params;
+  params.distance_step = 0.05f * diameter;
+  params.max_bucket_entries = 50;
+  s.model.Build(m.points, m.normals, params, diameter);
+  Pose X_BO = Pose::Identity();
+  X_BO.linear() = (Eigen::AngleAxisd(0.7, Vec3::UnitZ()) * Eigen::AngleAxisd(0.5, Vec3(1, 0, 1).normalized()))
+                      .toRotationMatrix();
+  X_BO.translation() = Vec3(0.6, -0.05, 0.04);
+  const Vec3 camera(0.65, 0.0, 1.0);
+  for (size_t i = 0; i < m.size(); ++i) {
+    const Vec3 p = X_BO * m.points[i].cast<double>();
+    const Vec3 n = X_BO.linear() * m.normals[i].cast<double>();
+    if (n.dot(camera - p) <= 0) continue;
+    s.points.push_back(p.cast<float>());
+    s.normals.push_back(n.cast<float>());
+  }
+  return s;
+}
+
+PpfMatchOptions Options(int peaks_per_reference, int peaks_examined, int max_poses) {
+  PpfMatchOptions o;
+  o.reference_stride = 3;
+  o.max_reference_points = 20;
+  o.max_partners = 100;
+  o.cluster_translation = 0.01;
+  o.cluster_rotation = 0.4;
+  o.max_poses = max_poses;
+  o.peaks_per_reference = peaks_per_reference;
+  o.peaks_examined = peaks_examined;
+  o.accept = [](const Pose&) { return true; };
+  return o;
+}
+
+void ExpectSamePoses(const std::vector<CoarsePose>& a, const std::vector<CoarsePose>& b) {
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].votes, b[i].votes) << i;
+    EXPECT_TRUE(a[i].X_BO.isApprox(b[i].X_BO, 1e-12)) << i;
+  }
+}
+
+TEST(PpfMatcher, RecordedPeaksGiveAWiderSearchTheSamePoses) {
+  const PpfScene s = MakeScene();
+  ASSERT_GT(s.points.size(), 100u);
+  const Symmetry none;
+  // The first search (as a wave's): 1 peak of 8, recording 16.
+  PpfVotes votes;
+  PpfMatchOptions narrow = Options(1, 8, 12);
+  const std::vector<CoarsePose> plain = s.model.Match(s.points, s.normals, {}, narrow, none);
+  narrow.record = &votes;
+  narrow.record_peaks = 16;
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, narrow, none), plain);
+  ASSERT_FALSE(votes.references.empty());
+  EXPECT_EQ(votes.points, s.points.size());
+  for (const PpfVotes::Reference& r : votes.references) EXPECT_LE(r.peaks.size(), 16u);
+
+  // The wider search (as the second look's): 2 peaks of 16.
+  PpfMatchOptions wide = Options(2, 16, 36);
+  const std::vector<CoarsePose> fresh = s.model.Match(s.points, s.normals, {}, wide, none);
+  ASSERT_FALSE(fresh.empty());
+  wide.replay = &votes;
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, wide, none), fresh);
+
+  // The recorded peaks are read, not voted again: with none recorded, no pose.
+  PpfVotes emptied = votes;
+  emptied.references.clear();
+  wide.replay = &emptied;
+  EXPECT_TRUE(s.model.Match(s.points, s.normals, {}, wide, none).empty());
+
+  // Recorded for other points, another reference selection or fewer peaks
+  // than examined: ignored, the Match votes.
+  PpfVotes other = emptied;
+  other.points = s.points.size() - 1;
+  wide.replay = &other;
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, wide, none), fresh);
+  other = emptied;
+  other.max_reference_points = 30;
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, wide, none), fresh);
+  other = emptied;
+  other.recorded_peaks = 8;
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, wide, none), fresh);
+}
+
+}  // namespace
+}  // namespace bp::internal
