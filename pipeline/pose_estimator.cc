@@ -284,7 +284,8 @@ constexpr double kFaceEdgeMergeDeg = 5.0;
 // kFaceSeedsScreened. Measured (all 130 scenes of
 // docs/perception_pipeline.md, 2026-12-03): the same detections as ranking
 // every seed at stride 6, for half the face seeds' time (seeds 11-40: 294
-// -> 141 ms over the 30 frames); keeping 4 lost 3 true positives, a screen
+// -> 141 ms over the 30 frames); on the held-out 30 one true L-bracket
+// detection fewer (a part under half visible: 490 / 494 -> 489 / 493); keeping 4 lost 3 true positives, a screen
 // at stride 48 lost recall (seeds 11-40: 0.952 -> 0.946).
 constexpr int kFaceSeedStride = 6;
 constexpr int kFaceSeedScreenStride = 24;
