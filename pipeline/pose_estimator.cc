@@ -14,6 +14,7 @@
 
 #include "pipeline/frame.h"
 #include "pipeline/internal/closest_point_field.h"
+#include "pipeline/internal/depth_window.h"
 #include "pipeline/internal/model_sampling.h"
 #include "pipeline/internal/point_hash.h"
 #include "pipeline/internal/point_to_plane_icp.h"
@@ -232,14 +233,58 @@ struct VerifyStats {
   double score = -1;
 };
 
-// The pixel (rounded) a point in C projects to; false when the point is not
-// in front of the camera or the pixel is off the image.
-bool PixelOf(const Intrinsics& K, const DepthImage& depth, const Eigen::Vector3f& pc, int* u, int* v) {
-  if (!(pc.z() > 0)) return false;
-  *u = static_cast<int>(std::lround(K.fx * pc.x() / pc.z() + K.cx));
-  *v = static_cast<int>(std::lround(K.fy * pc.y() / pc.z() + K.cy));
-  return *u >= 0 && *v >= 0 && *u < depth.width && *v < depth.height;
-}
+using internal::PixelOf;
+
+// A view point's depth (in C) and the depth its pixel holds differ by at
+// most this when the point was deprojected from that pixel (float rounding
+// through B and back is about a micrometre).
+constexpr float kOnDepthTolerance = 2e-5f;
+// The largest depth-image window (half width, pixels) the support test
+// scans before it asks the hash.
+constexpr int kMaxSupportWindow = 3;
+
+// The view's points for the support test of Verify: a hash of them and,
+// when each of them lies on the view's depth image (its pixel holds its
+// depth, as for the grid samples of a frame), that fact. Then a model point
+// with no pixel near it in the depth image at a depth within the support
+// distance of its own has no view point within that distance either, and
+// the hash is not asked (AnyWithin): the same answers, for a few pixel reads
+// instead of eight hash probes. Measured (callgrind, 4 rendered piles, 1
+// thread): Verify's hash queries 206k -> 25k, its instructions 96.9 ->
+// 79.8 M per frame.
+struct SceneSupport {
+  internal::PointHash hash;
+  bool on_depth = false;
+
+  // Builds the hash of pts (finite) with cells of `cell` and checks them
+  // against the view's depth image.
+  void Build(std::span<const Eigen::Vector3f> pts, float cell, const SceneView& view) {
+    hash.Build(pts, cell);
+    on_depth = false;
+    if (view.depth == nullptr || view.depth->empty() || !view.intrinsics.valid() || pts.empty()) return;
+    const Pose X_CB = view.X_BC.inverse();
+    const Eigen::Matrix3f R = X_CB.linear().cast<float>();
+    const Eigen::Vector3f t = X_CB.translation().cast<float>();
+    for (const Eigen::Vector3f& p : pts) {
+      const Eigen::Vector3f pc = R * p + t;
+      int u = 0, v = 0;
+      if (!PixelOf(view.intrinsics, *view.depth, pc, &u, &v)) return;
+      const float z = view.depth->at(u, v);
+      if (!(std::abs(z - pc.z()) <= kOnDepthTolerance)) return;
+    }
+    on_depth = true;
+  }
+
+  // True when a view point lies within r of p (p_C: p in C, (u, v) its pixel).
+  bool AnyWithin(const Eigen::Vector3f& p, float r, const Eigen::Vector3f& p_C, int u, int v,
+                 const SceneView& view) const {
+    if (on_depth && !internal::DepthWindowMayHoldPointNear(*view.depth, view.intrinsics, p_C, u, v, r,
+                                                           2.f * kOnDepthTolerance, kMaxSupportWindow)) {
+      return false;
+    }
+    return hash.AnyWithin(p, r);
+  }
+};
 
 // 1 for points on the boundary of the sampled surface: the centroid of their
 // neighbours within radius is off-centre by more than a quarter radius (a
@@ -579,7 +624,7 @@ struct PreparedView {
   std::vector<Eigen::Vector3f> sub_p, sub_n;  // subsampled at the PPF step, with normals
   std::vector<int> sub_of;                    // per finite point: its subsampled point, -1 if none
   SegmentDepth segment_depth;                 // without a depth image only
-  internal::PointHash support_hash;           // of pts, for the support queries
+  SceneSupport support;                        // of pts, for the support queries
   std::vector<uint8_t> sub_boundary;          // per subsampled point
   std::vector<Eigen::Vector3f> fine;          // the fine ICP pass's points
   std::vector<uint8_t> fine_boundary;
@@ -677,7 +722,7 @@ struct PoseEstimator::Impl {
   // four quarter turns), placed so that the face's box holds the view's; the
   // `keep` best by a quick verification are appended.
   void AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n, const SceneView& view,
-                       const internal::PointHash& support_hash, const SegmentDepth& segment_depth, int keep,
+                       const SceneSupport& support, const SegmentDepth& segment_depth, int keep,
                        std::vector<internal::CoarsePose>& coarse) const;
 
   std::vector<Pose> near_symmetries;  // PoseEstimatorOptions::near_symmetry_min_overlap
@@ -686,7 +731,7 @@ struct PoseEstimator::Impl {
 
   // Visible-surface test, support and free-space test for one pose.
   // stride > 1 checks every stride-th verification sample (a quick pass).
-  VerifyStats Verify(const Pose& X_BO, const SceneView& view, const internal::PointHash& scene_hash,
+  VerifyStats Verify(const Pose& X_BO, const SceneView& view, const SceneSupport& scene,
                      const SegmentDepth& segment_depth, int stride = 1,
                      bool unmeasured_is_no_evidence = false) const;
   internal::IcpResult Refine(std::span<const Eigen::Vector3f> scene, std::span<const uint8_t> boundary,
@@ -920,7 +965,7 @@ void PoseEstimator::Impl::AppendRestingSeeds(std::span<const Eigen::Vector3f> sc
 }
 
 void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene, const Eigen::Vector3f& n,
-                                          const SceneView& view, const internal::PointHash& support_hash,
+                                          const SceneView& view, const SceneSupport& support,
                                           const SegmentDepth& segment_depth, int keep,
                                           std::vector<internal::CoarsePose>& coarse) const {
   Eigen::Vector3f c, a, b;
@@ -999,7 +1044,7 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
             cp.X_BO = Pose::Identity();
             cp.X_BO.linear() = R.cast<double>();
             cp.X_BO.translation() = (c + ox * x + oy * y - R * f.c).cast<double>();
-            const VerifyStats st = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedScreenStride);
+            const VerifyStats st = Verify(cp.X_BO, view, support, segment_depth, kFaceSeedScreenStride);
             if (st.below_support || !(st.score > 0)) continue;
             seeds.emplace_back(st.score, cp);
           }
@@ -1010,7 +1055,7 @@ void PoseEstimator::Impl::AppendFaceSeeds(std::span<const Eigen::Vector3f> scene
   const auto by_score = [](const auto& p, const auto& q) { return p.first > q.first; };
   std::stable_sort(seeds.begin(), seeds.end(), by_score);
   if (seeds.size() > kFaceSeedsScreened) seeds.resize(kFaceSeedsScreened);
-  for (auto& [score, cp] : seeds) score = Verify(cp.X_BO, view, support_hash, segment_depth, kFaceSeedStride).score;
+  for (auto& [score, cp] : seeds) score = Verify(cp.X_BO, view, support, segment_depth, kFaceSeedStride).score;
   std::stable_sort(seeds.begin(), seeds.end(), by_score);
   for (size_t i = 0; i < seeds.size() && static_cast<int>(i) < keep; ++i) coarse.push_back(seeds[i].second);
 }
@@ -1121,7 +1166,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
 }
 
 VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
-                                        const internal::PointHash& scene_hash,
+                                        const SceneSupport& scene,
                                         const SegmentDepth& segment_depth, int stride,
                                         bool unmeasured_is_no_evidence) const {
   VerifyStats s;
@@ -1218,7 +1263,7 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
           // Slanted surfaces change depth by about a pixel footprint * tan(theta).
           const float slack = static_cast<float>(pc.z() / K.fx) * tan_theta;
           supported = std::abs(zm - pc.z()) < support + slack;
-          if (!supported) supported = scene_hash.AnyWithin(cands[i].p, support);
+          if (!supported) supported = scene.AnyWithin(cands[i].p, support, pc, u, v, view);
           if (!supported) {
             if (zm < pc.z() - free_thr - slack) {
               ++s.occluded;
@@ -1228,12 +1273,12 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
             }
           }
         } else {
-          supported = scene_hash.AnyWithin(cands[i].p, support);
+          supported = scene.AnyWithin(cands[i].p, support, pc, u, v, view);
           if (!supported && cs < kGrazingCos) ++s.unmeasured;
         }
       }
     } else {
-      supported = scene_hash.AnyWithin(cands[i].p, support);
+      supported = scene.hash.AnyWithin(cands[i].p, support);
     }
     if (!have_depth && !supported && !segment_depth.empty()) {
       // The segment's nearest surface along the ray: in front of it by more
@@ -1299,14 +1344,14 @@ Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X
   for (const Eigen::Vector3f& p : view.points_B) {
     if (p.allFinite()) pts.push_back(p);
   }
-  internal::PointHash support_hash;
-  support_hash.Build(pts, 2.f * static_cast<float>(m.options.support_distance));
+  SceneSupport support;
+  support.Build(pts, 2.f * static_cast<float>(m.options.support_distance), view);
   const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
   const SegmentDepth segment_depth =
       have_depth || pts.empty()
           ? SegmentDepth{}
           : BuildSegmentDepth(pts, view.X_BC.translation().cast<float>(), 1.5f * static_cast<float>(m.options.verify_model_spacing));
-  const VerifyStats st = m.Verify(X_BO, view, support_hash, segment_depth, 1, false);
+  const VerifyStats st = m.Verify(X_BO, view, support, segment_depth, 1, false);
   PoseHypothesis h;
   h.X_BO = X_BO;
   h.score = st.below_support ? -1.0 : st.score;
@@ -1443,7 +1488,7 @@ bool PoseEstimator::Impl::Prepare(const SceneView& view, PreparedView& w, PoseEs
   const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
   if (!have_depth) w.segment_depth = BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
   // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
-  w.support_hash.Build(pts, 2.f * static_cast<float>(opt.support_distance));
+  w.support.Build(pts, 2.f * static_cast<float>(opt.support_distance), view);
   // Boundary flags on the subsampled points; a full-resolution point takes its
   // voxel's flag (the ICP boundary term is one-sided, so flagging a few
   // millimetres of interior next to an edge costs nothing).
@@ -1523,7 +1568,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   const std::optional<Eigen::Vector3f>& view_plane = prepared->view_plane;
   const std::vector<Eigen::Vector3f>& sub_p = prepared->sub_p;
   const std::vector<Eigen::Vector3f>& sub_n = prepared->sub_n;
-  const internal::PointHash& support_hash = prepared->support_hash;
+  const SceneSupport& scene_support = prepared->support;
   const SegmentDepth& segment_depth = prepared->segment_depth;
   const std::vector<uint8_t>& sub_boundary = prepared->sub_boundary;
   const std::vector<Eigen::Vector3f>& fine = prepared->fine;
@@ -1650,7 +1695,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
       });
       if (!icp.ok) continue;
       Candidate c{icp.X_BO, {}, icp, cp.votes};
-      timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 3,
+      timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, scene_support, segment_depth, 3,
                                                      search.unmeasured_is_no_evidence); });
       first.push_back(c);
       // A pose this good at a quick look that also explains most of the
@@ -1670,7 +1715,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   // each costs a quick verification of its own.
   if (!stopped && search.face_seeds > 0 && view_plane && !m.faces.empty()) {
     std::vector<internal::CoarsePose> seeds;
-    timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, support_hash, segment_depth, search.face_seeds, seeds); });
+    timed(verify_ms, [&] { m.AppendFaceSeeds(pts, *view_plane, view, scene_support, segment_depth, search.face_seeds, seeds); });
     drop_tried(seeds);
     refine_first(seeds);
   }
@@ -1704,11 +1749,11 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
     const Candidate before = c;
     c.X_BO = icp.X_BO;
     c.icp = icp;
-    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, support_hash, segment_depth, 1,
+    timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, scene_support, segment_depth, 1,
                                                    search.unmeasured_is_no_evidence); });
     if (search.keep_better_than_fine && c.stats.score < 0.9) {
       VerifyStats st;
-      timed(verify_ms, [&] { st = m.Verify(before.X_BO, view, support_hash, segment_depth, 1,
+      timed(verify_ms, [&] { st = m.Verify(before.X_BO, view, scene_support, segment_depth, 1,
                                         search.unmeasured_is_no_evidence); });
       if (st.score > c.stats.score) {
         c = before;
@@ -1731,10 +1776,10 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
       const auto net = [](const VerifyStats& v) { return v.supported - v.free_space; };
       const Pose X = c.X_BO;
       VerifyStats quick;
-      timed(verify_ms, [&] { quick = m.Verify(X, view, support_hash, segment_depth, 3, search.unmeasured_is_no_evidence); });
+      timed(verify_ms, [&] { quick = m.Verify(X, view, scene_support, segment_depth, 3, search.unmeasured_is_no_evidence); });
       for (const Pose& F : m.near_symmetries) {
         VerifyStats q;
-        timed(verify_ms, [&] { q = m.Verify(X * F, view, support_hash, segment_depth, 3, search.unmeasured_is_no_evidence); });
+        timed(verify_ms, [&] { q = m.Verify(X * F, view, scene_support, segment_depth, 3, search.unmeasured_is_no_evidence); });
         if (net(q) < kNearSymmetryScreen * net(quick)) continue;
         internal::IcpResult alt;
         timed(refine_ms, [&] {
@@ -1743,7 +1788,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
         });
         if (!alt.ok || !alt.X_BO.matrix().allFinite()) continue;
         VerifyStats st;
-        timed(verify_ms, [&] { st = m.Verify(alt.X_BO, view, support_hash, segment_depth, 1,
+        timed(verify_ms, [&] { st = m.Verify(alt.X_BO, view, scene_support, segment_depth, 1,
                                           search.unmeasured_is_no_evidence); });
         if (passes(st, min_score) && net(st) > net(c.stats) &&
             st.score >= c.stats.score - opt.near_symmetry_score_slack) {

@@ -1,0 +1,68 @@
+// Pixel arithmetic of the pose estimator's verification on an organized
+// depth image (pinhole, no distortion): the pixel a point projects to, and a
+// test of the pixels around it that rules out cheaply that any point of the
+// image lies near a given point. Header-only; private to bp_pipeline.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Core>
+
+#include "core/cell.h"
+#include "core/image.h"
+
+namespace bp::internal {
+
+// x rounded half away from zero, as std::lround (without the call into libm:
+// verification rounds two pixel coordinates per visible model point); false
+// when |x| >= 2^30 or x is NaN (no pixel of any image).
+inline bool RoundToInt(double x, int* out) {
+  if (!(std::abs(x) < 1073741824.0)) return false;
+  const int t = static_cast<int>(x);            // towards zero
+  const double f = x - static_cast<double>(t);  // exact
+  *out = t + (f >= 0.5 ? 1 : 0) - (f <= -0.5 ? 1 : 0);
+  return true;
+}
+
+// The pixel (rounded) a point in C projects to; false when the point is not
+// in front of the camera or the pixel is off the image.
+inline bool PixelOf(const Intrinsics& K, const DepthImage& depth, const Eigen::Vector3f& p_C, int* u, int* v) {
+  if (!(p_C.z() > 0)) return false;
+  if (!RoundToInt(K.fx * p_C.x() / p_C.z() + K.cx, u) || !RoundToInt(K.fy * p_C.y() / p_C.z() + K.cy, v)) {
+    return false;
+  }
+  return *u >= 0 && *v >= 0 && *u < depth.width && *v < depth.height;
+}
+
+// False only when no pixel of `depth` near (u, v), the pixel of p_C, holds a
+// depth within r + tolerance of p_C's: then no point that lies on its pixel
+// (its depth within `tolerance` of the depth the pixel holds) is within r of
+// p_C. True when one does, or when the window would be more than
+// max_half_window pixels wide each way (the caller then asks elsewhere).
+//
+// A point s with |s - p| <= r has s.x / s.z - p.x / p.z = (s.x - p.x) / s.z
+// + (p.x / p.z) (p.z - s.z) / s.z, at most r (1 + |p.x / p.z|) / (p.z - r) in
+// size; its pixel is that times fx away from p's projection, and one more
+// for the rounding of both.
+inline bool DepthWindowMayHoldPointNear(const DepthImage& depth, const Intrinsics& K, const Eigen::Vector3f& p_C,
+                                        int u, int v, float r, float tolerance, int max_half_window) {
+  const double z_near = static_cast<double>(p_C.z()) - r;
+  if (!(z_near > 0.0)) return true;
+  const double ru = K.fx * r * (1.0 + std::abs(p_C.x() / p_C.z())) / z_near + 1.0;
+  const double rv = K.fy * r * (1.0 + std::abs(p_C.y() / p_C.z())) / z_near + 1.0;
+  if (!(ru < max_half_window + 1) || !(rv < max_half_window + 1)) return true;
+  const int ku = static_cast<int>(ru), kv = static_cast<int>(rv);
+  const float lo = p_C.z() - r - tolerance, hi = p_C.z() + r + tolerance;
+  const int u0 = std::max(0, u - ku), u1 = std::min(depth.width - 1, u + ku);
+  const int v0 = std::max(0, v - kv), v1 = std::min(depth.height - 1, v + kv);
+  for (int vv = v0; vv <= v1; ++vv) {
+    const float* row = &depth.at(0, vv);
+    for (int uu = u0; uu <= u1; ++uu) {
+      if (row[uu] >= lo && row[uu] <= hi) return true;  // NaN: no measurement, false
+    }
+  }
+  return false;
+}
+
+}  // namespace bp::internal
