@@ -293,38 +293,55 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
                          segments);
     t = stage("regions", t);
 
+    // The bookkeeping below passes over all grid cells as few times as it
+    // can (each pass over the 640x480 grid costs about half a millisecond):
+    // per-region facts come from per-segment ones. Every segment lies in one
+    // connected region (its cells join under the region's condition and
+    // more), and segment ids grow with their first cell in row-major order
+    // (each region grown from its first cell: the joining condition is
+    // symmetric).
     std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
-    for (int32_t s : segment_of_cell) {
-      if (s >= 0) ++size[static_cast<size_t>(s)];
+    std::vector<int32_t> region_of_segment(static_cast<size_t>(n_regions), -1);
+    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+      const int32_t s = segment_of_cell[c];
+      if (s < 0) continue;
+      ++size[static_cast<size_t>(s)];
+      region_of_segment[static_cast<size_t>(s)] = region_of_cell[c];
     }
+    const int32_t n_cc =
+        region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
     if (options_.match_fragmented_regions) {
       // A connected region the normal condition cut into pieces all below
       // min_segment_points, but big enough as a whole, becomes one segment
       // (its first piece's label). Measured: an L-bracket lying on its side
       // and tilted, alone in the bin, shows 544 points in 5 mm edge strips
       // and side faces, none of them 150.
-      const int32_t n_cc =
-          region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
       std::vector<int32_t> total(static_cast<size_t>(n_cc), 0), largest(static_cast<size_t>(n_cc), 0),
           label(static_cast<size_t>(n_cc), -1);
-      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-        const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
-        if (sgm < 0 || r < 0) continue;
-        ++total[static_cast<size_t>(r)];
+      for (int32_t sgm = 0; sgm < n_regions; ++sgm) {
+        const int32_t r = region_of_segment[static_cast<size_t>(sgm)];
+        if (r < 0) continue;
+        total[static_cast<size_t>(r)] += size[static_cast<size_t>(sgm)];
         largest[static_cast<size_t>(r)] = std::max(largest[static_cast<size_t>(r)], size[static_cast<size_t>(sgm)]);
         if (label[static_cast<size_t>(r)] < 0) label[static_cast<size_t>(r)] = sgm;
       }
-      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-        int32_t& sgm = segment_of_cell[c];
-        const int32_t r = region_of_cell[c];
-        if (sgm < 0 || r < 0) continue;
-        if (largest[static_cast<size_t>(r)] >= options_.min_segment_points ||
-            total[static_cast<size_t>(r)] < options_.min_segment_points) {
+      std::vector<int32_t> relabel(static_cast<size_t>(n_regions), -1);
+      bool any = false;
+      for (int32_t sgm = 0; sgm < n_regions; ++sgm) {
+        const int32_t r = region_of_segment[static_cast<size_t>(sgm)];
+        if (r < 0 || largest[static_cast<size_t>(r)] >= options_.min_segment_points ||
+            total[static_cast<size_t>(r)] < options_.min_segment_points || label[static_cast<size_t>(r)] == sgm) {
           continue;
         }
-        --size[static_cast<size_t>(sgm)];
-        sgm = label[static_cast<size_t>(r)];
-        ++size[static_cast<size_t>(sgm)];
+        relabel[static_cast<size_t>(sgm)] = label[static_cast<size_t>(r)];
+        size[static_cast<size_t>(label[static_cast<size_t>(r)])] += size[static_cast<size_t>(sgm)];
+        size[static_cast<size_t>(sgm)] = 0;
+        any = true;
+      }
+      if (any) {
+        for (int32_t& sgm : segment_of_cell) {
+          if (sgm >= 0 && relabel[static_cast<size_t>(sgm)] >= 0) sgm = relabel[static_cast<size_t>(sgm)];
+        }
       }
     }
     // Keep segments with enough samples, renumbered by size (largest first).
@@ -338,20 +355,21 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       renumber[static_cast<size_t>(s)] = kept++;
     }
     // Pieces below min_segment_points are no segment of their own; region
-    // views (match_regions) still see them.
-    std::vector<uint8_t> fragment_cell;
-    if (options_.match_regions) {
-      fragment_cell.assign(segment_of_cell.size(), 0);
-      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-        const int32_t s = segment_of_cell[c];
-        fragment_cell[c] = s >= 0 && renumber[static_cast<size_t>(s)] < 0 ? 1 : 0;
-      }
+    // views (match_regions) still see them. One pass renumbers the cells and
+    // flags those pieces' cells.
+    std::vector<uint8_t> fragment_cell(options_.match_regions ? segment_of_cell.size() : 0, 0);
+    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+      int32_t& s = segment_of_cell[c];
+      if (s < 0) continue;
+      s = renumber[static_cast<size_t>(s)];
+      if (s < 0 && options_.match_regions) fragment_cell[c] = 1;
     }
-    for (int32_t& s : segment_of_cell) s = s >= 0 ? renumber[static_cast<size_t>(s)] : -1;
-    // Group the grid samples by segment.
+    // Group the grid samples by segment (the kept segments' sizes are their
+    // sample counts), and count per connected region its kept and fragment
+    // samples and whether it holds more than one segment (match_regions).
     std::vector<int32_t> start(static_cast<size_t>(kept) + 1, 0);
-    for (int32_t s : segment_of_cell) {
-      if (s >= 0) ++start[static_cast<size_t>(s) + 1];
+    for (int32_t s = 0; s < n_regions; ++s) {
+      if (renumber[static_cast<size_t>(s)] >= 0) start[static_cast<size_t>(renumber[static_cast<size_t>(s)]) + 1] = size[static_cast<size_t>(s)];
     }
     std::partial_sum(start.begin(), start.end(), start.begin());
     seg_points.resize(static_cast<size_t>(start.back()));
@@ -359,8 +377,28 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     seg_roi_index.resize(seg_points.size());
     std::vector<int32_t> fill(start.begin(), start.end() - 1);
     std::vector<int32_t> cell_of_sample(seg_points.size());
+    std::vector<int32_t> first_segment, kept_samples, fragment_samples;
+    std::vector<uint8_t> multi;
+    if (options_.match_regions) {
+      first_segment.assign(static_cast<size_t>(n_cc), -1);
+      multi.assign(static_cast<size_t>(n_cc), 0);
+      kept_samples.assign(static_cast<size_t>(n_cc), 0);
+      fragment_samples.assign(static_cast<size_t>(n_cc), 0);
+    }
     for (size_t c = 0; c < segment_of_cell.size(); ++c) {
       const int32_t s = segment_of_cell[c];
+      if (options_.match_regions) {
+        const int32_t r = region_of_cell[c];
+        if (r >= 0) {
+          fragment_samples[static_cast<size_t>(r)] += fragment_cell[c];
+          if (s >= 0) {
+            ++kept_samples[static_cast<size_t>(r)];
+            int32_t& first = first_segment[static_cast<size_t>(r)];
+            if (first < 0) first = s;
+            else if (first != s) multi[static_cast<size_t>(r)] = 1;
+          }
+        }
+      }
       if (s < 0) continue;
       const int32_t k = fill[static_cast<size_t>(s)]++;
       const int32_t i = grid.point_of_cell[c];
@@ -375,25 +413,13 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       // pieces too small to be segments (kFragmentShare of its samples or
       // more), as extra views of all their non-floor samples. The pieces
       // follow the segments' samples in seg_points, in no seg_range.
-      const int32_t n_cc = region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
-      std::vector<int32_t> first_segment(static_cast<size_t>(n_cc), -1);
-      std::vector<uint8_t> multi(static_cast<size_t>(n_cc), 0);
-      std::vector<int32_t> kept_samples(static_cast<size_t>(n_cc), 0), fragment_samples(static_cast<size_t>(n_cc), 0);
-      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-        const int32_t sgm = segment_of_cell[c], r = region_of_cell[c];
-        if (r < 0) continue;
-        fragment_samples[static_cast<size_t>(r)] += fragment_cell[c];
-        if (sgm < 0) continue;
-        ++kept_samples[static_cast<size_t>(r)];
-        int32_t& first = first_segment[static_cast<size_t>(r)];
-        if (first < 0) first = sgm;
-        else if (first != sgm) multi[static_cast<size_t>(r)] = 1;
-      }
+      bool any_fragments = false;
       for (int32_t r = 0; r < n_cc; ++r) {
         const auto i = static_cast<size_t>(r);
         if (kept_samples[i] > 0 && fragment_samples[i] >= kFragmentShare * kept_samples[i]) multi[i] = 1;
+        any_fragments |= multi[i] && fragment_samples[i] > 0;
       }
-      for (size_t c = 0; c < segment_of_cell.size(); ++c) {
+      for (size_t c = 0; any_fragments && c < segment_of_cell.size(); ++c) {
         const int32_t r = region_of_cell[c];
         if (!fragment_cell[c] || r < 0 || !multi[static_cast<size_t>(r)]) continue;
         const int32_t i = grid.point_of_cell[c];
