@@ -235,21 +235,20 @@ struct VerifyStats {
 
 using internal::PixelOf;
 
-// A view point's depth (in C) and the depth its pixel holds differ by at
-// most this when the point was deprojected from that pixel (float rounding
-// through B and back is about a micrometre).
-constexpr float kOnDepthTolerance = 2e-5f;
+// A view point deprojected from a depth image projects back onto its pixel's
+// centre, at its depth, but for float rounding through B and back.
+constexpr internal::OnPixelTolerance kOnPixel{};
 // The largest depth-image window (half width, pixels) the support test
 // scans before it asks the hash.
 constexpr int kMaxSupportWindow = 3;
 
 // The view's points for the support test of Verify: a hash of them and,
-// when each of them lies on the view's depth image (its pixel holds its
-// depth, as for the grid samples of a frame), that fact. Then a model point
-// with no pixel near it in the depth image at a depth within the support
-// distance of its own has no view point within that distance either, and
-// the hash is not asked (AnyWithin): the same answers, for a few pixel reads
-// instead of eight hash probes. Measured (callgrind, 4 rendered piles, 1
+// when each of them lies on its pixel of the view's depth image (projects
+// onto its centre, at the depth it holds: the grid samples of a frame), that
+// fact. Then a model point with no pixel near it in the depth image at a
+// depth within the support distance of its own has no view point within
+// that distance either, and the hash is not asked (AnyWithin): the same
+// answers, for a few pixel reads instead of eight hash probes. Measured (callgrind, 4 rendered piles, 1
 // thread): Verify's hash queries 206k -> 25k, its instructions 96.9 ->
 // 79.8 M per frame.
 struct SceneSupport {
@@ -266,11 +265,7 @@ struct SceneSupport {
     const Eigen::Matrix3f R = X_CB.linear().cast<float>();
     const Eigen::Vector3f t = X_CB.translation().cast<float>();
     for (const Eigen::Vector3f& p : pts) {
-      const Eigen::Vector3f pc = R * p + t;
-      int u = 0, v = 0;
-      if (!PixelOf(view.intrinsics, *view.depth, pc, &u, &v)) return;
-      const float z = view.depth->at(u, v);
-      if (!(std::abs(z - pc.z()) <= kOnDepthTolerance)) return;
+      if (!internal::OnItsPixel(view.intrinsics, *view.depth, R * p + t, kOnPixel)) return;
     }
     on_depth = true;
   }
@@ -278,8 +273,8 @@ struct SceneSupport {
   // True when a view point lies within r of p (p_C: p in C, (u, v) its pixel).
   bool AnyWithin(const Eigen::Vector3f& p, float r, const Eigen::Vector3f& p_C, int u, int v,
                  const SceneView& view) const {
-    if (on_depth && !internal::DepthWindowMayHoldPointNear(*view.depth, view.intrinsics, p_C, u, v, r,
-                                                           2.f * kOnDepthTolerance, kMaxSupportWindow)) {
+    if (on_depth && !internal::DepthWindowMayHoldPointNear(*view.depth, view.intrinsics, p_C, u, v, r, kOnPixel,
+                                                           kMaxSupportWindow)) {
       return false;
     }
     return hash.AnyWithin(p, r);

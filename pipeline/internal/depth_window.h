@@ -35,25 +35,48 @@ inline bool PixelOf(const Intrinsics& K, const DepthImage& depth, const Eigen::V
   return *u >= 0 && *v >= 0 && *u < depth.width && *v < depth.height;
 }
 
+// A point lies on its pixel when it projects within `centre` pixels of the
+// centre of a pixel (rounded: (u, v)) whose depth is within `depth` metres of
+// its own, as the points deprojected from a depth image do.
+struct OnPixelTolerance {
+  double centre = 0.02;  // pixels
+  float depth = 2e-5f;   // metres
+};
+
+// True when p_C (a point in C, in front of the camera) lies on its pixel.
+inline bool OnItsPixel(const Intrinsics& K, const DepthImage& depth, const Eigen::Vector3f& p_C,
+                       const OnPixelTolerance& tol) {
+  if (!(p_C.z() > 0)) return false;
+  const double x = K.fx * p_C.x() / p_C.z() + K.cx, y = K.fy * p_C.y() / p_C.z() + K.cy;
+  int u = 0, v = 0;
+  if (!RoundToInt(x, &u) || !RoundToInt(y, &v) || u < 0 || v < 0 || u >= depth.width || v >= depth.height) {
+    return false;
+  }
+  return std::abs(x - u) <= tol.centre && std::abs(y - v) <= tol.centre &&
+         std::abs(depth.at(u, v) - p_C.z()) <= tol.depth;  // NaN: false
+}
+
 // False only when no pixel of `depth` near (u, v), the pixel of p_C, holds a
-// depth within r + tolerance of p_C's: then no point that lies on its pixel
-// (its depth within `tolerance` of the depth the pixel holds) is within r of
-// p_C. True when one does, or when the window would be more than
-// max_half_window pixels wide each way (the caller then asks elsewhere).
+// depth within r of p_C's (widened by the tolerance): then no point on its
+// pixel (OnItsPixel with `tol`) is within r of p_C. True when one does, or
+// when the window would be more than max_half_window pixels wide each way
+// (the caller then asks elsewhere).
 //
 // A point s with |s - p| <= r has s.x / s.z - p.x / p.z = (s.x - p.x) / s.z
 // + (p.x / p.z) (p.z - s.z) / s.z, at most r (1 + |p.x / p.z|) / (p.z - r) in
-// size; its pixel is that times fx away from p's projection, and one more
-// for the rounding of both.
+// size; its projection is that times fx away from p's, which is at most half
+// a pixel from (u, v), and s's pixel at most tol.centre from s's projection.
 inline bool DepthWindowMayHoldPointNear(const DepthImage& depth, const Intrinsics& K, const Eigen::Vector3f& p_C,
-                                        int u, int v, float r, float tolerance, int max_half_window) {
+                                        int u, int v, float r, const OnPixelTolerance& tol, int max_half_window) {
   const double z_near = static_cast<double>(p_C.z()) - r;
   if (!(z_near > 0.0)) return true;
-  const double ru = K.fx * r * (1.0 + std::abs(p_C.x() / p_C.z())) / z_near + 1.0;
-  const double rv = K.fy * r * (1.0 + std::abs(p_C.y() / p_C.z())) / z_near + 1.0;
+  const double margin = 0.5 + tol.centre;
+  const double ru = K.fx * r * (1.0 + std::abs(p_C.x() / p_C.z())) / z_near + margin;
+  const double rv = K.fy * r * (1.0 + std::abs(p_C.y() / p_C.z())) / z_near + margin;
   if (!(ru < max_half_window + 1) || !(rv < max_half_window + 1)) return true;
   const int ku = static_cast<int>(ru), kv = static_cast<int>(rv);
-  const float lo = p_C.z() - r - tolerance, hi = p_C.z() + r + tolerance;
+  // The depth tolerance twice: float rounding of p_C as of s.
+  const float lo = p_C.z() - r - 2.f * tol.depth, hi = p_C.z() + r + 2.f * tol.depth;
   const int u0 = std::max(0, u - ku), u1 = std::min(depth.width - 1, u + ku);
   const int v0 = std::max(0, v - kv), v1 = std::min(depth.height - 1, v + kv);
   for (int vv = v0; vv <= v1; ++vv) {

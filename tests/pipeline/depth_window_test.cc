@@ -53,9 +53,16 @@ TEST(DepthWindow, NeverRulesOutAPointOfTheImageWithinTheRadius) {
       const float z = depth.at(u, v);
       if (!std::isfinite(z)) continue;
       points.emplace_back(static_cast<float>((u - K.cx) / K.fx) * z, static_cast<float>((v - K.cy) / K.fy) * z, z);
+      ASSERT_TRUE(OnItsPixel(K, depth, points.back(), OnPixelTolerance{})) << u << ", " << v;
     }
   }
-  constexpr float kRadius = 0.0015f, kTolerance = 4e-5f;
+  // Off its pixel's centre, off its depth, or on no measurement: not on its pixel.
+  const Eigen::Vector3f& first = points.front();
+  EXPECT_FALSE(OnItsPixel(K, depth, first + Eigen::Vector3f(0.1f * first.z() / 570.f, 0.f, 0.f), OnPixelTolerance{}));
+  EXPECT_FALSE(OnItsPixel(K, depth, first * 1.001f, OnPixelTolerance{}));
+  EXPECT_FALSE(OnItsPixel(K, depth, Eigen::Vector3f(0.f, 0.f, -1.f), OnPixelTolerance{}));
+  constexpr float kRadius = 0.0015f;
+  const OnPixelTolerance tol;
   std::uniform_int_distribution<size_t> pick(0, points.size() - 1);
   std::uniform_real_distribution<float> offset(-0.003f, 0.003f);
   int checked = 0, near = 0, ruled_out = 0, wide = 0;
@@ -66,14 +73,14 @@ TEST(DepthWindow, NeverRulesOutAPointOfTheImageWithinTheRadius) {
     ++checked;
     bool any = false;
     for (const Eigen::Vector3f& s : points) any |= (s - p).squaredNorm() <= kRadius * kRadius;
-    const bool maybe = DepthWindowMayHoldPointNear(depth, K, p, u, v, kRadius, kTolerance, 3);
+    const bool maybe = DepthWindowMayHoldPointNear(depth, K, p, u, v, kRadius, tol, 3);
     if (any) {
       ++near;
       ASSERT_TRUE(maybe) << "query " << q << " at (" << u << ", " << v << ") depth " << p.z();
     } else if (!maybe) {
       ++ruled_out;
     }
-    wide += DepthWindowMayHoldPointNear(depth, K, p, u, v, kRadius, kTolerance, 0) ? 1 : 0;
+    wide += DepthWindowMayHoldPointNear(depth, K, p, u, v, kRadius, tol, 0) ? 1 : 0;
   }
   // Both answers occur: the test is not vacuous, and the window saves work.
   EXPECT_GT(near, 1000);
