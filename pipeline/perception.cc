@@ -123,14 +123,19 @@ constexpr float kUnorganizedVoxel = 0.003f;
 // Normals use neighbours this far away (in metres on the bin floor).
 constexpr double kNormalBaseline = 0.0025;
 
-// How badly a view's principal extents (largest first) match a model's: a
-// view of one part is at most as large as the part along each axis, so excess
-// costs much; a smaller view (occlusion, one face) costs a little.
+// How badly a view's principal extents (largest first) match a model's: the
+// differences relative to the model's extents, summed. Measured against
+// absolute differences with excess costing 4x (the order before the night
+// of 2026-12-03): the first class is the one that finds the part more
+// often, estimator calls 1504 -> 1451 and first-pass ICPs 6197 -> 5941 on
+// seeds 11-40 (3-4% fewer on every range), the same detections on all 130
+// scenes and the held-out 30 (the order decides only which class runs
+// alone first).
 double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model) {
   double cost = 0.0;
   for (int i = 0; i < 3; ++i) {
-    const double d = static_cast<double>(view[i]) - static_cast<double>(model[i]);
-    cost += d > 0.0 ? 4.0 * d : -d;
+    const double m = std::max(1e-6, static_cast<double>(model[i]));
+    cost += std::abs(static_cast<double>(view[i]) - m) / m;
   }
   return cost;
 }
