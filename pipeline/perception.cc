@@ -743,19 +743,28 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<size_t> hit;
     const ClassModel* cm = model_of(c.class_id);
     if (cm == nullptr) return hit;
-    std::vector<Eigen::Vector3f> mine;
+    std::vector<size_t> near;  // the live detections whose part may touch c's
     for (size_t k = 0; k < result.detections.size(); ++k) {
       const Accepted& a = accepted[k];
       if (a.dropped || (a.centre_B - c.centre_B).norm() > 0.5 * (c.diameter + a.diameter)) continue;
+      if (model_of(result.detections[k].class_id) != nullptr) near.push_back(k);
+    }
+    if (near.empty()) return hit;
+    const std::vector<Eigen::Vector3f> mine = surface_B(*cm, c.h.X_BO);
+    const double limit_mine = kMaxInsideFraction * static_cast<double>(mine.size());
+    // The acceptance runs alone between the waves: the neighbours' tests
+    // (a few, each a few hundred closest-point lookups) on both threads.
+    std::vector<uint8_t> inside(near.size(), 0);
+    tbb::parallel_for(size_t{0}, near.size(), [&](size_t j) {
+      const size_t k = near[j];
+      const Accepted& a = accepted[k];
       const ClassModel* km = model_of(result.detections[k].class_id);
-      if (km == nullptr) continue;
-      if (mine.empty()) mine = surface_B(*cm, c.h.X_BO);
-      const double limit_mine = kMaxInsideFraction * static_cast<double>(mine.size());
       const double limit_theirs = kMaxInsideFraction * static_cast<double>(a.surface_B.size());
-      if (static_cast<double>(km->CountInside(result.detections[k].X_BO, mine, kInsideDepth)) > limit_mine ||
-          static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, kInsideDepth)) > limit_theirs) {
-        hit.push_back(k);
-      }
+      inside[j] = static_cast<double>(km->CountInside(result.detections[k].X_BO, mine, kInsideDepth)) > limit_mine ||
+                  static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, kInsideDepth)) > limit_theirs;
+    });
+    for (size_t j = 0; j < near.size(); ++j) {
+      if (inside[j]) hit.push_back(near[j]);
     }
     return hit;
   };
