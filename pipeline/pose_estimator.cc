@@ -248,9 +248,10 @@ constexpr int kMaxSupportWindow = 3;
 // fact. Then a model point with no pixel near it in the depth image at a
 // depth within the support distance of its own has no view point within
 // that distance either, and the hash is not asked (AnyWithin): the same
-// answers, for a few pixel reads instead of eight hash probes. Measured (callgrind, 4 rendered piles, 1
-// thread): Verify's hash queries 206k -> 25k, its instructions 96.9 ->
-// 79.8 M per frame.
+// answers, for a few pixel reads instead of eight hash probes. Measured
+// (callgrind, 4 rendered piles, 1 thread): Verify's hash queries 206k ->
+// 25k, its instructions 96.9 -> 70.8 M per frame (docs/perception.md,
+// "Verification").
 struct SceneSupport {
   internal::PointHash hash;
   bool on_depth = false;
