@@ -998,8 +998,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   if (options.threads < 1) return Status::InvalidArgument("perception: threads must be >= 1");
   for (const auto& [name, s] : {std::pair<const char*, const PoseSearch&>{"thorough_search", options.thorough_search},
                                  {"second_look_search", options.second_look_search}}) {
-    if (s.max_reference_points < 1 || s.max_coarse_poses < 1 || s.peaks_per_reference < 1 ||
-        s.peaks_examined < s.peaks_per_reference || !(s.stop_score >= 0.0 && s.stop_score <= 1.0)) {
+    if (!s.IsValid()) {
       return Status::InvalidArgument(std::string("perception: ") + name +
                                      " counts must be >= 1, peaks_examined >= peaks_per_reference, stop_score in [0, 1]");
     }

@@ -618,7 +618,6 @@ struct PreparedView {
   std::vector<int> index;            // their indices in SceneView::points_B
   std::optional<Eigen::Vector3f> view_plane;  // a planar view's normal, towards the camera
   std::vector<Eigen::Vector3f> sub_p, sub_n;  // subsampled at the PPF step, with normals
-  std::vector<int> sub_of;                    // per finite point: its subsampled point, -1 if none
   SegmentDepth segment_depth;                 // without a depth image only
   SceneSupport support;                        // of pts, for the support queries
   std::vector<uint8_t> sub_boundary;          // per subsampled point
@@ -1423,8 +1422,7 @@ bool PoseEstimator::Impl::Prepare(const SceneView& view, PreparedView& w, PoseEs
   std::vector<Eigen::Vector3f>& sub_p = w.sub_p;
   std::vector<Eigen::Vector3f>& sub_n = w.sub_n;
   // Per finite point: index of its voxel's subsampled point, -1 if none.
-  std::vector<int>& sub_of = w.sub_of;
-  sub_of.assign(pts.size(), -1);
+  std::vector<int> sub_of(pts.size(), -1);
   {
     // The points per voxel of the PPF step, voxels in key order, points in index order.
     internal::PointHash voxels;
@@ -1531,8 +1529,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   const Impl& m = *impl_;
   const PoseEstimatorOptions& opt = m.options;
   PoseEstimates out;
-  if (search.max_reference_points < 1 || search.max_coarse_poses < 1 || search.peaks_per_reference < 1 ||
-      search.peaks_examined < search.peaks_per_reference || !(search.stop_score >= 0.0 && search.stop_score <= 1.0)) {
+  if (!search.IsValid()) {
     return Status::InvalidArgument(
         "PoseSearch: counts must be >= 1, peaks_examined >= peaks_per_reference and stop_score in [0, 1]");
   }

@@ -273,6 +273,12 @@ struct PoseSearch {
   // instead of deriving it again (InvalidArgument when it is another's).
   bool keep_prepared = false;
   std::shared_ptr<const PreparedView> prepared = nullptr;
+
+  // Counts >= 1, peaks_examined >= peaks_per_reference, stop_score in [0, 1].
+  bool IsValid() const {
+    return max_reference_points >= 1 && max_coarse_poses >= 1 && peaks_per_reference >= 1 &&
+           peaks_examined >= peaks_per_reference && stop_score >= 0.0 && stop_score <= 1.0;
+  }
 };
 
 struct PoseTimings {

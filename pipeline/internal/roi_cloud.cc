@@ -148,8 +148,8 @@ void GridNormals(const RoiCloud& roi, const SampleGrid& grid, int radius, float 
     return grid.point_of_cell[static_cast<size_t>(v) * W + u];
   };
   // Each cell writes only its own normal: bands of rows are tasks on the
-  // caller's arena (the perception runs this beside the connected regions,
-  // and the thread that finishes those takes bands of these).
+  // caller's arena (the perception runs this on both threads before the
+  // connected regions and the segments' growing).
   tbb::parallel_for(tbb::blocked_range<int>(0, H, kNormalRowsGrain), [&](const tbb::blocked_range<int>& rows) {
     for (int v = rows.begin(); v != rows.end(); ++v) {
       for (int u = 0; u < W; ++u) {
