@@ -126,8 +126,16 @@ SampleGrid MakeSampleGrid(const RoiCloud& roi, int stride) {
   g.stride = std::max(1, stride);
   g.width = (roi.width + g.stride - 1) / g.stride;
   g.height = (roi.height + g.stride - 1) / g.stride;
+  if (g.stride == 1) {
+    // Every pixel is a cell, and the ROI points are in row-major pixel order
+    // (CropToRoi): the grid is the pixel map, its occupied cells every point.
+    g.point_of_cell = roi.point_of_pixel;
+    g.cell_points.resize(roi.points_B.size());
+    std::iota(g.cell_points.begin(), g.cell_points.end(), 0);
+    return g;
+  }
   g.point_of_cell.assign(static_cast<size_t>(g.width) * g.height, -1);
-  g.cell_points.reserve(g.stride == 1 ? roi.points_B.size() : g.point_of_cell.size());
+  g.cell_points.reserve(g.point_of_cell.size());
   for (int gv = 0; gv < g.height; ++gv) {
     for (int gu = 0; gu < g.width; ++gu) {
       const int32_t i = roi.point_of_pixel[static_cast<size_t>(gv * g.stride) * roi.width + gu * g.stride];

@@ -104,6 +104,31 @@ TEST(RoiCloud, ParallelCropEqualsOnePassInRowOrder) {
   }
 }
 
+TEST(RoiCloud, SampleGridHoldsEveryStrideThPixelsPoint) {
+  const Frame f = RandomFrame(640, 480, 11);
+  RoiCloud roi;
+  CropToRoi(f, Pose::Identity(), Box(), &roi);
+  ASSERT_GT(roi.points_B.size(), 10000u);
+  for (int stride : {1, 2, 3}) {
+    const SampleGrid grid = MakeSampleGrid(roi, stride);
+    ASSERT_EQ(grid.width, (roi.width + stride - 1) / stride);
+    ASSERT_EQ(grid.height, (roi.height + stride - 1) / stride);
+    ASSERT_EQ(grid.point_of_cell.size(), static_cast<size_t>(grid.width) * grid.height);
+    std::vector<int32_t> occupied;
+    for (int gv = 0; gv < grid.height; ++gv) {
+      for (int gu = 0; gu < grid.width; ++gu) {
+        const int32_t i = roi.point_of_pixel[static_cast<size_t>(gv * stride) * roi.width + gu * stride];
+        ASSERT_EQ(grid.point_of_cell[static_cast<size_t>(gv) * grid.width + gu], i) << "stride " << stride;
+        if (i >= 0) occupied.push_back(i);
+      }
+    }
+    EXPECT_EQ(grid.cell_points, occupied) << "stride " << stride;
+    if (stride == 1) {
+      EXPECT_EQ(occupied.size(), roi.points_B.size());
+    }
+  }
+}
+
 TEST(RoiCloud, ParallelLabelSpreadingEqualsOnePass) {
   const Frame f = RandomFrame(640, 480, 7);
   RoiCloud roi;
