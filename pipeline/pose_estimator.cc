@@ -1155,8 +1155,11 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
   params.angle_bins = static_cast<int>(std::lround(180.0 / options.ppf_angle_step_deg));
   params.alpha_bins = 2 * params.angle_bins;
   params.max_bucket_entries = options.ppf_max_bucket_entries;
-  impl->ppf.Build(impl->ppf_points.points, impl->ppf_points.normals, params,
-                  static_cast<float>(impl->diameter * 1.001));
+  if (Status s = impl->ppf.Build(impl->ppf_points.points, impl->ppf_points.normals, params,
+                                 static_cast<float>(impl->diameter * 1.001));
+      !s.ok()) {
+    return Status::InvalidArgument("pose estimator: " + s.message() + " (ppf_relative_sampling too small?)");
+  }
   return std::unique_ptr<PoseEstimator>(new PoseEstimator(std::move(impl)));
 }
 

@@ -1,7 +1,9 @@
 #include "pipeline/internal/ppf_matcher.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
+#include <string>
 #include <numeric>
 
 #include "pipeline/pose_estimator.h"
@@ -57,9 +59,18 @@ int PpfModel::Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Ei
   return ((db * A + a1) * A + a2) * A + a3;
 }
 
-void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
-                     const PpfParams& params, float max_distance) {
+Status PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+                       const PpfParams& params, float max_distance) {
+  if (points.size() > kMaxModelPoints || normals.size() != points.size()) {
+    return Status::InvalidArgument("PPF model: " + std::to_string(points.size()) + " points and " +
+                                   std::to_string(normals.size()) + " normals; at most " +
+                                   std::to_string(kMaxModelPoints) + " points, one normal each");
+  }
+  if (params.alpha_bins < 1 || params.alpha_bins > 0xFFFF || params.angle_bins < 1 || params.angle_bins > 255) {
+    return Status::InvalidArgument("PPF model: alpha_bins must be in [1, 65535] and angle_bins in [1, 255]");
+  }
   params_ = params;
+  alpha_units_ = static_cast<int>(std::bit_floor(static_cast<unsigned>(0xFFFF / params.alpha_bins)));
   max_distance_ = max_distance;
   points_.assign(points.begin(), points.end());
   normals_.assign(normals.begin(), normals.end());
@@ -92,8 +103,13 @@ void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Ei
       if (i == r) continue;
       const int k = Key(points_[r], normals_[r], points_[i], normals_[i]);
       if (k < 0) continue;
-      const float alpha_bins = Alpha(to_canonical_[r], points_[i] - points_[r]) * alpha_scale;
-      entries_[fill[k]++] = Entry{static_cast<uint32_t>(r * params.alpha_bins), alpha_bins};
+      // alpha_m in [0, alpha_bins) bins, to fixed point.
+      float alpha_bins = Alpha(to_canonical_[r], points_[i] - points_[r]) * alpha_scale;
+      if (alpha_bins < 0.f) alpha_bins += static_cast<float>(params.alpha_bins);
+      const int units = params.alpha_bins * alpha_units_;
+      int q = static_cast<int>(std::lround(alpha_bins * static_cast<float>(alpha_units_)));
+      if (q >= units) q -= units;
+      entries_[fill[k]++] = Entry{static_cast<uint16_t>(r), static_cast<uint16_t>(q)};
     }
   }
   // Cap bucket sizes (evenly spread subset), compacting in place.
@@ -114,6 +130,7 @@ void PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Ei
   offsets_[keys] = static_cast<uint32_t>(write);
   entries_.resize(write);
   entries_.shrink_to_fit();
+  return Status::Ok();
 }
 
 std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
@@ -241,23 +258,27 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
       const uint32_t begin = offsets_[k], end = offsets_[k + 1];
       if (begin == end) continue;
       __builtin_prefetch(entries_.data() + begin);
-      pairs.push_back(Pair{begin, end, Alpha(Rs, points[i] - sr) * alpha_scale});
+      // alpha_s in [0, NA] bins, as the table's alpha_m: their difference
+      // mod NA is the rotation's bin.
+      const float alpha_s = Alpha(Rs, points[i] - sr) * alpha_scale;
+      pairs.push_back(Pair{begin, end, alpha_s < 0.f ? alpha_s + fNA : alpha_s});
       votes += end - begin;
     }
     touched.resize(votes + 1);
     size_t n_touched = 0;
     uint16_t* const a_cells = acc.data();
     const Entry* const entries = entries_.data();
+    const float alpha_unit = 1.f / static_cast<float>(alpha_units_);  // a power of two: exact
     for (const Pair& pr : pairs) {
       // The cells first (a loop the compiler vectorizes), then the votes.
       const uint32_t n = pr.end - pr.begin;
       const Entry* const pe = entries + pr.begin;
       for (uint32_t j = 0; j < n; ++j) {
-        float a = pr.alpha - pe[j].alpha;
+        float a = pr.alpha - static_cast<float>(pe[j].alpha) * alpha_unit;
         a += a < 0.f ? fNA : 0.f;
         int b = static_cast<int>(a);
         b -= b >= NA ? NA : 0;
-        cells[j] = pe[j].cell + static_cast<uint32_t>(b);
+        cells[j] = static_cast<uint32_t>(pe[j].ref) * static_cast<uint32_t>(NA) + static_cast<uint32_t>(b);
       }
       for (uint32_t j = 0; j < n; ++j) {
         const uint32_t cell = cells[j];
