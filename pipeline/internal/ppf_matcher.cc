@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
-#include <string>
 #include <numeric>
+#include <string>
 
 #include "pipeline/pose_estimator.h"
 
