@@ -104,10 +104,15 @@ TEST(RoiCloud, ParallelCropEqualsOnePassInRowOrder) {
   }
 }
 
-TEST(RoiCloud, SampleGridHoldsEveryStrideThPixelsPoint) {
-  const Frame f = RandomFrame(640, 480, 11);
+// A 640x480 random frame cropped to Box().
+RoiCloud CroppedRandomFrame(uint32_t seed) {
   RoiCloud roi;
-  CropToRoi(f, Pose::Identity(), Box(), &roi);
+  CropToRoi(RandomFrame(640, 480, seed), Pose::Identity(), Box(), &roi);
+  return roi;
+}
+
+TEST(RoiCloud, SampleGridHoldsEveryStrideThPixelsPoint) {
+  const RoiCloud roi = CroppedRandomFrame(11);
   ASSERT_GT(roi.points_B.size(), 10000u);
   for (int stride : {1, 2, 3}) {
     const SampleGrid grid = MakeSampleGrid(roi, stride);
@@ -130,9 +135,7 @@ TEST(RoiCloud, SampleGridHoldsEveryStrideThPixelsPoint) {
 }
 
 TEST(RoiCloud, ParallelLabelSpreadingEqualsOnePass) {
-  const Frame f = RandomFrame(640, 480, 7);
-  RoiCloud roi;
-  CropToRoi(f, Pose::Identity(), Box(), &roi);
+  const RoiCloud roi = CroppedRandomFrame(7);
   ASSERT_GT(roi.points_B.size(), 10000u);
   for (int stride : {1, 2, 3}) {
     const SampleGrid grid = MakeSampleGrid(roi, stride);
