@@ -69,6 +69,12 @@ constexpr double kFragmentShare = 0.25;
 // surface is a piece of a part already found and is not matched.
 constexpr double kExplainedFraction = 0.6;
 constexpr float kExplainedDistance = 0.0025f;
+// Class ranking by PlanarShare (PerceptionOptions::rank_planar_share_weight):
+// a view's share counts against a class only this far outside the class's
+// range (the range is of whole parts seen from 64 directions; a fragment is
+// flatter or more curved than its part), from at most this many normals.
+constexpr double kPlanarShareSlack = 0.1;
+constexpr size_t kPlanarShareNormals = 128;
 // The depth noise of the camera config that captured a frame (organized: the
 // one whose intrinsics it has), else of the default config; nullptr when the
 // cell has no config.
@@ -138,6 +144,14 @@ double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model)
     cost += std::abs(static_cast<double>(view[i]) - m) / m;
   }
   return cost;
+}
+
+// How far a view's PlanarShare lies outside a class's range (plus
+// kPlanarShareSlack either side); 0 inside it or for share < 0 (not used).
+double PlanarShareMismatch(float share, const ClassModel& model) {
+  if (share < 0.f) return 0.0;
+  const auto [lo, hi] = model.planar_share_range();
+  return std::max(0.0, lo - kPlanarShareSlack - share) + std::max(0.0, share - hi - kPlanarShareSlack);
 }
 
 struct Candidate {
@@ -567,13 +581,26 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       // A region view exists to join the pieces of one part: one that no
       // class fits only repeats its segments' work.
       if (options_.class_prefilter && !any_fits && v >= first_region_view) return;
+      // The share of the view's normals on its two main planes, against
+      // each class's range (PerceptionOptions::rank_planar_share_weight).
+      float planar_share = -1.f;  // -1: not used
+      if (have_normals && options_.rank_planar_share_weight > 0.0) {
+        std::vector<Eigen::Vector3f> normals;
+        const size_t stride = std::max<size_t>(1, views[v].size() / kPlanarShareNormals);
+        for (size_t i = 0; i < views[v].size(); i += stride) {
+          normals.push_back(seg_normals[static_cast<size_t>(views[v][i])]);
+        }
+        planar_share = internal::PlanarShare(normals);
+      }
       std::vector<std::pair<double, int>> ranked;
       for (size_t m = 0; m < n_models; ++m) {
         if (options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) {
           too_small[v].push_back(static_cast<int>(m));
           continue;
         }
-        ranked.emplace_back(ExtentMismatch(e, models[m]->extents()), static_cast<int>(m));
+        ranked.emplace_back(ExtentMismatch(e, models[m]->extents()) +
+                                options_.rank_planar_share_weight * PlanarShareMismatch(planar_share, *models[m]),
+                            static_cast<int>(m));
       }
       if (options_.early_exit_score > 0.0 && !thorough) std::stable_sort(ranked.begin(), ranked.end());
       for (const auto& [cost, m] : ranked) order[v].push_back(m);
@@ -1005,6 +1032,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
+  if (!(options.rank_planar_share_weight >= 0.0) || !std::isfinite(options.rank_planar_share_weight)) {
+    return Status::InvalidArgument("perception: rank_planar_share_weight must be finite and >= 0");
+  }
   for (size_t i = 0; i < options.view_waves.size(); ++i) {
     if (options.view_waves[i] < 1 || (i > 0 && options.view_waves[i] >= options.view_waves[i - 1])) {
       return Status::InvalidArgument("perception: view_waves must be positive and strictly decreasing");

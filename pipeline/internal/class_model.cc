@@ -7,6 +7,7 @@
 
 #include "core/mesh.h"
 
+#include "pipeline/internal/model_sampling.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp::internal {
@@ -30,13 +31,14 @@ SceneView ToScene(const SegmentView& view) {
 
 class PpfClassModel final : public ClassModel {
  public:
-  PpfClassModel(int class_id, std::unique_ptr<PoseEstimator> estimator)
+  PpfClassModel(int class_id, std::unique_ptr<PoseEstimator> estimator, std::pair<float, float> planar_share)
       : class_id_(class_id), estimator_(std::move(estimator)),
-        extents_(PrincipalExtents(estimator_->surface_points_O())) {}
+        extents_(PrincipalExtents(estimator_->surface_points_O())), planar_share_(planar_share) {}
   int class_id() const override { return class_id_; }
   double diameter() const override { return estimator_->diameter(); }
   Eigen::Vector3f extents() const override { return extents_; }
   Eigen::Vector3f centroid_O() const override { return estimator_->centroid_O(); }
+  std::pair<float, float> planar_share_range() const override { return planar_share_; }
 
   void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
                      std::vector<uint8_t>* on_surface) const override {
@@ -83,12 +85,21 @@ class PpfClassModel final : public ClassModel {
   int class_id_;
   std::unique_ptr<PoseEstimator> estimator_;
   Eigen::Vector3f extents_;
+  std::pair<float, float> planar_share_;
 };
 
 // Absolute and relative slack of SegmentFitsClass: depth noise and normal-
 // estimation outliers at the segment border (a few mm at most).
 constexpr double kFitToleranceAbs = 0.004;
 constexpr double kFitToleranceRel = 0.05;
+// PlanarShare: normals within this angle of a mode are on its plane.
+constexpr double kPlanarShareAngleDeg = 15.0;
+// The model's range: view directions, sample spacing (metres), and the
+// smallest cosine between a sample's normal and the view direction for it to
+// be seen (about 80 degrees, as grazing surfaces give no depth).
+constexpr int kPlanarShareDirections = 64;
+constexpr double kPlanarShareSampleSpacing = 0.002;
+constexpr float kPlanarShareMinCos = 0.17f;
 
 }  // namespace
 
@@ -122,6 +133,77 @@ Eigen::Vector3f PrincipalExtents(std::span<const Eigen::Vector3f> points) {
   return e.cast<float>();
 }
 
+float PlanarShare(std::span<const Eigen::Vector3f> normals, std::span<const float> weights) {
+  // At most kPlanarShareSamples normals (strided), modes sought among at most
+  // kPlanarShareSeeds of them.
+  constexpr size_t kPlanarShareSamples = 128;
+  constexpr size_t kPlanarShareSeeds = 32;
+  const float min_cos = std::cos(static_cast<float>(kPlanarShareAngleDeg * M_PI / 180.0));
+  const size_t stride = std::max<size_t>(1, (normals.size() + kPlanarShareSamples - 1) / kPlanarShareSamples);
+  std::vector<Eigen::Vector3f> n;
+  std::vector<float> w;
+  for (size_t i = 0; i < normals.size(); i += stride) {
+    if (!normals[i].allFinite()) continue;
+    n.push_back(normals[i]);
+    w.push_back(weights.empty() ? 1.f : weights[i]);
+  }
+  float total = 0.f;
+  for (float x : w) total += x;
+  if (n.size() < 2 || !(total > 0.f)) return 0.f;
+  std::vector<uint8_t> taken(n.size(), 0);
+  float share = 0.f;
+  for (int mode = 0; mode < 2; ++mode) {
+    // The free normal with the most free weight within the angle.
+    const size_t seed_stride = std::max<size_t>(1, n.size() / kPlanarShareSeeds);
+    float best = -1.f;
+    size_t best_i = 0;
+    for (size_t a = 0; a < n.size(); a += seed_stride) {
+      if (taken[a]) continue;
+      float sum = 0.f;
+      for (size_t b = 0; b < n.size(); ++b) sum += (!taken[b] && n[a].dot(n[b]) > min_cos) ? w[b] : 0.f;
+      if (sum > best) {
+        best = sum;
+        best_i = a;
+      }
+    }
+    if (best <= 0.f) break;
+    for (size_t b = 0; b < n.size(); ++b) {
+      if (!taken[b] && n[best_i].dot(n[b]) > min_cos) taken[b] = 1;
+    }
+    share += best;
+  }
+  return share / total;
+}
+
+std::pair<float, float> ModelPlanarShareRange(std::span<const Eigen::Vector3f> normals_O, int directions) {
+  float lo = 1.f, hi = 0.f;
+  std::vector<Eigen::Vector3f> seen;
+  std::vector<float> weight;
+  // Fibonacci sphere of view directions (towards the camera, in O).
+  const double golden = M_PI * (3.0 - std::sqrt(5.0));
+  for (int k = 0; k < directions; ++k) {
+    const double z = 1.0 - 2.0 * (k + 0.5) / directions;
+    const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
+    const Eigen::Vector3f d(static_cast<float>(r * std::cos(golden * k)), static_cast<float>(r * std::sin(golden * k)),
+                            static_cast<float>(z));
+    seen.clear();
+    weight.clear();
+    for (const Eigen::Vector3f& nn : normals_O) {
+      // Area-uniform samples: the depth image samples a face in proportion
+      // to its projected area.
+      const float c = nn.dot(d);
+      if (c <= kPlanarShareMinCos) continue;
+      seen.push_back(nn);
+      weight.push_back(c);
+    }
+    if (seen.size() < 2) continue;
+    const float f = PlanarShare(seen, weight);
+    lo = std::min(lo, f);
+    hi = std::max(hi, f);
+  }
+  return {std::min(lo, hi), hi};
+}
+
 bool SegmentFitsClass(const Eigen::Vector3f& segment_extents, double model_diameter) {
   return segment_extents.x() <= model_diameter * (1.0 + kFitToleranceRel) + kFitToleranceAbs;
 }
@@ -133,7 +215,10 @@ Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part) {
   if (!estimator.ok()) {
     return Status::InvalidArgument("part '" + part.name + "': " + estimator.status().ToString());
   }
-  return std::unique_ptr<ClassModel>(std::make_unique<PpfClassModel>(part.class_id, std::move(*estimator)));
+  const OrientedPoints samples = SampleSurface(*mesh, kPlanarShareSampleSpacing, /*seed=*/1);
+  const std::pair<float, float> share = ModelPlanarShareRange(samples.normals, kPlanarShareDirections);
+  return std::unique_ptr<ClassModel>(
+      std::make_unique<PpfClassModel>(part.class_id, std::move(*estimator), share));
 }
 
 }  // namespace bp::internal

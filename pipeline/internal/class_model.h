@@ -8,6 +8,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -54,6 +55,8 @@ class ClassModel {
   virtual double diameter() const = 0;
   // Extents of the model surface along its principal axes, metres, largest first.
   virtual Eigen::Vector3f extents() const = 0;
+  // PlanarShare of the part seen from 64 directions: least and most.
+  virtual std::pair<float, float> planar_share_range() const = 0;
   // Centroid of the part's surface in its own frame O, metres.
   virtual Eigen::Vector3f centroid_O() const = 0;
   virtual ClassEstimate Estimate(const SegmentView& view) const = 0;
@@ -73,6 +76,19 @@ class ClassModel {
 // The largest is a lower bound of the set's diameter (max pairwise distance).
 // Non-finite points are ignored; fewer than 2 points give zero.
 Eigen::Vector3f PrincipalExtents(std::span<const Eigen::Vector3f> points);
+
+// The weighted share of `normals` (unit) within 15 degrees of one of their
+// two main directions (greedy modes): near 1 for one or two planes (an
+// L-bracket's plates), lower for curved surfaces (a pipe). At most 128
+// normals (strided) are used, the modes sought among 32 of them. Non-finite normals are ignored; fewer than 2
+// give 0. weights: per normal, or empty for 1 each.
+float PlanarShare(std::span<const Eigen::Vector3f> normals, std::span<const float> weights = {});
+
+// PlanarShare of a part's outward surface normals (area-uniform samples, O)
+// seen from `directions` directions spread over the sphere, each normal
+// weighted by its cosine to the direction (the depth image samples a face in
+// proportion to its projected area): least and most over the directions.
+std::pair<float, float> ModelPlanarShareRange(std::span<const Eigen::Vector3f> normals_O, int directions);
 
 // Pre-filter: false when the segment cannot be (part of) one instance of the
 // class, i.e. its extent along its first principal axis (a lower bound of its

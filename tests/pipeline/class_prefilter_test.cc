@@ -2,8 +2,11 @@
 // synthetic ground truth of the shipped default cell.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "pipeline/internal/class_model.h"
@@ -77,6 +80,57 @@ TEST(ClassPrefilter, PrincipalExtentsOfABoxAreItsSidesLargestFirst) {
   EXPECT_NEAR(e.y(), 0.1f, 1e-5f);
   EXPECT_NEAR(e.z(), 0.02f, 1e-5f);
   EXPECT_EQ(internal::PrincipalExtents(std::vector<Eigen::Vector3f>{}), Eigen::Vector3f::Zero());
+}
+
+// Unit normals around `axis`'s great circle from angle 0 to `span` (radians).
+std::vector<Eigen::Vector3f> Arc(double span, int n) {
+  std::vector<Eigen::Vector3f> normals;
+  for (int i = 0; i < n; ++i) {
+    const double a = span * i / (n - 1);
+    normals.emplace_back(static_cast<float>(std::cos(a)), 0.f, static_cast<float>(std::sin(a)));
+  }
+  return normals;
+}
+
+TEST(ClassPrefilter, PlanarShareIsOneForTwoPlanesAndLowForACylinder) {
+  std::vector<Eigen::Vector3f> two_planes(300, Eigen::Vector3f::UnitZ());
+  two_planes.insert(two_planes.end(), 200, Eigen::Vector3f::UnitX());
+  two_planes.emplace_back(NAN, 0.f, 0.f);
+  EXPECT_FLOAT_EQ(internal::PlanarShare(two_planes), 1.f);
+  // Half a cylinder: two 30-degree windows of 180 degrees of normals.
+  EXPECT_NEAR(internal::PlanarShare(Arc(M_PI, 1000)), 60.0 / 180.0, 0.02);
+  // Three planes 90 degrees apart, the third twice as heavy: it and one other.
+  // (120 normals: all of them are used.)
+  std::vector<Eigen::Vector3f> three(40, Eigen::Vector3f::UnitX());
+  three.insert(three.end(), 40, Eigen::Vector3f::UnitY());
+  three.insert(three.end(), 40, Eigen::Vector3f::UnitZ());
+  std::vector<float> weights(120, 1.f);
+  std::fill(weights.begin() + 80, weights.end(), 2.f);
+  EXPECT_NEAR(internal::PlanarShare(three, weights), 3.0 / 4.0, 1e-5);
+  EXPECT_FLOAT_EQ(internal::PlanarShare(std::vector<Eigen::Vector3f>{Eigen::Vector3f::UnitZ()}), 0.f);
+}
+
+TEST(ClassPrefilter, PlanarShareRangesTellTheBracketFromTheTee) {
+  // A planar part seen from anywhere shows its planes; a pipe never shows
+  // much of one direction.
+  std::vector<Eigen::Vector3f> box;
+  for (int s : {-1, 1}) {
+    for (int a = 0; a < 3; ++a) box.insert(box.end(), 50, static_cast<float>(s) * Eigen::Vector3f::Unit(a));
+  }
+  const auto [box_lo, box_hi] = internal::ModelPlanarShareRange(box, 64);
+  EXPECT_GT(box_lo, 0.6f);  // 3 faces seen, 2 of them counted, at worst
+  EXPECT_NEAR(box_hi, 1.f, 1e-5f);
+  auto cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  std::map<std::string, std::pair<float, float>> range;
+  for (const PartSpec& part : cell->parts) {
+    auto model = internal::BuildClassModel(part);
+    ASSERT_TRUE(model.ok()) << model.status().ToString();
+    range[part.name] = (*model)->planar_share_range();
+    EXPECT_LE(range[part.name].first, range[part.name].second) << part.name;
+  }
+  ASSERT_TRUE(range.contains("l_bracket") && range.contains("pipe_tee"));
+  EXPECT_GT(range["l_bracket"].first, range["pipe_tee"].second);
 }
 
 }  // namespace

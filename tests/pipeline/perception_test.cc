@@ -680,6 +680,42 @@ TEST_F(PerceptionTest, FaceSeedsFindAnLBracketFromItsBasePlateAlone) {
   EXPECT_GE(turned, cases - 2);
 }
 
+// Class ranking by planar share (PerceptionOptions::rank_planar_share_weight):
+// a view of a pipe no longer runs the L-bracket first, nor a plate the tee.
+// On piles 13, 14 and 20 it saves estimator calls (65 / 39 / 49 -> 61 / 35 /
+// 43 in `binpick --log-level debug eval`) and finds the same parts with the
+// same true and false detections.
+TEST(PerceptionEval, PlanarShareRanksTheRightClassFirst) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  PerceptionOptions options;
+  options.rank_planar_share_weight = 0.0;
+  auto extents_only = Perception::Build(f.cell, options);
+  ASSERT_TRUE(extents_only.ok()) << extents_only.status().ToString();
+  int calls_extents = 0, calls_planar = 0;
+  std::vector<FrameEvaluation> a, b;
+  for (uint64_t seed : {13u, 14u, 20u}) {
+    const Frame frame = f.Pile(seed);
+    ASSERT_TRUE(frame.truth.has_value());
+    const PerceptionResult old_rank = Fixture::RunWith(**extents_only, frame);
+    const PerceptionResult new_rank = Fixture::RunWith(*f.perception, frame);
+    calls_extents += old_rank.estimator_calls;
+    calls_planar += new_rank.estimator_calls;
+    a.push_back(EvaluateFrame(old_rank, *frame.truth, f.models));
+    b.push_back(EvaluateFrame(new_rank, *frame.truth, f.models));
+  }
+  EXPECT_LT(calls_planar, calls_extents);
+  const ClassFigures fa = Summarize(a, f.models).classes.back();
+  const ClassFigures fb = Summarize(b, f.models).classes.back();
+  EXPECT_EQ(fb.found, fa.found);
+  EXPECT_EQ(fb.true_positives, fa.true_positives);
+  EXPECT_EQ(fb.detections, fa.detections);
+
+  PerceptionOptions bad;
+  bad.rank_planar_share_weight = -1.0;
+  EXPECT_EQ(Perception::Build(f.cell, bad).status().code(), Status::Code::kInvalidArgument);
+}
+
 // View waves (PerceptionOptions::view_waves): the views of later waves that
 // lie mostly on a part already found are not matched. On pile 3 this skips
 // views and estimator calls, and finds the same parts (the same recall
