@@ -558,6 +558,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   struct Tried {
     std::vector<Pose> poses;
     std::shared_ptr<const PreparedView> prepared;
+    double best_score = -1.0;  // of its hypotheses within the fit residual limit; -1: none
   };
   using TriedPoses = std::vector<Tried>;  // per class model index
   std::atomic<int> coarse_skipped{0}, coarse_refined{0};
@@ -572,6 +573,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     // merged segment of several may hold one; tried last, only when no class
     // that fits found anything.
     std::vector<std::vector<int>> too_small(views.size());
+    const bool skip_tried = second_look && tried != nullptr;
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points;
       for (int32_t k : views[v]) points.push_back(seg_points[static_cast<size_t>(k)]);
@@ -592,18 +594,24 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         }
         planar_share = internal::PlanarShare(normals);
       }
-      std::vector<std::pair<double, int>> ranked;
+      // (-best score of the view's wave, cost, class): the second look tries
+      // first the class that came closest in the wave.
+      std::vector<std::tuple<double, double, int>> ranked;
       for (size_t m = 0; m < n_models; ++m) {
         if (options_.class_prefilter && !internal::SegmentFitsClass(e, models[m]->diameter())) {
           too_small[v].push_back(static_cast<int>(m));
           continue;
         }
-        ranked.emplace_back(ExtentMismatch(e, models[m]->extents()) +
+        const double wave_best = skip_tried && options_.second_look_rank_by_wave && m < (*tried)[v].size()
+                                     ? (*tried)[v][m].best_score
+                                     : -1.0;
+        ranked.emplace_back(-wave_best,
+                            ExtentMismatch(e, models[m]->extents()) +
                                 options_.rank_planar_share_weight * PlanarShareMismatch(planar_share, *models[m]),
                             static_cast<int>(m));
       }
       if (options_.early_exit_score > 0.0 && !thorough) std::stable_sort(ranked.begin(), ranked.end());
-      for (const auto& [cost, m] : ranked) order[v].push_back(m);
+      for (const auto& [wave, cost, m] : ranked) order[v].push_back(m);
     });
     // Per view (in parallel, no barrier between views): the first class;
     // the other fitting ones (in parallel) unless it gave a confident
@@ -616,7 +624,6 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<std::vector<Job>> per_view(views.size());
     const bool early_exit = options_.early_exit_score > 0.0 && !thorough;
     if (best_out != nullptr) best_out->assign(views.size(), -1.0);
-    const bool skip_tried = second_look && tried != nullptr;
     if (tried != nullptr && !skip_tried) tried->assign(views.size(), TriedPoses(n_models));
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t v) {
       std::vector<Eigen::Vector3f> points, normals;
@@ -662,6 +669,11 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
             });
             if (job.estimate.hypotheses.empty()) {
               job.estimate.reason = "every hypothesis fits worse than the depth noise allows (max_fit_rms_sigmas)";
+            }
+          }
+          if (tried != nullptr && !skip_tried) {
+            for (const auto& h : job.estimate.hypotheses) {
+              (*tried)[v][mi].best_score = std::max((*tried)[v][mi].best_score, h.score);
             }
           }
         });

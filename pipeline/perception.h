@@ -165,6 +165,12 @@ struct PerceptionOptions {
   // first-pass ICPs (coarse_refined), recall 0.9515 -> 0.9524, precision
   // 0.9875 -> 0.9871, the same true positives.
   bool second_look_skip_tried = true;
+  // The second look (with second_look_skip_tried) tries the classes of a
+  // view in the order of their best hypothesis in the view's wave, then as
+  // ranked there: the class that came closest first. Measured (`binpick
+  // eval`, seeds 11-40): estimator calls 1404 -> 1395, coarse poses refined
+  // 5722 -> 5651, the same detections on all 130 scenes and the held-out 30.
+  bool second_look_rank_by_wave = true;
   // A thorough run (PerceptionEffort::kThorough) tries every class on every
   // view (no early exit) with this wider coarse search. The grasp planner
   // retries with it when a normal run leaves nothing to pick in a bin that is
