@@ -153,6 +153,9 @@ constexpr int kMinSampledPoints = 8;
 // same detections as no such condition, and 0.8 ran 1.2% more first-pass
 // ICPs on seeds 1-40 while a view of two touching parts still gave both.
 constexpr double kStopExplainedFraction = 0.8;
+// The first pass keeps a refined coarse pose whose quick verification scores
+// at least this fraction of min_score (the fine pass usually raises it).
+constexpr double kFirstPassScoreFraction = 0.6;
 // PPF peaks kept per reference point for a later search of the same view
 // (PreparedView::votes): the second look examines 16.
 constexpr size_t kRecordedPeaks = 16;
@@ -646,6 +649,9 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(icp_convergence > 0) || !(icp_coarse_convergence > 0)) return fail("icp_convergence and icp_coarse_convergence must be > 0");
   if (!(icp_final_distance > 0) || !(icp_initial_relative_distance > 0)) return fail("icp distances must be > 0");
   if (!(support_distance > 0) || !(free_space_distance > 0)) return fail("support/free-space distances must be > 0");
+  if (quick_screen_stride < 1 || !(quick_screen_min_score >= 0 && quick_screen_min_score <= 1)) {
+    return fail("quick_screen_stride must be >= 1, quick_screen_min_score in [0, 1]");
+  }
   if (!(visible_min_cos >= 0 && visible_min_cos < 1)) return fail("visible_min_cos must be in [0, 1)");
   if (!(near_symmetry_min_overlap >= 0 && near_symmetry_min_overlap <= 1) || max_near_symmetries < 0 ||
       !(near_symmetry_score_slack >= 0 && near_symmetry_score_slack < 1)) {
@@ -1691,6 +1697,19 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
       });
       if (!icp.ok) continue;
       Candidate c{icp.X_BO, {}, icp, cp.votes};
+      // A screen on fewer samples first (quick_screen_stride): most refined
+      // coarse poses are wrong and score far below the pass's bar.
+      // The screen's bar is never above the pass's own.
+      const double screen_bar = std::min(opt.quick_screen_min_score, kFirstPassScoreFraction * min_score);
+      if (screen_bar > 0.0) {
+        timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, scene_support, segment_depth,
+                                                       opt.quick_screen_stride, search.unmeasured_is_no_evidence); });
+        if (c.stats.score < screen_bar) {
+          ++out.screened_out;
+          first.push_back(c);
+          continue;
+        }
+      }
       timed(verify_ms, [&] { c.stats = m.Verify(icp.X_BO, view, scene_support, segment_depth, 3,
                                                      search.unmeasured_is_no_evidence); });
       first.push_back(c);
@@ -1725,7 +1744,7 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseS
   std::vector<Candidate> survivors;
   for (const Candidate& c : first) {
     // Loose threshold here: the fine pass usually raises the score.
-    if (!passes(c.stats, 0.6 * min_score)) {
+    if (!passes(c.stats, kFirstPassScoreFraction * min_score)) {
       below_support += c.stats.below_support;
       best_rejected = std::max(best_rejected, c.stats.score);
       continue;

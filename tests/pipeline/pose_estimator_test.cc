@@ -351,6 +351,49 @@ TEST(PoseEstimator, FindsPartInSegmentWithFloorAndClutter) {
   }
 }
 
+// PoseEstimatorOptions::quick_screen_*: in the first pass, a refined coarse
+// pose is verified on every 12th model sample first and rejected below 0.3;
+// the hypotheses are those of the pass without the screen.
+TEST(PoseEstimator, ScreensRefinedCoarsePosesOnFewerSamplesFirst) {
+  const TestCamera cam = DefaultCamera();
+  const std::vector<PartCase> parts = TestParts();
+  const TriangleMesh floor = Floor();
+  const TriangleMesh clutter = testing::MakeBox({0.f, 0.f, 0.f}, {0.03f, 0.02f, 0.015f});
+  std::mt19937_64 rng{17};
+  int screened = 0;
+  for (size_t k = 0; k < parts.size(); ++k) {
+    PoseEstimatorOptions no_screen;
+    no_screen.quick_screen_min_score = 0.0;
+    auto unscreened = PoseEstimator::Build(parts[k].mesh, parts[k].symmetry, no_screen);
+    ASSERT_TRUE(unscreened.ok()) << unscreened.status().ToString();
+    for (int trial = 0; trial < 2; ++trial) {
+      const Pose X_BO = Resting(parts[k].mesh, testing::RandomRotation(rng, 40 * kDeg), 0.0, 0.0);
+      const Pose X_BK = MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.06, 0.06, 0.0));
+      const RenderedScene scene =
+          Render({{&parts[k].mesh, X_BO}, {&floor, Pose::Identity()}, {&clutter, X_BK}}, cam, 0.0002, 30 + trial);
+      // The part and a box beside it (labels 1 and 3): wrong coarse poses.
+      const std::vector<Eigen::Vector3f> points = testing::PointsWithLabels(scene, {1, 3});
+      SceneView view = OnFloor(ViewOf(points, cam));
+      view.depth = &scene.depth;
+      view.intrinsics = cam.K;
+      auto with = Estimator(k).Estimate(view);
+      auto without = (*unscreened)->Estimate(view);
+      ASSERT_TRUE(with.ok() && without.ok());
+      EXPECT_EQ(without->screened_out, 0);
+      screened += with->screened_out;
+      ASSERT_FALSE(with->hypotheses.empty()) << parts[k].name << ": " << with->no_result_reason;
+      ASSERT_EQ(with->hypotheses.size(), without->hypotheses.size()) << parts[k].name << " trial " << trial;
+      for (size_t i = 0; i < with->hypotheses.size(); ++i) {
+        EXPECT_TRUE(with->hypotheses[i].X_BO.isApprox(without->hypotheses[i].X_BO, 1e-12));
+        EXPECT_EQ(with->hypotheses[i].score, without->hypotheses[i].score);
+      }
+      EXPECT_LT(SymmetricTranslationError(with->hypotheses[0].X_BO, X_BO, parts[k].symmetry), 0.001)
+          << parts[k].name << " trial " << trial;
+    }
+  }
+  EXPECT_GT(screened, 0);
+}
+
 TEST(PoseEstimator, GivesOneHypothesisPerPartForTwoTouchingParts) {
   const TestCamera cam = DefaultCamera();
   const PartCase part = TestParts()[0];
@@ -481,7 +524,9 @@ TEST(PoseEstimator, BuildRejectsEmptyMeshAndBadOptions) {
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_coarse_convergence, bad)) << bad;
   }
   for (const double bad : {-0.1, 1.5, std::nan("")}) EXPECT_TRUE(rejects(&PoseEstimatorOptions::coarse_stop_score, bad)) << bad;
+  for (const double bad : {-0.1, 1.5, std::nan("")}) EXPECT_TRUE(rejects(&PoseEstimatorOptions::quick_screen_min_score, bad)) << bad;
   for (const int bad : {0, -3}) {
+    EXPECT_TRUE(rejects(&PoseEstimatorOptions::quick_screen_stride, bad)) << bad;
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_shrink_iterations, bad)) << bad;
     EXPECT_TRUE(rejects(&PoseEstimatorOptions::icp_coarse_iterations, bad)) << bad;
   }
