@@ -203,51 +203,79 @@ void GridNormals(const RoiCloud& roi, const SampleGrid& grid, int radius, float 
 int GrowRegions(const RoiCloud& roi, const SampleGrid& grid, const std::vector<Eigen::Vector3f>& normals,
                 float max_jump, float max_normal_angle_rad, const std::vector<uint8_t>& excluded,
                 std::vector<int32_t>* region_of_cell, float convex_tolerance) {
+  // Connected components of the graph whose edges join 4-neighbours that pass
+  // the test below (symmetric in the two cells, bit for bit), in one raster
+  // pass over each cell's left and upper neighbour with a union-find whose
+  // root is a component's first cell; then ids in the order of those first
+  // cells, as a flood fill seeded in raster order numbers them.
   const int W = grid.width, H = grid.height;
-  region_of_cell->assign(grid.point_of_cell.size(), -1);
+  const size_t n_cells = grid.point_of_cell.size();
   const bool use_normals = max_normal_angle_rad > 0.f;
   const float min_cos = std::cos(max_normal_angle_rad);
   const float jump2 = max_jump * max_jump;
-  std::vector<int32_t> stack;
-  stack.reserve(grid.cell_points.size());
-  int regions = 0;
-  const auto usable = [&](size_t cell) {
-    return grid.point_of_cell[cell] >= 0 && (excluded.empty() || !excluded[cell]);
+  // parent: -1 for a cell that never joins; else the union-find parent.
+  std::vector<int32_t>& parent = *region_of_cell;
+  parent.assign(n_cells, -1);
+  const auto find = [&parent](int32_t x) {
+    while (parent[static_cast<size_t>(x)] != x) {
+      const int32_t up = parent[static_cast<size_t>(parent[static_cast<size_t>(x)])];
+      parent[static_cast<size_t>(x)] = up;
+      x = up;
+    }
+    return x;
   };
-  for (size_t seed = 0; seed < grid.point_of_cell.size(); ++seed) {
-    if (!usable(seed) || (*region_of_cell)[seed] >= 0) continue;
-    if (use_normals && !normals[seed].allFinite()) continue;
-    const int32_t id = regions++;
-    (*region_of_cell)[seed] = id;
-    stack.clear();
-    stack.push_back(static_cast<int32_t>(seed));
-    while (!stack.empty()) {
-      const int32_t c = stack.back();
-      stack.pop_back();
-      const int u = c % W, v = c / W;
-      const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(grid.point_of_cell[static_cast<size_t>(c)])];
-      const int nu[4] = {u + 1, u - 1, u, u};
-      const int nv[4] = {v, v, v + 1, v - 1};
-      for (int k = 0; k < 4; ++k) {
-        if (nu[k] < 0 || nv[k] < 0 || nu[k] >= W || nv[k] >= H) continue;
-        const size_t n = static_cast<size_t>(nv[k]) * W + nu[k];
-        if (!usable(n) || (*region_of_cell)[n] >= 0) continue;
-        if ((roi.points_B[static_cast<size_t>(grid.point_of_cell[n])] - p).squaredNorm() > jump2) continue;
-        if (use_normals) {
-          const Eigen::Vector3f& a = normals[static_cast<size_t>(c)];
-          const Eigen::Vector3f& b = normals[n];
-          if (!b.allFinite()) continue;
-          if (a.dot(b) < min_cos) {
-            // A convex crease (the surfaces bend away from the camera, as at a
-            // part's own edge) may join; concave ones (where parts meet) not.
-            const Eigen::Vector3f& q = roi.points_B[static_cast<size_t>(grid.point_of_cell[n])];
-            if (!(convex_tolerance >= 0.f) || (a - b).dot(p - q) < convex_tolerance * (p - q).norm()) continue;
-          }
+  const auto joins = [&](size_t c, size_t n) {
+    const Eigen::Vector3f& p = roi.points_B[static_cast<size_t>(grid.point_of_cell[c])];
+    const Eigen::Vector3f& q = roi.points_B[static_cast<size_t>(grid.point_of_cell[n])];
+    if ((q - p).squaredNorm() > jump2) return false;
+    if (!use_normals) return true;
+    const Eigen::Vector3f& a = normals[c];
+    const Eigen::Vector3f& b = normals[n];
+    if (a.dot(b) >= min_cos) return true;
+    // A convex crease (the surfaces bend away from the camera, as at a
+    // part's own edge) may join; concave ones (where parts meet) not.
+    return convex_tolerance >= 0.f && !((a - b).dot(p - q) < convex_tolerance * (p - q).norm());
+  };
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      const size_t c = static_cast<size_t>(v) * W + u;
+      if (grid.point_of_cell[c] < 0 || (!excluded.empty() && excluded[c])) continue;
+      if (use_normals && !normals[c].allFinite()) continue;
+      int32_t root = static_cast<int32_t>(c);
+      parent[c] = root;
+      if (u > 0 && parent[c - 1] >= 0 && joins(c, c - 1)) {
+        root = find(static_cast<int32_t>(c - 1));
+        parent[c] = root;
+      }
+      if (v > 0 && parent[c - W] >= 0 && joins(c, c - W)) {
+        const int32_t other = find(static_cast<int32_t>(c - W));
+        if (other != root) {
+          // Both roots come before c: the smaller stays the root.
+          const int32_t lo = std::min(root, other), hi = std::max(root, other);
+          parent[static_cast<size_t>(hi)] = lo;
+          root = lo;
         }
-        (*region_of_cell)[n] = id;
-        stack.push_back(static_cast<int32_t>(n));
+        parent[c] = root;
       }
     }
+  }
+  // Ids: a root (parent[c] == c) is its component's first cell; every other
+  // cell's root comes before it, so one raster pass numbers and labels.
+  int regions = 0;
+  for (size_t c = 0; c < n_cells; ++c) {
+    const int32_t pc = parent[c];
+    if (pc < 0) continue;
+    if (pc == static_cast<int32_t>(c)) {
+      parent[c] = -2 - regions++;  // a root: its id, encoded below -1
+    } else {
+      // The root's id: follow the chain of cells before c (already labelled).
+      int32_t r = pc;
+      while (parent[static_cast<size_t>(r)] >= 0) r = parent[static_cast<size_t>(r)];
+      parent[c] = parent[static_cast<size_t>(r)];
+    }
+  }
+  for (size_t c = 0; c < n_cells; ++c) {
+    if (parent[c] != -1) parent[c] = -2 - parent[c];
   }
   return regions;
 }

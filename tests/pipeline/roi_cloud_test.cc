@@ -5,9 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -170,6 +172,97 @@ TEST(RoiCloud, ParallelLabelSpreadingEqualsOnePass) {
       labelled += ea >= 0 ? 1 : 0;
     }
     EXPECT_GT(labelled, roi.points_B.size() / 4) << "stride " << stride;
+  }
+}
+
+// Region growing as a flood fill seeded in raster order: the definition
+// GrowRegions must reproduce, ids included.
+std::vector<int32_t> FloodFillRegions(const RoiCloud& roi, const SampleGrid& grid,
+                                      const std::vector<Eigen::Vector3f>& normals, float max_jump, float angle,
+                                      const std::vector<uint8_t>& excluded, float convex_tolerance) {
+  const int W = grid.width, H = grid.height;
+  std::vector<int32_t> label(grid.point_of_cell.size(), -1);
+  const auto usable = [&](size_t c) {
+    return grid.point_of_cell[c] >= 0 && (excluded.empty() || !excluded[c]) &&
+           (angle <= 0.f || normals[c].allFinite());
+  };
+  const auto point = [&](size_t c) { return roi.points_B[static_cast<size_t>(grid.point_of_cell[c])]; };
+  int regions = 0;
+  for (size_t seed = 0; seed < label.size(); ++seed) {
+    if (!usable(seed) || label[seed] >= 0) continue;
+    label[seed] = regions;
+    std::vector<size_t> stack{seed};
+    while (!stack.empty()) {
+      const size_t c = stack.back();
+      stack.pop_back();
+      const int u = static_cast<int>(c % W), v = static_cast<int>(c / W);
+      for (const auto& [du, dv] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        if (u + du < 0 || v + dv < 0 || u + du >= W || v + dv >= H) continue;
+        const size_t n = static_cast<size_t>(v + dv) * W + (u + du);
+        if (!usable(n) || label[n] >= 0) continue;
+        const Eigen::Vector3f p = point(c), q = point(n);
+        if ((q - p).norm() > max_jump) continue;
+        if (angle > 0.f && normals[c].dot(normals[n]) < std::cos(angle) &&
+            !(convex_tolerance >= 0.f && (normals[c] - normals[n]).dot(p - q) >= convex_tolerance * (p - q).norm())) {
+          continue;
+        }
+        label[n] = regions;
+        stack.push_back(n);
+      }
+    }
+    ++regions;
+  }
+  return label;
+}
+
+TEST(RoiCloud, GrowRegionsEqualsAFloodFillSeededInRasterOrder) {
+  // Smooth depth in tiles 3 cm apart in depth, 5% of the pixels missing.
+  Frame frame = RandomFrame(640, 480, 5);
+  std::mt19937 holes(9);
+  for (int v = 0; v < 480; ++v) {
+    for (int u = 0; u < 640; ++u) {
+      const bool missing = std::uniform_int_distribution<int>(0, 19)(holes) == 0;
+      frame.depth.at(u, v) = missing ? kNaN : 0.9f + 0.01f * std::sin(u / 40.f) + 0.03f * static_cast<float>((u / 90 + v / 70) % 3);
+    }
+  }
+  RoiCloud roi;
+  CropToRoi(frame, Pose::Identity(), Box(), &roi);
+  ASSERT_GT(roi.points_B.size(), 10000u);
+  std::mt19937 rng(3);
+  std::normal_distribution<float> g(0.f, 1.f);
+  std::uniform_int_distribution<int> kind(0, 19);
+  for (int stride : {1, 2}) {
+    const SampleGrid grid = MakeSampleGrid(roi, stride);
+    // Normals near +z or near +x (so that both the angle and the crease
+    // test decide), a few NaN; a few cells excluded.
+    std::vector<Eigen::Vector3f> normals(grid.point_of_cell.size());
+    std::vector<uint8_t> excluded(grid.point_of_cell.size(), 0);
+    for (size_t c = 0; c < normals.size(); ++c) {
+      const int k = kind(rng);
+      const Eigen::Vector3f axis = k < 10 ? Eigen::Vector3f::UnitZ() : Eigen::Vector3f::UnitX();
+      normals[c] = k == 0 ? Eigen::Vector3f::Constant(kNaN) : (axis + 0.3f * Eigen::Vector3f(g(rng), g(rng), g(rng))).normalized();
+      excluded[c] = k == 1 ? 1 : 0;
+    }
+    struct Case {
+      float jump, angle, convex;
+      bool with_excluded;
+    };
+    for (const Case& k : {Case{0.01f, 0.f, -1.f, false}, Case{0.01f, 0.8f, -1.f, true}, Case{0.01f, 0.6f, 0.f, true},
+                          Case{0.01f, 0.6f, 0.05f, false}}) {
+      const std::vector<uint8_t>& ex = k.with_excluded ? excluded : std::vector<uint8_t>{};
+      std::vector<int32_t> got;
+      const int n = GrowRegions(roi, grid, k.angle > 0.f ? normals : std::vector<Eigen::Vector3f>{}, k.jump, k.angle,
+                                ex, &got, k.convex);
+      const std::vector<int32_t> want = FloodFillRegions(roi, grid, normals, k.jump, k.angle, ex, k.convex);
+      ASSERT_EQ(got, want) << "stride " << stride << " jump " << k.jump << " angle " << k.angle;
+      const int32_t most = *std::max_element(want.begin(), want.end());
+      EXPECT_EQ(n, most + 1);
+      // Neither one region nor all singletons.
+      std::vector<int> size(static_cast<size_t>(n), 0);
+      for (int32_t r : want) size[static_cast<size_t>(std::max(r, 0))] += r >= 0 ? 1 : 0;
+      EXPECT_GT(n, 10);
+      EXPECT_GE(*std::max_element(size.begin(), size.end()), 50) << "stride " << stride << " jump " << k.jump;
+    }
   }
 }
 
