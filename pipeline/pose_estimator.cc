@@ -687,6 +687,12 @@ struct PoseEstimator::Impl {
   // Fills w from the view; false (out.no_result_reason set) when the view
   // cannot be matched.
   bool Prepare(const SceneView& view, PreparedView& w, PoseEstimates& out) const;
+  // The closest-point field's bounding sphere (ClosestPointField::grid_radius)
+  // at X_BO: centre in B, squared radius.
+  std::pair<Eigen::Vector3f, float> FieldSphere(const Pose& X_BO) const {
+    const float r = field.grid_radius();
+    return {(X_BO * field.grid_centre().cast<double>()).cast<float>(), r * r};
+  }
   // True when q (in O) lies within tol of the part's surface (the nearest
   // dense sample through the closest-point field; false beyond its band).
   bool OnSurface(const Eigen::Vector3f& q, float tol) const {
@@ -757,8 +763,9 @@ void PoseEstimator::MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vecto
   const Pose X_OB = X_BO.inverse();
   const Eigen::Matrix3f R = X_OB.linear().cast<float>();
   const Eigen::Vector3f t = X_OB.translation().cast<float>();
+  const auto [c_B, r2] = impl_->FieldSphere(X_BO);
   for (size_t i = 0; i < points_B.size() && i < on_surface->size(); ++i) {
-    if ((*on_surface)[i]) continue;
+    if ((*on_surface)[i] || (points_B[i] - c_B).squaredNorm() > r2) continue;
     const Eigen::Vector3f q = R * points_B[i] + t;
     if (impl_->OnSurface(q, tolerance)) (*on_surface)[i] = 1;
   }
@@ -768,8 +775,10 @@ size_t PoseEstimator::CountInside(const Pose& X_BO, std::span<const Eigen::Vecto
   const Pose X_OB = X_BO.inverse();
   const Eigen::Matrix3f R = X_OB.linear().cast<float>();
   const Eigen::Vector3f t = X_OB.translation().cast<float>();
+  const auto [c_B, r2] = impl_->FieldSphere(X_BO);
   size_t inside = 0;
   for (const Eigen::Vector3f& p : points_B) {
+    if ((p - c_B).squaredNorm() > r2) continue;  // no closest sample there
     const Eigen::Vector3f q = R * p + t;
     const int idx = impl_->field.Nearest(q, impl_->dense.points);
     if (idx < 0) continue;

@@ -53,9 +53,15 @@ class ClosestPointField {
     return best;
   }
   float band() const { return band_; }
+  // A sphere around the whole grid: Lookup and Nearest give -1 for every
+  // point outside it (they do outside the grid), so a caller that holds the
+  // sphere in its own frame can skip such points before transforming them.
+  Eigen::Vector3f grid_centre() const { return origin_ + 0.5f * extent(); }
+  float grid_radius() const { return 0.5f * extent().norm() * (1.f + 1e-5f); }
   size_t memory_bytes() const { return cells16_.size() * sizeof(uint16_t) + cells_.size() * sizeof(int32_t); }
 
  private:
+  Eigen::Vector3f extent() const { return dims_.cast<float>() / inv_voxel_; }
   // Voxels are stored in bricks of kBrick^3 (brick after brick, x fastest
   // within and between bricks): the 8 voxels around a point, and the voxels
   // of the neighbouring points ICP looks up next, mostly lie in one brick

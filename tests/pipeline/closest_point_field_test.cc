@@ -107,5 +107,30 @@ TEST(ClosestPointField, TheShippedLBracketSamplingMatchesTheBruteForceScan) {
   EXPECT_GT(ExpectSameAsBruteForce(dense.points, 0.0015f, 0.006f), 10000);
 }
 
+TEST(ClosestPointField, NoPointOutsideTheGridSphereHasASample) {
+  // CountInside and MarkOnSurface skip points outside the sphere before
+  // transforming them: Lookup and Nearest must give -1 for every such point.
+  const OrientedPoints dense = SampleSurface(MakeLBracket(), 0.0015, 1);
+  ClosestPointField field;
+  field.Build(dense.points, 0.0015f, 0.006f);
+  const Eigen::Vector3f c = field.grid_centre();
+  const float r = field.grid_radius();
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1.f, 1.f);
+  int found_inside = 0, outside = 0;
+  for (int i = 0; i < 200000; ++i) {
+    const Eigen::Vector3f q = c + 1.2f * r * Eigen::Vector3f(u(rng), u(rng), u(rng));
+    const bool has = field.Lookup(q) >= 0 || field.Nearest(q, dense.points) >= 0;
+    if ((q - c).norm() > r) {
+      ++outside;
+      EXPECT_FALSE(has) << "a sample for a point " << (q - c).norm() - r << " m outside the sphere";
+    } else {
+      found_inside += has ? 1 : 0;
+    }
+  }
+  EXPECT_GT(outside, 10000);
+  EXPECT_GT(found_inside, 1000);
+}
+
 }  // namespace
 }  // namespace bp::internal
