@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <string>
 
@@ -233,8 +234,6 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     const Eigen::Vector3f& sr = points[r];
     const Eigen::Vector3f& nr = normals[r];
     const Eigen::Matrix3f Rs = AlignToX(nr);
-    // The previous reference point's cells back to zero.
-    for (const uint32_t cell : touched) acc[cell] = 0;
     pairs.clear();
     size_t votes = 0;
     in_range.clear();
@@ -269,6 +268,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     uint16_t* const a_cells = acc.data();
     const Entry* const entries = entries_.data();
     const float alpha_unit = 1.f / static_cast<float>(alpha_units_);  // a power of two: exact
+    uint16_t most = 0;  // the most votes of any cell
     for (const Pair& pr : pairs) {
       // The cells first (a loop the compiler vectorizes), then the votes.
       const uint32_t n = pr.end - pr.begin;
@@ -285,27 +285,34 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
         const uint16_t v = ++a_cells[cell];
         touched[n_touched] = cell;
         n_touched += v == 1;
+        most = std::max(most, v);
       }
     }
     touched.resize(n_touched);
-    int best = 0;
-    size_t best_bin = 0;
+    // One pass over the touched cells (the most votes are known from the
+    // vote loop): each back to zero for the next reference point, and the
+    // peaks above the floor collected; the lowest cell with the most votes
+    // is then the first peak in peak order (with no peaks wanted, the floor
+    // is the most votes and that cell the lowest peak).
+    const int best = most;
+    const bool want_peaks = !(options.peaks_examined <= 1 && !options.accept && options.record == nullptr);
+    const int floor_votes =
+        best < 3 ? std::numeric_limits<int>::max()
+        : want_peaks
+            ? std::clamp(static_cast<int>(std::ceil(options.min_peak_fraction * static_cast<float>(best))), 3, best)
+            : best;
+    peaks.clear();
     for (const uint32_t cell : touched) {
-      const int v = acc[cell];
-      if (v > best || (v == best && cell < best_bin)) {
-        best = v;
-        best_bin = cell;
-      }
+      const int v = a_cells[cell];
+      a_cells[cell] = 0;
+      if (v >= floor_votes) peaks.emplace_back(static_cast<uint16_t>(v), cell);
     }
     if (best < 3) continue;
-    if (options.peaks_examined <= 1 && !options.accept && options.record == nullptr) {
+    if (!want_peaks) {
+      uint32_t best_bin = peaks.front().second;
+      for (const auto& pk : peaks) best_bin = std::min(best_bin, pk.second);
       emit(r, best, best_bin, {});
       continue;
-    }
-    peaks.clear();
-    const int floor_votes = std::max(3, static_cast<int>(std::ceil(options.min_peak_fraction * static_cast<float>(best))));
-    for (const uint32_t cell : touched) {
-      if (acc[cell] >= floor_votes) peaks.emplace_back(acc[cell], cell);
     }
     size_t sorted = static_cast<size_t>(std::max(1, options.peaks_examined));
     if (options.record != nullptr) sorted = std::max(sorted, options.record->recorded_peaks);
@@ -313,6 +320,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     std::partial_sort(peaks.begin(), peaks.begin() + static_cast<std::ptrdiff_t>(sorted), peaks.end(),
                       [](const auto& a, const auto& b) { return a.first > b.first || (a.first == b.first && a.second < b.second); });
     const std::span<const std::pair<uint16_t, uint32_t>> top(peaks.data(), sorted);
+    const uint32_t best_bin = top.front().second;
     if (options.record != nullptr) {
       options.record->references.push_back(PpfVotes::Reference{static_cast<uint32_t>(r), best,
                                                                static_cast<uint32_t>(best_bin), {top.begin(), top.end()}});

@@ -91,6 +91,39 @@ TEST(PpfMatcher, TheMostVotedPoseIsThePartsPose) {
   EXPECT_GT(poses[0].votes, 10 * poses[1].votes);
 }
 
+// One pass over a reference point's touched cells resets them, collects the
+// peaks and, without peaks wanted (one peak, no accept, no record), finds
+// the lowest cell with the most votes among those the floor lets through:
+// both paths give the same poses, and every recorded reference's best cell
+// is its first peak.
+TEST(PpfMatcher, TheOnePeakPathAndThePeakListAgree) {
+  const PpfScene s = MakeScene();
+  const Symmetry none;
+  PpfMatchOptions fast = Options(1, 1, 12);
+  fast.accept = nullptr;
+  PpfVotes votes;
+  PpfMatchOptions listed = Options(1, 1, 12);
+  listed.record = &votes;
+  const std::vector<CoarsePose> a = s.model.Match(s.points, s.normals, {}, fast, none);
+  ASSERT_GE(a.size(), 2u);
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, listed, none), a);
+  ASSERT_GT(votes.references.size(), 10u);
+  for (const PpfVotes::Reference& r : votes.references) {
+    ASSERT_FALSE(r.peaks.empty());
+    EXPECT_EQ(r.peaks.front().first, r.best);
+    EXPECT_EQ(r.peaks.front().second, r.best_bin);
+    for (size_t i = 1; i < r.peaks.size(); ++i) {
+      EXPECT_TRUE(r.peaks[i - 1].first > r.peaks[i].first ||
+                  (r.peaks[i - 1].first == r.peaks[i].first && r.peaks[i - 1].second < r.peaks[i].second));
+    }
+  }
+  // The accumulator is back to zero after each reference point: one
+  // reference point's best cell holds about one vote per partner (at most
+  // 100 partners; without the reset, the votes of all earlier reference
+  // points too).
+  for (const PpfVotes::Reference& r : votes.references) EXPECT_LE(r.best, 2 * listed.max_partners);
+}
+
 TEST(PpfMatcher, BuildRejectsMoreModelPointsThanTheTableCanIndex) {
   const std::vector<Eigen::Vector3f> points(PpfModel::kMaxModelPoints + 1, Eigen::Vector3f::Zero()),
       normals(points.size(), Eigen::Vector3f::UnitZ());
