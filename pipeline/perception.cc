@@ -10,6 +10,7 @@
 #include <tuple>
 #include <utility>
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 #include <tbb/task_arena.h>
@@ -308,7 +309,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       n_regions = internal::GrowRegions(roi, grid, normals, grid_jump, angle, excluded, &segment_of_cell,
                                         static_cast<float>(options_.segment_convex_tolerance));
     };
-    tbb::parallel_invoke([&] { internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
+    int n_cc = 0;  // connected regions
+    tbb::parallel_invoke([&] { n_cc = internal::GrowRegions(roi, grid, {}, grid_jump, 0.f, {}, &region_of_cell); },
                          segments);
     t = stage("regions", t);
 
@@ -319,16 +321,42 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     // more), and segment ids grow with their first cell in row-major order
     // (each region grown from its first cell: the joining condition is
     // symmetric).
-    std::vector<int32_t> size(static_cast<size_t>(n_regions), 0);
-    std::vector<int32_t> region_of_segment(static_cast<size_t>(n_regions), -1);
-    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-      const int32_t s = segment_of_cell[c];
-      if (s < 0) continue;
-      ++size[static_cast<size_t>(s)];
-      region_of_segment[static_cast<size_t>(s)] = region_of_cell[c];
+    // The passes over all cells run in n_chunks contiguous ranges of cells,
+    // one task each, and merge their per-range counts in range order, so
+    // that every result is the serial pass's (samples in cell order).
+    const size_t n_cells = segment_of_cell.size();
+    const size_t n_chunks = std::clamp<size_t>(n_cells / 16384, 1,
+                                               static_cast<size_t>(tbb::this_task_arena::max_concurrency()));
+    const auto for_chunks = [&](auto&& body) {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, n_chunks, 1),
+                        [&](const tbb::blocked_range<size_t>& r) {
+                          for (size_t k = r.begin(); k < r.end(); ++k) {
+                            body(k, n_cells * k / n_chunks, n_cells * (k + 1) / n_chunks);
+                          }
+                        },
+                        tbb::simple_partitioner());
+    };
+    std::vector<std::vector<int32_t>> chunk_size(n_chunks), chunk_region(n_chunks);
+    for_chunks([&](size_t k, size_t begin, size_t end) {
+      chunk_size[k].assign(static_cast<size_t>(n_regions), 0);
+      chunk_region[k].assign(static_cast<size_t>(n_regions), -1);
+      int32_t* const sz = chunk_size[k].data();
+      int32_t* const rg = chunk_region[k].data();
+      for (size_t c = begin; c < end; ++c) {
+        const int32_t sgm = segment_of_cell[c];
+        if (sgm < 0) continue;
+        ++sz[sgm];
+        rg[sgm] = region_of_cell[c];
+      }
+    });
+    std::vector<int32_t> size = std::move(chunk_size[0]);
+    std::vector<int32_t> region_of_segment = std::move(chunk_region[0]);
+    for (size_t k = 1; k < n_chunks; ++k) {
+      for (size_t sgm = 0; sgm < size.size(); ++sgm) {
+        size[sgm] += chunk_size[k][sgm];
+        if (region_of_segment[sgm] < 0) region_of_segment[sgm] = chunk_region[k][sgm];
+      }
     }
-    const int32_t n_cc =
-        region_of_cell.empty() ? 0 : *std::max_element(region_of_cell.begin(), region_of_cell.end()) + 1;
     if (options_.match_fragmented_regions) {
       // A connected region the normal condition cut into pieces all below
       // min_segment_points, but big enough as a whole, becomes one segment
@@ -374,18 +402,36 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
       renumber[static_cast<size_t>(s)] = kept++;
     }
     // Pieces below min_segment_points are no segment of their own; region
-    // views (match_regions) still see them. One pass renumbers the cells and
-    // flags those pieces' cells.
-    std::vector<uint8_t> fragment_cell(options_.match_regions ? segment_of_cell.size() : 0, 0);
-    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-      int32_t& s = segment_of_cell[c];
-      if (s < 0) continue;
-      s = renumber[static_cast<size_t>(s)];
-      if (s < 0 && options_.match_regions) fragment_cell[c] = 1;
-    }
-    // Group the grid samples by segment (the kept segments' sizes are their
-    // sample counts), and count per connected region its kept and fragment
-    // samples and whether it holds more than one segment (match_regions).
+    // views (match_regions) still see them. One pass renumbers the cells,
+    // flags those pieces' cells, counts the kept segments' samples and, per
+    // connected region, its kept and fragment samples and whether it holds
+    // more than one segment (match_regions); a second groups the grid
+    // samples by segment (the kept segments' sizes are their sample counts).
+    std::vector<uint8_t> fragment_cell(options_.match_regions ? n_cells : 0, 0);
+    std::vector<std::vector<int32_t>> chunk_count(n_chunks);
+    std::vector<internal::RegionSegmentCounts> chunk_rc(n_chunks);
+    for_chunks([&](size_t k, size_t begin, size_t end) {
+      std::vector<int32_t>& count = chunk_count[k];
+      count.assign(static_cast<size_t>(kept), 0);
+      internal::RegionSegmentCounts& rc = chunk_rc[k];
+      if (options_.match_regions) rc = internal::RegionSegmentCounts(static_cast<size_t>(n_cc));
+      for (size_t c = begin; c < end; ++c) {
+        int32_t& sgm = segment_of_cell[c];
+        if (sgm >= 0) {
+          sgm = renumber[static_cast<size_t>(sgm)];
+          if (sgm >= 0) ++count[static_cast<size_t>(sgm)];
+          else if (options_.match_regions) fragment_cell[c] = 1;
+        }
+        if (!options_.match_regions) continue;
+        const int32_t r = region_of_cell[c];
+        if (r >= 0) rc.Add(r, sgm, fragment_cell[c] != 0);
+      }
+    });
+    internal::RegionSegmentCounts& region_counts = chunk_rc[0];
+    for (size_t k = 1; k < n_chunks && options_.match_regions; ++k) region_counts.Merge(chunk_rc[k]);
+    std::vector<int32_t>& kept_samples = region_counts.kept_samples;
+    std::vector<int32_t>& fragment_samples = region_counts.fragment_samples;
+    std::vector<uint8_t>& multi = region_counts.multi;
     std::vector<int32_t> start(static_cast<size_t>(kept) + 1, 0);
     for (int32_t s = 0; s < n_regions; ++s) {
       if (renumber[static_cast<size_t>(s)] >= 0) start[static_cast<size_t>(renumber[static_cast<size_t>(s)]) + 1] = size[static_cast<size_t>(s)];
@@ -394,38 +440,28 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     seg_points.resize(static_cast<size_t>(start.back()));
     seg_normals.resize(seg_points.size());
     seg_roi_index.resize(seg_points.size());
-    std::vector<int32_t> fill(start.begin(), start.end() - 1);
     std::vector<int32_t> cell_of_sample(seg_points.size());
-    std::vector<int32_t> first_segment, kept_samples, fragment_samples;
-    std::vector<uint8_t> multi;
-    if (options_.match_regions) {
-      first_segment.assign(static_cast<size_t>(n_cc), -1);
-      multi.assign(static_cast<size_t>(n_cc), 0);
-      kept_samples.assign(static_cast<size_t>(n_cc), 0);
-      fragment_samples.assign(static_cast<size_t>(n_cc), 0);
-    }
-    for (size_t c = 0; c < segment_of_cell.size(); ++c) {
-      const int32_t s = segment_of_cell[c];
-      if (options_.match_regions) {
-        const int32_t r = region_of_cell[c];
-        if (r >= 0) {
-          fragment_samples[static_cast<size_t>(r)] += fragment_cell[c];
-          if (s >= 0) {
-            ++kept_samples[static_cast<size_t>(r)];
-            int32_t& first = first_segment[static_cast<size_t>(r)];
-            if (first < 0) first = s;
-            else if (first != s) multi[static_cast<size_t>(r)] = 1;
-          }
-        }
+    // Each range writes its samples of a segment after the earlier ranges'.
+    std::vector<std::vector<int32_t>> chunk_fill(n_chunks);
+    for (size_t k = 0; k < n_chunks; ++k) {
+      chunk_fill[k].assign(start.begin(), start.end() - 1);
+      for (size_t j = 0; j < k; ++j) {
+        for (size_t sgm = 0; sgm < static_cast<size_t>(kept); ++sgm) chunk_fill[k][sgm] += chunk_count[j][sgm];
       }
-      if (s < 0) continue;
-      const int32_t k = fill[static_cast<size_t>(s)]++;
-      const int32_t i = grid.point_of_cell[c];
-      seg_points[static_cast<size_t>(k)] = roi.points_B[static_cast<size_t>(i)];
-      seg_normals[static_cast<size_t>(k)] = normals[c];
-      seg_roi_index[static_cast<size_t>(k)] = i;
-      cell_of_sample[static_cast<size_t>(k)] = static_cast<int32_t>(c);
     }
+    for_chunks([&](size_t k, size_t begin, size_t end) {
+      int32_t* const fill = chunk_fill[k].data();
+      for (size_t c = begin; c < end; ++c) {
+        const int32_t sgm = segment_of_cell[c];
+        if (sgm < 0) continue;
+        const auto j = static_cast<size_t>(fill[sgm]++);
+        const int32_t i = grid.point_of_cell[c];
+        seg_points[j] = roi.points_B[static_cast<size_t>(i)];
+        seg_normals[j] = normals[c];
+        seg_roi_index[j] = i;
+        cell_of_sample[j] = static_cast<int32_t>(c);
+      }
+    });
     for (int s = 0; s < kept; ++s) seg_range.emplace_back(start[static_cast<size_t>(s)], start[static_cast<size_t>(s) + 1]);
     if (options_.match_regions) {
       // Connected regions that hold two or more segments, or one segment and

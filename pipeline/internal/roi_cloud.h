@@ -83,4 +83,37 @@ void SpreadLabels(const RoiCloud& roi, const SampleGrid& grid, const std::vector
                   const std::vector<int32_t>& b_of_cell, float max_jump, std::vector<int32_t>* a_of_point,
                   std::vector<int32_t>* b_of_point);
 
+// Per connected region, what its cells hold: samples of kept segments and of
+// pieces too small to be segments, the first kept segment met and whether a
+// second one was. Counted over ranges of cells in parallel, then merged in
+// range order: the merge of the ranges' counts equals the count of their
+// concatenation.
+struct RegionSegmentCounts {
+  std::vector<int32_t> first_segment, kept_samples, fragment_samples;
+  std::vector<uint8_t> multi;  // two or more kept segments
+
+  explicit RegionSegmentCounts(size_t regions = 0)
+      : first_segment(regions, -1), kept_samples(regions, 0), fragment_samples(regions, 0), multi(regions, 0) {}
+  // A cell of region r (>= 0) with kept segment s (-1: none), a fragment's or not.
+  void Add(int32_t r, int32_t s, bool fragment) {
+    const auto i = static_cast<size_t>(r);
+    fragment_samples[i] += fragment ? 1 : 0;
+    if (s < 0) return;
+    ++kept_samples[i];
+    if (first_segment[i] < 0) first_segment[i] = s;
+    else if (first_segment[i] != s) multi[i] = 1;
+  }
+  // Appends the counts of the cells after this one's (same region count).
+  void Merge(const RegionSegmentCounts& later) {
+    for (size_t i = 0; i < first_segment.size(); ++i) {
+      kept_samples[i] += later.kept_samples[i];
+      fragment_samples[i] += later.fragment_samples[i];
+      multi[i] |= later.multi[i];
+      if (later.first_segment[i] < 0) continue;
+      if (first_segment[i] < 0) first_segment[i] = later.first_segment[i];
+      else if (first_segment[i] != later.first_segment[i]) multi[i] = 1;
+    }
+  }
+};
+
 }  // namespace bp::internal

@@ -749,6 +749,33 @@ TEST(PerceptionEval, TheSecondLookTriesTheWavesClosestClassFirst) {
   EXPECT_EQ(fb.detections, fa.detections);
 }
 
+// The segment stage's passes over the grid cells run in one range of cells
+// per thread and merge their counts in range order: on one thread and on
+// two, the same segments (every ROI point's label), views and detections
+// (the per-region counts' merge has a test of its own in roi_cloud_test).
+TEST(PerceptionEval, OneThreadAndTwoGiveTheSameSegmentsAndDetections) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  for (uint64_t seed : {3u, 13u}) {
+    const Frame frame = f.Pile(seed);
+    const PerceptionResult two = Fixture::RunWith(*f.perception, frame);
+    tbb::task_arena arena(1);
+    Result<PerceptionResult> one = Status::Internal("not run");
+    arena.execute([&] { one = f.perception->Run(frame, {}); });
+    ASSERT_TRUE(one.ok()) << one.status().ToString();
+    ASSERT_FALSE(two.segment_of_point.empty());
+    EXPECT_GT(*std::max_element(two.segment_of_point.begin(), two.segment_of_point.end()), 5) << "pile " << seed;
+    EXPECT_EQ(one->views, two.views);
+    EXPECT_EQ(one->largest_region_points, two.largest_region_points);
+    EXPECT_TRUE(one->segment_of_point == two.segment_of_point) << "pile " << seed;
+    ASSERT_EQ(one->detections.size(), two.detections.size()) << "pile " << seed;
+    for (size_t i = 0; i < two.detections.size(); ++i) {
+      EXPECT_EQ(one->detections[i].class_id, two.detections[i].class_id);
+      EXPECT_TRUE(one->detections[i].X_BO.isApprox(two.detections[i].X_BO, 1e-12)) << "pile " << seed << " #" << i;
+    }
+  }
+}
+
 // View waves (PerceptionOptions::view_waves): the views of later waves that
 // lie mostly on a part already found are not matched. On pile 3 this skips
 // views and estimator calls, and finds the same parts (the same recall

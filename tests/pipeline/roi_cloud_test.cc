@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -264,6 +265,53 @@ TEST(RoiCloud, GrowRegionsEqualsAFloodFillSeededInRasterOrder) {
       EXPECT_GE(*std::max_element(size.begin(), size.end()), 50) << "stride " << stride << " jump " << k.jump;
     }
   }
+}
+
+// The segment stage counts, per connected region, its kept and fragment
+// samples and whether it holds two kept segments, over ranges of cells in
+// parallel: merging the ranges' counts in order gives the count of all cells
+// in one pass, wherever the ranges split (regions whose only two segments
+// fall one into each range included).
+TEST(RegionSegmentCounts, MergedRangesCountLikeOnePass) {
+  std::mt19937 rng(5);
+  for (int trial = 0; trial < 200; ++trial) {
+    const int regions = 1 + trial % 7;
+    const int cells = 1 + static_cast<int>(rng() % 60);
+    std::vector<std::tuple<int32_t, int32_t, bool>> seq;
+    for (int c = 0; c < cells; ++c) {
+      const auto r = static_cast<int32_t>(rng() % regions);
+      // Few segments per region, so that runs of one segment are common.
+      const int32_t s = rng() % 4 == 0 ? -1 : static_cast<int32_t>(r * 3 + rng() % (1 + trial % 3));
+      seq.emplace_back(r, s, s < 0 && rng() % 2 == 0);
+    }
+    RegionSegmentCounts whole(static_cast<size_t>(regions));
+    for (const auto& [r, s, f] : seq) whole.Add(r, s, f);
+    // Two to four ranges at random cuts.
+    std::vector<int> cuts = {0, cells};
+    for (int k = 0; k < 1 + trial % 3; ++k) cuts.push_back(static_cast<int>(rng() % (cells + 1)));
+    std::sort(cuts.begin(), cuts.end());
+    RegionSegmentCounts merged(static_cast<size_t>(regions));
+    for (size_t k = 0; k + 1 < cuts.size(); ++k) {
+      RegionSegmentCounts part(static_cast<size_t>(regions));
+      for (int c = cuts[k]; c < cuts[k + 1]; ++c) {
+        const auto& [r, s, f] = seq[static_cast<size_t>(c)];
+        part.Add(r, s, f);
+      }
+      if (k == 0) merged = part;
+      else merged.Merge(part);
+    }
+    EXPECT_EQ(merged.first_segment, whole.first_segment) << "trial " << trial;
+    EXPECT_EQ(merged.kept_samples, whole.kept_samples) << "trial " << trial;
+    EXPECT_EQ(merged.fragment_samples, whole.fragment_samples) << "trial " << trial;
+    EXPECT_EQ(merged.multi, whole.multi) << "trial " << trial;
+  }
+  // One segment per range of the same region: two segments in all.
+  RegionSegmentCounts a(1), b(1);
+  a.Add(0, 4, false);
+  b.Add(0, 7, false);
+  a.Merge(b);
+  EXPECT_EQ(a.multi[0], 1);
+  EXPECT_EQ(a.first_segment[0], 4);
 }
 
 }  // namespace
