@@ -216,6 +216,67 @@ std::vector<int32_t> FloodFillRegions(const RoiCloud& roi, const SampleGrid& gri
   return label;
 }
 
+// GridNormals on a synthetic grid: two parallel tilted planes (a 20 mm step
+// between them along a column), a hole, an isolated point. A neighbour is
+// used only when closer than k * max_jump (k cells away): every cell of
+// either plane, the cells beside the step and the hole included, gets the
+// planes' normal towards the viewpoint; the isolated point and the empty
+// cells get NaN.
+TEST(RoiCloud, GridNormalsFollowThePlaneAndStopAtDepthJumps) {
+  const int W = 120, H = 80;
+  const float pitch = 0.0013f;  // metres per cell
+  RoiCloud roi;
+  roi.width = W;
+  roi.height = H;
+  roi.point_of_pixel.assign(static_cast<size_t>(W) * H, -1);
+  const Eigen::Vector3f n_true = Eigen::Vector3f(0.3f, -0.2f, 1.f).normalized();
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      if (u >= 30 && u < 34 && v >= 30 && v < 34) continue;  // a hole
+      if (u == 100 && v == 10) continue;                       // room around the lone point
+      const float x = u * pitch, y = v * pitch;
+      // On the plane n_true . p = d, the right part 20 mm higher.
+      const float d = u >= 60 ? 0.02f : 0.f;
+      const float z = (d - n_true.x() * x - n_true.y() * y) / n_true.z();
+      roi.point_of_pixel[static_cast<size_t>(v) * W + u] = static_cast<int32_t>(roi.points_B.size());
+      roi.points_B.emplace_back(x, y, z);
+      roi.pixel_of_point.push_back(v * W + u);
+    }
+  }
+  // An isolated point: its neighbours within 2 cells are all missing.
+  for (int v = 8; v <= 12; ++v) {
+    for (int u = 98; u <= 102; ++u) {
+      const int32_t i = roi.point_of_pixel[static_cast<size_t>(v) * W + u];
+      if (i >= 0) roi.points_B[static_cast<size_t>(i)] = Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN());
+      roi.point_of_pixel[static_cast<size_t>(v) * W + u] = -1;
+    }
+  }
+  roi.point_of_pixel[static_cast<size_t>(10) * W + 100] = static_cast<int32_t>(roi.points_B.size());
+  roi.points_B.emplace_back(100 * pitch, 10 * pitch, 0.5f);
+  roi.pixel_of_point.push_back(10 * W + 100);
+
+  const SampleGrid grid = MakeSampleGrid(roi, 1);
+  std::vector<Eigen::Vector3f> normals;
+  const Eigen::Vector3f viewpoint(0.05f, 0.05f, 1.f);
+  GridNormals(roi, grid, 2, 0.005f, viewpoint, &normals);
+  ASSERT_EQ(normals.size(), grid.point_of_cell.size());
+  int checked = 0;
+  for (int v = 0; v < H; ++v) {
+    for (int u = 0; u < W; ++u) {
+      const size_t c = static_cast<size_t>(v) * W + u;
+      const int32_t i = grid.point_of_cell[c];
+      if (i < 0 || (u == 100 && v == 10)) {
+        EXPECT_FALSE(normals[c].allFinite()) << u << ", " << v;
+        continue;
+      }
+      ASSERT_TRUE(normals[c].allFinite()) << u << ", " << v;
+      EXPECT_GT(normals[c].dot(n_true), 0.99999f) << u << ", " << v;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, W * H - 60);
+}
+
 TEST(RoiCloud, GrowRegionsEqualsAFloodFillSeededInRasterOrder) {
   // Smooth depth in tiles 3 cm apart in depth, 5% of the pixels missing.
   Frame frame = RandomFrame(640, 480, 5);
