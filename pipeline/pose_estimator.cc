@@ -780,7 +780,7 @@ size_t PoseEstimator::CountInside(const Pose& X_BO, std::span<const Eigen::Vecto
   for (const Eigen::Vector3f& p : points_B) {
     if ((p - c_B).squaredNorm() > r2) continue;  // no closest sample there
     const Eigen::Vector3f q = R * p + t;
-    const int idx = impl_->field.Nearest(q, impl_->dense.points);
+    const int idx = impl_->field.Lookup(q);
     if (idx < 0) continue;
     const size_t i = static_cast<size_t>(idx);
     inside += impl_->dense.normals[i].dot(q - impl_->dense.points[i]) < -min_depth ? 1 : 0;
