@@ -1243,8 +1243,8 @@ VerifyStats PoseEstimator::Impl::Verify(const Pose& X_BO, const SceneView& view,
     const Eigen::Vector3f v = cands[i].p - c;
     const float d = v.dot(z);
     if (d <= 0) continue;
-    const int u = static_cast<int>(std::floor(v.dot(x) / d / cell_ang)) + half;
-    const int w = static_cast<int>(std::floor(v.dot(y) / d / cell_ang)) + half;
+    const int u = internal::FloorToInt(v.dot(x) / d / cell_ang) + half;
+    const int w = internal::FloorToInt(v.dot(y) / d / cell_ang) + half;
     if (u < 0 || w < 0 || u >= N || w >= N) continue;
     cell_of[i] = w * N + u;
     zbuf[cell_of[i]] = std::min(zbuf[cell_of[i]], d);

@@ -13,6 +13,8 @@
 
 #include <Eigen/Core>
 
+#include "pipeline/internal/int_math.h"
+
 namespace bp::internal {
 
 class PointHash {
@@ -56,14 +58,7 @@ class PointHash {
   size_t size() const { return sorted_.size(); }
 
  private:
-  // floor(v / cell) without std::floor (a dozen instructions on baseline
-  // x86-64, which has no SSE4.1 round): truncate, then one down for a
-  // negative fraction; the same integer for every finite v in int range.
-  int CellCoord(float v) const {
-    const float f = v * inv_cell_;
-    const int i = static_cast<int>(f);
-    return i - (f < static_cast<float>(i) ? 1 : 0);
-  }
+  int CellCoord(float v) const { return FloorToInt(v * inv_cell_); }
   static uint64_t Key(int x, int y, int z) {
     // 21 bits per axis, offset so negative coordinates stay positive.
     constexpr int kOff = 1 << 20;

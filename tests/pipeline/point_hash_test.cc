@@ -6,11 +6,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <random>
 #include <tuple>
 #include <utility>
 #include <vector>
+
+#include "pipeline/internal/int_math.h"
 
 namespace bp::internal {
 namespace {
@@ -146,6 +149,21 @@ TEST(PointHash, EmptySetFindsNothing) {
   EXPECT_FALSE(hash.AnyWithin(Eigen::Vector3f::Zero(), 0.01f));
   EXPECT_EQ(hash.Nearest(Eigen::Vector3f::Zero(), 0.01f), -1);
   EXPECT_TRUE(hash.CellRunsByKey().empty());
+}
+
+// The cells' coordinates (and verification's depth-buffer cells) come from
+// FloorToInt: std::floor's integer for finite floats in int range.
+TEST(IntMath, FloorToIntIsStdFloor) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> wide(-1e6f, 1e6f), narrow(-3.f, 3.f);
+  for (int i = 0; i < 200000; ++i) {
+    const float f = i % 2 == 0 ? wide(rng) : narrow(rng);
+    ASSERT_EQ(FloorToInt(f), static_cast<int>(std::floor(f))) << f;
+  }
+  for (float f : {0.f, -0.f, 1.f, -1.f, -0.5f, 0.5f, -1e-7f, 1e-7f, -2.f, -2.000001f, 16777215.f, -16777215.f,
+                  2147483520.f, -2147483648.f}) {
+    EXPECT_EQ(FloorToInt(f), static_cast<int>(std::floor(f))) << f;
+  }
 }
 
 }  // namespace
