@@ -483,16 +483,35 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
         seg_roi_index.push_back(i);
         cell_of_sample.push_back(static_cast<int32_t>(c));
       }
+      // Each region view lists its samples in order, the views in the order
+      // of their first samples: the kept segments' samples a segment at a
+      // time (a segment lies in one connected region), then the pieces'
+      // samples one by one.
       std::vector<int32_t> view_of_region(static_cast<size_t>(n_cc), -1);
-      for (int32_t k = 0; k < static_cast<int32_t>(seg_points.size()); ++k) {
-        const int32_t r = region_of_cell[static_cast<size_t>(cell_of_sample[static_cast<size_t>(k)])];
-        if (r < 0 || !multi[static_cast<size_t>(r)]) continue;
+      const auto view_of = [&](int32_t r) -> std::vector<int32_t>* {
+        if (r < 0 || !multi[static_cast<size_t>(r)]) return nullptr;
         int32_t& v = view_of_region[static_cast<size_t>(r)];
         if (v < 0) {
           v = static_cast<int32_t>(region_views.size());
           region_views.emplace_back();
         }
-        region_views[static_cast<size_t>(v)].push_back(k);
+        return &region_views[static_cast<size_t>(v)];
+      };
+      std::vector<int32_t> region_of_kept(static_cast<size_t>(kept), -1);
+      for (int32_t sgm = 0; sgm < n_regions; ++sgm) {
+        const int32_t j = renumber[static_cast<size_t>(sgm)];
+        if (j >= 0) region_of_kept[static_cast<size_t>(j)] = region_of_segment[static_cast<size_t>(sgm)];
+      }
+      for (int32_t j = 0; j < kept; ++j) {
+        std::vector<int32_t>* out = view_of(region_of_kept[static_cast<size_t>(j)]);
+        if (out == nullptr) continue;
+        const size_t at = out->size();
+        out->resize(at + static_cast<size_t>(start[static_cast<size_t>(j) + 1] - start[static_cast<size_t>(j)]));
+        std::iota(out->begin() + static_cast<std::ptrdiff_t>(at), out->end(), start[static_cast<size_t>(j)]);
+      }
+      for (auto k = static_cast<size_t>(start.back()); k < seg_points.size(); ++k) {
+        std::vector<int32_t>* out = view_of(region_of_cell[static_cast<size_t>(cell_of_sample[k])]);
+        if (out != nullptr) out->push_back(static_cast<int32_t>(k));
       }
     }
     // One pass gives every ROI point its segment and its connected region.
