@@ -443,11 +443,10 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     std::vector<int32_t> cell_of_sample(seg_points.size());
     // Each range writes its samples of a segment after the earlier ranges'.
     std::vector<std::vector<int32_t>> chunk_fill(n_chunks);
-    for (size_t k = 0; k < n_chunks; ++k) {
-      chunk_fill[k].assign(start.begin(), start.end() - 1);
-      for (size_t j = 0; j < k; ++j) {
-        for (size_t sgm = 0; sgm < static_cast<size_t>(kept); ++sgm) chunk_fill[k][sgm] += chunk_count[j][sgm];
-      }
+    chunk_fill[0].assign(start.begin(), start.end() - 1);
+    for (size_t k = 1; k < n_chunks; ++k) {
+      chunk_fill[k] = chunk_fill[k - 1];
+      for (size_t sgm = 0; sgm < static_cast<size_t>(kept); ++sgm) chunk_fill[k][sgm] += chunk_count[k - 1][sgm];
     }
     for_chunks([&](size_t k, size_t begin, size_t end) {
       int32_t* const fill = chunk_fill[k].data();

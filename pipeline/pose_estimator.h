@@ -365,10 +365,10 @@ class PoseEstimator {
 
   // How many of points_B lie inside the part's material at X_BO, at least
   // min_depth (metres) behind its surface: the dense model sample nearest
-  // the point's voxel of the closest-point field (within the field's band,
-  // a few millimetres; 1 mm voxels) has its
-  // outward normal pointing away from the point. Points deeper than the band
-  // are not counted, so min_depth must stay below half the thinnest wall.
+  // the point's voxel of the closest-point field (1 mm voxels, within the
+  // field's band, a few millimetres) has its outward normal pointing away
+  // from the point. Points deeper than the band are not counted, so
+  // min_depth must stay below half the thinnest wall.
   // The voxel's sample, not the 8-voxel search for the nearest: 43.1 ->
   // 26.4 M instructions over 4 frames, the same detections on all 130 eval
   // scenes and the held-out 30 (docs/perception_pipeline.md, stage `verify`).

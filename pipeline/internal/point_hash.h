@@ -5,7 +5,6 @@
 // order (the caller's need not outlive it). Immutable after Build, so const queries are thread-safe.
 #pragma once
 
-#include <cmath>
 #include <cstdint>
 #include <span>
 #include <utility>
