@@ -147,8 +147,15 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
   // The accumulator is zero between reference points: only the cells a
   // reference point touched (listed in `touched`, appended without a branch:
   // a cell's first vote is about every other one, which a branch mispredicts)
-  // are read for its peaks and reset after it.
-  std::vector<uint16_t> acc(nm * NA, 0);
+  // are read for its peaks and reset after it. So it is zero between calls
+  // too, and each thread keeps one: a fresh one per call was a memset of
+  // 60-250 KB, several hundred times per frame. A call that ends early (an
+  // exception) leaves it marked dirty, and the next call clears it.
+  thread_local std::vector<uint16_t> acc;
+  thread_local bool acc_dirty = false;
+  if (acc_dirty) std::fill(acc.begin(), acc.end(), uint16_t{0});
+  if (acc.size() < nm * NA) acc.resize(nm * NA, 0);
+  acc_dirty = true;
   std::vector<uint32_t> cells_buffer(static_cast<size_t>(std::max(1, params_.max_bucket_entries)));
   uint32_t* const cells = cells_buffer.data();
   std::vector<uint32_t> touched;
@@ -327,6 +334,7 @@ std::vector<CoarsePose> PpfModel::Match(std::span<const Eigen::Vector3f> points,
     }
     emit(r, best, best_bin, top);
   }
+  acc_dirty = false;
 
   std::stable_sort(candidates.begin(), candidates.end(),
                    [](const CoarsePose& a, const CoarsePose& b) { return a.votes > b.votes; });

@@ -82,7 +82,8 @@ struct PpfMatchOptions {
   // every peak near the best). Several peaks matter for planar views, where
   // many placements of the model's faces tie; `accept` (e.g. "does not sink
   // into the bin floor") lets a physically possible placement win over a
-  // better-voted impossible one. Unset: every pose is accepted.
+  // better-voted impossible one. Unset: every pose is accepted. It must not
+  // call Match itself (Match's vote accumulator is one per thread).
   int peaks_per_reference = 1;
   int peaks_examined = 1;
   float min_peak_fraction = 0.5f;

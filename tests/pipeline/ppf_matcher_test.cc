@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <span>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -122,6 +123,35 @@ TEST(PpfMatcher, TheOnePeakPathAndThePeakListAgree) {
   // 100 partners; without the reset, the votes of all earlier reference
   // points too).
   for (const PpfVotes::Reference& r : votes.references) EXPECT_LE(r.best, 2 * listed.max_partners);
+}
+
+// Each thread keeps its vote accumulator from call to call, all zero in
+// between: a call after calls on a larger model (which grew it), after a
+// call that recorded peaks and after one that an exception from `accept`
+// ended, finds exactly the poses the first call found.
+TEST(PpfMatcher, NoVotesCarryOverFromOneCallToTheNext) {
+  const PpfScene s = MakeScene();
+  const Symmetry none;
+  const PpfMatchOptions options = Options(2, 4, 12);
+  const std::vector<CoarsePose> first = s.model.Match(s.points, s.normals, {}, options, none);
+  ASSERT_GE(first.size(), 2u);
+
+  const OrientedPoints dense = SampleSurface(MakeLBracket(), 0.0025, 2);
+  PpfModel larger;
+  PpfParams params;
+  params.distance_step = 0.05f * s.diameter;
+  params.max_bucket_entries = 50;
+  ASSERT_TRUE(larger.Build(dense.points, dense.normals, params, s.diameter).ok());
+  PpfVotes votes;
+  PpfMatchOptions recorded = options;
+  recorded.record = &votes;
+  EXPECT_FALSE(larger.Match(s.points, s.normals, {}, recorded, none).empty());
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, options, none), first);
+
+  PpfMatchOptions throwing = options;
+  throwing.accept = [](const Pose&) -> bool { throw std::runtime_error("accept failed"); };
+  EXPECT_THROW(s.model.Match(s.points, s.normals, {}, throwing, none), std::runtime_error);
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, options, none), first);
 }
 
 TEST(PpfMatcher, BuildRejectsMoreModelPointsThanTheTableCanIndex) {
