@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "core/mesh_gen.h"
+#include "tests/testing/files.h"
 
 namespace bp {
 namespace {
@@ -26,7 +27,7 @@ constexpr double kPi = std::numbers::pi;
 // --- helpers ----------------------------------------------------------------
 
 std::string TempPath(const std::string& name) {
-  const auto dir = std::filesystem::temp_directory_path() / "bp_mesh_test";
+  const auto dir = bp::testing::ScratchRoot() / "mesh";
   std::filesystem::create_directories(dir);
   return (dir / name).string();
 }

@@ -4,7 +4,6 @@
 #include "grasp/bin_picking_planner.h"
 
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -17,6 +16,7 @@
 #include "pipeline/frame_io.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
+#include "tests/testing/files.h"
 
 namespace bp {
 namespace {
@@ -32,7 +32,7 @@ Cell SyntheticCell(int parts, uint64_t seed) {
 }
 
 std::string TempPath(const std::string& name) {
-  const auto dir = std::filesystem::temp_directory_path() / ("bp_grasp_test_" + std::to_string(::getpid()));
+  const auto dir = bp::testing::ScratchRoot() / "grasp";
   std::filesystem::create_directories(dir);
   return (dir / name).string();
 }

@@ -1,7 +1,5 @@
 // Runs the built binpick binary (build/bin/binpick) as a user would.
 
-#include <unistd.h>
-
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -13,6 +11,7 @@
 
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
+#include "tests/testing/files.h"
 #include "tests/testing/run_command.h"
 
 namespace bp {
@@ -27,14 +26,7 @@ test::CommandRun RunBinpick(const std::string& args) {
   return test::RunCommand(binary + " " + args);
 }
 
-std::string FreshDir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir = fs::temp_directory_path() / ("binpick_tests." + std::to_string(::getpid())) /
-                       (std::string("cli.") + info->name());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir.string();
-}
+std::string FreshDir() { return bp::testing::FreshDir("cli"); }
 
 TEST(BinpickCli, HelpListsSubcommands) {
   const test::CommandRun r = RunBinpick("--help");
