@@ -117,7 +117,8 @@ TEST(PointHash, CellRunsComeInKeyOrderAndHoldEveryPointOnce) {
 }
 
 // The extremes of the counting sort: every point in a cell of its own (as
-// many occupied slots as points) and every point in one cell (one run).
+// many occupied slots as points, more than the first table's 3/4 holds, so
+// Build grows it and starts over) and every point in one cell (one run).
 TEST(PointHash, OneCellPerPointAndOneCellForAll) {
   std::vector<Eigen::Vector3f> lattice;
   for (int z = 0; z < 10; ++z) {
