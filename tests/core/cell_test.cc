@@ -98,35 +98,20 @@ std::string Mutate(std::string text, const std::string& from, const std::string&
   return text;
 }
 
-class TempDir {
- public:
-  TempDir() {
-    dir_ = testing::FreshDir("cell");
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  const fs::path& path() const { return dir_; }
-
- private:
-  fs::path dir_;
-};
-
 // A temp dir holding the base cell's meshes; writes cell files into it.
 class CellFileTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    for (const char* m : {"meshes/bushing.ply", "meshes/tee.ply", "meshes/cup.ply"}) Touch(tmp_.path() / m);
+    for (const char* m : {"meshes/bushing.ply", "meshes/tee.ply", "meshes/cup.ply"}) Touch(tmp_ / m);
   }
   std::string Write(const std::string& text, const std::string& name = "cell.yaml") {
-    const fs::path p = tmp_.path() / name;
+    const fs::path p = tmp_ / name;
     WriteText(p, text);
     return p.string();
   }
   Result<Cell> Load(const std::string& text) { return LoadCell(Write(text)); }
 
-  TempDir tmp_;
+  const fs::path tmp_ = testing::FreshDir("cell");  // kept after a failure (tests/testing/files.h)
 };
 
 // Sets an environment variable for the lifetime of the object.
@@ -154,7 +139,7 @@ TEST_F(CellFileTest, BaseCellLoadsWithEveryValue) {
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->name, "test_cell");
   EXPECT_EQ(cell->path, path);
-  EXPECT_EQ(fs::path(cell->base_dir), fs::absolute(tmp_.path()).lexically_normal());
+  EXPECT_EQ(fs::path(cell->base_dir), fs::absolute(tmp_).lexically_normal());
 
   const CameraSpec& cam = cell->camera;
   EXPECT_FALSE(cam.eye_in_hand);
@@ -221,7 +206,7 @@ TEST_F(CellFileTest, BaseCellLoadsWithEveryValue) {
 TEST_F(CellFileTest, RelativeMeshPathsResolveAgainstTheCellFilesDirectory) {
   Result<Cell> cell = Load(kBaseCell);
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  const fs::path dir = fs::absolute(tmp_.path()).lexically_normal();
+  const fs::path dir = fs::absolute(tmp_).lexically_normal();
   EXPECT_EQ(cell->FindPart(0)->mesh, (dir / "meshes/bushing.ply").string());
   EXPECT_EQ(cell->FindPart(1)->mesh, (dir / "meshes/tee.ply").string());
   EXPECT_EQ(cell->FindGripper("suction")->mesh, (dir / "meshes/cup.ply").string());
@@ -229,17 +214,17 @@ TEST_F(CellFileTest, RelativeMeshPathsResolveAgainstTheCellFilesDirectory) {
 }
 
 TEST_F(CellFileTest, CellInASubdirectoryResolvesMeshesFromThatSubdirectory) {
-  Touch(tmp_.path() / "sub/meshes/x.ply");
+  Touch(tmp_ / "sub/meshes/x.ply");
   std::string text = Mutate(kBaseCell, "mesh: meshes/tee.ply", "mesh: ../meshes/tee.ply");
   text = Mutate(text, "mesh: meshes/cup.ply", "mesh: ../meshes/cup.ply");
   Result<Cell> cell = LoadCell(Write(Mutate(text, "mesh: meshes/bushing.ply", "mesh: meshes/x.ply"), "sub/c.yaml"));
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  EXPECT_EQ(cell->FindPart(0)->mesh, (fs::absolute(tmp_.path()).lexically_normal() / "sub/meshes/x.ply").string());
-  EXPECT_EQ(cell->FindPart(1)->mesh, (fs::absolute(tmp_.path()).lexically_normal() / "meshes/tee.ply").string());
+  EXPECT_EQ(cell->FindPart(0)->mesh, (fs::absolute(tmp_).lexically_normal() / "sub/meshes/x.ply").string());
+  EXPECT_EQ(cell->FindPart(1)->mesh, (fs::absolute(tmp_).lexically_normal() / "meshes/tee.ply").string());
 }
 
 TEST_F(CellFileTest, AbsoluteMeshPathIsKept) {
-  const fs::path abs = fs::absolute(tmp_.path() / "meshes/tee.ply");
+  const fs::path abs = fs::absolute(tmp_ / "meshes/tee.ply");
   Result<Cell> cell = Load(Mutate(kBaseCell, "mesh: meshes/tee.ply", "mesh: " + abs.string()));
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->FindPart(1)->mesh, abs.lexically_normal().string());
@@ -407,7 +392,7 @@ TEST_F(CellFileTest, SyntaxErrorNamesTheLine) {
 }
 
 TEST_F(CellFileTest, MissingFileIsNotFound) {
-  const std::string path = (tmp_.path() / "nope.yaml").string();
+  const std::string path = (tmp_ / "nope.yaml").string();
   Result<Cell> cell = LoadCell(path);
   ASSERT_FALSE(cell.ok());
   EXPECT_EQ(cell.status().code(), Status::Code::kNotFound);
@@ -440,7 +425,7 @@ TEST_F(CellFileTest, FilesSourceDirResolvesAgainstCellDirectory) {
   Result<Cell> cell = Load(Mutate(kBaseCell, "kind: synthetic", "kind: files\n  dir: recordings"));
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->source.kind, SourceSpec::Kind::kFiles);
-  EXPECT_EQ(cell->source.dir, (fs::absolute(tmp_.path()).lexically_normal() / "recordings").string());
+  EXPECT_EQ(cell->source.dir, (fs::absolute(tmp_).lexically_normal() / "recordings").string());
 }
 
 class PoseParsingTest : public CellFileTest {
@@ -504,11 +489,11 @@ TEST_F(PoseParsingTest, NoRotationKeyIsIdentity) {
 }
 
 TEST_F(CellFileTest, HandEyeFileOverridesThePoseWhenItExists) {
-  WriteText(tmp_.path() / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2, 0.9], rpy_deg: [180, 0, 90]}\nresidual_mm: 0.4\n");
+  WriteText(tmp_ / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2, 0.9], rpy_deg: [180, 0, 90]}\nresidual_mm: 0.4\n");
   const std::string text = Mutate(kBaseCell, "  default_config: 1", "  default_config: 1\n  hand_eye_file: calib/hand_eye.yaml");
   Result<Cell> cell = Load(text);
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  EXPECT_EQ(cell->camera.hand_eye_file, (fs::absolute(tmp_.path()).lexically_normal() / "calib/hand_eye.yaml").string());
+  EXPECT_EQ(cell->camera.hand_eye_file, (fs::absolute(tmp_).lexically_normal() / "calib/hand_eye.yaml").string());
   EXPECT_TRUE(cell->camera.X_BC.translation().isApprox(Vec3(0.1, 0.2, 0.9)));
 
   // Eye in hand: the same file gives X_FC.
@@ -522,12 +507,12 @@ TEST_F(CellFileTest, HandEyeFileOverridesThePoseWhenItExists) {
 TEST_F(CellFileTest, AbsentHandEyeFileKeepsThePoseAndStoresTheResolvedPath) {
   Result<Cell> cell = Load(Mutate(kBaseCell, "  default_config: 1", "  default_config: 1\n  hand_eye_file: calib/later.yaml"));
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  EXPECT_EQ(cell->camera.hand_eye_file, (fs::absolute(tmp_.path()).lexically_normal() / "calib/later.yaml").string());
+  EXPECT_EQ(cell->camera.hand_eye_file, (fs::absolute(tmp_).lexically_normal() / "calib/later.yaml").string());
   EXPECT_TRUE(cell->camera.X_BC.translation().isApprox(Vec3(0.5, 0.0, 1.0)));
 }
 
 TEST_F(CellFileTest, MalformedHandEyeFileIsRejectedNamingIt) {
-  WriteText(tmp_.path() / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2], rpy_deg: [180, 0, 90]}\n");
+  WriteText(tmp_ / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2], rpy_deg: [180, 0, 90]}\n");
   Result<Cell> cell = Load(Mutate(kBaseCell, "  default_config: 1", "  default_config: 1\n  hand_eye_file: calib/hand_eye.yaml"));
   ASSERT_FALSE(cell.ok());
   EXPECT_THAT(cell.status().message(), HasSubstr("hand_eye.yaml:1: pose.xyz: expected a list of 3 numbers"));
@@ -579,14 +564,14 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
   Result<Cell> cell = ParseCell(with("  max_connections: 4\n  max_message_rate: 50\n"
                                      "  allowlist: [192.168.10.21, \"fd00::7\"]\n"
                                      "  http_allowlist: [10.1.2.3]\n  http_max_connections: 3"),
-                                (tmp_.path() / "c.yaml").string());
+                                (tmp_ / "c.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->endpoints.max_connections, 4);
   EXPECT_EQ(cell->endpoints.max_message_rate, 50);
   EXPECT_EQ(cell->endpoints.allowlist, (std::vector<std::string>{"192.168.10.21", "fd00::7"}));
   EXPECT_EQ(cell->endpoints.http_allowlist, (std::vector<std::string>{"10.1.2.3"}));
   EXPECT_EQ(cell->endpoints.http_max_connections, 3);
-  Result<Cell> defaults = ParseCell(kBaseCell, (tmp_.path() / "d.yaml").string());
+  Result<Cell> defaults = ParseCell(kBaseCell, (tmp_ / "d.yaml").string());
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(defaults->endpoints.max_connections, 64);
   EXPECT_EQ(defaults->endpoints.max_message_rate, 0);
@@ -603,16 +588,16 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
            {"  http_allowlist: [[10.0.0.1]]", "endpoints.http_allowlist[0]"},
            {"  http_max_connections: -1", "endpoints.http_max_connections: must be >= 0"},
            {"  http_max_connections: many", "endpoints.http_max_connections"}}) {
-    Result<Cell> bad = ParseCell(with(yaml), (tmp_.path() / "b.yaml").string());
+    Result<Cell> bad = ParseCell(with(yaml), (tmp_ / "b.yaml").string());
     ASSERT_FALSE(bad.ok()) << yaml;
     EXPECT_THAT(bad.status().message(), HasSubstr(error)) << yaml;
   }
 }
 
 TEST_F(CellFileTest, ParseCellResolvesAgainstTheGivenPath) {
-  Result<Cell> cell = ParseCell(kBaseCell, (tmp_.path() / "virtual.yaml").string());
+  Result<Cell> cell = ParseCell(kBaseCell, (tmp_ / "virtual.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  EXPECT_EQ(cell->FindPart(0)->mesh, (fs::absolute(tmp_.path()).lexically_normal() / "meshes/bushing.ply").string());
+  EXPECT_EQ(cell->FindPart(0)->mesh, (fs::absolute(tmp_).lexically_normal() / "meshes/bushing.ply").string());
 }
 
 TEST_F(CellFileTest, DescribeSummarisesTheCell) {
@@ -632,10 +617,10 @@ const char* const kDefaultMeshes[] = {"parts/flanged_bushing.ply", "parts/l_brac
                                       "grippers/suction_cup.ply", "grippers/parallel_jaw.ply"};
 
 TEST(DefaultCell, LoadsWithItsPartsGrippersTasksAndConfigs) {
-  TempDir assets;
-  for (const char* m : kDefaultMeshes) Touch(assets.path() / m);
-  ScopedEnv env("BINPICK_ASSETS", assets.path().string());
-  EXPECT_EQ(AssetsDir(), assets.path().string());
+  const fs::path assets = testing::FreshDir("assets");
+  for (const char* m : kDefaultMeshes) Touch(assets / m);
+  ScopedEnv env("BINPICK_ASSETS", assets.string());
+  EXPECT_EQ(AssetsDir(), assets.string());
 
   Result<Cell> cell = LoadDefaultCell();
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
@@ -646,7 +631,7 @@ TEST(DefaultCell, LoadsWithItsPartsGrippersTasksAndConfigs) {
   EXPECT_EQ(cell->FindPart(1)->name, "l_bracket");
   EXPECT_EQ(cell->FindPart(2)->name, "pipe_tee");
   EXPECT_EQ(cell->FindPart(2)->symmetry.kind, Symmetry::Kind::kDiscrete);
-  EXPECT_EQ(cell->FindPart(0)->mesh, (assets.path() / "parts/flanged_bushing.ply").lexically_normal().string());
+  EXPECT_EQ(cell->FindPart(0)->mesh, (assets / "parts/flanged_bushing.ply").lexically_normal().string());
   for (const PartSpec& p : cell->parts) EXPECT_FALSE(p.grasps.empty()) << p.name;
   ASSERT_NE(cell->FindGripper("suction"), nullptr);
   ASSERT_NE(cell->FindGripper("parallel"), nullptr);
@@ -687,8 +672,8 @@ TEST(DefaultCell, ShippedFileLoadsFromDiskLikeTheEmbeddedCopy) {
 }
 
 TEST(DefaultCell, MissingAssetsAreReportedAsNotFound) {
-  TempDir assets;  // empty
-  ScopedEnv env("BINPICK_ASSETS", assets.path().string());
+  const fs::path assets = testing::FreshDir("assets");  // empty
+  ScopedEnv env("BINPICK_ASSETS", assets.string());
   Result<Cell> cell = LoadDefaultCell();
   ASSERT_FALSE(cell.ok());
   EXPECT_EQ(cell.status().code(), Status::Code::kNotFound);
