@@ -26,11 +26,7 @@ constexpr double kPi = std::numbers::pi;
 
 // --- helpers ----------------------------------------------------------------
 
-std::string TempPath(const std::string& name) {
-  const auto dir = bp::testing::ScratchRoot() / "mesh";
-  std::filesystem::create_directories(dir);
-  return (dir / name).string();
-}
+std::string TempPath(const std::string& name) { return bp::testing::ScratchFile("mesh", name); }
 
 void WriteFile(const std::string& path, const std::string& bytes) {
   std::ofstream f(path, std::ios::binary | std::ios::trunc);

@@ -31,11 +31,7 @@ Cell SyntheticCell(int parts, uint64_t seed) {
   return *cell;
 }
 
-std::string TempPath(const std::string& name) {
-  const auto dir = bp::testing::ScratchRoot() / "grasp";
-  std::filesystem::create_directories(dir);
-  return (dir / name).string();
-}
+std::string TempPath(const std::string& name) { return bp::testing::ScratchFile("grasp", name); }
 
 std::unique_ptr<BinPickingPlanner> MakeOraclePlanner(const Cell& cell, const std::string& teach_file = "-") {
   auto source = MakeSyntheticSource(cell);

@@ -49,6 +49,14 @@ inline std::string FreshDir(const std::string& name) {
   return dir.string();
 }
 
+// A path `name` in the directory `group` under ScratchRoot() (created),
+// shared by every test of the process that uses the same group.
+inline std::string ScratchFile(const std::string& group, const std::string& name) {
+  const std::filesystem::path dir = ScratchRoot() / group;
+  std::filesystem::create_directories(dir);
+  return (dir / name).string();
+}
+
 inline void WriteText(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;
 }
