@@ -94,9 +94,10 @@ struct PickServer {
   std::unique_ptr<DaoaiServer> server;
 };
 
-std::unique_ptr<RobotClient> Connect(int port) {
+std::unique_ptr<RobotClient> Connect(int port, bool tcp_nodelay = true) {
   RobotClientOptions o;
   o.port = port;
+  o.tcp_nodelay = tcp_nodelay;
   return std::move(RobotClient::Connect(o).value());
 }
 
@@ -134,6 +135,41 @@ void BM_PickPoseRoundTrip(benchmark::State& state) {
   ReportPercentiles(state, us);
 }
 BENCHMARK(BM_PickPoseRoundTrip)->UseRealTime();
+
+// A robot as controllers ship them: its socket with default options (Nagle
+// on, no TCP_NODELAY). Arg 0: pick pose (21) alone; arg 1: a pose update (-1,
+// no response) written right before each pick pose, whose answer the timer
+// waits for. Without the server's immediate ACK of the update (docs/protocols.md
+// "TCP options") the pick pose waits for the kernel's delayed ACK (>= 40 ms).
+void BM_PickPoseDefaultSocket(benchmark::State& state) {
+  const bool update_first = state.range(0) != 0;
+  PickServer s;
+  auto robot = Connect(s.server->port(), /*tcp_nodelay=*/false);
+  int left = 0;
+  std::vector<double> us;
+  us.reserve(1 << 16);
+  const auto update = daoai::EncodeRequest(robot->MakeRequest(daoai::kNoCommand));
+  const auto request = daoai::EncodeRequest(robot->MakeRequest(daoai::kPickPose, 0));
+  std::array<uint8_t, daoai::kResponseSize> response{};
+  for (auto _ : state) {
+    if (left == 0) {
+      state.PauseTiming();
+      (void)robot->Call(daoai::kCaptureAndProcess, 0);
+      (void)robot->Call(daoai::kPickPose, 0);
+      left = kQueueGrasps - 1;
+      state.ResumeTiming();
+    }
+    const auto t0 = Clock::now();
+    if (update_first) (void)robot->SendBytes(update.data(), update.size());
+    (void)robot->SendBytes(request.data(), request.size());
+    (void)robot->ReceiveBytes(response.data(), response.size());
+    us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count());
+    --left;
+  }
+  if (response[55] != daoai::kObjectsFound) state.SkipWithError("pick pose did not find objects");
+  ReportPercentiles(state, us);
+}
+BENCHMARK(BM_PickPoseDefaultSocket)->ArgName("update_first")->Arg(0)->Arg(1)->UseRealTime();
 
 void BM_EchoRoundTrip(benchmark::State& state) {
   EchoServer echo;

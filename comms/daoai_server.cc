@@ -19,7 +19,9 @@ using internal::SessionArgs;
 
 // Reads exactly 48 bytes per request, keeps reading while a request is in
 // progress (requests that arrive meanwhile are queued), writes 64 bytes per
-// response for commands that have one.
+// response for commands that have one. Every read that gets no answer is
+// acknowledged at once (a segment short of a message, a command without a
+// response): Session::AckNow.
 class Connection final : public Session {
  public:
   Connection(SessionArgs args, RequestHandler& handler, const DaoaiServerOptions& options)
@@ -31,21 +33,14 @@ class Connection final : public Session {
   void BeginReading() override { Read(); }
 
   void Read() {
-    asio::async_read(socket_, asio::buffer(read_buf_),
-                     asio::bind_executor(strand_, [self = Self()](boost::system::error_code ec,
-                                                                  size_t) { self->OnRead(ec); }));
+    ReadExactly(read_buf_.data(), read_buf_.size(), [self = Self()] { self->OnRead(); });
   }
 
   std::shared_ptr<Connection> Self() {
     return std::static_pointer_cast<Connection>(shared_from_this());
   }
 
-  void OnRead(boost::system::error_code ec) {
-    if (closed_) return;
-    if (ec) {
-      OnReadError(ec);
-      return;
-    }
+  void OnRead() {
     MarkActivity();
     if (queued_.size() >= max_queued_) {
       spdlog::warn("daoai: {} sent more than {} requests without waiting for answers", client_.peer,
@@ -73,6 +68,7 @@ class Connection final : public Session {
   void OnReply(const RequestHandler::Reply& reply) {
     std::optional<daoai::Response> response = reply ? reply() : std::nullopt;
     if (!response) {
+      AckNow();  // no answer to carry the ACK: the robot's next request must not wait for it
       Done();
       return;
     }

@@ -44,18 +44,19 @@ class Connection final : public Session {
   void BeginReading() override { ReadFirst(); }
 
   // Reads in_[at, at + n), then runs `next`.
+  // Every GRI request is answered, but a robot may write a message in
+  // pieces (header, then body): a segment short of what is read, or a
+  // header with nothing after it yet, is acknowledged at once
+  // (Session::ReadExactly, AckNow).
   void ReadInto(size_t at, size_t n, void (Connection::*next)()) {
-    asio::async_read(socket_, asio::buffer(in_.data() + at, n),
-                     asio::bind_executor(strand_, [self = Self(), at, n, next](
-                                                      boost::system::error_code ec, size_t) {
-                       if (self->closed_) return;
-                       if (ec) {
-                         self->OnReadError(ec);
-                         return;
-                       }
-                       self->have_ = at + n;
-                       ((*self).*next)();
-                     }));
+    ReadExactly(in_.data() + at, n, [self = Self(), at, n, next] {
+      self->have_ = at + n;
+      if (next != &Connection::OnBody) {
+        boost::system::error_code ec;
+        if (self->socket_.available(ec) == 0 && !ec) self->AckNow();
+      }
+      ((*self).*next)();
+    });
   }
 
   void ReadFirst() {

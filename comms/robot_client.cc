@@ -49,8 +49,10 @@ Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptio
   if (fd < 0) {
     return Status::Unavailable("cannot connect to " + options.host + ":" + port + ": " + error);
   }
-  const int one = 1;
-  ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+  if (options.tcp_nodelay) {
+    const int one = 1;
+    ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+  }
   return std::unique_ptr<RobotClient>(new RobotClient(fd, options));
 }
 

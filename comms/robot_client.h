@@ -27,6 +27,10 @@ struct RobotClientOptions {
   int version = 2;                                  // meta_2
   double position_scale = 1.0;                      // metres per wire unit
   std::chrono::milliseconds timeout{10000};         // per receive
+  // TCP_NODELAY on the robot's socket. Robot controllers rarely let a program
+  // set it (URScript's socket_open cannot): false plays such a robot, whose
+  // small writes wait for the server's ACK of the previous one (Nagle).
+  bool tcp_nodelay = true;
 };
 
 // What carries the robot's requests and the server's responses when not the

@@ -1,6 +1,9 @@
 #include "comms/internal/tcp_server.h"
 
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <spdlog/spdlog.h>
+#include <sys/socket.h>
 
 #include <algorithm>
 
@@ -32,6 +35,13 @@ void Session::Start() {
     self->ArmTimer();
     self->BeginReading();
   });
+}
+
+void Session::AckNow() {
+#ifdef TCP_QUICKACK
+  const int one = 1;
+  ::setsockopt(socket_.native_handle(), IPPROTO_TCP, TCP_QUICKACK, &one, sizeof(one));
+#endif
 }
 
 void Session::Close(const char* why) {

@@ -88,6 +88,39 @@ class Session : public std::enable_shared_from_this<Session> {
 
   // A complete request arrived.
   void MarkActivity() { last_activity_ = std::chrono::steady_clock::now(); }
+  // Reads exactly `n` bytes into `data` (which must stay valid), a segment at
+  // a time, then runs `done` on the strand; a read error closes (OnReadError).
+  // After a segment that does not complete the message the peer is
+  // acknowledged at once (AckNow): a robot whose socket keeps Nagle's
+  // algorithm on sends the rest of a message split into several writes only
+  // once its first segment is acknowledged.
+  template <typename Done>
+  void ReadExactly(uint8_t* data, size_t n, Done done) {
+    socket_.async_read_some(
+        asio::buffer(data, n),
+        asio::bind_executor(strand_, [self = shared_from_this(), data, n, done = std::move(done)](
+                                         boost::system::error_code ec, size_t got) mutable {
+          if (self->closed_) return;
+          if (ec) {
+            self->OnReadError(ec);
+            return;
+          }
+          if (got < n) {
+            self->AckNow();
+            self->ReadExactly(data + got, n - got, std::move(done));
+            return;
+          }
+          done();
+        }));
+  }
+  // Acknowledges the data read so far now instead of after the kernel's
+  // delayed-ACK timer (Linux: TCP_QUICKACK, which the kernel clears again on
+  // its own, so it is set after each read that gets no answer). Without it a
+  // request that gets no answer (DaoAI pose update, teach, ...) leaves its
+  // ACK delayed by 40 ms, and a robot with Nagle's algorithm on (the default
+  // on robot controllers) holds its next request until then
+  // (docs/protocols.md "TCP options").
+  void AckNow();
   // Closes on a read error with the right log line.
   void OnReadError(boost::system::error_code ec);
   // After a complete request: BeginReading() the next one at once, or later

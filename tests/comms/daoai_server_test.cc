@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <functional>
 #include <cctype>
 #include <string>
 #include <thread>
@@ -308,6 +309,68 @@ TEST_F(DaoaiServerTest, CompletesAShortReadSentInThreeChunks) {
   std::array<uint8_t, daoai::kResponseSize> in{};
   ASSERT_TRUE(c->ReceiveBytes(in.data(), in.size()).ok());
   EXPECT_EQ(Hex(in), Normalize(kCfgOk));
+}
+
+// A robot whose socket keeps Nagle's algorithm on (robot controllers rarely
+// let a program set TCP_NODELAY) holds a small write until its previous one
+// is acknowledged. Linux delays an ACK by at least 40 ms (TCP_DELACK_MIN)
+// when nothing is sent back, so without the server's immediate ACK every
+// round below takes 40 ms or more. The bound is generous (a round of 30 ms or
+// more in fewer than half of 50 rounds), so a loaded machine does not fail it
+// and a server that leaves the ACK delayed cannot pass it. Latency figures:
+// bp_server_bench.
+int RoundsHeldByADelayedAck(const std::function<void()>& round) {
+  int held = 0;
+  for (int i = 0; i < 50; ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    round();
+    if (std::chrono::steady_clock::now() - t0 >= 30ms) ++held;
+  }
+  return held;
+}
+
+TEST_F(DaoaiServerTest, PoseUpdateThenCommandIsNotHeldByTheDelayedAck) {
+  Start(2);
+  RobotClientOptions o;
+  o.port = server_->port();
+  o.tcp_nodelay = false;
+  auto c = RobotClient::Connect(o);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  const auto update = daoai::EncodeRequest(Req(daoai::kNoCommand));
+  const auto command = daoai::EncodeRequest(Req(99));
+  std::array<uint8_t, daoai::kResponseSize> in{};
+  bool answered = true;
+  const int held = RoundsHeldByADelayedAck([&] {
+    answered = answered && (*c)->SendBytes(update.data(), update.size()).ok() &&
+               (*c)->SendBytes(command.data(), command.size()).ok() &&
+               (*c)->ReceiveBytes(in.data(), in.size()).ok();
+  });
+  ASSERT_TRUE(answered);
+  EXPECT_EQ(Hex(in), Normalize(kUnknown));
+  EXPECT_LT(held, 25) << held << " of 50 pose-update-then-command rounds took 30 ms or more";
+}
+
+TEST_F(DaoaiServerTest, RequestWrittenAnIntAtATimeIsNotHeldByTheDelayedAck) {
+  // URScript's socket_send_int writes one int32 per call (seed 003,
+  // send_robot_data_2d): 12 writes per request.
+  Start(2);
+  RobotClientOptions o;
+  o.port = server_->port();
+  o.tcp_nodelay = false;
+  auto c = RobotClient::Connect(o);
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  const auto command = daoai::EncodeRequest(Req(daoai::kSwitchConfig, 1));
+  std::array<uint8_t, daoai::kResponseSize> in{};
+  bool answered = true;
+  const int held = RoundsHeldByADelayedAck([&] {
+    for (size_t i = 0; i < command.size(); i += 4) {
+      answered = answered && (*c)->SendBytes(command.data() + i, 4).ok();
+    }
+    answered = answered && (*c)->ReceiveBytes(in.data(), in.size()).ok();
+  });
+  ASSERT_TRUE(answered);
+  EXPECT_EQ(Hex(in), Normalize(kCfgOk));
+  EXPECT_LT(held, 25) << held << " of 50 int-at-a-time requests took 30 ms or more";
 }
 
 TEST_F(DaoaiServerTest, ServesTwoRobotsOnTwoTasksConcurrently) {

@@ -174,6 +174,30 @@ TEST_P(GriServerTest, StatusReportsReady) {
   }
 }
 
+// A robot with Nagle's algorithm on (no TCP_NODELAY) that writes the header
+// and the body of a request separately holds the body until the header is
+// acknowledged; without the server's immediate ACK each round waits for the
+// kernel's delayed ACK (40 ms at least). Same generous bound as the DaoAI
+// test (daoai_server_test.cc): fewer than half of 50 rounds at 30 ms or more.
+TEST_P(GriServerTest, RequestWrittenHeaderThenBodyIsNotHeldByTheDelayedAck) {
+  RobotClientOptions o;
+  o.port = Port();
+  o.timeout = 5000ms;
+  o.tcp_nodelay = false;
+  auto robot = std::move(RobotClient::Connect(o).value());
+  const std::vector<uint8_t> bytes = gri::EncodeRequest(Make(gri::kStatus, 0, 0)).value();
+  const size_t header = gri::HeaderSize(format());
+  int held = 0;
+  for (int i = 0; i < 50; ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    ASSERT_TRUE(robot->SendBytes(bytes.data(), header).ok());
+    ASSERT_TRUE(robot->SendBytes(bytes.data() + header, bytes.size() - header).ok());
+    EXPECT_EQ(Primary(Receive(*robot, format())), 1);
+    if (std::chrono::steady_clock::now() - t0 >= 30ms) ++held;
+  }
+  EXPECT_LT(held, 25) << held << " of 50 header-then-body requests took 30 ms or more";
+}
+
 TEST_P(GriServerTest, SyncTriggerReturnsTheFirstPoseThenTheRestUntilExhaustedAndInactive) {
   auto robot = Connect();
   gri::Response r = Ask(*robot, gri::kTriggerJobSync, 0);
