@@ -54,6 +54,7 @@ struct EvalCliOptions {
   int scenes = 10;
   uint64_t seed = 1;
   std::string json_path;
+  std::string detections_path;  // every frame's detections and counts, full precision
   std::string source;  // "" = synthetic, "files:DIR"
   int config_id = 0;
   int threads = 2;
@@ -70,6 +71,44 @@ struct EvalCliOptions {
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
+
+// FNV-1a over the values: a fingerprint of a long label vector.
+uint64_t Fingerprint(const std::vector<int32_t>& values) {
+  uint64_t h = 1469598103934665603ull;
+  for (int32_t v : values) {
+    h ^= static_cast<uint32_t>(v);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+// One frame's detections (poses, scores, support) and the pipeline's counts,
+// at full precision: two builds that detect the same give the same JSON.
+nlohmann::json DetectionsJson(int frame, const PerceptionResult& r) {
+  nlohmann::json detections = nlohmann::json::array();
+  for (const Detection& d : r.detections) {
+    std::vector<double> X(d.X_BO.matrix().data(), d.X_BO.matrix().data() + 16);
+    detections.push_back({{"class_id", d.class_id},
+                          {"X_BO", X},
+                          {"score", d.score},
+                          {"visible_fraction", d.visible_fraction},
+                          {"rms_residual", d.rms_residual},
+                          {"support", d.support}});
+  }
+  return {{"frame", frame},
+          {"detections", detections},
+          {"roi_points", r.roi_point_count},
+          {"largest_region_points", r.largest_region_points},
+          {"segment_of_point", Fingerprint(r.segment_of_point)},
+          {"views", r.views},
+          {"views_explained", r.views_explained},
+          {"estimator_calls", r.estimator_calls},
+          {"second_looks", r.second_looks},
+          {"coarse_refined", r.coarse_refined},
+          {"coarse_skipped", r.coarse_skipped},
+          {"depth_noise_sigma", r.depth_noise_sigma},
+          {"reason", r.reason}};
+}
 
 void Progress(int done, int total, double last_ms) {
   constexpr int kWidth = 30;
@@ -166,6 +205,7 @@ int Run(const EvalCliOptions& opt) {
   std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
+  nlohmann::json frame_detections = nlohmann::json::array();
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
   Progress(0, total, 0.0);
   for (int i = 0; i < total; ++i) {
@@ -192,6 +232,7 @@ int Run(const EvalCliOptions& opt) {
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
+    if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
       spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
                     "looks ({} coarse poses skipped), depth noise {:.3f} mm at {:.3f} m",
@@ -297,6 +338,11 @@ int Run(const EvalCliOptions& opt) {
     out << ToJson(report, seg_total, opt).dump(2) << "\n";
     if (!out) return Fail(cmd, Status::Internal("cannot write '" + opt.json_path + "'"));
   }
+  if (!opt.detections_path.empty()) {
+    std::ofstream out(opt.detections_path);
+    out << frame_detections.dump(1) << "\n";
+    if (!out) return Fail(cmd, Status::Internal("cannot write '" + opt.detections_path + "'"));
+  }
   return kExitOk;
 }
 
@@ -311,6 +357,9 @@ Command EvalCommand() {
                    sub.add_option("--seed", opt->seed, "seed of the first scene (then seed+1, ...)")
                        ->capture_default_str();
                    sub.add_option("--json", opt->json_path, "also write the figures as JSON to this file");
+                   sub.add_option("--detections", opt->detections_path,
+                                  "write every frame's detections (poses, scores, support) and the pipeline's "
+                                  "counts to this JSON file at full precision (regression checks: diff two runs)");
                    sub.add_option("--source", opt->source, "files:DIR to score frames with truth JSON beside them");
                    sub.add_option("--config", opt->config_id, "camera config id (0 = cell default)");
                    sub.add_option("--threads", opt->threads, "oneTBB arena size")->capture_default_str();
