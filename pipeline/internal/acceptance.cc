@@ -1,0 +1,182 @@
+#include "pipeline/internal/acceptance.h"
+
+#include <algorithm>
+#include <optional>
+
+#include <tbb/parallel_for.h>
+
+namespace bp::internal {
+
+namespace {
+
+// Two detections are one physical part when their centres (of the part's
+// surface, not its origin: an L-bracket's origin is its corner) are closer
+// than this fraction of the larger diameter, or when more than
+// kMaxSharedSupport of the later one's support is already claimed ...
+constexpr double kNmsRelativeDistance = 0.3;
+constexpr double kMaxSharedSupport = 0.5;
+// ... and the accepted detections that hold at least this fraction of the
+// later one's support are the ones it conflicts with.
+constexpr double kSharedOwner = 0.1;
+// Parts of a pile never interpenetrate: a candidate conflicts when more than
+// kMaxInsideFraction of its surface samples lie at least kInsideDepth inside
+// an accepted detection's material, or the other way round
+// (ClassModel::CountInside; kInsideDepth below half the thinnest wall).
+constexpr float kInsideDepth = 0.001f;
+constexpr double kMaxInsideFraction = 0.03;
+// A view point is explained by a detection within this of its surface.
+constexpr float kExplainedDistance = 0.0025f;
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> SurfaceAt(const ClassModel& model, const Pose& X_BO) {
+  const std::span<const Eigen::Vector3f> s = model.surface_points_O();
+  std::vector<Eigen::Vector3f> out(s.size());
+  const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+  const Eigen::Vector3f t = X_BO.translation().cast<float>();
+  for (size_t i = 0; i < s.size(); ++i) out[i] = R * s[i] + t;
+  return out;
+}
+
+Acceptance::Acceptance(size_t roi_points, std::span<const ClassModel* const> models)
+    : models_(models), claims_(roi_points, 0), mark_(roi_points, 0) {}
+
+const ClassModel* Acceptance::ModelOf(int class_id) const {
+  for (const ClassModel* m : models_) {
+    if (m->class_id() == class_id) return m;
+  }
+  return nullptr;
+}
+
+std::vector<size_t> Acceptance::Interpenetrated(const Candidate& c) const {
+  std::vector<size_t> hit;
+  const ClassModel* cm = ModelOf(c.class_id);
+  if (cm == nullptr) return hit;
+  std::vector<size_t> near;  // the live detections whose part may touch c's
+  for (size_t k = 0; k < detections_.size(); ++k) {
+    const Accepted& a = accepted_[k];
+    if (a.dropped || (a.centre_B - c.centre_B).norm() > 0.5 * (c.diameter + a.diameter)) continue;
+    if (ModelOf(detections_[k].class_id) != nullptr) near.push_back(k);
+  }
+  if (near.empty()) return hit;
+  const std::vector<Eigen::Vector3f> mine = SurfaceAt(*cm, c.h.X_BO);
+  const double limit_mine = kMaxInsideFraction * static_cast<double>(mine.size());
+  // The acceptance runs alone between the waves: the neighbours' tests (a
+  // few, each a few hundred closest-point lookups) on every thread.
+  std::vector<uint8_t> inside(near.size(), 0);
+  tbb::parallel_for(size_t{0}, near.size(), [&](size_t j) {
+    const size_t k = near[j];
+    const Accepted& a = accepted_[k];
+    const ClassModel* km = ModelOf(detections_[k].class_id);
+    const double limit_theirs = kMaxInsideFraction * static_cast<double>(a.surface_B.size());
+    inside[j] = static_cast<double>(km->CountInside(detections_[k].X_BO, mine, kInsideDepth)) > limit_mine ||
+                static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, kInsideDepth)) > limit_theirs;
+  });
+  for (size_t j = 0; j < near.size(); ++j) {
+    if (inside[j]) hit.push_back(near[j]);
+  }
+  return hit;
+}
+
+std::optional<std::vector<size_t>> Acceptance::Conflicts(const Candidate& c) {
+  std::vector<size_t> conflicts;
+  const auto conflict = [&conflicts](size_t k) {
+    if (std::find(conflicts.begin(), conflicts.end(), k) == conflicts.end()) conflicts.push_back(k);
+  };
+  for (size_t k = 0; k < accepted_.size(); ++k) {
+    const Accepted& a = accepted_[k];
+    if (!a.dropped && (a.centre_B - c.centre_B).norm() < kNmsRelativeDistance * std::max(c.diameter, a.diameter)) {
+      conflicts.push_back(k);
+    }
+  }
+  if (!c.support_roi.empty()) {
+    size_t shared = 0;
+    for (int32_t i : c.support_roi) shared += claims_[static_cast<size_t>(i)] > 0 ? 1 : 0;
+    if (static_cast<double>(shared) > kMaxSharedSupport * static_cast<double>(c.support_roi.size())) {
+      for (int32_t i : c.support_roi) mark_[static_cast<size_t>(i)] = 1;
+      bool attributed = false;
+      for (size_t k = 0; k < detections_.size(); ++k) {
+        if (accepted_[k].dropped) continue;
+        size_t overlap = 0;
+        for (int32_t i : detections_[k].support) overlap += mark_[static_cast<size_t>(i)];
+        if (static_cast<double>(overlap) >= kSharedOwner * static_cast<double>(c.support_roi.size())) {
+          attributed = true;
+          conflict(k);
+        }
+      }
+      for (int32_t i : c.support_roi) mark_[static_cast<size_t>(i)] = 0;
+      // Claimed, but by no one live detection in a large enough share: the
+      // candidate explains nothing new.
+      if (!attributed) return std::nullopt;
+    }
+  }
+  for (size_t k : Interpenetrated(c)) conflict(k);
+  return conflicts;
+}
+
+void Acceptance::Accept(std::vector<Candidate> candidates) {
+  std::stable_sort(candidates.begin(), candidates.end(),
+                   [](const Candidate& a, const Candidate& b) { return a.h.score > b.h.score; });
+  for (Candidate& c : candidates) {
+    const std::optional<std::vector<size_t>> found = Conflicts(c);
+    if (!found) continue;
+    const std::vector<size_t>& conflicts = *found;
+    // Greedy by score: c loses to any conflicting detection that scores as
+    // well, else replaces them all.
+    if (std::any_of(conflicts.begin(), conflicts.end(), [&](size_t k) { return detections_[k].score >= c.h.score; })) {
+      continue;
+    }
+    for (size_t k : conflicts) {
+      accepted_[k].dropped = true;
+      for (int32_t i : detections_[k].support) --claims_[static_cast<size_t>(i)];
+    }
+    for (int32_t i : c.support_roi) ++claims_[static_cast<size_t>(i)];
+    const ClassModel* m = ModelOf(c.class_id);
+    accepted_.push_back({c.diameter, c.centre_B, m ? SurfaceAt(*m, c.h.X_BO) : std::vector<Eigen::Vector3f>{}});
+    Detection d;
+    d.class_id = c.class_id;
+    d.X_BO = c.h.X_BO;
+    d.score = c.h.score;
+    d.visible_fraction = c.h.visible_fraction;
+    d.rms_residual = c.h.rms_residual;
+    d.support = std::move(c.support_roi);
+    detections_.push_back(std::move(d));
+  }
+}
+
+double Acceptance::ExplainedFraction(const Segments& segments, const ViewIndices& view, double min_score) const {
+  if (view.empty()) return 0.0;
+  std::vector<Eigen::Vector3f> points;
+  points.reserve(view.size());
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (int32_t k : view) {
+    points.push_back(segments.points[static_cast<size_t>(k)]);
+    centre += points.back().cast<double>();
+  }
+  centre /= static_cast<double>(points.size());
+  double radius = 0.0;
+  for (const Eigen::Vector3f& p : points) radius = std::max(radius, (p.cast<double>() - centre).norm());
+  std::vector<uint8_t> on(points.size(), 0);
+  for (size_t d = 0; d < detections_.size(); ++d) {
+    const Accepted& a = accepted_[d];
+    if (a.dropped || detections_[d].score < min_score) continue;
+    // The part lies within a diameter of its surface centroid.
+    if ((a.centre_B - centre).norm() > radius + a.diameter) continue;
+    if (const ClassModel* m = ModelOf(detections_[d].class_id)) {
+      m->MarkOnSurface(detections_[d].X_BO, points, kExplainedDistance, &on);
+    }
+  }
+  return static_cast<double>(std::count(on.begin(), on.end(), uint8_t{1})) / static_cast<double>(on.size());
+}
+
+std::vector<Detection> Acceptance::TakeDetections() {
+  std::vector<Detection> live;
+  for (size_t k = 0; k < detections_.size(); ++k) {
+    if (!accepted_[k].dropped) live.push_back(std::move(detections_[k]));
+  }
+  detections_.clear();
+  accepted_.clear();
+  return live;
+}
+
+}  // namespace bp::internal

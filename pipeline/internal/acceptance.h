@@ -1,0 +1,75 @@
+// Perception's acceptance stage: one detection per physical part, greedy by
+// score across views, classes and passes (docs/perception_pipeline.md,
+// "Acceptance"). Private to bp_pipeline. Frames: B base, O part. SI units.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "pipeline/internal/class_model.h"
+#include "pipeline/internal/segmentation.h"
+#include "pipeline/internal/view_matching.h"
+#include "pipeline/perception.h"
+
+namespace bp::internal {
+
+// The detections of one frame so far. A candidate conflicts with an accepted
+// detection whose surface centre is within 0.3 of the larger diameter of its
+// own, that holds a tenth of its support when more than half of that is
+// already claimed, or that it interpenetrates (3% of either's surface
+// samples 1 mm or more inside the other: parts of a pile never do). It is
+// dropped when a detection it conflicts with scores as well, else it
+// replaces them all. Not thread-safe; Accept runs its interpenetration
+// tests in parallel on the caller's oneTBB arena.
+class Acceptance {
+ public:
+  // roi_points: the frame's ROI point count (support indices are below it).
+  // models: the class models candidates may name (must outlive this).
+  Acceptance(size_t roi_points, std::span<const ClassModel* const> models);
+
+  // Accepts `candidates` in order of score (stable).
+  void Accept(std::vector<Candidate> candidates);
+
+  // Fraction of the view's points within 2.5 mm of the surface of a live
+  // detection scoring at least min_score: 0.6 or more is a piece of a part
+  // already found.
+  double ExplainedFraction(const Segments& segments, const ViewIndices& view, double min_score = 0.0) const;
+
+  // True when no candidate was ever accepted (dropped ones included).
+  bool never_accepted() const { return detections_.empty(); }
+  // How many live detections' support holds the ROI point.
+  int claims(int32_t roi_index) const { return claims_[static_cast<size_t>(roi_index)]; }
+
+  // The live detections, in the order they were accepted.
+  std::vector<Detection> TakeDetections();
+
+ private:
+  struct Accepted {
+    double diameter = 0.0;
+    Eigen::Vector3d centre_B;                // of the part's surface
+    std::vector<Eigen::Vector3f> surface_B;  // the model's surface samples at the detection
+    bool dropped = false;                    // replaced by a later, better candidate
+  };
+  const ClassModel* ModelOf(int class_id) const;
+  // The live detections c conflicts with; nullopt when most of its support
+  // is claimed, but by no live detection holding a tenth of it (c adds
+  // nothing).
+  std::optional<std::vector<size_t>> Conflicts(const Candidate& c);
+  // Those c's part interpenetrates.
+  std::vector<size_t> Interpenetrated(const Candidate& c) const;
+
+  std::span<const ClassModel* const> models_;
+  std::vector<Detection> detections_;  // with accepted_, one per accepted candidate
+  std::vector<Accepted> accepted_;
+  std::vector<uint16_t> claims_;  // per ROI point: live detections supported by it
+  std::vector<uint8_t> mark_;     // scratch: a candidate's support
+};
+
+// The model's surface samples at X_BO, in B.
+std::vector<Eigen::Vector3f> SurfaceAt(const ClassModel& model, const Pose& X_BO);
+
+}  // namespace bp::internal

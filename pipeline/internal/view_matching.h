@@ -1,0 +1,126 @@
+// Perception's pose stage for a set of views: the class models each view may
+// hold, ranked; their pose estimates (with the early exit); the hypotheses
+// that pass the detection bar as candidates for acceptance
+// (docs/perception_pipeline.md, "Pose search per view"). Private to
+// bp_pipeline. Frames: B base, O part. SI units.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/pose.h"
+#include "pipeline/frame.h"
+#include "pipeline/internal/class_model.h"
+#include "pipeline/internal/fit_limit.h"
+#include "pipeline/internal/segmentation.h"
+#include "pipeline/perception.h"
+
+namespace bp::internal {
+
+// A hypothesis that passed the detection bar, before acceptance.
+struct Candidate {
+  int class_id = 0;
+  double diameter = 0.0;                               // of the class, metres
+  Eigen::Vector3d centre_B = Eigen::Vector3d::Zero();  // the part's surface centroid at the hypothesis
+  int view = 0;                                        // index into the matched ViewSet
+  ClassHypothesis h;
+  std::vector<int32_t> support_roi;  // ROI point indices
+};
+
+// Views to match: index lists into Segments::points; views[first_region..]
+// are region views (SegmentationOptions::match_regions), the others
+// segment views.
+struct ViewSet {
+  std::vector<ViewIndices> views;
+  size_t first_region = 0;
+};
+
+// What one (view, class) estimate of a wave leaves for the second look.
+struct WaveTrace {
+  std::vector<Pose> coarse_poses;                // refined: not refined again
+  std::shared_ptr<const PreparedView> prepared;  // reused instead of derived again
+  double best_score = -1.0;  // of its hypotheses within the fit residual limit; -1: none
+};
+using ViewTrace = std::vector<WaveTrace>;  // per class model index
+
+enum class MatchPass {
+  kWave,        // the estimator's default search (thorough: PerceptionOptions::thorough_search)
+  kSecondLook,  // PerceptionOptions::second_look_search
+};
+
+struct MatchOutcome {
+  std::vector<Candidate> candidates;  // in view order, then class order, then hypothesis order
+  std::vector<double> best;           // per view: the best score over the classes tried; -1: none
+  std::vector<ViewTrace> traces;      // with keep_traces: per view
+};
+
+// Counts over every Match of one frame (PerceptionResult's fields of the
+// same names). Match updates them from its tasks.
+struct MatchCounts {
+  int views = 0;
+  int estimator_calls = 0;
+  std::atomic<int> coarse_refined{0};
+  std::atomic<int> coarse_skipped{0};
+  int rejected_low_score = 0;  // hypotheses below the detection bar
+  std::string first_reason;    // the first estimate's reason for no hypothesis
+};
+
+// Runs class models on views, per frame. Not thread-safe itself; Match runs
+// its views and classes in parallel on the caller's oneTBB arena.
+class ViewMatcher {
+ public:
+  // Everything referenced must outlive the matcher.
+  ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
+              const Frame& frame, const Eigen::Vector4d& floor_plane_B, const Segments& segments,
+              const FitRmsLimit& fit_limit);
+
+  // Per view, in parallel: the classes that fit it ranked (RankClasses), the
+  // first alone, the others unless it gave a confident hypothesis
+  // (PerceptionOptions::early_exit_score; thorough: every class), then the
+  // classes too small for the view when none found a detection.
+  // earlier (second look, optional): per view, what its wave left
+  // (WaveTrace): coarse poses not refined again, the prepared view, the
+  // class order. keep_traces: fill MatchOutcome::traces for a second look.
+  MatchOutcome Match(const ViewSet& views, MatchPass pass, const std::vector<ViewTrace>* earlier = nullptr,
+                     bool keep_traces = false);
+
+  const MatchCounts& counts() const { return counts_; }
+
+ private:
+  struct Job;
+  // The class ranking of one view: the classes that fit it (best first) and
+  // those too small for it. Empty for a region view no class fits.
+  void RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier, std::vector<int>* order,
+                   std::vector<int>* too_small) const;
+  // Runs the classes ms[from, to) on one view in parallel, appending to jobs.
+  void RunClasses(const SegmentView& view, const std::vector<int>& ms, size_t from, size_t to, bool too_small,
+                  const ViewTrace* earlier, ViewTrace* trace, std::vector<Job>* jobs);
+  // The jobs' hypotheses that pass the detection bar, as candidates.
+  void CollectCandidates(const ViewSet& views, std::vector<std::vector<Job>>& per_view,
+                         std::vector<Candidate>* out);
+
+  const PerceptionOptions& options_;
+  std::span<const ClassModel* const> models_;
+  bool thorough_;
+  const Frame& frame_;
+  Eigen::Vector4d floor_plane_B_;
+  const Segments& segments_;
+  const FitRmsLimit& fit_limit_;
+  MatchCounts counts_;
+};
+
+// How badly a view's principal extents (largest first) match a model's:
+// the differences relative to the model's extents, summed.
+double ExtentMismatch(const Eigen::Vector3f& view, const Eigen::Vector3f& model);
+
+// How far a view's PlanarShare lies outside a class's range (plus a slack
+// of 0.1 either side); 0 inside it or for share < 0 (not used).
+double PlanarShareMismatch(float share, const ClassModel& model);
+
+}  // namespace bp::internal

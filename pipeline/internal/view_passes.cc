@@ -1,0 +1,130 @@
+#include "pipeline/internal/view_passes.h"
+
+#include <algorithm>
+#include <chrono>
+#include <numeric>
+#include <utility>
+
+#include <tbb/parallel_for.h>
+
+namespace bp::internal {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point t0, Clock::time_point t1) {
+  return std::chrono::duration<double, std::milli>(t1 - t0).count();
+}
+
+// A view with at least this fraction of its points on an accepted
+// detection's surface (Acceptance::ExplainedFraction) is a piece of a part
+// already found.
+constexpr double kExplainedFraction = 0.6;
+// A segment is matched again on its unclaimed points when at least this
+// fraction of it is left.
+constexpr double kResidualFraction = 0.25;
+
+// Per view: 1 when detections scoring at least min_score explain it.
+std::vector<uint8_t> Explained(const std::vector<ViewIndices>& views, const std::vector<size_t>& which,
+                               double min_score, const Segments& segments, const Acceptance& acceptance) {
+  std::vector<uint8_t> explained(which.size(), 0);
+  tbb::parallel_for(size_t{0}, which.size(), [&](size_t i) {
+    explained[i] = acceptance.ExplainedFraction(segments, views[which[i]], min_score) >= kExplainedFraction ? 1 : 0;
+  });
+  return explained;
+}
+
+}  // namespace
+
+WaveResult MatchInWaves(ViewSet views, const PerceptionOptions& options, bool thorough, const Segments& segments,
+                        ViewMatcher& matcher, Acceptance& acceptance) {
+  WaveResult out;
+  std::vector<size_t> by_size(views.views.size());
+  std::iota(by_size.begin(), by_size.end(), size_t{0});
+  std::stable_sort(by_size.begin(), by_size.end(),
+                   [&](size_t a, size_t b) { return views.views[a].size() > views.views[b].size(); });
+  std::vector<int> wave_min = options.view_waves;
+  wave_min.push_back(0);
+  const bool second_look = !thorough && options.second_look_below > 0.0;
+  const bool keep_traces = second_look && options.second_look_skip_tried;
+  WeakViews weak_regions;  // joined after the weak segment views
+  size_t next_view = 0;
+  for (size_t w = 0; w < wave_min.size() && next_view < by_size.size(); ++w) {
+    const Clock::time_point t0 = Clock::now();
+    std::vector<size_t> members;
+    while (next_view < by_size.size() && static_cast<int>(views.views[by_size[next_view]].size()) >= wave_min[w]) {
+      members.push_back(by_size[next_view++]);
+    }
+    if (!acceptance.never_accepted() && !members.empty()) {
+      const std::vector<uint8_t> explained = Explained(views.views, members, 0.0, segments, acceptance);
+      size_t kept = 0;
+      for (size_t i = 0; i < members.size(); ++i) {
+        if (!explained[i]) members[kept++] = members[i];
+      }
+      out.views_explained += static_cast<int>(members.size() - kept);
+      members.resize(kept);
+    }
+    // Segment views first, then region views.
+    std::stable_partition(members.begin(), members.end(), [&](size_t v) { return v < views.first_region; });
+    ViewSet wave;
+    for (size_t v : members) {
+      wave.first_region += v < views.first_region ? 1 : 0;
+      wave.views.push_back(std::move(views.views[v]));
+    }
+    MatchOutcome matched = matcher.Match(wave, MatchPass::kWave, nullptr, keep_traces);
+    const Clock::time_point t1 = Clock::now();
+    acceptance.Accept(std::move(matched.candidates));
+    out.match_ms += Ms(t0, t1);
+    out.accept_ms += Ms(t1, Clock::now());
+    if (!second_look) continue;
+    for (size_t i = 0; i < wave.views.size(); ++i) {
+      if (matched.best[i] >= options.second_look_below) continue;
+      WeakViews& weak = i < wave.first_region ? out.weak : weak_regions;
+      weak.views.views.push_back(std::move(wave.views[i]));
+      weak.traces.push_back(i < matched.traces.size() ? std::move(matched.traces[i]) : ViewTrace{});
+    }
+  }
+  out.weak.views.first_region = out.weak.views.views.size();
+  for (auto& view : weak_regions.views.views) out.weak.views.views.push_back(std::move(view));
+  for (auto& trace : weak_regions.traces) out.weak.traces.push_back(std::move(trace));
+  return out;
+}
+
+int SecondLook(WeakViews weak, const PerceptionOptions& options, const Segments& segments, ViewMatcher& matcher,
+               Acceptance& acceptance) {
+  std::vector<size_t> all(weak.views.views.size());
+  std::iota(all.begin(), all.end(), size_t{0});
+  const std::vector<uint8_t> explained =
+      Explained(weak.views.views, all, options.second_look_below, segments, acceptance);
+  ViewSet again;
+  std::vector<ViewTrace> again_traces;
+  for (size_t i = 0; i < weak.views.views.size(); ++i) {
+    if (explained[i]) continue;
+    if (static_cast<int>(weak.views.views[i].size()) < options.second_look_min_points) continue;
+    again.first_region += i < weak.views.first_region ? 1 : 0;
+    again.views.push_back(std::move(weak.views.views[i]));
+    again_traces.push_back(std::move(weak.traces[i]));
+  }
+  if (!again.views.empty()) {
+    MatchOutcome matched = matcher.Match(again, MatchPass::kSecondLook,
+                                         options.second_look_skip_tried ? &again_traces : nullptr);
+    acceptance.Accept(std::move(matched.candidates));
+  }
+  return static_cast<int>(again.views.size());
+}
+
+std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptance& acceptance,
+                                       int min_segment_points) {
+  std::vector<ViewIndices> residual;
+  for (const auto& [b, e] : segments.range) {
+    ViewIndices left;
+    for (int32_t k = b; k < e; ++k) {
+      if (acceptance.claims(segments.roi_index[static_cast<size_t>(k)]) == 0) left.push_back(k);
+    }
+    const auto n = static_cast<int32_t>(left.size());
+    if (n < e - b && n >= min_segment_points && n >= kResidualFraction * (e - b)) residual.push_back(std::move(left));
+  }
+  return residual;
+}
+
+}  // namespace bp::internal
