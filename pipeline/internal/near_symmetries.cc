@@ -1,0 +1,88 @@
+#include "pipeline/internal/near_symmetries.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+#include "pipeline/internal/model_geometry.h"
+#include "pipeline/internal/pose_model.h"
+
+namespace bp::internal {
+
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+// A sample maps onto the surface under a near symmetry when its image lies
+// within this of a dense sample whose normal is within kNearSymmetryDeg.
+constexpr float kNearSymmetryDistance = 0.001f;
+constexpr double kNearSymmetryDeg = 30.0;
+// Two transforms of O are one near symmetry (or one is the identity modulo
+// the declared symmetry) within this rotation and this fraction of the
+// diameter at the centroid.
+constexpr double kSameTransformDeg = 10.0;
+constexpr double kSameTransformRelative = 0.05;
+// Plates: two antiparallel faces at most this fraction of the diameter apart
+// whose boxes overlap.
+constexpr double kPlateRelativeThickness = 0.2;
+}  // namespace
+
+std::vector<Pose> FindNearSymmetries(const PoseModel& m) {
+  if (m.options.max_near_symmetries <= 0 || !(m.options.near_symmetry_min_overlap > 0) || m.faces.empty()) return {};
+  std::vector<Pose> candidates;
+  for (const PlanarFace& f : m.faces) {
+    if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
+    // The centre of the face's box (holes pull its centroid off it).
+    const Eigen::Vector3f box_c = f.c + 0.5f * (f.lo.x() + f.hi.x()) * f.u + 0.5f * (f.lo.y() + f.hi.y()) * f.v;
+    candidates.push_back(HalfTurn(f.n, box_c));
+    // A plate: the antiparallel face nearest behind this one whose box
+    // overlaps it; turns about the in-plane axes through the mid-plane.
+    float thickness = std::numeric_limits<float>::infinity();
+    for (const PlanarFace& g : m.faces) {
+      if (f.n.dot(g.n) > -0.99f) continue;
+      const float t = f.n.dot(f.c - g.c);
+      if (!(t > 0.f) || t > static_cast<float>(kPlateRelativeThickness * m.diameter)) continue;
+      const Eigen::Vector3f d = g.c - f.c;
+      const Eigen::Vector2f gc(d.dot(f.u), d.dot(f.v));
+      if ((gc.array() < f.lo.array()).any() || (gc.array() > f.hi.array()).any()) continue;
+      thickness = std::min(thickness, t);
+    }
+    if (!std::isfinite(thickness)) continue;
+    const Eigen::Vector3f mid = box_c - 0.5f * thickness * f.n;
+    candidates.push_back(HalfTurn(f.u, mid));
+    candidates.push_back(HalfTurn(f.v, mid));
+  }
+  const Eigen::Vector3d centroid = m.centroid_O.cast<double>();
+  const auto same = [&](const Pose& a, const Pose& b) {
+    return SymmetricRotationError(a, b, m.symmetry) < kSameTransformDeg * kDeg &&
+           (a * centroid - b * centroid).norm() < kSameTransformRelative * m.diameter;
+  };
+  const float cos_normal = static_cast<float>(std::cos(kNearSymmetryDeg * kDeg));
+  std::vector<std::pair<double, Pose>> scored;
+  for (const Pose& F : candidates) {
+    if (same(F, Pose::Identity())) continue;
+    const Eigen::Matrix3f R = F.linear().cast<float>();
+    const Eigen::Vector3f t = F.translation().cast<float>();
+    size_t on = 0;
+    for (size_t i = 0; i < m.verify.size(); ++i) {
+      const Eigen::Vector3f q = R * m.verify.points[i] + t;
+      const int idx = m.field.Nearest(q, m.dense.points);
+      if (idx < 0) continue;
+      on += (q - m.dense.points[static_cast<size_t>(idx)]).squaredNorm() <= kNearSymmetryDistance * kNearSymmetryDistance &&
+            (R * m.verify.normals[i]).dot(m.dense.normals[static_cast<size_t>(idx)]) >= cos_normal;
+    }
+    const double overlap = static_cast<double>(on) / static_cast<double>(std::max<size_t>(1, m.verify.size()));
+    if (overlap >= m.options.near_symmetry_min_overlap) scored.emplace_back(overlap, F);
+  }
+  std::stable_sort(scored.begin(), scored.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<Pose> out;
+  for (const auto& [overlap, F] : scored) {
+    if (static_cast<int>(out.size()) >= m.options.max_near_symmetries) break;
+    bool duplicate = false;
+    for (const Pose& G : out) duplicate |= same(F, G);
+    if (!duplicate) out.push_back(F);
+  }
+  return out;
+}
+
+}  // namespace bp::internal

@@ -1,0 +1,389 @@
+#include "pipeline/internal/pose_search.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <functional>
+#include <sstream>
+#include <utility>
+#include <vector>
+
+#include "pipeline/internal/face_seeds.h"
+#include "pipeline/internal/pose_model.h"
+#include "pipeline/internal/resting_poses.h"
+#include "pipeline/internal/verification.h"
+
+namespace bp::internal {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Ms(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+// PoseSearch::stop_score also needs the pose to explain this fraction of the
+// view's subsampled points (a view of two touching parts goes on to the
+// other part).
+constexpr double kStopExplainedFraction = 0.8;
+// The first pass keeps a refined coarse pose whose quick verification scores
+// at least this fraction of min_score (the fine pass usually raises it).
+constexpr double kFirstPassScoreFraction = 0.6;
+// PPF peaks kept per reference point for a later search of the same view
+// (PreparedView::votes): the second look examines 16.
+constexpr size_t kRecordedPeaks = 16;
+// A near-symmetric turn of a hypothesis is refined only when, at a quick
+// look (every third verification sample), it explains at least this fraction
+// of what the hypothesis does.
+constexpr double kNearSymmetryScreen = 0.8;
+// keep_better_than_fine: a hypothesis the fine pass leaves below this score
+// is also verified at its pose before the fine pass.
+constexpr double kKeepBetterThanFineBelow = 0.9;
+
+// A pose on its way through the passes.
+struct Candidate {
+  Pose X_BO;
+  VerifyStats stats;
+  IcpResult icp;
+  int votes = 0;
+  std::pair<int, int> holes{0, 0};  // in view, filled
+};
+
+// One estimate's search: the steps share the view, the model and what the
+// earlier steps found.
+class SearchRun {
+ public:
+  SearchRun(const PoseModel& m, const SceneView& view, const PoseSearch& search, const PreparedView& prepared,
+            PreparedView* owned, PoseEstimates* out)
+      : m_(m), opt_(m.options), view_(view), search_(search), p_(prepared), owned_(owned), out_(*out),
+        have_depth_(view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid()),
+        min_score_(have_depth_ ? opt_.min_score : opt_.min_score_without_depth),
+        camera_B_(view.X_BC.translation()),
+        gate0_(static_cast<float>(opt_.icp_initial_relative_distance) * m.step),
+        gate1_(static_cast<float>(opt_.icp_final_distance)) {}
+
+  void Run() {
+    const auto t1 = Clock::now();
+    std::vector<CoarsePose> coarse = Coarse();
+    out_.timings.coarse_ms = Ms(t1, Clock::now());
+    if (coarse.empty()) {
+      out_.no_result_reason = "no pose received enough votes";
+      return;
+    }
+    FirstPass(coarse);
+    // Face seeds come last, and only when no coarse pose ended the pass:
+    // each costs a quick verification of its own.
+    if (!stopped_ && search_.face_seeds > 0 && p_.view_plane && !m_.faces.empty()) {
+      std::vector<CoarsePose> seeds;
+      Timed(verify_ms_, [&] {
+        AppendFaceSeeds(m_, p_.pts, *p_.view_plane, view_, p_.support, p_.segment_depth, search_.face_seeds, seeds);
+      });
+      FirstPass(seeds);
+    }
+    if (out_.coarse_poses.empty()) {
+      out_.no_result_reason = "every coarse pose was refined by an earlier estimate (PoseSearch::skip_coarse)";
+      return;
+    }
+    std::vector<Candidate> finals;
+    for (const Candidate& c : Survivors()) {
+      if (std::optional<Candidate> f = FinePass(c)) finals.push_back(*f);
+    }
+    Keep(std::move(finals));
+  }
+
+ private:
+  template <typename F>
+  static void Timed(double& acc, F&& f) {
+    const auto a = Clock::now();
+    f();
+    acc += Ms(a, Clock::now());
+  }
+  bool Passes(const VerifyStats& st, double min_score) const {
+    return st.visible - st.occluded - (search_.unmeasured_is_no_evidence ? st.unmeasured : 0) >=
+               opt_.min_visible_points &&
+           st.score >= min_score;
+  }
+  VerifyStats VerifyAt(const Pose& X_BO, int stride) const {
+    return Verify(m_, X_BO, view_, p_.support, p_.segment_depth, stride, search_.unmeasured_is_no_evidence);
+  }
+  bool DuplicateOf(const Pose& X, const std::vector<Candidate>& kept) const {
+    const double nms = opt_.nms_relative_distance * m_.diameter;
+    const Eigen::Vector3d centre = X * m_.centroid_O.cast<double>();
+    for (const Candidate& k : kept) {
+      if ((k.X_BO * m_.centroid_O.cast<double>() - centre).norm() < nms) return true;
+    }
+    return false;
+  }
+  void Reject(const VerifyStats& st) {
+    below_support_ += st.below_support;
+    best_rejected_ = std::max(best_rejected_, st.score);
+  }
+
+  std::vector<CoarsePose> Coarse();
+  void DropTried(std::vector<CoarsePose>& list);
+  void FirstPass(std::vector<CoarsePose>& list);
+  std::vector<Candidate> Survivors();
+  std::optional<Candidate> FinePass(Candidate c);
+  void TryNearSymmetries(Candidate& c);
+  void Keep(std::vector<Candidate> finals);
+
+  const PoseModel& m_;
+  const PoseEstimatorOptions& opt_;
+  const SceneView& view_;
+  const PoseSearch& search_;
+  const PreparedView& p_;
+  PreparedView* owned_;
+  PoseEstimates& out_;
+  const bool have_depth_;
+  const double min_score_;
+  const Vec3 camera_B_;
+  const float gate0_, gate1_;  // ICP gates: the first pass's initial one, the final one
+  double refine_ms_ = 0, verify_ms_ = 0;
+  std::vector<Candidate> first_;  // the first pass's refined poses
+  bool stopped_ = false;          // a first-pass pose explained the view
+  double best_rejected_ = -1;
+  int below_support_ = 0, holes_filled_ = 0;
+};
+
+// PPF voting and pose clustering; with a support plane, points on it are not
+// reference points (the floor would otherwise dominate the votes) and coarse
+// poses that sink the part into it are dropped; then the resting seeds.
+std::vector<CoarsePose> SearchRun::Coarse() {
+  PpfMatchOptions mo;
+  mo.reference_stride = std::max(1, static_cast<int>(std::lround(1.0 / opt_.reference_fraction)));
+  mo.max_reference_points = search_.max_reference_points;
+  mo.max_partners = opt_.ppf_max_partners;
+  mo.cluster_translation = opt_.cluster_relative_translation * m_.diameter;
+  mo.cluster_rotation = opt_.cluster_rotation_deg * M_PI / 180.0;
+  mo.max_poses = 3 * search_.max_coarse_poses;
+  std::vector<uint8_t> reference_ok;
+  std::function<bool(const Pose&)> above_support;
+  if (view_.support_plane_B) {
+    const Eigen::Vector3f n = view_.support_plane_B->head<3>().cast<float>();
+    const float d = static_cast<float>((*view_.support_plane_B)[3]);
+    reference_ok.resize(p_.sub_p.size());
+    for (size_t i = 0; i < p_.sub_p.size(); ++i) reference_ok[i] = n.dot(p_.sub_p[i]) + d > 0.5f * m_.step;
+    const float limit = -static_cast<float>(opt_.max_support_penetration) - 1.5f * m_.step;
+    const PoseModel& m = m_;
+    above_support = [&m, n, d, limit](const Pose& X_BO) {
+      const Eigen::Matrix3f R = X_BO.linear().cast<float>();
+      const Eigen::Vector3f t = X_BO.translation().cast<float>();
+      for (const auto& p : m.ppf_extreme) {
+        if (n.dot(R * p + t) + d < limit) return false;
+      }
+      return true;
+    };
+    mo.accept = above_support;
+    mo.peaks_per_reference = search_.peaks_per_reference;
+    mo.peaks_examined = search_.peaks_examined;
+  }
+  if (owned_ != nullptr && search_.keep_prepared) {
+    mo.record = &owned_->votes;
+    mo.record_peaks = kRecordedPeaks;
+  } else if (owned_ == nullptr) {
+    mo.replay = &p_.votes;
+  }
+  std::vector<CoarsePose> coarse = m_.ppf.Match(p_.sub_p, p_.sub_n, reference_ok, mo, m_.symmetry);
+  if (above_support) {
+    std::erase_if(coarse, [&](const CoarsePose& cp) { return !above_support(cp.X_BO); });
+  }
+  if (static_cast<int>(coarse.size()) > search_.max_coarse_poses) coarse.resize(search_.max_coarse_poses);
+  if (search_.resting_seeds && view_.support_plane_B) {
+    AppendRestingSeeds(m_, p_.pts, p_.sub_p, p_.sub_n, *view_.support_plane_B, coarse);
+  }
+  return coarse;
+}
+
+// Coarse poses an earlier estimate of this view refined are left out
+// (PoseSearch::skip_coarse).
+void SearchRun::DropTried(std::vector<CoarsePose>& list) {
+  if (search_.skip_coarse.empty()) return;
+  const double skip_t = opt_.cluster_relative_translation * m_.diameter;
+  const double skip_r = opt_.cluster_rotation_deg * M_PI / 180.0;
+  const size_t before = list.size();
+  std::erase_if(list, [&](const CoarsePose& cp) {
+    return std::any_of(search_.skip_coarse.begin(), search_.skip_coarse.end(), [&](const Pose& X) {
+      return (X.translation() - cp.X_BO.translation()).norm() < skip_t &&
+             SymmetricRotationError(X, cp.X_BO, m_.symmetry) < skip_r;
+    });
+  });
+  out_.coarse_skipped += static_cast<int>(before - list.size());
+}
+
+// The first pass over `list`, in order: ICP on the subsampled points, then a
+// quick verification (after a screen on fewer samples); stops at a pose that
+// explains the view (PoseSearch::stop_score).
+void SearchRun::FirstPass(std::vector<CoarsePose>& list) {
+  DropTried(list);
+  for (const CoarsePose& cp : list) {
+    out_.coarse_poses.push_back(cp.X_BO);
+    IcpResult icp;
+    Timed(refine_ms_, [&] {
+      icp = m_.Refine(p_.sub_p, p_.sub_boundary, cp.X_BO, camera_B_, gate0_, std::max(gate1_, 0.5f * m_.step),
+                      opt_.icp_coarse_iterations, opt_.icp_coarse_convergence);
+    });
+    if (!icp.ok) continue;
+    Candidate c{icp.X_BO, {}, icp, cp.votes};
+    // Most refined coarse poses are wrong and score far below the pass's
+    // bar; the screen's bar is never above the pass's own.
+    const double screen_bar = std::min(opt_.quick_screen_min_score, kFirstPassScoreFraction * min_score_);
+    if (screen_bar > 0.0) {
+      Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, opt_.quick_screen_stride); });
+      if (c.stats.score < screen_bar) {
+        ++out_.screened_out;
+        first_.push_back(c);
+        continue;
+      }
+    }
+    Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 3); });
+    first_.push_back(c);
+    // The coarse poses after a pose this good have fewer votes and converge
+    // to it or fail.
+    if (search_.stop_score > 0.0 && c.stats.score >= search_.stop_score && Passes(c.stats, min_score_) &&
+        m_.ExplainedFraction(c.X_BO, p_.sub_p) >= kStopExplainedFraction) {
+      stopped_ = true;
+      return;
+    }
+  }
+}
+
+// The first pass's poses that pass its loose bar, best first, one per part
+// (nms_relative_distance), at most max_hypotheses.
+std::vector<Candidate> SearchRun::Survivors() {
+  std::stable_sort(first_.begin(), first_.end(),
+                   [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; });
+  std::vector<Candidate> survivors;
+  for (const Candidate& c : first_) {
+    if (!Passes(c.stats, kFirstPassScoreFraction * min_score_)) {
+      Reject(c.stats);
+      continue;
+    }
+    if (DuplicateOf(c.X_BO, survivors)) continue;
+    survivors.push_back(c);
+    if (static_cast<int>(survivors.size()) >= opt_.max_hypotheses) break;
+  }
+  return survivors;
+}
+
+// ICP on the fine points, verification in full (keep_better_than_fine: the
+// pose before it when that scores better), the near-symmetric turns, the
+// filled-hole test. nullopt when it fails.
+std::optional<Candidate> SearchRun::FinePass(Candidate c) {
+  IcpResult icp;
+  Timed(refine_ms_, [&] {
+    icp = m_.Refine(p_.fine, p_.fine_boundary, c.X_BO, camera_B_, std::max(gate1_, 0.75f * m_.step), gate1_,
+                    opt_.icp_iterations, opt_.icp_convergence);
+  });
+  if (!icp.ok || !icp.X_BO.matrix().allFinite()) return std::nullopt;
+  const Candidate before = c;
+  c.X_BO = icp.X_BO;
+  c.icp = icp;
+  Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 1); });
+  if (search_.keep_better_than_fine && c.stats.score < kKeepBetterThanFineBelow) {
+    VerifyStats st;
+    Timed(verify_ms_, [&] { st = VerifyAt(before.X_BO, 1); });
+    if (st.score > c.stats.score) {
+      c = before;
+      c.stats = st;
+    }
+  }
+  if (!Passes(c.stats, min_score_)) {
+    Reject(c.stats);
+    return std::nullopt;
+  }
+  if (search_.near_symmetries && !m_.near_symmetries.empty()) TryNearSymmetries(c);
+  if (opt_.hole_max_filled < 1 && have_depth_) {
+    Timed(verify_ms_, [&] { c.holes = HoleStats(m_, c.X_BO, view_); });
+    if (c.holes.first >= opt_.hole_min_visible && c.holes.second > opt_.hole_max_filled * c.holes.first) {
+      ++holes_filled_;
+      return std::nullopt;
+    }
+  }
+  return c;
+}
+
+// The part turned by a near symmetry may explain the view better (an
+// L-bracket turned over about its upright): a turn that explains nearly as
+// much at a quick look is refined and replaces the pose when it explains
+// more of the view (supported minus free-space model points) and scores at
+// most near_symmetry_score_slack lower. By score alone the turn that hides
+// more of the part (its denominator) would win.
+void SearchRun::TryNearSymmetries(Candidate& c) {
+  const auto net = [](const VerifyStats& v) { return v.supported - v.free_space; };
+  const Pose X = c.X_BO;
+  VerifyStats quick;
+  Timed(verify_ms_, [&] { quick = VerifyAt(X, 3); });
+  for (const Pose& F : m_.near_symmetries) {
+    VerifyStats q;
+    Timed(verify_ms_, [&] { q = VerifyAt(X * F, 3); });
+    if (net(q) < kNearSymmetryScreen * net(quick)) continue;
+    IcpResult alt;
+    Timed(refine_ms_, [&] {
+      alt = m_.Refine(p_.fine, p_.fine_boundary, X * F, camera_B_, std::max(gate1_, 0.75f * m_.step), gate1_,
+                      opt_.icp_iterations, opt_.icp_convergence);
+    });
+    if (!alt.ok || !alt.X_BO.matrix().allFinite()) continue;
+    VerifyStats st;
+    Timed(verify_ms_, [&] { st = VerifyAt(alt.X_BO, 1); });
+    if (Passes(st, min_score_) && net(st) > net(c.stats) && st.score >= c.stats.score - opt_.near_symmetry_score_slack) {
+      c.X_BO = alt.X_BO;
+      c.icp = alt;
+      c.stats = st;
+    }
+  }
+}
+
+// The fine pass's poses best first, one per part, as hypotheses with their
+// supporting scene points; the reason when there is none.
+void SearchRun::Keep(std::vector<Candidate> finals) {
+  std::stable_sort(finals.begin(), finals.end(),
+                   [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; });
+  std::vector<Candidate> kept;
+  for (const Candidate& c : finals) {
+    if (DuplicateOf(c.X_BO, kept)) continue;
+    kept.push_back(c);
+    PoseHypothesis h;
+    h.X_BO = c.X_BO;
+    h.score = c.stats.score;
+    h.visible_points = c.stats.visible;
+    h.occluded_points = c.stats.occluded;
+    h.supported_points = c.stats.supported;
+    h.free_space_points = c.stats.free_space;
+    h.unmeasured_points = c.stats.unmeasured;
+    h.hole_points = c.holes.first;
+    h.filled_hole_points = c.holes.second;
+    h.rms_residual = c.icp.rms;
+    h.coarse_votes = c.votes;
+    out_.hypotheses.push_back(std::move(h));
+  }
+  const auto t3 = Clock::now();
+  const float sup = m_.SupportTolerance();
+  for (PoseHypothesis& h : out_.hypotheses) {
+    const Pose X_OB = h.X_BO.inverse();
+    const Eigen::Matrix3f R = X_OB.linear().cast<float>();
+    const Eigen::Vector3f t = X_OB.translation().cast<float>();
+    for (size_t i = 0; i < p_.pts.size(); ++i) {
+      if (m_.OnSurface(R * p_.pts[i] + t, sup)) h.supporting_indices.push_back(p_.index[i]);
+    }
+  }
+  verify_ms_ += Ms(t3, Clock::now());
+  out_.timings.refine_ms = refine_ms_;
+  out_.timings.verify_ms = verify_ms_;
+  if (out_.hypotheses.empty()) {
+    std::ostringstream os;
+    os << "no hypothesis passed verification (best score " << best_rejected_ << ", need " << min_score_;
+    if (below_support_ > 0) os << "; " << below_support_ << " below the support plane";
+    if (holes_filled_ > 0) os << "; " << holes_filled_ << " with the view's surface through their holes";
+    os << ")";
+    out_.no_result_reason = os.str();
+  }
+}
+
+}  // namespace
+
+void SearchPreparedView(const PoseModel& model, const SceneView& view, const PoseSearch& search,
+                        const PreparedView& prepared, PreparedView* owned, PoseEstimates* out) {
+  SearchRun(model, view, search, prepared, owned, out).Run();
+}
+
+}  // namespace bp::internal
