@@ -133,6 +133,7 @@ CaptureReplay ReplayRecord(const std::string& record, const Cell& cell, GraspPla
       }
       request.X_BF = *X_BF;
     }
+    c.recorded_plan_ms = manifest->at("plan").value("ms", -1.0);
     const json& result = manifest->at("plan").at("result");
     if (!result.is_null()) {
       Result<PlanResult> recorded = record_internal::PlanResultFromJson(result, record + "/record.json plan.result");
@@ -206,6 +207,7 @@ Result<ReplayReport> ReplayDirectory(const std::string& dir, const ReplayOptions
     cell = LoadCellOrDefault(options.cell_path);
   }
   if (!cell.ok()) return cell.status();
+  report.cell_name = cell->name;
   if (cell->tasks.empty()) return Status::InvalidArgument(report.cell + ": the cell has no task");
 
   std::vector<std::string> items;

@@ -41,6 +41,7 @@ struct CaptureReplay {
   bool replayed = false;        // false: frame or plan failed (error says why)
   std::string error;
   double plan_ms = 0.0;
+  double recorded_plan_ms = -1.0;  // the recorded plan time; -1: none recorded
   PlanResult result;            // the replayed plan (stages = per-stage latency)
   bool compared = false;        // a recorded result existed
   PlanResult recorded;
@@ -52,6 +53,7 @@ struct CaptureReplay {
 struct ReplayReport {
   std::string dir;
   std::string cell;             // where the cell came from
+  std::string cell_name;        // the cell's `name` (fleet reports group by it)
   bool session = false;         // a recorded session (else plain files)
   std::vector<CaptureReplay> captures;
   std::vector<std::string> skipped;  // incomplete / corrupt records, with the reason
@@ -61,5 +63,9 @@ struct ReplayReport {
 // @returns NotFound / InvalidArgument when `dir` or the cell cannot be used;
 // per-capture problems are in the report, never a failed Result.
 Result<ReplayReport> ReplayDirectory(const std::string& dir, const ReplayOptions& options);
+
+// The report as JSON text (indented): `binpick replay --json`'s file and one
+// session of a shard report (record/replay_fleet.h). Schema: docs/fleet.md.
+std::string ReplayReportJson(const ReplayReport& report, const ReplayOptions& options);
 
 }  // namespace bp

@@ -33,6 +33,7 @@ Command EvalCommand();  // eval_cmd.cc
 Command ClearCommand();  // clear_cmd.cc
 Command CalibCommand();  // calib_cmd.cc
 Command ReplayCommand();  // replay_cmd.cc
+Command ReplayMergeCommand();  // replay_merge_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.

@@ -42,7 +42,7 @@ int main(int argc, char** argv) {
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
 
   const std::vector<Command> commands = {RenderCommand(), InfoCommand(), EvalCommand(), ClearCommand(), RobotCommand(),
-                                         CalibCommand(), ReplayCommand()};
+                                         CalibCommand(), ReplayCommand(), ReplayMergeCommand()};
   std::function<int()> action;
   for (const Command& command : commands) {
     CLI::App* sub = app.add_subcommand(command.name, command.help);

@@ -1,86 +1,26 @@
 // binpick replay DIR [--json OUT] [--cell FILE] [--tol-mm X] [--tol-deg Y]
+// binpick replay --manifest FILE [--shard i/n] --json OUT [...]
 // Reruns the pipeline over a recorded session (or any directory of PCD / PLY
 // / depth PNG files) and prints, per capture, the per-stage latency, the
 // detections and the differences from what was recorded (record/replay.h).
-// Exit codes: 0 same within tolerances, 1 some capture differs or failed to
-// replay (a regression), 2 bad input (no such directory, bad cell).
+// With --manifest, replays shard i of n of the manifest's sessions and
+// writes a shard report for `binpick replay-merge` (record/replay_fleet.h,
+// docs/fleet.md).
+// Exit codes: 0 same within tolerances (with --manifest: the shard report was
+// written, whatever it holds), 1 some capture differs or failed to replay (a
+// regression), 2 bad input (no such directory, bad cell, bad manifest or
+// --shard).
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 
-#include <nlohmann/json.hpp>
-
 #include "apps/binpick/command.h"
+#include "core/atomic_file.h"
 #include "record/replay.h"
+#include "record/replay_fleet.h"
 
 namespace bp::cli {
 namespace {
-
-using OrderedJson = nlohmann::ordered_json;
-
-OrderedJson PoseJson(const Pose& X) {
-  const Vec3 t = X.translation();
-  const Quat q(X.linear());
-  return {{"xyz", {t.x(), t.y(), t.z()}}, {"quat_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
-}
-
-OrderedJson ResultJson(const PlanResult& r) {
-  OrderedJson j;
-  j["outcome"] = std::string(ToString(r.outcome));
-  j["detections"] = r.detections;
-  j["roi_points"] = r.roi_points;
-  OrderedJson parts = OrderedJson::array();
-  for (const DetectedPart& p : r.parts) {
-    parts.push_back({{"class_id", p.class_id}, {"score", p.score}, {"X_BO", PoseJson(p.X_BO)}});
-  }
-  j["parts"] = parts;
-  OrderedJson grasps = OrderedJson::array();
-  for (const Grasp& g : r.grasps) {
-    grasps.push_back({{"name", g.name}, {"class_id", g.class_id}, {"score", g.score}, {"X_BT", PoseJson(g.X_BT)}});
-  }
-  j["grasps"] = grasps;
-  return j;
-}
-
-OrderedJson ReportJson(const ReplayReport& report, const ReplayOptions& o) {
-  OrderedJson j;
-  j["dir"] = report.dir;
-  j["cell"] = report.cell;
-  j["kind"] = report.session ? "recorded session" : "frame files";
-  j["tolerance"] = {{"mm", o.tolerance_mm}, {"deg", o.tolerance_deg}};
-  OrderedJson captures = OrderedJson::array();
-  int replayed = 0, compared = 0;
-  for (const CaptureReplay& c : report.captures) {
-    OrderedJson cj;
-    cj["file"] = c.file;
-    cj["task_id"] = c.task_id;
-    cj["replayed"] = c.replayed;
-    if (!c.error.empty()) cj["error"] = c.error;
-    if (c.replayed) {
-      ++replayed;
-      cj["plan_ms"] = c.plan_ms;
-      OrderedJson stages = OrderedJson::object();
-      for (const StageTime& s : c.result.stages) stages[s.stage] = s.ms;
-      cj["stages_ms"] = stages;
-      cj["result"] = ResultJson(c.result);
-    }
-    if (c.compared) {
-      ++compared;
-      cj["recorded"] = ResultJson(c.recorded);
-      cj["differences"] = c.differences;
-      cj["max_position_diff_mm"] = c.max_position_diff_mm;
-      cj["max_angle_diff_deg"] = c.max_angle_diff_deg;
-    }
-    captures.push_back(cj);
-  }
-  j["captures"] = captures;
-  j["skipped"] = report.skipped;
-  j["summary"] = {{"captures", report.captures.size()},
-                  {"replayed", replayed},
-                  {"compared", compared},
-                  {"differing", report.differing},
-                  {"skipped", report.skipped.size()}};
-  return j;
-}
 
 void PrintCapture(const CaptureReplay& c) {
   const std::string name = c.file.substr(c.file.find_last_of('/') + 1);
@@ -105,6 +45,46 @@ void PrintCapture(const CaptureReplay& c) {
   }
 }
 
+int ReplayOne(const std::string& dir, const std::string& json_out, const ReplayOptions& options) {
+  Result<ReplayReport> report = ReplayDirectory(dir, options);
+  if (!report.ok()) return Fail("replay", report.status());
+  std::printf("replay %s (%s) with cell %s\n", dir.c_str(), report->session ? "recorded session" : "frame files",
+              report->cell.c_str());
+  for (const std::string& s : report->skipped) std::printf("skipped: %s\n", s.c_str());
+  for (const CaptureReplay& c : report->captures) PrintCapture(c);
+  std::printf("%zu captures, %d differing, %zu skipped\n", report->captures.size(), report->differing,
+              report->skipped.size());
+  if (!json_out.empty()) {
+    std::ofstream out(json_out);
+    out << ReplayReportJson(*report, options) << "\n";
+    if (!out) return Fail("replay", Status::Internal("'" + json_out + "': cannot write"));
+  }
+  return report->differing == 0 ? kExitOk : kExitFailure;
+}
+
+int ReplayManifestShard(const std::string& manifest_path, const std::string& shard_text,
+                        const std::string& json_out, const ReplayOptions& options) {
+  Result<ShardSpec> shard = ParseShardSpec(shard_text);
+  if (!shard.ok()) return Fail("replay", shard.status());
+  Result<ReplayManifest> manifest = LoadReplayManifest(manifest_path);
+  if (!manifest.ok()) return Fail("replay", manifest.status());
+  // The run's report directory may be new (a Job's pods share one volume).
+  std::error_code ec;
+  if (const auto parent = std::filesystem::path(json_out).parent_path(); !parent.empty()) {
+    std::filesystem::create_directories(parent, ec);
+  }
+  const ShardRun run = ReplayShard(*manifest, *shard, options);
+  // Atomic: a merge never reads half a report of a shard that died writing it.
+  if (Status s = WriteFileAtomic(json_out, run.json + "\n"); !s.ok()) return Fail("replay", s);
+  std::printf("shard %d/%d of %s: %d of %zu sessions, %d not replayed, %d captures differing; report %s\n",
+              shard->index, shard->count, manifest_path.c_str(), run.sessions, manifest->sessions.size(),
+              run.failed_sessions, run.differing, json_out.c_str());
+  // The shard did its job; whether the fleet regressed is replay-merge's
+  // verdict (a failing shard would make a Job retry it and a Slurm merge
+  // with afterok never run).
+  return kExitOk;
+}
+
 }  // namespace
 
 Command ReplayCommand() {
@@ -112,29 +92,33 @@ Command ReplayCommand() {
           [](CLI::App& sub) -> std::function<int()> {
             auto dir = std::make_shared<std::string>();
             auto json_out = std::make_shared<std::string>();
+            auto manifest = std::make_shared<std::string>();
+            auto shard = std::make_shared<std::string>("0/1");
             auto options = std::make_shared<ReplayOptions>();
-            sub.add_option("dir", *dir, "session directory (or a directory of PCD / PLY / depth PNG files)")
-                ->required();
-            sub.add_option("--json", *json_out, "write the full report as JSON to this file");
+            CLI::Option* dir_option =
+                sub.add_option("dir", *dir, "session directory (or a directory of PCD / PLY / depth PNG files)");
+            CLI::Option* manifest_option = sub.add_option(
+                "--manifest", *manifest,
+                "file listing session directories or globs, one a line: replay a shard of them (docs/fleet.md)");
+            manifest_option->excludes(dir_option);
+            sub.add_option("--shard", *shard, "with --manifest: i/n, replay shard i of n (0-based)")
+                ->capture_default_str()
+                ->needs(manifest_option);
+            sub.add_option("--json", *json_out,
+                           "write the full report as JSON to this file (with --manifest: the shard report)");
             sub.add_option("--cell", options->cell_path,
                            "cell file (default: the session's cell.yaml, else the embedded default)");
             sub.add_option("--tol-mm", options->tolerance_mm, "position tolerance for parts and grasps (mm)");
             sub.add_option("--tol-deg", options->tolerance_deg, "rotation tolerance for parts and grasps (deg)");
-            return [dir, json_out, options]() -> int {
-              Result<ReplayReport> report = ReplayDirectory(*dir, *options);
-              if (!report.ok()) return Fail("replay", report.status());
-              std::printf("replay %s (%s) with cell %s\n", dir->c_str(),
-                          report->session ? "recorded session" : "frame files", report->cell.c_str());
-              for (const std::string& s : report->skipped) std::printf("skipped: %s\n", s.c_str());
-              for (const CaptureReplay& c : report->captures) PrintCapture(c);
-              std::printf("%zu captures, %d differing, %zu skipped\n", report->captures.size(), report->differing,
-                          report->skipped.size());
-              if (!json_out->empty()) {
-                std::ofstream out(*json_out);
-                out << ReportJson(*report, *options).dump(2) << "\n";
-                if (!out) return Fail("replay", Status::Internal("'" + *json_out + "': cannot write"));
+            return [dir, json_out, manifest, shard, options]() -> int {
+              if (manifest->empty()) {
+                if (dir->empty()) return Fail("replay", Status::InvalidArgument("give a DIR or --manifest FILE"));
+                return ReplayOne(*dir, *json_out, *options);
               }
-              return report->differing == 0 ? kExitOk : kExitFailure;
+              if (json_out->empty()) {
+                return Fail("replay", Status::InvalidArgument("--manifest needs --json OUT (the shard report)"));
+              }
+              return ReplayManifestShard(*manifest, *shard, *json_out, *options);
             };
           }};
 }
