@@ -20,13 +20,15 @@ std::string_view ToString(PlanResult::Outcome outcome) {
   return "?";
 }
 
-Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell, HandEyeProvider hand_eye) {
+Result<std::unique_ptr<GraspPlanner>> MakePlanner(const Cell& cell, HandEyeProvider hand_eye, std::string teach_file) {
   Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
   if (!perception.ok()) return perception.status();
   Result<std::unique_ptr<CaptureSource>> source = MakeCaptureSource(cell, std::move(hand_eye));
   if (!source.ok()) return source.status();
+  BinPickingPlannerOptions options;
+  options.teach_file = std::move(teach_file);
   auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
-                                           std::move(*source));
+                                           std::move(*source), options);
   if (!planner.ok()) return planner.status();
   return std::unique_ptr<GraspPlanner>(std::move(*planner));
 }

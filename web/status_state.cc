@@ -11,6 +11,7 @@
 #include <map>
 #include <mutex>
 
+#include "core/conventions.h"
 #include "grasp/bin_picking_planner.h"
 #include "web/internal/overlay.h"
 
@@ -208,7 +209,30 @@ class StatusState::Impl {
                       {{"status", std::to_string(status)}})
           .Inc();
     }
+    const std::string task = std::to_string(e.request.payload_1);
+    if (command == daoai::kPrecisionCheck && status == daoai::kPrecisionCheckSuccess) {
+      // payload_1 of the response: the target's distance from its reference, mm x MULT.
+      metrics_
+          .GetGauge("binpick_precision_error_mm",
+                    "Last precision check (command 50) of the task: target distance from its reference, mm.",
+                    {{"task", task}})
+          .Set(FromFixed(e.response.payload[0]));
+    }
+    const bool empty_answer = command == daoai::kCheckEmptyBox &&
+                              (status == daoai::kBoxEmpty || status == daoai::kBoxNotEmpty);
+    // A flip: the task's empty-box answer differs from its previous one. A
+    // refill flips it once; flips in quick succession are a flapping rule.
+    Counter* flips = empty_answer ? &metrics_.GetCounter("binpick_empty_box_flips_total",
+                                                         "Empty-box answers (command 40) unlike the task's "
+                                                         "previous answer.",
+                                                         {{"task", task}})
+                                  : nullptr;
     std::lock_guard lock(mutex_);
+    if (flips != nullptr) {
+      auto [it, first] = last_empty_answer_.try_emplace(e.request.payload_1, status);
+      if (!first && it->second != status) flips->Inc();
+      it->second = status;
+    }
     Robot& r = robots_[e.peer];
     if (r.answers == 0) r.first_seen = e.time;
     r.client_id = e.client_id;
@@ -473,6 +497,7 @@ class StatusState::Impl {
   uint64_t detections_ = 0;               // GUARDED_BY(mutex_)
   std::map<std::string, Robot> robots_;   // GUARDED_BY(mutex_), by peer
   Calibration calibration_;               // GUARDED_BY(mutex_)
+  std::map<int32_t, int32_t> last_empty_answer_;  // GUARDED_BY(mutex_): task -> 41 / 42
 };
 
 StatusState::StatusState(const Cell& cell, MetricsRegistry& metrics, StatusStateOptions options)

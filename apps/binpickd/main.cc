@@ -9,6 +9,7 @@
 //             /metrics: docs/status_page.md; port 0 or absent disables)
 //            [--source synthetic|files:DIR|replay:DIR]  (default: the cell's source)
 //            [--no-record] [--record-dir DIR] [--record-max-mb N]  (default: the cell's recording)
+//            [--taught-grasps FILE]  (default: <cell file>.taught.yaml)
 //            [--max-connections N] [--max-message-rate R] [--allow IP]...
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
@@ -41,6 +42,7 @@
 #include "comms/plane_calibration_service.h"
 #include "comms/request_handler.h"
 #include "core/cell.h"
+#include "core/service_notify.h"
 #include "grasp/planner_factory.h"
 #include "twod/planner_2d.h"
 #include "web/metrics.h"
@@ -72,6 +74,7 @@ int main(int argc, char** argv) {
   std::optional<int> max_connections;
   std::optional<double> max_message_rate;
   std::vector<std::string> allow;
+  std::string taught_grasps;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -104,6 +107,9 @@ int main(int argc, char** argv) {
   app.add_option("--source", source,
                  "capture source: synthetic, files:DIR or replay:DIR (a recorded session or a directory of "
                  "frames; default: the cell's source)");
+  app.add_option("--taught-grasps", taught_grasps,
+                 "file of the grasps taught with command 30 (default: <cell file>.taught.yaml; the package's "
+                 "service keeps it in /var/lib/binpick)");
   app.add_flag("--no-record", no_record, "do not record captures and answers (default: the cell's recording)");
   app.add_option("--record-dir", record_dir, "directory of the recording sessions (default: the cell's)");
   app.add_option("--record-max-mb", record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
@@ -163,7 +169,7 @@ int main(int argc, char** argv) {
   // A cell of pick_2d tasks only needs no 3D planner.
   bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
       bp::OnlyPick2DTasks(*cell) ? std::unique_ptr<bp::GraspPlanner>()
-                                 : bp::MakePlanner(*cell, hand_eye_provider);
+                                 : bp::MakePlanner(*cell, hand_eye_provider, taught_grasps);
   if (!planner.ok()) {
     std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
     return 3;
@@ -350,10 +356,15 @@ int main(int argc, char** argv) {
   }
   spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
   std::cout << ready << std::endl;
+  // Type=notify (deploy/debian/binpickd.service): every listener is up.
+  if (bp::Status s = bp::NotifyServiceManager("READY=1\nSTATUS=" + ready); !s.ok()) {
+    spdlog::warn("binpickd: {}", s.ToString());
+  }
 
   int signal = 0;
   sigwait(&stop_signals, &signal);
   spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
+  (void)bp::NotifyServiceManager("STOPPING=1");
   if (http) http->Stop();
   if (server) server->Stop();
   for (auto& master : masters) master->Stop();

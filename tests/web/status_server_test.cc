@@ -460,3 +460,38 @@ TEST(StatusServer, MetricsParseAsPrometheusTextAndCountWhatHappened) {
 
 }  // namespace
 }  // namespace bp
+
+namespace bp {
+namespace {
+
+AnswerEvent Answer(int32_t command, int32_t task, int32_t status, int32_t payload_1 = 0) {
+  AnswerEvent e;
+  e.peer = "127.0.0.1:5000";
+  e.request = Req(command, task);
+  e.response.status = status;
+  e.response.payload[0] = payload_1;
+  return e;
+}
+
+TEST(StatusState, ExportsThePrecisionErrorAndCountsEmptyBoxFlipsPerTask) {
+  MetricsRegistry metrics;
+  StatusState state(testing::MakeTestCell(), metrics);
+  state.OnAnswer(Answer(daoai::kPrecisionCheck, 0, daoai::kPrecisionCheckSuccess, 3500));  // 0.35 mm
+  state.OnAnswer(Answer(daoai::kPrecisionCheck, 0, daoai::kPrecisionCheckFail));  // keeps the last error
+  // Task 0: empty, empty, not empty, empty: two flips. Task 1: one answer, no flip.
+  for (const int32_t s : {daoai::kBoxEmpty, daoai::kBoxEmpty, daoai::kBoxNotEmpty, daoai::kBoxEmpty}) {
+    state.OnAnswer(Answer(daoai::kCheckEmptyBox, 0, s));
+  }
+  state.OnAnswer(Answer(daoai::kCheckEmptyBox, 1, daoai::kBoxNotEmpty));
+  state.OnAnswer(Answer(daoai::kCheckEmptyBox, 1, -1));  // task not in the cell: no answer to compare
+  std::map<std::string, double> m;
+  const std::vector<std::string> problems = webtest::CheckPrometheusText(metrics.Render(), &m);
+  EXPECT_TRUE(problems.empty()) << ::testing::PrintToString(problems);
+  EXPECT_DOUBLE_EQ(m["binpick_precision_error_mm{task=\"0\"}"], 0.35);
+  EXPECT_EQ(m["binpick_empty_box_flips_total{task=\"0\"}"], 2.0);
+  EXPECT_EQ(m["binpick_empty_box_flips_total{task=\"1\"}"], 0.0);
+  EXPECT_EQ(m.count("binpick_empty_box_flips_total{task=\"1\"}"), 1u);
+}
+
+}  // namespace
+}  // namespace bp
