@@ -1018,6 +1018,11 @@ const TaskSpec* Cell::FindTask(int id) const {
 
 std::string AssetsDir() {
   if (const char* env = std::getenv("BINPICK_ASSETS"); env != nullptr && env[0] != '\0') return env;
+  // An installed program (/usr/bin/binpickd): the package's assets beside it.
+  std::error_code ec;
+  const fs::path installed = fs::read_symlink("/proc/self/exe", ec).parent_path().parent_path() / "share" /
+                             "binpick" / "assets";
+  if (!ec && fs::is_directory(installed, ec)) return installed.string();
   return BINPICK_ASSETS_DIR;
 }
 

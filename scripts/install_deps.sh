@@ -13,6 +13,11 @@ PACKAGES=(
   python3 python3-pymodbus python3-serial python3-serial-asyncio python3-numpy
   python3-prometheus-client  # tests: the reference /metrics parser
   chromium                   # tests: the status page in a headless browser
+  python3-yaml               # tests: the monitoring and fleet manifest checks (tests/deploy)
+  prometheus                 # tests: promtool checks the rules and the dashboard's queries
+  systemd                    # tests: systemd-analyze verify / security on the packaged unit
+  dpkg-dev fakeroot          # scripts/package.sh: CPack's dpkg-shlibdeps
+  shellcheck                 # tests: the package's maintainer scripts and the Slurm scripts
 )
 
 missing=()

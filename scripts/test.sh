@@ -4,6 +4,11 @@
 #          target bp_programs), bounded load test (bp_load: 8 robots, 5 s,
 #          fails on any error); with arguments, the whole build and a ctest
 #          run with them (e.g. `scripts/test.sh -R Perception`)
+#   deploy the Debian package from build/'s programs (scripts/package.sh:
+#          no rebuild) installed into a scratch root and checked
+#          (tests/deploy/package_test.sh), the Dockerfile's lint and the
+#          Prometheus config, rules and their unit tests
+#          (tests/deploy/static_checks.sh)
 #   asan   every test under AddressSanitizer + UBSan (build-asan/, all but
 #          the benches; each test binary once, all its tests in one process).
 #          The tests run here only, not also in the normal build: compiling
@@ -17,13 +22,13 @@
 # and, not in the default run:
 #   tests  every test in the normal build, each binary once (the quick
 #          check while working: no sanitizer build)
-# BINPICK_TEST_STAGES picks stages (default: all four, "build asan tsan
-# fuzz"; timings in docs/reliability.md); extra arguments go to a ctest run
+# BINPICK_TEST_STAGES picks stages (default: all five, "build deploy asan
+# tsan fuzz"; timings in docs/reliability.md); extra arguments go to a ctest run
 # of the normal build (e.g. `scripts/test.sh -R Perception`). Each stage logs
 # its start and its duration; the first failure stops the run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-STAGES="${BINPICK_TEST_STAGES:-build asan tsan fuzz}"
+STAGES="${BINPICK_TEST_STAGES:-build deploy asan tsan fuzz}"
 export CCACHE_DIR="${CCACHE_DIR:-$HOME/.cache/ccache}"
 export CCACHE_MAXSIZE="${CCACHE_MAXSIZE:-5G}"
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
@@ -77,6 +82,13 @@ stage_build() {
   build/bin/bp_load --robots 8 --seconds 5
 }
 
+stage_deploy() {
+  local deb
+  deb=$(scripts/package.sh)
+  tests/deploy/package_test.sh "$deb"
+  tests/deploy/static_checks.sh
+}
+
 stage_tests() {
   scripts/build.sh
   run_test_binaries build
@@ -113,11 +125,12 @@ stage_fuzz() {
 for s in $STAGES; do
   case "$s" in
     build) run_stage build stage_build "$@" ;;
+    deploy) run_stage deploy stage_deploy ;;
     tests) run_stage tests stage_tests ;;
     asan) run_stage asan stage_asan ;;
     tsan) run_stage tsan stage_tsan ;;
     fuzz) run_stage fuzz stage_fuzz ;;
-    *) echo "test.sh: unknown stage '$s' (build tests asan tsan fuzz)"; exit 2 ;;
+    *) echo "test.sh: unknown stage '$s' (build deploy tests asan tsan fuzz)"; exit 2 ;;
   esac
 done
 echo "=== test.sh: all stages passed"
