@@ -183,6 +183,24 @@ TEST(ReplayShards, OneTwoAndThreeShardProcessesMergeToTheSameFleetReport) {
     EXPECT_EQ(fleets[i]["shards"], static_cast<int>(i + 1));
     EXPECT_EQ(Comparable(fleets[i]), Comparable(unsharded)) << "n=" << i + 1 << " differs from n=1";
   }
+
+  // Bad input is exit 2 and names what is wrong: a shard out of range, a
+  // manifest entry naming nothing, a merge missing a shard.
+  const test::CommandRun bad_shard =
+      test::RunCommand(kBin + "binpick replay --manifest " + dir + "/fleet.txt --shard 3/3 --json " + dir + "/x.json");
+  EXPECT_EQ(bad_shard.exit_code, 2) << bad_shard.out;
+  EXPECT_NE(bad_shard.out.find("--shard '3/3'"), std::string::npos) << bad_shard.out;
+  testing::WriteText(dir + "/bad.txt", "site/*/session_*\nno_such_cell/*\n");
+  const test::CommandRun bad_manifest =
+      test::RunCommand(kBin + "binpick replay --manifest " + dir + "/bad.txt --json " + dir + "/x.json");
+  EXPECT_EQ(bad_manifest.exit_code, 2) << bad_manifest.out;
+  EXPECT_NE(bad_manifest.out.find("bad.txt:2: 'no_such_cell/*' names no directory"), std::string::npos)
+      << bad_manifest.out;
+  const test::CommandRun partial = test::RunCommand(kBin + "binpick replay-merge " + dir +
+                                                    "/reports/slurm/shard-0.json --json " + dir + "/x.json");
+  EXPECT_EQ(partial.exit_code, 2) << partial.out;
+  EXPECT_NE(partial.out.find("shard 1 of 3 is missing"), std::string::npos) << partial.out;
+  EXPECT_FALSE(fs::exists(dir + "/x.json"));
 }
 
 }  // namespace
