@@ -94,24 +94,6 @@ Status BuildPpfTable(PoseModel& m) {
   return Status::Ok();
 }
 
-// Estimate's inputs: InvalidArgument naming the first one that is wrong.
-Status CheckEstimateInputs(const SceneView& view, const PoseSearch& search) {
-  if (!search.IsValid()) {
-    return Status::InvalidArgument(
-        "PoseSearch: counts must be >= 1, peaks_examined >= peaks_per_reference and stop_score in [0, 1]");
-  }
-  if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
-    return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
-                                   " entries for " + std::to_string(view.points_B.size()) + " points");
-  }
-  if (!view.X_BC.matrix().allFinite()) return Status::InvalidArgument("SceneView: X_BC is not finite");
-  if (view.support_plane_B &&
-      (!view.support_plane_B->allFinite() || std::abs(view.support_plane_B->head<3>().norm() - 1.0) > 1e-3)) {
-    return Status::InvalidArgument("SceneView: support_plane_B needs a finite unit normal");
-  }
-  return Status::Ok();
-}
-
 }  // namespace
 
 bool PoseEstimatorOptions::IsValid(std::string* error) const {
@@ -146,6 +128,10 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
 }
 
 struct PoseEstimator::Impl : internal::PoseModel {};
+
+const internal::PoseModel& internal::PoseEstimatorAccess::Model(const PoseEstimator& estimator) {
+  return *estimator.impl_;
+}
 
 PoseEstimator::PoseEstimator(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 PoseEstimator::~PoseEstimator() = default;
@@ -247,33 +233,8 @@ Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view) const {
   return Estimate(view, default_search());
 }
 
-// Prepare (or reuse the prepared view), then search it.
 Result<PoseEstimates> PoseEstimator::Estimate(const SceneView& view, const PoseSearch& search) const {
-  if (Status s = CheckEstimateInputs(view, search); !s.ok()) return s;
-  PoseEstimates out;
-  std::shared_ptr<PreparedView> owned;
-  const PreparedView* prepared = search.prepared.get();
-  if (prepared != nullptr) {
-    if (prepared->model_id != impl_->id || prepared->input_points != view.points_B.size()) {
-      return Status::InvalidArgument("PoseSearch: prepared comes from another estimator or view");
-    }
-  } else {
-    owned = std::make_shared<PreparedView>();
-    const internal::Preparation p = internal::PrepareView(*impl_, view, owned.get());
-    out.scene_points = p.scene_points;
-    out.sampled_points = p.sampled_points;
-    out.timings.prepare_ms = p.ms;
-    if (!p.ok) {
-      out.no_result_reason = p.reason;
-      return out;
-    }
-    prepared = owned.get();
-  }
-  if (search.keep_prepared) out.prepared = owned ? std::shared_ptr<const PreparedView>(owned) : search.prepared;
-  out.scene_points = static_cast<int>(prepared->pts.size());
-  out.sampled_points = static_cast<int>(prepared->sub_p.size());
-  internal::SearchPreparedView(*impl_, view, search, *prepared, owned.get(), &out);
-  return out;
+  return internal::EstimatePose(*impl_, view, search);
 }
 
 }  // namespace bp

@@ -24,8 +24,9 @@
 
 namespace bp {
 
-// What an estimate derives from a view before its search (defined in the .cc).
-struct PreparedView;
+namespace internal {
+class PoseEstimatorAccess;  // perception's reuse of an estimate (internal/pose_search.h)
+}  // namespace internal
 
 struct PoseEstimatorOptions {
   // --- model tables (built once by Build) ---
@@ -267,24 +268,10 @@ struct PoseSearch {
   // Also try each verified hypothesis turned by the model's near symmetries
   // (PoseEstimatorOptions::near_symmetry_min_overlap) and keep the better.
   bool near_symmetries = true;
-  // Coarse poses an earlier estimate of the same view already refined
-  // (its PoseEstimates::coarse_poses): a coarse pose (or seed) within the
-  // pose clustering thresholds of one of them is not refined again: it
-  // would most likely converge to a hypothesis that estimate already
-  // returned or rejected (measured in docs/perception_pipeline.md, "Second
-  // look"). Must outlive the call.
-  std::span<const Pose> skip_coarse = {};
   // The first ICP pass stops at the first coarse pose or seed that passes
   // the quick verification with at least this score (in [0, 1]; 0 = every
   // one is refined; PoseEstimatorOptions::coarse_stop_score).
   double stop_score = 0.0;
-  // keep_prepared: the estimate returns what it derived from the view
-  // before the search (PoseEstimates::prepared). prepared: from an earlier
-  // estimate of the same view (the same points) by the same estimator, used
-  // instead of deriving it again (InvalidArgument when it is another's).
-  bool keep_prepared = false;
-  std::shared_ptr<const PreparedView> prepared = nullptr;
-
   // Counts >= 1, peaks_examined >= peaks_per_reference, stop_score in [0, 1].
   bool IsValid() const {
     return max_reference_points >= 1 && max_coarse_poses >= 1 && peaks_per_reference >= 1 &&
@@ -323,11 +310,8 @@ struct PoseEstimates {
   PoseTimings timings;
   int scene_points = 0;       // finite input points
   int sampled_points = 0;     // after subsampling
-  // The coarse poses and seeds refined, for PoseSearch::skip_coarse.
-  std::vector<Pose> coarse_poses;
-  int coarse_skipped = 0;     // left out by PoseSearch::skip_coarse
-  int screened_out = 0;       // refined coarse poses the quick screen rejected
-  std::shared_ptr<const PreparedView> prepared = nullptr;  // with PoseSearch::keep_prepared
+  int coarse_refined = 0;     // coarse poses and seeds refined by the first ICP pass
+  int screened_out = 0;       // of those, rejected by the quick screen
 };
 
 class PoseEstimator {
@@ -389,6 +373,7 @@ class PoseEstimator {
   const std::vector<Pose>& near_symmetries() const;
 
  private:
+  friend class internal::PoseEstimatorAccess;
   struct Impl;
   explicit PoseEstimator(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;

@@ -56,9 +56,9 @@ class PpfClassModel final : public ClassModel {
   ClassEstimate Estimate(const SegmentView& view) const override {
     const SceneView scene = ToScene(view);
     ClassEstimate out;
-    PoseSearch search = view.search ? *view.search : estimator_->default_search();
-    search.keep_prepared = search.keep_prepared || view.keep_prepared;
-    Result<PoseEstimates> est = estimator_->Estimate(scene, search);
+    const PoseSearch search = view.search ? *view.search : estimator_->default_search();
+    Result<PoseEstimates> est =
+        EstimatePose(PoseEstimatorAccess::Model(*estimator_), scene, search, view.reuse, &out.trace);
     if (!est.ok()) {
       out.reason = est.status().ToString();
       return out;
@@ -75,9 +75,6 @@ class PpfClassModel final : public ClassModel {
       out.hypotheses.push_back(std::move(c));
     }
     if (out.hypotheses.empty()) out.reason = est->no_result_reason;
-    out.coarse_poses = std::move(est->coarse_poses);
-    out.coarse_skipped = est->coarse_skipped;
-    out.prepared = std::move(est->prepared);
     return out;
   }
 

@@ -17,6 +17,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/frame.h"
+#include "pipeline/internal/pose_search.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp::internal {
@@ -27,8 +28,8 @@ struct SegmentView {
   std::span<const Eigen::Vector3f> normals_B;  // same size as points_B, or empty
   const Frame* frame = nullptr;                // for the camera pose and the depth image
   std::optional<Eigen::Vector4d> floor_plane_B;  // (n, d): n . x + d = 0, n towards the parts
-  std::optional<PoseSearch> search;              // unset: the estimator's options
-  bool keep_prepared = false;                    // PoseSearch::keep_prepared
+  std::optional<PoseSearch> search;              // unset: the estimator's default search
+  SearchReuse reuse;                             // from an earlier estimate of the same view
 };
 
 struct ClassHypothesis {
@@ -42,9 +43,7 @@ struct ClassHypothesis {
 struct ClassEstimate {
   std::vector<ClassHypothesis> hypotheses;  // verified, best first
   std::string reason;                       // when empty
-  std::vector<Pose> coarse_poses;           // refined (PoseSearch::skip_coarse)
-  int coarse_skipped = 0;
-  std::shared_ptr<const PreparedView> prepared;  // with SegmentView::keep_prepared
+  SearchTrace trace;                        // for a later estimate of the same view
 };
 
 // Thread-safe: Estimate is called concurrently for different segments.

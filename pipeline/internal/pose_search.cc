@@ -1,6 +1,7 @@
 #include "pipeline/internal/pose_search.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -40,6 +41,24 @@ constexpr double kNearSymmetryScreen = 0.8;
 // is also verified at its pose before the fine pass.
 constexpr double kKeepBetterThanFineBelow = 0.9;
 
+// Estimate's inputs: InvalidArgument naming the first one that is wrong.
+Status CheckEstimateInputs(const SceneView& view, const PoseSearch& search) {
+  if (!search.IsValid()) {
+    return Status::InvalidArgument(
+        "PoseSearch: counts must be >= 1, peaks_examined >= peaks_per_reference and stop_score in [0, 1]");
+  }
+  if (!view.normals_B.empty() && view.normals_B.size() != view.points_B.size()) {
+    return Status::InvalidArgument("SceneView: normals_B has " + std::to_string(view.normals_B.size()) +
+                                   " entries for " + std::to_string(view.points_B.size()) + " points");
+  }
+  if (!view.X_BC.matrix().allFinite()) return Status::InvalidArgument("SceneView: X_BC is not finite");
+  if (view.support_plane_B &&
+      (!view.support_plane_B->allFinite() || std::abs(view.support_plane_B->head<3>().norm() - 1.0) > 1e-3)) {
+    return Status::InvalidArgument("SceneView: support_plane_B needs a finite unit normal");
+  }
+  return Status::Ok();
+}
+
 // A pose on its way through the passes.
 struct Candidate {
   Pose X_BO;
@@ -53,14 +72,18 @@ struct Candidate {
 // earlier steps found.
 class SearchRun {
  public:
-  SearchRun(const PoseModel& m, const SceneView& view, const PoseSearch& search, const PreparedView& prepared,
-            PreparedView* owned, PoseEstimates* out)
-      : m_(m), opt_(m.options), view_(view), search_(search), p_(prepared), owned_(owned), out_(*out),
+  SearchRun(const PoseModel& m, const SceneView& view, const PoseSearch& search, const SearchReuse& reuse,
+            const PreparedView& prepared, PreparedView* owned, PoseEstimates* out)
+      : m_(m), opt_(m.options), view_(view), search_(search), reuse_(reuse), p_(prepared), owned_(owned), out_(*out),
         have_depth_(view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid()),
         min_score_(have_depth_ ? opt_.min_score : opt_.min_score_without_depth),
         camera_B_(view.X_BC.translation()),
         gate0_(static_cast<float>(opt_.icp_initial_relative_distance) * m.step),
         gate1_(static_cast<float>(opt_.icp_final_distance)) {}
+
+  // The coarse poses and seeds the first pass refined.
+  std::vector<Pose>& coarse_poses() { return coarse_poses_; }
+  int coarse_skipped() const { return coarse_skipped_; }
 
   void Run() {
     const auto t1 = Clock::now();
@@ -80,8 +103,9 @@ class SearchRun {
       });
       FirstPass(seeds);
     }
-    if (out_.coarse_poses.empty()) {
-      out_.no_result_reason = "every coarse pose was refined by an earlier estimate (PoseSearch::skip_coarse)";
+    out_.coarse_refined = static_cast<int>(coarse_poses_.size());
+    if (coarse_poses_.empty()) {
+      out_.no_result_reason = "every coarse pose was refined by an earlier estimate of the view";
       return;
     }
     std::vector<Candidate> finals;
@@ -131,6 +155,7 @@ class SearchRun {
   const PoseEstimatorOptions& opt_;
   const SceneView& view_;
   const PoseSearch& search_;
+  const SearchReuse& reuse_;
   const PreparedView& p_;
   PreparedView* owned_;
   PoseEstimates& out_;
@@ -139,6 +164,8 @@ class SearchRun {
   const Vec3 camera_B_;
   const float gate0_, gate1_;  // ICP gates: the first pass's initial one, the final one
   double refine_ms_ = 0, verify_ms_ = 0;
+  std::vector<Pose> coarse_poses_;  // refined by the first pass
+  int coarse_skipped_ = 0;          // left out by SearchReuse::skip_coarse
   std::vector<Candidate> first_;  // the first pass's refined poses
   bool stopped_ = false;          // a first-pass pose explained the view
   double best_rejected_ = -1;
@@ -177,7 +204,7 @@ std::vector<CoarsePose> SearchRun::Coarse() {
     mo.peaks_per_reference = search_.peaks_per_reference;
     mo.peaks_examined = search_.peaks_examined;
   }
-  if (owned_ != nullptr && search_.keep_prepared) {
+  if (owned_ != nullptr && reuse_.keep_prepared) {
     mo.record = &owned_->votes;
     mo.record_peaks = kRecordedPeaks;
   } else if (owned_ == nullptr) {
@@ -195,19 +222,19 @@ std::vector<CoarsePose> SearchRun::Coarse() {
 }
 
 // Coarse poses an earlier estimate of this view refined are left out
-// (PoseSearch::skip_coarse).
+// (SearchReuse::skip_coarse).
 void SearchRun::DropTried(std::vector<CoarsePose>& list) {
-  if (search_.skip_coarse.empty()) return;
+  if (reuse_.skip_coarse.empty()) return;
   const double skip_t = opt_.cluster_relative_translation * m_.diameter;
   const double skip_r = opt_.cluster_rotation_deg * M_PI / 180.0;
   const size_t before = list.size();
   std::erase_if(list, [&](const CoarsePose& cp) {
-    return std::any_of(search_.skip_coarse.begin(), search_.skip_coarse.end(), [&](const Pose& X) {
+    return std::any_of(reuse_.skip_coarse.begin(), reuse_.skip_coarse.end(), [&](const Pose& X) {
       return (X.translation() - cp.X_BO.translation()).norm() < skip_t &&
              SymmetricRotationError(X, cp.X_BO, m_.symmetry) < skip_r;
     });
   });
-  out_.coarse_skipped += static_cast<int>(before - list.size());
+  coarse_skipped_ += static_cast<int>(before - list.size());
 }
 
 // The first pass over `list`, in order: ICP on the subsampled points, then a
@@ -216,7 +243,7 @@ void SearchRun::DropTried(std::vector<CoarsePose>& list) {
 void SearchRun::FirstPass(std::vector<CoarsePose>& list) {
   DropTried(list);
   for (const CoarsePose& cp : list) {
-    out_.coarse_poses.push_back(cp.X_BO);
+    coarse_poses_.push_back(cp.X_BO);
     IcpResult icp;
     Timed(refine_ms_, [&] {
       icp = m_.Refine(p_.sub_p, p_.sub_boundary, cp.X_BO, camera_B_, gate0_, std::max(gate1_, 0.5f * m_.step),
@@ -379,11 +406,54 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
   }
 }
 
+// A fingerprint of the view's points: their count and the sums of their
+// coordinates (a prepared view must come from the same points).
+std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
+  std::array<double, 4> f{static_cast<double>(points.size()), 0.0, 0.0, 0.0};
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    f[1] += p.x();
+    f[2] += p.y();
+    f[3] += p.z();
+  }
+  return f;
+}
+
 }  // namespace
 
-void SearchPreparedView(const PoseModel& model, const SceneView& view, const PoseSearch& search,
-                        const PreparedView& prepared, PreparedView* owned, PoseEstimates* out) {
-  SearchRun(model, view, search, prepared, owned, out).Run();
+Result<PoseEstimates> EstimatePose(const PoseModel& m, const SceneView& view, const PoseSearch& search,
+                                   const SearchReuse& reuse, SearchTrace* trace) {
+  if (Status s = CheckEstimateInputs(view, search); !s.ok()) return s;
+  PoseEstimates out;
+  std::shared_ptr<PreparedView> owned;
+  const PreparedView* prepared = reuse.prepared.get();
+  if (prepared != nullptr) {
+    if (prepared->model_id != m.id || prepared->fingerprint != Fingerprint(view.points_B)) {
+      return Status::InvalidArgument("SearchReuse: prepared comes from another estimator or view");
+    }
+  } else {
+    owned = std::make_shared<PreparedView>();
+    const Preparation p = PrepareView(m, view, owned.get());
+    out.scene_points = p.scene_points;
+    out.sampled_points = p.sampled_points;
+    out.timings.prepare_ms = p.ms;
+    if (!p.ok) {
+      out.no_result_reason = p.reason;
+      return out;
+    }
+    if (reuse.keep_prepared) owned->fingerprint = Fingerprint(view.points_B);
+    prepared = owned.get();
+  }
+  out.scene_points = static_cast<int>(prepared->pts.size());
+  out.sampled_points = static_cast<int>(prepared->sub_p.size());
+  SearchRun run(m, view, search, reuse, *prepared, owned.get(), &out);
+  run.Run();
+  if (trace != nullptr) {
+    trace->coarse_poses = std::move(run.coarse_poses());
+    trace->coarse_skipped = run.coarse_skipped();
+    if (reuse.keep_prepared) trace->prepared = owned ? std::shared_ptr<const PreparedView>(owned) : reuse.prepared;
+  }
+  return out;
 }
 
 }  // namespace bp::internal

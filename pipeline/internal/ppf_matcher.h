@@ -82,8 +82,7 @@ struct PpfMatchOptions {
   // every peak near the best). Several peaks matter for planar views, where
   // many placements of the model's faces tie; `accept` (e.g. "does not sink
   // into the bin floor") lets a physically possible placement win over a
-  // better-voted impossible one. Unset: every pose is accepted. It must not
-  // call Match itself (Match's vote accumulator is one per thread).
+  // better-voted impossible one. Unset: every pose is accepted.
   int peaks_per_reference = 1;
   int peaks_examined = 1;
   float min_peak_fraction = 0.5f;
@@ -106,7 +105,9 @@ class PpfModel {
                const PpfParams& params, float max_distance);
 
   // Clustered coarse poses, most votes first. scene points / normals in B,
-  // subsampled at about the model's distance step. Thread-safe.
+  // subsampled at about the model's distance step. Thread-safe: the vote
+  // accumulator is per thread (kept between calls, all zero in between), and
+  // a Match called from `accept` gets its own.
   // reference_ok (optional, one per point): 0 excludes a point as a reference
   // point (it still votes as a partner).
   std::vector<CoarsePose> Match(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
@@ -117,6 +118,11 @@ class PpfModel {
   size_t pair_count() const { return entries_.size(); }
 
  private:
+  struct MatchRun;
+  int Vote(MatchRun& run, size_t r, uint16_t* acc) const;
+  void Peaks(MatchRun& run, size_t r, int best, uint16_t* acc) const;
+  void Emit(MatchRun& run, size_t r, int best, size_t best_bin,
+            std::span<const std::pair<uint16_t, uint32_t>> sorted) const;
   // Dense feature key, or -1 if the pair is out of range.
   int Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Eigen::Vector3f& p2,
           const Eigen::Vector3f& n2) const;

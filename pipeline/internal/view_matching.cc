@@ -102,16 +102,16 @@ void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms
     const WaveTrace* skip = earlier != nullptr && mi < earlier->size() ? &(*earlier)[mi] : nullptr;
     if (skip != nullptr && (!skip->coarse_poses.empty() || skip->prepared) && view.search) {
       SegmentView with_skip = view;
-      with_skip.search->skip_coarse = skip->coarse_poses;
-      with_skip.search->prepared = skip->prepared;
+      with_skip.reuse.skip_coarse = skip->coarse_poses;
+      with_skip.reuse.prepared = skip->prepared;
       job.estimate = model.Estimate(with_skip);
     } else {
       job.estimate = model.Estimate(view);
     }
-    counts_.coarse_skipped += job.estimate.coarse_skipped;
-    counts_.coarse_refined += static_cast<int>(job.estimate.coarse_poses.size());
+    counts_.coarse_skipped += job.estimate.trace.coarse_skipped;
+    counts_.coarse_refined += static_cast<int>(job.estimate.trace.coarse_poses.size());
     if (trace != nullptr) {
-      (*trace)[mi] = WaveTrace{std::move(job.estimate.coarse_poses), std::move(job.estimate.prepared)};
+      (*trace)[mi] = WaveTrace{std::move(job.estimate.trace.coarse_poses), std::move(job.estimate.trace.prepared)};
     }
     if (fit_limit_.enabled() && !job.estimate.hypotheses.empty()) {
       std::erase_if(job.estimate.hypotheses,
@@ -156,7 +156,7 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     view.floor_plane_B = floor_plane_B_;
     if (thorough_) view.search = options_.thorough_search;
     if (pass == MatchPass::kSecondLook) view.search = options_.second_look_search;
-    view.keep_prepared = keep_traces;
+    view.reuse.keep_prepared = keep_traces;
     const ViewTrace* view_earlier = earlier != nullptr ? &(*earlier)[v] : nullptr;
     ViewTrace* trace = keep_traces ? &out.traces[v] : nullptr;
     std::vector<Job>& jobs = per_view[v];

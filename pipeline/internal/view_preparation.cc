@@ -184,7 +184,6 @@ std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std
 Preparation PrepareView(const PoseModel& m, const SceneView& view, PreparedView* w) {
   Preparation out;
   w->model_id = m.id;
-  w->input_points = view.points_B.size();
   const auto t0 = Clock::now();
   TakeFinitePoints(view, w);
   out.scene_points = static_cast<int>(w->pts.size());

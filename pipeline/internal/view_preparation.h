@@ -4,6 +4,7 @@
 // the ICP points. Private to bp_pipeline. Frames: B base, C camera. Metres.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -15,30 +16,29 @@
 #include "pipeline/internal/verification.h"
 #include "pipeline/pose_estimator.h"
 
-namespace bp {
+namespace bp::internal {
 
-// Defined here (declared in pipeline/pose_estimator.h): an estimate of the
-// same view by the same estimator reuses it (the perception's second look).
-// Immutable once its estimate has returned it.
+// An estimate of the same view by the same estimator may reuse it
+// (SearchReuse::prepared: the perception's second look). Shared read-only
+// once its estimate has returned it.
 struct PreparedView {
-  uint64_t model_id = 0;      // internal::PoseModel::id of the estimator that made it
-  size_t input_points = 0;    // SceneView::points_B.size()
+  uint64_t model_id = 0;  // PoseModel::id of the estimator that made it
+  // Of the view's points (count, coordinate sums), with SearchReuse::keep_prepared.
+  std::array<double, 4> fingerprint{};
   std::vector<Eigen::Vector3f> pts;  // finite points
   std::vector<int> index;            // their indices in SceneView::points_B
   std::optional<Eigen::Vector3f> view_plane;  // a planar view's normal, towards the camera
   std::vector<Eigen::Vector3f> sub_p, sub_n;  // subsampled at the PPF step, with normals towards the camera
-  internal::SegmentDepth segment_depth;       // without a depth image only
-  internal::SceneSupport support;             // of pts, for the support queries
+  SegmentDepth segment_depth;                 // without a depth image only
+  SceneSupport support;                       // of pts, for the support queries
   std::vector<uint8_t> sub_boundary;          // per subsampled point: on the view's boundary
   std::vector<Eigen::Vector3f> fine;          // the fine ICP pass's points
   std::vector<uint8_t> fine_boundary;         // per fine point
   // The first search's PPF peaks (PpfMatchOptions::record): a wider search
   // (more peaks per reference point) of the same view reads them instead of
   // voting again.
-  internal::PpfVotes votes;
+  PpfVotes votes;
 };
-
-namespace internal {
 
 struct PoseModel;
 
@@ -51,7 +51,7 @@ struct Preparation {
   double ms = 0.0;
 };
 
-// Fills *w from the view (w->model_id and input_points included). Not ok
+// Fills *w from the view (w->model_id included). Not ok
 // for fewer than 30 finite points, (nearly) collinear points, a view much
 // smaller than the part or fewer than 8 subsampled points with a normal.
 Preparation PrepareView(const PoseModel& model, const SceneView& view, PreparedView* w);
@@ -63,5 +63,4 @@ Preparation PrepareView(const PoseModel& model, const SceneView& view, PreparedV
 std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std::span<const Eigen::Vector3f> hashed,
                                    const PointHash& hash, float radius);
 
-}  // namespace internal
-}  // namespace bp
+}  // namespace bp::internal

@@ -1,4 +1,5 @@
 #include "pipeline/pose_estimator.h"
+#include "pipeline/internal/pose_search.h"
 
 #include <cmath>
 #include <functional>
@@ -139,7 +140,8 @@ TEST(PoseEstimator, FindsTheShippedPartsAtKnownPoses) {
 }
 
 // A wider search of the same view (as the perception's second look) does
-// not refine again the coarse poses an earlier estimate refined.
+// not refine again the coarse poses an earlier estimate refined
+// (internal::SearchReuse::skip_coarse).
 TEST(PoseEstimator, SkipsTheCoarsePosesAnEarlierEstimateRefined) {
   const TestCamera cam = DefaultCamera();
   const PartCase part = TestParts()[0];
@@ -148,35 +150,38 @@ TEST(PoseEstimator, SkipsTheCoarsePosesAnEarlierEstimateRefined) {
   const RenderedScene scene = Render({{&part.mesh, X_BO}}, cam, 0.0003, 3);
   const SceneView view = ViewOf(scene.points_B, cam);
   const PoseEstimator& est = Estimator(0);
-  auto first = est.Estimate(view);
-  ASSERT_TRUE(first.ok());
-  ASSERT_FALSE(first->coarse_poses.empty());
-  EXPECT_EQ(first->coarse_skipped, 0);
+  const internal::PoseModel& model = internal::PoseEstimatorAccess::Model(est);
+  internal::SearchTrace first;
+  ASSERT_TRUE(internal::EstimatePose(model, view, est.default_search(), {}, &first).ok());
+  ASSERT_FALSE(first.coarse_poses.empty());
+  EXPECT_EQ(first.coarse_skipped, 0);
 
-  PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2, .peaks_examined = 16};
-  auto all = est.Estimate(view, wide);
-  ASSERT_TRUE(all.ok());
-  wide.skip_coarse = first->coarse_poses;
-  auto rest = est.Estimate(view, wide);
-  ASSERT_TRUE(rest.ok());
-  EXPECT_GT(rest->coarse_skipped, 0);
-  EXPECT_EQ(rest->coarse_poses.size() + static_cast<size_t>(rest->coarse_skipped), all->coarse_poses.size());
+  const PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
+                        .peaks_examined = 16};
+  internal::SearchTrace all, rest;
+  ASSERT_TRUE(internal::EstimatePose(model, view, wide, {}, &all).ok());
+  auto rest_estimate = internal::EstimatePose(model, view, wide, {.skip_coarse = first.coarse_poses}, &rest);
+  ASSERT_TRUE(rest_estimate.ok());
+  EXPECT_GT(rest.coarse_skipped, 0);
+  EXPECT_EQ(rest.coarse_poses.size() + static_cast<size_t>(rest.coarse_skipped), all.coarse_poses.size());
+  EXPECT_EQ(rest_estimate->coarse_refined, static_cast<int>(rest.coarse_poses.size()));
   const double near_t = PoseEstimatorOptions{}.cluster_relative_translation * est.diameter();
   const double near_r = PoseEstimatorOptions{}.cluster_rotation_deg * kDeg;
-  for (const Pose& X : rest->coarse_poses) {
-    for (const Pose& Y : first->coarse_poses) {
+  for (const Pose& X : rest.coarse_poses) {
+    for (const Pose& Y : first.coarse_poses) {
       EXPECT_FALSE((X.translation() - Y.translation()).norm() < near_t &&
                    SymmetricRotationError(X, Y, part.symmetry) < near_r);
     }
   }
 
   // Everything skipped: no hypothesis, and the reason says why.
-  wide.skip_coarse = all->coarse_poses;
-  auto none = est.Estimate(view, wide);
+  internal::SearchTrace none_trace;
+  auto none = internal::EstimatePose(model, view, wide, {.skip_coarse = all.coarse_poses}, &none_trace);
   ASSERT_TRUE(none.ok());
   EXPECT_TRUE(none->hypotheses.empty());
-  EXPECT_EQ(none->coarse_skipped, static_cast<int>(all->coarse_poses.size()));
-  EXPECT_NE(none->no_result_reason.find("skip_coarse"), std::string::npos) << none->no_result_reason;
+  EXPECT_EQ(none_trace.coarse_skipped, static_cast<int>(all.coarse_poses.size()));
+  EXPECT_NE(none->no_result_reason.find("refined by an earlier estimate"), std::string::npos)
+      << none->no_result_reason;
 }
 
 // PoseSearch::stop_score: the first ICP pass ends at the first coarse pose
@@ -198,9 +203,9 @@ TEST(PoseEstimator, StopsTheFirstPassAtAPoseThatExplainsTheView) {
       auto stop = Estimator(k).Estimate(view, search);
       ASSERT_TRUE(all.ok() && stop.ok());
       ASSERT_FALSE(all->hypotheses.empty() || stop->hypotheses.empty()) << parts[k].name << " trial " << trial;
-      EXPECT_LE(stop->coarse_poses.size(), all->coarse_poses.size());
-      refined_all += all->coarse_poses.size();
-      refined_stop += stop->coarse_poses.size();
+      EXPECT_LE(stop->coarse_refined, all->coarse_refined);
+      refined_all += static_cast<size_t>(all->coarse_refined);
+      refined_stop += static_cast<size_t>(stop->coarse_refined);
       const Pose& X = stop->hypotheses.front().X_BO;
       EXPECT_LT(SymmetricTranslationError(X, X_BO, parts[k].symmetry), 0.0005) << parts[k].name << " trial " << trial;
       EXPECT_LT(SymmetricRotationError(X, X_BO, parts[k].symmetry), 0.5 * kDeg) << parts[k].name << " trial " << trial;
@@ -218,10 +223,11 @@ TEST(PoseEstimator, StopsTheFirstPassAtAPoseThatExplainsTheView) {
   }
 }
 
-// PoseSearch::keep_prepared / prepared: a second, wider estimate of the
-// same view (the perception's second look) reuses what the first derived
-// from it, PPF peaks included, and finds what it would have found deriving
-// it again.
+// internal::SearchReuse::keep_prepared / prepared: a second, wider estimate
+// of the same view (the perception's second look) reuses what the first
+// derived from it, PPF peaks included, and finds what it would have found
+// deriving it again. The prepared view names its estimator and its points:
+// another estimator's, or one of other points, is refused.
 TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
   const TestCamera cam = DefaultCamera();
   const PartCase part = TestParts()[0];
@@ -234,25 +240,26 @@ TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
   view.depth = &scene.depth;
   view.intrinsics = cam.K;
   const PoseEstimator& est = Estimator(0);
-  PoseSearch first = est.default_search();
-  auto plain = est.Estimate(view, first);
-  ASSERT_TRUE(plain.ok());
-  EXPECT_EQ(plain->prepared, nullptr);
-  first.keep_prepared = true;
-  auto kept = est.Estimate(view, first);
-  ASSERT_TRUE(kept.ok());
-  ASSERT_NE(kept->prepared, nullptr);
+  const internal::PoseModel& model = internal::PoseEstimatorAccess::Model(est);
+  internal::SearchTrace plain;
+  ASSERT_TRUE(internal::EstimatePose(model, view, est.default_search(), {}, &plain).ok());
+  EXPECT_EQ(plain.prepared, nullptr);
+  internal::SearchTrace kept;
+  ASSERT_TRUE(internal::EstimatePose(model, view, est.default_search(), {.keep_prepared = true}, &kept).ok());
+  ASSERT_NE(kept.prepared, nullptr);
 
-  PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2, .peaks_examined = 16};
-  auto fresh = est.Estimate(view, wide);
-  wide.prepared = kept->prepared;
-  auto reused = est.Estimate(view, wide);
+  const PoseSearch wide{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
+                        .peaks_examined = 16};
+  internal::SearchTrace fresh_trace, reused_trace;
+  auto fresh = internal::EstimatePose(model, view, wide, {}, &fresh_trace);
+  const internal::SearchReuse reuse{.prepared = kept.prepared};
+  auto reused = internal::EstimatePose(model, view, wide, reuse, &reused_trace);
   ASSERT_TRUE(fresh.ok() && reused.ok());
   EXPECT_EQ(reused->timings.prepare_ms, 0.0);
   EXPECT_EQ(reused->sampled_points, fresh->sampled_points);
-  EXPECT_EQ(reused->coarse_poses.size(), fresh->coarse_poses.size());
-  for (size_t i = 0; i < std::min(reused->coarse_poses.size(), fresh->coarse_poses.size()); ++i) {
-    EXPECT_TRUE(reused->coarse_poses[i].isApprox(fresh->coarse_poses[i], 1e-12)) << i;
+  EXPECT_EQ(reused_trace.coarse_poses.size(), fresh_trace.coarse_poses.size());
+  for (size_t i = 0; i < std::min(reused_trace.coarse_poses.size(), fresh_trace.coarse_poses.size()); ++i) {
+    EXPECT_TRUE(reused_trace.coarse_poses[i].isApprox(fresh_trace.coarse_poses[i], 1e-12)) << i;
   }
   ASSERT_EQ(reused->hypotheses.size(), fresh->hypotheses.size());
   ASSERT_FALSE(fresh->hypotheses.empty());
@@ -261,11 +268,25 @@ TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
     EXPECT_EQ(reused->hypotheses[i].score, fresh->hypotheses[i].score);
     EXPECT_EQ(reused->hypotheses[i].supporting_indices, fresh->hypotheses[i].supporting_indices);
   }
-  // Another estimator's, or another view's: InvalidArgument.
-  EXPECT_EQ(Estimator(1).Estimate(view, wide).status().code(), Status::Code::kInvalidArgument);
+  // Another estimator's (also one built later from the same mesh, wherever
+  // it is allocated), fewer points, or as many points moved: InvalidArgument.
+  const internal::PoseModel& other = internal::PoseEstimatorAccess::Model(Estimator(1));
+  EXPECT_EQ(internal::EstimatePose(other, view, wide, reuse).status().code(), Status::Code::kInvalidArgument);
+  for (int i = 0; i < 3; ++i) {
+    auto rebuilt = PoseEstimator::Build(part.mesh, part.symmetry);
+    ASSERT_TRUE(rebuilt.ok());
+    EXPECT_EQ(internal::EstimatePose(internal::PoseEstimatorAccess::Model(**rebuilt), view, wide, reuse)
+                  .status()
+                  .code(),
+              Status::Code::kInvalidArgument);
+  }
   const std::vector<Eigen::Vector3f> half(segment.begin(), segment.begin() + segment.size() / 2);
-  const SceneView fewer = OnFloor(ViewOf(half, cam));
-  EXPECT_EQ(est.Estimate(fewer, wide).status().code(), Status::Code::kInvalidArgument);
+  EXPECT_EQ(internal::EstimatePose(model, OnFloor(ViewOf(half, cam)), wide, reuse).status().code(),
+            Status::Code::kInvalidArgument);
+  std::vector<Eigen::Vector3f> moved = segment;
+  for (Eigen::Vector3f& p : moved) p.x() += 0.001f;
+  EXPECT_EQ(internal::EstimatePose(model, OnFloor(ViewOf(moved, cam)), wide, reuse).status().code(),
+            Status::Code::kInvalidArgument);
 }
 
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {

@@ -5,6 +5,8 @@
 // refuses more points than its 16-bit entries index.
 #include "pipeline/internal/ppf_matcher.h"
 
+#include <future>
+
 #include <gtest/gtest.h>
 
 #include <span>
@@ -152,6 +154,47 @@ TEST(PpfMatcher, NoVotesCarryOverFromOneCallToTheNext) {
   throwing.accept = [](const Pose&) -> bool { throw std::runtime_error("accept failed"); };
   EXPECT_THROW(s.model.Match(s.points, s.normals, {}, throwing, none), std::runtime_error);
   ExpectSamePoses(s.model.Match(s.points, s.normals, {}, options, none), first);
+}
+
+// A Match called from another's `accept` on the same thread (the vote
+// accumulator is per thread) gets an accumulator of its own: the inner and
+// the outer Match each find what they find alone, and so does the next one.
+TEST(PpfMatcher, AMatchCalledFromAcceptFindsWhatItFindsAlone) {
+  const PpfScene s = MakeScene();
+  const Symmetry none;
+  const PpfMatchOptions options = Options(2, 4, 12);
+  const std::vector<CoarsePose> alone = s.model.Match(s.points, s.normals, {}, options, none);
+  ASSERT_GE(alone.size(), 2u);
+  std::vector<std::vector<CoarsePose>> inner;
+  PpfMatchOptions nesting = options;
+  nesting.accept = [&](const Pose&) {
+    if (inner.size() < 3) inner.push_back(s.model.Match(s.points, s.normals, {}, options, none));
+    return true;
+  };
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, nesting, none), alone);
+  ASSERT_EQ(inner.size(), 3u);
+  for (const std::vector<CoarsePose>& poses : inner) ExpectSamePoses(poses, alone);
+  ExpectSamePoses(s.model.Match(s.points, s.normals, {}, options, none), alone);
+}
+
+// Matches on four threads at once, each with its own accumulator, find
+// what one thread finds.
+TEST(PpfMatcher, ConcurrentMatchesFindWhatOneThreadFinds) {
+  const PpfScene s = MakeScene();
+  const Symmetry none;
+  const PpfMatchOptions options = Options(2, 4, 12);
+  const std::vector<CoarsePose> serial = s.model.Match(s.points, s.normals, {}, options, none);
+  std::vector<std::future<std::vector<std::vector<CoarsePose>>>> runs;
+  for (int t = 0; t < 4; ++t) {
+    runs.push_back(std::async(std::launch::async, [&] {
+      std::vector<std::vector<CoarsePose>> out;
+      for (int k = 0; k < 5; ++k) out.push_back(s.model.Match(s.points, s.normals, {}, options, none));
+      return out;
+    }));
+  }
+  for (auto& run : runs) {
+    for (const std::vector<CoarsePose>& poses : run.get()) ExpectSamePoses(poses, serial);
+  }
 }
 
 TEST(PpfMatcher, BuildRejectsMoreModelPointsThanTheTableCanIndex) {
