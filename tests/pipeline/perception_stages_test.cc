@@ -1,0 +1,375 @@
+// Perception's stages one at a time (pipeline/internal/): segmentation on
+// rendered frames, acceptance with spherical parts whose geometry is exact,
+// the residual views, the depth noise measurement, verification and the
+// model tables of a box.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <numeric>
+#include <random>
+#include <set>
+#include <vector>
+
+#include <tbb/task_arena.h>
+
+#include "pipeline/internal/acceptance.h"
+#include "pipeline/internal/fit_limit.h"
+#include "pipeline/internal/planar_faces.h"
+#include "pipeline/internal/pose_model.h"
+#include "pipeline/internal/pose_search.h"
+#include "pipeline/internal/resting_poses.h"
+#include "pipeline/internal/roi_cloud.h"
+#include "pipeline/internal/segmentation.h"
+#include "pipeline/internal/verification.h"
+#include "pipeline/internal/view_passes.h"
+#include "tests/pipeline/pose_test_util.h"
+
+namespace bp::internal {
+namespace {
+
+using testing::DefaultCamera;
+using testing::MakeBox;
+using testing::Render;
+using testing::RenderedScene;
+using testing::TestCamera;
+
+// The bin frame W = B: floor at z = 0, the camera 1 m above it looking down.
+struct Scene {
+  Frame frame;
+  RoiCloud roi;
+};
+
+// Renders boxes (lo, hi in B) on a floor; crops from `roi_floor` above the
+// floor up to 0.3 m.
+Scene RenderBoxes(const std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>>& boxes, float roi_floor,
+                  double sigma = 0.0002) {
+  const TestCamera cam = DefaultCamera();
+  const TriangleMesh floor = MakeBox({-0.5f, -0.5f, -0.01f}, {0.5f, 0.5f, 0.f});
+  std::vector<TriangleMesh> meshes;
+  for (const auto& [lo, hi] : boxes) meshes.push_back(MakeBox(lo, hi));
+  std::vector<std::pair<const TriangleMesh*, Pose>> objects = {{&floor, Pose::Identity()}};
+  for (const TriangleMesh& m : meshes) objects.emplace_back(&m, Pose::Identity());
+  const RenderedScene rendered = Render(objects, cam, sigma, 7);
+  Scene s;
+  s.frame.intrinsics = cam.K;
+  s.frame.depth = rendered.depth;
+  s.frame.X_BC = cam.X_BC;
+  RoiBox box;
+  box.min_W = Eigen::Vector3f(-0.2f, -0.15f, roi_floor);
+  box.max_W = Eigen::Vector3f(0.2f, 0.15f, 0.3f);
+  CropToRoi(s.frame, Pose::Identity(), box, &s.roi);
+  return s;
+}
+
+Segments SegmentGrid(const Scene& s, const SegmentationOptions& options = {}) {
+  return GroupGridSegments(s.roi, LabelGrid(s.roi, s.frame, Pose::Identity(), options), options);
+}
+
+// The B box a segment's samples lie in.
+Eigen::AlignedBox3f BoundsOf(const Segments& segments, size_t s) {
+  Eigen::AlignedBox3f b;
+  for (int32_t k = segments.range[s].first; k < segments.range[s].second; ++k) b.extend(segments.points[k]);
+  return b;
+}
+
+TEST(Segmentation, TwoSeparateBoxesAreTwoSegmentsLargestFirst) {
+  const Scene s = RenderBoxes({{{-0.1f, -0.05f, 0.f}, {-0.02f, 0.03f, 0.04f}}, {{0.04f, 0.f, 0.f}, {0.08f, 0.04f, 0.02f}}},
+                              0.01f);
+  const Segments segments = SegmentGrid(s);
+  ASSERT_EQ(segments.range.size(), 2u);
+  EXPECT_GT(segments.range[0].second - segments.range[0].first, segments.range[1].second - segments.range[1].first);
+  // The larger is the first box's top, the smaller the second's.
+  EXPECT_NEAR(BoundsOf(segments, 0).center().x(), -0.06f, 0.01f);
+  EXPECT_NEAR(BoundsOf(segments, 1).center().x(), 0.06f, 0.01f);
+  EXPECT_TRUE(segments.region_views.empty());
+  ASSERT_EQ(segments.points.size(), segments.normals.size());
+  ASSERT_EQ(segments.points.size(), segments.roi_index.size());
+  for (size_t k = 0; k < segments.points.size(); ++k) {
+    EXPECT_EQ(segments.points[k], s.roi.points_B[static_cast<size_t>(segments.roi_index[k])]);
+  }
+  // The ROI points on the first box's top carry its segment (all but pixels
+  // on its border, whose normals lean); each top is one connected region.
+  ASSERT_EQ(segments.segment_of_point.size(), s.roi.points_B.size());
+  std::set<int32_t> first_top, second_top;
+  int top = 0, top_in_segment = 0;
+  for (size_t i = 0; i < s.roi.points_B.size(); ++i) {
+    const Eigen::Vector3f& p = s.roi.points_B[i];
+    if (p.z() > 0.035f) {
+      ++top;
+      top_in_segment += segments.segment_of_point[i] == 0;
+      first_top.insert(segments.region_of_point[i]);
+    } else if (p.z() > 0.015f && p.z() < 0.025f && p.x() > 0.045f && p.x() < 0.075f) {
+      second_top.insert(segments.region_of_point[i]);
+    }
+  }
+  EXPECT_GT(top_in_segment, 0.95 * top);
+  ASSERT_EQ(first_top.size(), 1u);
+  ASSERT_EQ(second_top.size(), 1u);
+  EXPECT_NE(*first_top.begin(), *second_top.begin());
+  EXPECT_GE(LargestRegionPoints(segments.region_of_point), segments.range[0].second - segments.range[0].first);
+}
+
+TEST(Segmentation, TheFloorBandIsNoSegment) {
+  // The ROI reaches below the floor: the floor lies within the floor band,
+  // a 20 mm box above it.
+  const Scene s = RenderBoxes({{{0.04f, 0.f, 0.f}, {0.08f, 0.04f, 0.02f}}}, -0.005f);
+  const Segments segments = SegmentGrid(s);
+  ASSERT_EQ(segments.range.size(), 1u);
+  EXPECT_GT(BoundsOf(segments, 0).min().z(), 0.015f);
+  // With no floor band, the floor is a segment too.
+  SegmentationOptions no_band;
+  no_band.floor_band = 0.f;
+  EXPECT_GT(SegmentGrid(s, no_band).range.size(), 1u);
+}
+
+TEST(Segmentation, SegmentsAreTheSameOnOneThreadAndTwo) {
+  const Scene s = RenderBoxes({{{-0.1f, -0.05f, 0.f}, {-0.02f, 0.03f, 0.04f}},
+                               {{-0.02f, -0.02f, 0.f}, {0.03f, 0.02f, 0.025f}},
+                               {{0.05f, 0.f, 0.f}, {0.09f, 0.06f, 0.015f}}},
+                              0.01f);
+  Segments one, two;
+  tbb::task_arena(1).execute([&] { one = SegmentGrid(s); });
+  tbb::task_arena(2).execute([&] { two = SegmentGrid(s); });
+  EXPECT_EQ(one.range, two.range);
+  EXPECT_EQ(one.points, two.points);
+  EXPECT_EQ(one.roi_index, two.roi_index);
+  EXPECT_EQ(one.region_views, two.region_views);
+  EXPECT_EQ(one.segment_of_point, two.segment_of_point);
+  EXPECT_EQ(one.region_of_point, two.region_of_point);
+}
+
+TEST(Segmentation, ASegmentViewTakesTheSamplesNearItWithAContextRadius) {
+  // Two boxes 10 mm apart: each view alone, then with the other's samples.
+  const Scene s = RenderBoxes({{{-0.05f, -0.02f, 0.f}, {-0.005f, 0.02f, 0.03f}}, {{0.005f, -0.02f, 0.f}, {0.05f, 0.02f, 0.02f}}},
+                              0.01f);
+  const Segments segments = SegmentGrid(s);
+  ASSERT_EQ(segments.range.size(), 2u);
+  const std::vector<ViewIndices> alone = SegmentViews(segments, 0.f);
+  ASSERT_EQ(alone.size(), 2u);
+  for (size_t v = 0; v < 2; ++v) {
+    EXPECT_EQ(alone[v].size(), static_cast<size_t>(segments.range[v].second - segments.range[v].first));
+  }
+  const std::vector<ViewIndices> context = SegmentViews(segments, 0.06f);
+  EXPECT_GT(context[0].size(), alone[0].size());
+  EXPECT_TRUE(std::equal(alone[0].begin(), alone[0].end(), context[0].begin()));  // its own samples first
+}
+
+TEST(Segmentation, AnUnorganizedCloudIsSegmentedByVoxelConnectivity) {
+  RoiCloud roi;
+  std::mt19937 rng{3};
+  std::uniform_real_distribution<float> u(0.f, 0.03f);
+  for (const float x0 : {0.f, 0.1f}) {
+    for (int i = 0; i < 400; ++i) roi.points_B.emplace_back(x0 + u(rng), u(rng), 0.02f + 0.1f * u(rng));
+  }
+  for (int i = 0; i < 20; ++i) roi.points_B.emplace_back(0.5f + 0.02f * static_cast<float>(i), 0.3f, 0.02f);
+  auto [region_of_point, regions] = LabelCloud(roi, 0.003f);
+  EXPECT_GE(regions, 3);
+  const Segments segments = GroupCloudSegments(roi, std::move(region_of_point), regions, 150);
+  ASSERT_EQ(segments.range.size(), 2u);
+  EXPECT_TRUE(segments.normals.empty());
+  for (size_t i = 0; i < roi.points_B.size(); ++i) {
+    EXPECT_EQ(segments.segment_of_point[i], i < 400 ? 0 : i < 800 ? 1 : -1) << i;
+  }
+}
+
+// A sphere of radius r centred on O's origin: surface samples, on-surface
+// and inside tests in closed form.
+class SphereModel final : public ClassModel {
+ public:
+  SphereModel(int class_id, float r) : class_id_(class_id), r_(r) {
+    const int n = 400;
+    const double golden = M_PI * (3.0 - std::sqrt(5.0));
+    for (int k = 0; k < n; ++k) {
+      const double z = 1.0 - 2.0 * (k + 0.5) / n, rho = std::sqrt(1.0 - z * z);
+      surface_.push_back(r * Eigen::Vector3f(static_cast<float>(rho * std::cos(golden * k)),
+                                             static_cast<float>(rho * std::sin(golden * k)), static_cast<float>(z)));
+    }
+  }
+  int class_id() const override { return class_id_; }
+  double diameter() const override { return 2.0 * r_; }
+  Eigen::Vector3f extents() const override { return Eigen::Vector3f::Constant(2 * r_); }
+  std::pair<float, float> planar_share_range() const override { return {0.f, 1.f}; }
+  Eigen::Vector3f centroid_O() const override { return Eigen::Vector3f::Zero(); }
+  ClassEstimate Estimate(const SegmentView&) const override { return {}; }
+  Result<PoseHypothesis> Score(const SegmentView&, const Pose&) const override { return PoseHypothesis{}; }
+  void MarkOnSurface(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float tolerance,
+                     std::vector<uint8_t>* on) const override {
+    for (size_t i = 0; i < points_B.size(); ++i) {
+      const float d = (points_B[i] - X_BO.translation().cast<float>()).norm();
+      if (std::abs(d - r_) <= tolerance) (*on)[i] = 1;
+    }
+  }
+  size_t CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float min_depth) const override {
+    size_t n = 0;
+    for (const Eigen::Vector3f& p : points_B) n += (p - X_BO.translation().cast<float>()).norm() < r_ - min_depth;
+    return n;
+  }
+  std::span<const Eigen::Vector3f> surface_points_O() const override { return surface_; }
+
+ private:
+  int class_id_;
+  float r_;
+  std::vector<Eigen::Vector3f> surface_;
+};
+
+Candidate SphereAt(const SphereModel& m, const Vec3& c, double score, std::vector<int32_t> support) {
+  Candidate out;
+  out.class_id = m.class_id();
+  out.diameter = m.diameter();
+  out.centre_B = c;
+  out.h.X_BO = MakePose(Mat3::Identity(), c);
+  out.h.score = score;
+  out.support_roi = std::move(support);
+  return out;
+}
+
+std::vector<int32_t> Range(int32_t b, int32_t e) {
+  std::vector<int32_t> v(static_cast<size_t>(e - b));
+  std::iota(v.begin(), v.end(), b);
+  return v;
+}
+
+TEST(Acceptance, OfTwoCandidatesForOnePartTheBetterScoreIsKeptInEitherOrder) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  for (const bool better_first : {true, false}) {
+    Acceptance acceptance(1000, models);
+    const Candidate good = SphereAt(sphere, Vec3(0, 0, 0.02), 0.95, Range(0, 100));
+    const Candidate close = SphereAt(sphere, Vec3(0.005, 0, 0.02), 0.9, Range(50, 150));
+    if (better_first) {
+      acceptance.Accept({good});
+      acceptance.Accept({close});
+    } else {
+      acceptance.Accept({close});  // an earlier wave's
+      acceptance.Accept({good});   // replaces it
+    }
+    const std::vector<Detection> d = acceptance.TakeDetections();
+    ASSERT_EQ(d.size(), 1u);
+    EXPECT_EQ(d[0].score, 0.95);
+  }
+}
+
+TEST(Acceptance, ReplacingADetectionReleasesItsSupport) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Acceptance acceptance(1000, models);
+  acceptance.Accept({SphereAt(sphere, Vec3(0, 0, 0.02), 0.8, Range(0, 200))});
+  EXPECT_EQ(acceptance.claims(150), 1);
+  acceptance.Accept({SphereAt(sphere, Vec3(0.002, 0, 0.02), 0.9, Range(0, 100))});
+  EXPECT_EQ(acceptance.claims(50), 1);
+  EXPECT_EQ(acceptance.claims(150), 0);
+  EXPECT_FALSE(acceptance.never_accepted());
+}
+
+TEST(Acceptance, PartsThatWouldInterpenetrateConflictAndTheBetterOneStays) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Acceptance acceptance(1000, models);
+  // 25 mm apart: beyond the NMS distance (0.3 x 40 mm), 15 mm deep in each other.
+  acceptance.Accept({SphereAt(sphere, Vec3(0, 0, 0.02), 0.9, Range(0, 100)),
+                     SphereAt(sphere, Vec3(0.025, 0, 0.02), 0.85, Range(100, 200))});
+  ASSERT_EQ(acceptance.TakeDetections().size(), 1u);
+  // 40 mm apart, touching: both stay.
+  Acceptance touching(1000, models);
+  touching.Accept({SphereAt(sphere, Vec3(0, 0, 0.02), 0.9, Range(0, 100)),
+                   SphereAt(sphere, Vec3(0.04, 0, 0.02), 0.85, Range(100, 200))});
+  EXPECT_EQ(touching.TakeDetections().size(), 2u);
+}
+
+TEST(Acceptance, ACandidateWhoseSupportOthersClaimIsDroppedUnlessOneOfThemHoldsATenth) {
+  const SphereModel sphere(0, 0.01f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Acceptance acceptance(2000, models);
+  // 20 detections far apart, each claiming 5 points of what comes next.
+  std::vector<Candidate> spread;
+  for (int k = 0; k < 20; ++k) spread.push_back(SphereAt(sphere, Vec3(0.1 * k, 1.0, 0.0), 0.9, Range(5 * k, 5 * k + 5)));
+  acceptance.Accept(spread);
+  // 100 points, 100% claimed, no one detection holding 10 of them: dropped
+  // even at a better score.
+  acceptance.Accept({SphereAt(sphere, Vec3(5.0, 5.0, 0.0), 0.99, Range(0, 100))});
+  EXPECT_EQ(acceptance.TakeDetections().size(), 20u);
+}
+
+TEST(Acceptance, TheExplainedFractionCountsViewPointsOnLiveDetectionsSurfaces) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Acceptance acceptance(10, models);
+  acceptance.Accept({SphereAt(sphere, Vec3(0, 0, 0), 0.8, {0})});
+  Segments segments;
+  segments.points = {{0.02f, 0.f, 0.f}, {0.f, 0.021f, 0.f}, {0.f, 0.f, 0.05f}, {0.f, -0.02f, 0.f}};
+  EXPECT_DOUBLE_EQ(acceptance.ExplainedFraction(segments, {0, 1, 2, 3}), 0.75);
+  EXPECT_DOUBLE_EQ(acceptance.ExplainedFraction(segments, {0, 1, 2, 3}, 0.9), 0.0);  // scores below 0.9 ignored
+  EXPECT_DOUBLE_EQ(acceptance.ExplainedFraction(segments, {}), 0.0);
+}
+
+TEST(ViewPasses, AResidualViewIsTheUnclaimedPartOfASegmentWhenEnoughIsLeft) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Segments segments;
+  segments.points.resize(1000, Eigen::Vector3f::Zero());
+  segments.roi_index = Range(0, 1000);
+  segments.range = {{0, 600}, {600, 800}, {800, 1000}};
+  Acceptance acceptance(1000, models);
+  // Segment 0: 400 of 600 claimed (200 left, a third); segment 1: all claimed;
+  // segment 2: 10 claimed (190 left, but under min_segment_points = 195).
+  acceptance.Accept({SphereAt(sphere, Vec3(0, 0, 0), 0.9, Range(0, 400)),
+                     SphereAt(sphere, Vec3(1, 0, 0), 0.9, Range(600, 800)),
+                     SphereAt(sphere, Vec3(2, 0, 0), 0.9, Range(800, 810))});
+  const std::vector<ViewIndices> residual = ResidualViews(segments, acceptance, 195);
+  ASSERT_EQ(residual.size(), 1u);
+  EXPECT_EQ(residual[0], Range(400, 600));
+}
+
+TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
+  std::mt19937 rng{11};
+  for (const double sigma : {0.0003, 0.001}) {
+    std::normal_distribution<float> noise(0.f, static_cast<float>(sigma));
+    DepthImage depth(640, 480);
+    for (int v = 0; v < depth.height; ++v) {
+      for (int u = 0; u < depth.width; ++u) depth.at(u, v) = 0.9f + 0.0002f * static_cast<float>(u) + noise(rng);
+    }
+    const auto [measured, at] = MeasureDepthNoise(depth);
+    EXPECT_NEAR(measured, sigma, 0.1 * sigma);
+    EXPECT_NEAR(at, 0.964, 0.01);
+  }
+  // Too few valid pixels: no figure.
+  EXPECT_EQ(MeasureDepthNoise(DepthImage(20, 20, std::numeric_limits<float>::quiet_NaN())).first, 0.0);
+}
+
+// The model tables of a 60 x 40 x 20 mm block: six faces, six resting
+// orientations, no holes; verification scores its true pose near 1, a pose
+// 10 mm off lower, a pose sunk into the support plane below it.
+TEST(PoseModelTables, ABlockHasSixFacesAndRestsOnEachAndItsTruePoseVerifiesBest) {
+  const TriangleMesh block = testing::MakeTestBlock();
+  auto estimator = PoseEstimator::Build(block, Symmetry{});
+  ASSERT_TRUE(estimator.ok());
+  const PoseModel& m = PoseEstimatorAccess::Model(**estimator);
+  EXPECT_EQ(m.faces.size(), 6u);
+  EXPECT_TRUE(m.holes.empty());
+  ASSERT_EQ(m.rests.size(), 6u);
+  for (const RestingPose& r : m.rests) EXPECT_NEAR(r.down.cwiseAbs().maxCoeff(), 1.f, 1e-3f);
+
+  const TestCamera cam = DefaultCamera();
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.01, 0.0, 0.01));
+  const RenderedScene scene = Render({{&block, X_BO}}, cam, 0.0002, 5);
+  SceneView view;
+  view.points_B = scene.points_B;
+  view.X_BC = cam.X_BC;
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  view.support_plane_B = Eigen::Vector4d(0, 0, 1, 0);
+  SceneSupport support;
+  support.Build(scene.points_B, 2.f * static_cast<float>(m.options.support_distance), view);
+  const VerifyStats at_truth = Verify(m, X_BO, view, support, SegmentDepth{});
+  EXPECT_GT(at_truth.score, 0.95);
+  EXPECT_GT(at_truth.visible, 50);
+  const Pose off = MakePose(X_BO.linear(), X_BO.translation() + Vec3(0.0, 0.01, 0));
+  EXPECT_LT(Verify(m, off, view, support, SegmentDepth{}).score, at_truth.score - 0.1);
+  const Pose sunk = MakePose(X_BO.linear(), X_BO.translation() - Vec3(0, 0, 0.01));
+  EXPECT_TRUE(Verify(m, sunk, view, support, SegmentDepth{}).below_support);
+}
+
+}  // namespace
+}  // namespace bp::internal
