@@ -281,6 +281,7 @@ class Parser {
   void ParseCamera(const YAML::Node& n, Cell& cell) const;
   CameraConfig ParseCameraConfig(const YAML::Node& n, const std::string& path) const;
   NoiseModel ParseNoise(const YAML::Node& n, const std::string& path) const;
+  VarietySpec ParseVariety(const YAML::Node& n, const std::string& path) const;
   void ParseSource(const YAML::Node& n, Cell& cell) const;
   void ParseBin(const YAML::Node& n, Cell& cell) const;
   void ParseRoi(const YAML::Node& n, Cell& cell) const;
@@ -342,7 +343,8 @@ Pose Parser::ParsePose(const YAML::Node& n, const std::string& key) const {
 
 NoiseModel Parser::ParseNoise(const YAML::Node& n, const std::string& path) const {
   ExpectMap(n, path, {"axial_sigma_base", "axial_sigma_quadratic", "grazing_start_deg", "grazing_full_deg",
-                      "random_dropout", "projector_shadow", "projector_offset", "enabled"});
+                      "random_dropout", "projector_shadow", "projector_offset", "enabled", "mixed_pixels",
+                      "mixed_pixel_jump", "speckle", "speckle_sigma"});
   NoiseModel m;
   m.axial_sigma_base = OptNumber(n, path, "axial_sigma_base", m.axial_sigma_base);
   Check(m.axial_sigma_base >= 0, n["axial_sigma_base"], Join(path, "axial_sigma_base"), "must be >= 0");
@@ -363,7 +365,56 @@ NoiseModel Parser::ParseNoise(const YAML::Node& n, const std::string& path) cons
     m.projector_offset = Vector3(n["projector_offset"], Join(path, "projector_offset"));
   }
   m.enabled = OptBool(n, path, "enabled", m.enabled);
+  m.mixed_pixels = OptNumber(n, path, "mixed_pixels", m.mixed_pixels);
+  Check(m.mixed_pixels >= 0 && m.mixed_pixels <= 1, n["mixed_pixels"], Join(path, "mixed_pixels"), "must be in [0, 1]");
+  m.mixed_pixel_jump = OptNumber(n, path, "mixed_pixel_jump", m.mixed_pixel_jump);
+  Check(m.mixed_pixel_jump > 0, n["mixed_pixel_jump"], Join(path, "mixed_pixel_jump"), "must be > 0");
+  m.speckle = OptNumber(n, path, "speckle", m.speckle);
+  Check(m.speckle >= 0 && m.speckle <= 1, n["speckle"], Join(path, "speckle"), "must be in [0, 1]");
+  m.speckle_sigma = OptNumber(n, path, "speckle_sigma", m.speckle_sigma);
+  Check(m.speckle_sigma >= 0, n["speckle_sigma"], Join(path, "speckle_sigma"), "must be >= 0");
   return m;
+}
+
+VarietySpec Parser::ParseVariety(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"max_tilt_deg", "max_roll_deg", "focal_scale", "resolution_scale", "principal_offset",
+                      "axial_noise_scale", "grazing_start_deg", "mixed_pixels", "speckle", "drop_styles"});
+  VarietySpec v;
+  const auto range = [&](const char* key, std::array<double, 2>& r, double lo, double hi) {
+    const YAML::Node k = n[key];
+    if (!k.IsDefined()) return;
+    const std::vector<double> x = Numbers(k, Join(path, key), 2);
+    Check(x[0] >= lo && x[0] <= x[1] && x[1] <= hi, k, Join(path, key),
+          "must be [a, b] with " + FormatNumber(lo) + " <= a <= b <= " + FormatNumber(hi));
+    r = {x[0], x[1]};
+  };
+  v.max_tilt_deg = OptNumber(n, path, "max_tilt_deg", v.max_tilt_deg);
+  Check(v.max_tilt_deg >= 0 && v.max_tilt_deg <= 45, n["max_tilt_deg"], Join(path, "max_tilt_deg"),
+        "must be in [0, 45]");
+  v.max_roll_deg = OptNumber(n, path, "max_roll_deg", v.max_roll_deg);
+  Check(v.max_roll_deg >= 0 && v.max_roll_deg <= 180, n["max_roll_deg"], Join(path, "max_roll_deg"),
+        "must be in [0, 180]");
+  range("focal_scale", v.focal_scale, 0.5, 2.0);
+  range("resolution_scale", v.resolution_scale, 0.25, 4.0);
+  v.principal_offset = OptNumber(n, path, "principal_offset", v.principal_offset);
+  Check(v.principal_offset >= 0 && v.principal_offset <= 0.2, n["principal_offset"], Join(path, "principal_offset"),
+        "must be in [0, 0.2]");
+  range("axial_noise_scale", v.axial_noise_scale, 0.0, 20.0);
+  range("grazing_start_deg", v.grazing_start_deg, 0.0, 78.0);
+  range("mixed_pixels", v.mixed_pixels, 0.0, 1.0);
+  range("speckle", v.speckle, 0.0, 0.1);
+  if (const YAML::Node d = n["drop_styles"]; d.IsDefined()) {
+    const std::string key = Join(path, "drop_styles");
+    if (!d.IsSequence() || d.size() == 0) Fail(d, key, "expected a non-empty list of settled / jumbled / default");
+    v.drop_styles.clear();
+    for (size_t i = 0; i < d.size(); ++i) {
+      v.drop_styles.push_back(Enum<DropStyle>(d[i], At(key, i), "drop style",
+                                              {{"default", DropStyle::kDefault},
+                                               {"settled", DropStyle::kSettled},
+                                               {"jumbled", DropStyle::kJumbled}}));
+    }
+  }
+  return v;
 }
 
 CameraConfig Parser::ParseCameraConfig(const YAML::Node& n, const std::string& path) const {
@@ -519,7 +570,7 @@ Pose Parser::ParseHandEye(const YAML::Node& root) {
 
 void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
   const std::string path = "source";
-  ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes"});
+  ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes", "variety"});
   SourceSpec& s = cell.source;
   if (const YAML::Node k = n["kind"]; k.IsDefined()) {
     s.kind = Enum<SourceSpec::Kind>(k, "source.kind", "source kind",
@@ -543,6 +594,7 @@ void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
             "unknown part class " + std::to_string(s.part_classes[i]));
     }
   }
+  if (const YAML::Node v = n["variety"]; v.IsDefined()) s.variety = ParseVariety(v, "source.variety");
 }
 
 void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {

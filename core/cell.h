@@ -43,6 +43,38 @@ struct NoiseModel {
   bool projector_shadow = true;
   Vec3 projector_offset = Vec3(0.08, 0.0, 0.0);
   bool enabled = true;
+  // Mixed ("flying") pixels: a pixel whose clean depth differs from a
+  // 4-neighbour's by more than mixed_pixel_jump (m) takes, with this
+  // probability, a depth between the two (uniform). 0 = off.
+  double mixed_pixels = 0.0;
+  double mixed_pixel_jump = 0.01;
+  // Speckle: this fraction of the valid pixels gets an extra Gaussian offset
+  // of speckle_sigma (m) along the ray. 0 = off.
+  double speckle = 0.0;
+  double speckle_sigma = 0.004;
+};
+
+// How a synthetic pile is dropped (docs/synthetic.md, "Pile").
+enum class DropStyle {
+  kDefault,  // first contact, then 2 rounds of settling tilts
+  kSettled,  // settling tilts until none lowers the part (8 rounds at most)
+  kJumbled,  // first contact, no settling: parts lean on each other at any angle
+};
+
+// Scene variety for synthetic sources (source.variety, `--variety`;
+// docs/synthetic.md, "Variety"): each scene draws from these ranges with its
+// own seed. [a, b] pairs are uniform ranges.
+struct VarietySpec {
+  double max_tilt_deg = 15.0;   // camera turned about where it looks on the bin floor, [0, max], any azimuth
+  double max_roll_deg = 180.0;  // camera rolled about its optical axis, [-max, max]
+  std::array<double, 2> focal_scale{0.92, 1.08};       // fx, fy times this
+  std::array<double, 2> resolution_scale{0.8, 1.25};   // width, height (and fx, fy) times this
+  double principal_offset = 0.02;  // cx, cy moved by up to this fraction of the width, height
+  std::array<double, 2> axial_noise_scale{0.5, 3.0};   // axial sigma (base and quadratic) times this
+  std::array<double, 2> grazing_start_deg{60.0, 78.0}; // grazing dropout from here, complete 12 deg later
+  std::array<double, 2> mixed_pixels{0.0, 0.6};        // NoiseModel::mixed_pixels
+  std::array<double, 2> speckle{0.0, 0.004};           // NoiseModel::speckle
+  std::vector<DropStyle> drop_styles{DropStyle::kSettled, DropStyle::kJumbled};  // one per scene, uniform
 };
 
 // A named camera configuration that RC_SWITCH_CONFIG selects by id.
@@ -80,6 +112,7 @@ struct SourceSpec {
   uint64_t seed = 1;            // synthetic; a seed reproduces a scene exactly
   bool simulate_picks = false;  // synthetic: a handed-out grasp removes its part
   std::vector<int> part_classes;  // synthetic: classes to draw from (empty = all)
+  std::optional<VarietySpec> variety;  // synthetic: scene variety (none = the cell's camera and noise)
 };
 
 struct BinSpec {

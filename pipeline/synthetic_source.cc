@@ -9,6 +9,7 @@
 
 #include "pipeline/internal/depth_noise.h"
 #include "pipeline/renderer.h"
+#include "pipeline/synthetic_variety.h"
 
 namespace bp {
 
@@ -33,8 +34,9 @@ const CameraConfig* FindCameraConfig(const CameraSpec& camera, int id) {
 
 class SyntheticSource::Impl {
  public:
-  Cell cell;
+  Cell cell;  // with source.variety: the scene's camera pose and configs
   HandEyeProvider hand_eye;  // empty: a perfectly calibrated camera
+  std::optional<SceneVariety> variety;
   Pose X_BW = Pose::Identity();
   std::unique_ptr<SyntheticPile> pile;
   std::unique_ptr<DepthRenderer> renderer;
@@ -129,6 +131,22 @@ Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cel
   PileOptions options;
   options.num_parts = cell.source.num_parts;
   options.seed = cell.source.seed;
+  if (cell.source.variety) {
+    if (impl->hand_eye || cell.camera.eye_in_hand) {
+      return Status::InvalidArgument(
+          "synthetic source: source.variety needs an eye-to-hand camera without a hand-eye provider");
+    }
+    const SceneVariety v = DrawSceneVariety(*cell.source.variety, cell.source.seed);
+    CameraSpec& camera = impl->cell.camera;
+    for (CameraConfig& c : camera.configs) c = VariedConfig(c, v);
+    auto X_BC = VariedCameraPose(camera.X_BC, cell.bin, camera.configs, v);
+    if (!X_BC.ok()) return X_BC.status();
+    camera.X_BC = *X_BC;
+    options.settle_iterations = v.drop_style == DropStyle::kSettled   ? 8
+                                : v.drop_style == DropStyle::kJumbled ? 0
+                                                                      : options.settle_iterations;
+    impl->variety = v;
+  }
   auto pile = SyntheticPile::Generate(cell.bin, bin_mesh_W, std::move(classes), options);
   if (!pile.ok()) return pile.status();
   impl->pile = std::make_unique<SyntheticPile>(std::move(*pile));
@@ -211,6 +229,7 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
 
   frame.source = "synthetic seed=" + std::to_string(m.cell.source.seed) +
                  " capture=" + std::to_string(m.captures);
+  if (m.variety) frame.source += " variety: " + m.variety->Describe();
   frame.timestamp_ns = std::chrono::duration_cast<std::chrono::nanoseconds>(
                            std::chrono::system_clock::now().time_since_epoch())
                            .count();
@@ -233,6 +252,8 @@ std::string SyntheticSource::Describe() const {
 
 const SyntheticPile& SyntheticSource::pile() const { return *impl_->pile; }
 const Pose& SyntheticSource::X_BW() const { return impl_->X_BW; }
+const std::optional<SceneVariety>& SyntheticSource::variety() const { return impl_->variety; }
+const CameraSpec& SyntheticSource::camera() const { return impl_->cell.camera; }
 int SyntheticSource::capture_count() const { return impl_->captures; }
 
 }  // namespace bp

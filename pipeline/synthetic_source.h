@@ -13,10 +13,16 @@
 // class, X_BO, visible / unoccluded pixels). A seed reproduces every frame
 // exactly: noise uses its own RNG seeded from (seed, capture index).
 //
+// Variety (cell.source.variety, docs/synthetic.md "Variety"): the scene's
+// camera pose, configs (intrinsics, resolution, noise) and drop style are
+// drawn from the seed at Create; frames carry the varied X_BC and
+// intrinsics, and their source string says what was drawn.
+//
 // Not thread-safe (one owner calls Capture / NotifyPicked); it owns a GL context.
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -24,6 +30,7 @@
 #include "core/mesh.h"
 #include "pipeline/capture_source.h"
 #include "pipeline/synthetic_pile.h"
+#include "pipeline/synthetic_variety.h"
 
 namespace bp {
 
@@ -51,6 +58,10 @@ class SyntheticSource final : public CaptureSource {
   const Pose& X_BW() const;
   // Number of frames captured so far.
   int capture_count() const;
+  // What this scene drew (cell.source.variety), else nullopt.
+  const std::optional<SceneVariety>& variety() const;
+  // The camera the frames are rendered from (with variety: the varied one).
+  const CameraSpec& camera() const;
 
  private:
   class Impl;

@@ -19,6 +19,7 @@ namespace {
 struct RenderOptions {
   std::string cell_path;
   uint64_t seed = 1;
+  bool variety = false;
   std::string out_dir;
   int config_id = 0;
 };
@@ -34,6 +35,7 @@ int Run(const RenderOptions& opt) {
   // render always draws a synthetic pile, whatever source the cell serves.
   cell->source.kind = SourceSpec::Kind::kSynthetic;
   cell->source.seed = opt.seed;
+  if (opt.variety && !cell->source.variety) cell->source.variety = VarietySpec{};
 
   const auto t_setup = std::chrono::steady_clock::now();
   auto source = MakeCaptureSource(*cell);
@@ -89,6 +91,9 @@ Command RenderCommand() {
             sub.add_option("--seed", opt->seed, "Scene seed (a seed reproduces a pile exactly)")->required();
             sub.add_option("--out", opt->out_dir, "Output directory (created if missing)")->required();
             sub.add_option("--config", opt->config_id, "Camera config id (0: the cell's default)");
+            sub.add_flag("--variety", opt->variety,
+                         "draw the scene's camera pose, intrinsics, noise and drop style from the seed "
+                         "(the cell's source.variety, else the defaults; docs/synthetic.md)");
             return [opt] { return Run(*opt); };
           }};
 }

@@ -69,6 +69,23 @@ double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v) {
   return std::abs(n.dot(P)) / nn;
 }
 
+// The clean depth of the 4-neighbour of (u, v) farthest in depth from z when
+// that is more than `jump` away (a depth edge), else NaN.
+double EdgeNeighbourDepth(const DepthImage& d, int u, int v, double z, double jump) {
+  double best = jump, far = std::numeric_limits<double>::quiet_NaN();
+  const int du[] = {1, -1, 0, 0}, dv[] = {0, 0, 1, -1};
+  for (int k = 0; k < 4; ++k) {
+    const int uu = u + du[k], vv = v + dv[k];
+    if (uu < 0 || vv < 0 || uu >= d.width || vv >= d.height) continue;
+    const double zz = d.at(uu, vv);
+    if (std::isfinite(zz) && std::abs(zz - z) > best) {
+      best = std::abs(zz - z);
+      far = zz;
+    }
+  }
+  return far;
+}
+
 // True if the projector sees the camera point P_C (depth test against the
 // projector's depth map; the 2x2 neighbourhood tolerates steep slopes).
 bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
@@ -125,7 +142,14 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
           if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
           if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
           const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
-          out[static_cast<size_t>(v) * w + u] = static_cast<float>(z + sigma * N(rng));
+          double noisy = z + sigma * N(rng);
+          // Draws only when a model is on: frames without them stay bit for bit.
+          if (model.mixed_pixels > 0) {
+            const double far = EdgeNeighbourDepth(depth, u, v, z, model.mixed_pixel_jump);
+            if (std::isfinite(far) && U(rng) < model.mixed_pixels) noisy = z + U(rng) * (far - z);
+          }
+          if (model.speckle > 0 && U(rng) < model.speckle) noisy += model.speckle_sigma * N(rng);
+          out[static_cast<size_t>(v) * w + u] = static_cast<float>(noisy);
         }
       }
     });

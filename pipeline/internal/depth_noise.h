@@ -23,8 +23,8 @@ struct NoiseInputs {
 };
 
 // Applies, in order: grazing-angle dropout (normals estimated from the clean
-// depth), projector shadow, random dropout, axial Gaussian noise, then the
-// depth range. Deterministic for a given seed. With !model.enabled only the
+// depth), projector shadow, random dropout, axial Gaussian noise, mixed pixels
+// at depth edges, speckle, then the depth range. Deterministic for a given seed. With !model.enabled only the
 // depth range is applied.
 void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
                      DepthImage& depth);

@@ -336,6 +336,14 @@ std::vector<BadCase> BadCases() {
        "name: pick, kind: pick, gripper: suction, ranking: {tilt: -1}}", "tasks[0].ranking.tilt", "must be >= 0"},
       {"ranking_unknown_key", "name: pick, kind: pick, gripper: suction}",
        "name: pick, kind: pick, gripper: suction, ranking: {hieght: 1}}", "tasks[0].ranking.hieght", "unknown key"},
+      {"variety_tilt_too_large", "  seed: 7", "  seed: 7\n  variety: {max_tilt_deg: 60}", "source.variety.max_tilt_deg",
+       "must be in [0, 45]"},
+      {"variety_range_inverted", "  seed: 7", "  seed: 7\n  variety: {focal_scale: [1.1, 0.9]}",
+       "source.variety.focal_scale", "a <= b"},
+      {"variety_drop_style_unknown", "  seed: 7", "  seed: 7\n  variety: {drop_styles: [settled, tossed]}",
+       "source.variety.drop_styles[1]", "unknown drop style 'tossed'"},
+      {"noise_mixed_pixels_above_one", "random_dropout: 0.0}", "random_dropout: 0.0, mixed_pixels: 2}",
+       "camera.configs[0].noise.mixed_pixels", "must be in [0, 1]"},
       {"yaml_syntax_error", "  kind: synthetic", "  kind: [synthetic", "cell.yaml:", "YAML syntax error", C::kCorruption},
   };
 }
@@ -372,6 +380,21 @@ TEST_F(CellFileTest, WorkspaceAndRankingAreParsedAndDefaultToUnboundedAndDefault
   EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.height, 2.0);
   EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.detection, 0.0);
   EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.tilt, 0.2);
+}
+
+TEST_F(CellFileTest, SourceVarietyIsParsedAndAbsentByDefault) {
+  Result<Cell> plain = LoadCell(Write(kBaseCell));
+  ASSERT_TRUE(plain.ok()) << plain.status().ToString();
+  EXPECT_FALSE(plain->source.variety.has_value());
+  Result<Cell> cell = LoadCell(Write(Mutate(
+      kBaseCell, "  seed: 7", "  seed: 7\n  variety: {max_tilt_deg: 10, speckle: [0, 0.001], drop_styles: [jumbled]}")));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  ASSERT_TRUE(cell->source.variety.has_value());
+  EXPECT_DOUBLE_EQ(cell->source.variety->max_tilt_deg, 10.0);
+  EXPECT_DOUBLE_EQ(cell->source.variety->speckle[1], 0.001);
+  EXPECT_DOUBLE_EQ(cell->source.variety->max_roll_deg, VarietySpec{}.max_roll_deg);
+  ASSERT_EQ(cell->source.variety->drop_styles.size(), 1u);
+  EXPECT_EQ(cell->source.variety->drop_styles[0], DropStyle::kJumbled);
 }
 
 TEST_F(CellFileTest, ErrorMessageStartsWithFileAndLineOfTheOffendingValue) {

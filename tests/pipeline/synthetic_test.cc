@@ -6,6 +6,7 @@
 
 #include "pipeline/internal/depth_noise.h"
 #include "pipeline/synthetic_source.h"
+#include "pipeline/synthetic_variety.h"
 #include "tests/test_meshes.h"
 
 namespace bp {
@@ -366,6 +367,149 @@ TEST(DepthNoise, GrazingSurfacesDropOutAndRangeIsEnforced) {
   internal::ApplyDepthNoise(model, in, 43, other);
   EXPECT_TRUE(SameBytes(noisy, again));
   EXPECT_FALSE(SameBytes(noisy, other));
+}
+
+
+// ---- Variety (docs/synthetic.md, "Variety") -----------------------------
+
+TEST(SyntheticVariety, DrawsAreDeterministicPerSeedAndWithinTheirRanges) {
+  const VarietySpec spec;
+  int styles[3] = {0, 0, 0};
+  for (uint64_t seed = 1; seed <= 200; ++seed) {
+    const SceneVariety a = DrawSceneVariety(spec, seed), b = DrawSceneVariety(spec, seed);
+    EXPECT_EQ(a.Describe(), b.Describe());
+    EXPECT_NE(a.Describe(), DrawSceneVariety(spec, seed + 1).Describe());
+    EXPECT_GE(a.tilt_deg, 0.0);
+    EXPECT_LE(a.tilt_deg, spec.max_tilt_deg);
+    EXPECT_LE(std::abs(a.roll_deg), spec.max_roll_deg);
+    EXPECT_GE(a.resolution_scale, spec.resolution_scale[0]);
+    EXPECT_LE(a.resolution_scale, spec.resolution_scale[1]);
+    EXPECT_GE(a.axial_noise_scale, spec.axial_noise_scale[0]);
+    EXPECT_LE(a.axial_noise_scale, spec.axial_noise_scale[1]);
+    EXPECT_LE(a.mixed_pixels, spec.mixed_pixels[1]);
+    EXPECT_LE(a.speckle, spec.speckle[1]);
+    EXPECT_LE(std::abs(a.principal_dx), spec.principal_offset);
+    ++styles[static_cast<int>(a.drop_style)];
+  }
+  EXPECT_EQ(styles[static_cast<int>(DropStyle::kDefault)], 0);
+  EXPECT_GT(styles[static_cast<int>(DropStyle::kSettled)], 60);
+  EXPECT_GT(styles[static_cast<int>(DropStyle::kJumbled)], 60);
+}
+
+Cell VarietyCell(int num_parts, uint64_t seed, bool noise) {
+  Cell cell = TestCell(num_parts, seed, noise);
+  cell.source.variety = VarietySpec{};
+  return cell;
+}
+
+TEST(SyntheticSource, VarietyScenesAreDeterministicPerSeed) {
+  auto a = MakeSource(VarietyCell(8, 3, true));
+  auto b = MakeSource(VarietyCell(8, 3, true));
+  auto c = MakeSource(VarietyCell(8, 4, true));
+  ASSERT_TRUE(a && b && c);
+  const Frame fa = CaptureOk(*a), fb = CaptureOk(*b), fc = CaptureOk(*c);
+  EXPECT_TRUE(SameBytes(fa.depth, fb.depth));
+  EXPECT_TRUE(SameBytes(fa.truth->labels, fb.truth->labels));
+  EXPECT_TRUE(fa.X_BC.isApprox(fb.X_BC, 0.0));
+  EXPECT_EQ(fa.intrinsics.width, fb.intrinsics.width);
+  EXPECT_EQ(fa.intrinsics.fx, fb.intrinsics.fx);
+  EXPECT_EQ(fa.source, fb.source);
+  ASSERT_EQ(fa.truth->parts.size(), fb.truth->parts.size());
+  for (size_t i = 0; i < fa.truth->parts.size(); ++i) {
+    EXPECT_TRUE(fa.truth->parts[i].X_BO.isApprox(fb.truth->parts[i].X_BO, 0.0));
+  }
+  EXPECT_FALSE(fa.X_BC.isApprox(fc.X_BC, 1e-6));
+  EXPECT_NE(fa.intrinsics.fx, fc.intrinsics.fx);
+  EXPECT_NE(fa.source.find("variety: tilt"), std::string::npos) << fa.source;
+  // Without variety the same seed renders the nominal camera.
+  auto plain = MakeSource(TestCell(8, 3, true));
+  ASSERT_TRUE(plain);
+  EXPECT_TRUE(CaptureOk(*plain).X_BC.isApprox(TestCell(8, 3, true).camera.X_BC, 0.0));
+}
+
+// The tilted, rolled camera still sees the whole bin, and the frame's X_BC
+// and intrinsics are the ones it was rendered with: noiseless depth lies on
+// the labelled parts' true surfaces.
+TEST(SyntheticSource, AVariedCameraKeepsTheBinInViewAndTheTruthConsistent) {
+  for (uint64_t seed : {2u, 7u, 11u}) {
+    auto source = MakeSource(VarietyCell(8, seed, false));
+    ASSERT_TRUE(source);
+    const Frame f = CaptureOk(*source);
+    ASSERT_TRUE(f.truth.has_value());
+    const SceneVariety& v = *source->variety();
+    const Pose nominal = TestCell(8, seed, false).camera.X_BC;
+    const double tilt = std::acos(std::clamp(nominal.linear().col(2).dot(f.X_BC.linear().col(2)), -1.0, 1.0));
+    EXPECT_NEAR(tilt * 180 / M_PI, v.tilt_deg, 1e-6) << v.Describe();
+    EXPECT_EQ(f.intrinsics.width, source->camera().configs[0].intrinsics.width);
+    EXPECT_EQ(f.intrinsics.width, static_cast<int>(std::lround(320 * v.resolution_scale)));
+    // The inner box's corners project into the image.
+    const Pose X_CB = f.X_BC.inverse();
+    const Cell cell = TestCell(8, seed, false);
+    for (double sx : {-0.5, 0.5}) {
+      for (double sy : {-0.5, 0.5}) {
+        for (double z : {0.0, cell.bin.inner_size.z()}) {
+          const Vec3 p = X_CB * (cell.bin.X_BW * Vec3(sx * cell.bin.inner_size.x(), sy * cell.bin.inner_size.y(), z));
+          const double u = f.intrinsics.fx * p.x() / p.z() + f.intrinsics.cx;
+          const double w = f.intrinsics.fy * p.y() / p.z() + f.intrinsics.cy;
+          EXPECT_GT(u, 0.0);
+          EXPECT_LT(u, f.intrinsics.width - 1.0);
+          EXPECT_GT(w, 0.0);
+          EXPECT_LT(w, f.intrinsics.height - 1.0);
+        }
+      }
+    }
+    const auto errors = SurfaceErrors(*source, f, [](double) { return 1.0; });
+    ASSERT_GT(errors.size(), 500u);
+    EXPECT_LT(*std::max_element(errors.begin(), errors.end()), 0.0005) << v.Describe();
+  }
+}
+
+// Mixed pixels take depths between the two sides of a depth edge; speckle
+// moves a fraction of the pixels by many sigma; both off leaves neither.
+TEST(DepthNoise, MixedPixelsFillDepthEdgesAndSpeckleMovesAFraction) {
+  Intrinsics K;
+  K.width = K.height = 200;
+  K.fx = K.fy = 300;
+  K.cx = K.cy = 99.5;
+  DepthImage depth(200, 200);
+  for (int v = 0; v < 200; ++v) {
+    for (int u = 0; u < 200; ++u) depth.at(u, v) = u < 100 ? 0.9f : 1.0f;  // a 10 cm step at column 100
+  }
+  internal::NoiseInputs in;
+  in.K = &K;
+  in.min_depth = 0.3;
+  in.max_depth = 10.0;
+  NoiseModel model;
+  model.projector_shadow = false;
+  model.random_dropout = 0.0;
+  const auto between = [](const DepthImage& d) {
+    int n = 0;
+    for (int v = 0; v < 200; ++v) {
+      for (int u = 0; u < 200; ++u) n += d.at(u, v) > 0.91f && d.at(u, v) < 0.99f ? 1 : 0;
+    }
+    return n;
+  };
+  DepthImage plain = depth;
+  internal::ApplyDepthNoise(model, in, 42, plain);
+  EXPECT_EQ(between(plain), 0);
+  model.mixed_pixels = 1.0;
+  DepthImage mixed = depth;
+  internal::ApplyDepthNoise(model, in, 42, mixed);
+  // Columns 99 and 100 (400 edge pixels) take a depth between the sides.
+  EXPECT_GT(between(mixed), 250);  // 80% of them expected: 0.91-0.99 of the 0.9-1.0 step
+  EXPECT_LE(between(mixed), 400);
+  model.mixed_pixels = 0.0;
+  model.speckle = 0.05;
+  model.speckle_sigma = 0.01;
+  DepthImage speckled = depth;
+  internal::ApplyDepthNoise(model, in, 42, speckled);
+  int far = 0;
+  for (int v = 0; v < 200; ++v) {
+    for (int u = 0; u < 200; ++u) far += std::abs(speckled.at(u, v) - depth.at(u, v)) > 0.003f ? 1 : 0;
+  }
+  // 5% speckled, of which |N(0, 10 mm)| > 3 mm for 76%: about 1530 of 40000.
+  EXPECT_GT(far, 1200);
+  EXPECT_LT(far, 1900);
 }
 
 }  // namespace
