@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <random>
 
 #include <Eigen/Geometry>
@@ -95,6 +96,80 @@ double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_
   return AddS(points_O, X_BO_a, X_BO_b);
 }
 
+const char* ToString(DetectionVerdict verdict) {
+  switch (verdict) {
+    case DetectionVerdict::kTrue: return "true";
+    case DetectionVerdict::kGross: return "gross";
+    case DetectionVerdict::kDuplicate: return "duplicate";
+    case DetectionVerdict::kFalse: return "false";
+  }
+  return "?";
+}
+
+namespace {
+
+// The angle about unit axis `a` that turns u's component normal to `a` onto
+// v's; nullopt when either component is (nearly) zero.
+std::optional<double> AngleAbout(const Vec3& a, const Vec3& u, const Vec3& v) {
+  const Vec3 ur = u - u.dot(a) * a, vr = v - v.dot(a) * a;
+  if (ur.norm() < 1e-9 || vr.norm() < 1e-9) return std::nullopt;
+  return std::atan2(a.dot(ur.cross(vr)), ur.dot(vr));
+}
+
+double AngleBetween(const Vec3& u, const Vec3& v) { return std::atan2(u.cross(v).norm(), u.dot(v)); }
+
+}  // namespace
+
+GraspLanding LandOnTruth(const Pose& X_BT, const Vec3& p_O, const Vec3& a_O, int class_id, const Symmetry& symmetry,
+                         std::span<const PartTruth> parts) {
+  GraspLanding best;
+  best.position_error = std::numeric_limits<double>::infinity();
+  best.approach_error = std::numeric_limits<double>::infinity();
+  const Vec3 t_B = X_BT.translation();
+  const Vec3 z_B = X_BT.linear().col(2);
+  const Vec3 axis = symmetry.axis.normalized();
+  std::vector<Pose> extras{Pose::Identity()};
+  extras.insert(extras.end(), symmetry.extra.begin(), symmetry.extra.end());
+  for (const PartTruth& part : parts) {
+    if (part.class_id != class_id) continue;
+    for (const Pose& E : extras) {
+      // The tool in the frame of this symmetric copy of the part: X_BO E.
+      const Pose X_OB = (part.X_BO * E).inverse();
+      const Vec3 q = X_OB * t_B;
+      const Vec3 z = X_OB.linear() * z_B;
+      std::vector<Mat3> rotations;
+      switch (symmetry.kind) {
+        case Symmetry::Kind::kNone: rotations.push_back(Mat3::Identity()); break;
+        case Symmetry::Kind::kDiscrete: {
+          const int n = std::max(1, symmetry.order);
+          for (int k = 0; k < n; ++k) rotations.push_back(Eigen::AngleAxisd(2 * kPi * k / n, axis).toRotationMatrix());
+          break;
+        }
+        case Symmetry::Kind::kRevolute: {
+          // The point decides the angle; a point on the axis leaves it to the approach.
+          std::optional<double> angle = AngleAbout(axis, p_O, q);
+          if (!angle) angle = AngleAbout(axis, a_O, z);
+          rotations.push_back(Eigen::AngleAxisd(angle.value_or(0.0), axis).toRotationMatrix());
+          break;
+        }
+      }
+      for (const Mat3& R : rotations) {
+        const double position = (q - R * p_O).norm();
+        const double approach = AngleBetween(z, R * a_O);
+        const bool better = position < best.position_error - 1e-9 ||
+                            (position < best.position_error + 1e-9 && approach < best.approach_error);
+        if (better) {
+          best.truth_instance = part.instance_id;
+          best.position_error = position;
+          best.approach_error = approach;
+        }
+      }
+    }
+  }
+  if (best.truth_instance < 0) best.position_error = best.approach_error = 0.0;
+  return best;
+}
+
 FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth& truth,
                               const std::vector<EvalPartModel>& models, const EvalOptions& options) {
   FrameEvaluation out;
@@ -115,23 +190,48 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
     o.class_id = d.class_id;
     const EvalPartModel* model = FindModel(models, d.class_id);
     if (model != nullptr) {
-      double best = options.match_relative_distance * model->diameter;
-      int best_index = -1;
+      // The closest part in tolerance (unmatched first), and the nearest origin.
+      double best_free = std::numeric_limits<double>::infinity(), best_taken = best_free;
+      int free_index = -1, taken_index = -1, near_index = -1;
+      double near_distance = options.gross_relative_distance * model->diameter;
       for (size_t g = 0; g < truth.parts.size(); ++g) {
         const PartTruth& p = truth.parts[g];
-        if (taken[g] || p.class_id != d.class_id) continue;
+        if (p.class_id != d.class_id) continue;
+        const double t = SymmetryAwareTranslationError(d.X_BO, p.X_BO, model->symmetry);
+        const double r = SymmetryAwareRotationError(d.X_BO, p.X_BO, model->symmetry);
+        if (t <= options.translation_tolerance && r <= options.rotation_tolerance) {
+          const double relative = t / options.translation_tolerance + r / options.rotation_tolerance;
+          double& best = taken[g] ? best_taken : best_free;
+          if (relative < best) {
+            best = relative;
+            (taken[g] ? taken_index : free_index) = static_cast<int>(g);
+          }
+        }
         const double dist = (p.X_BO.translation() - d.X_BO.translation()).norm();
-        if (dist < best) {
-          best = dist;
-          best_index = static_cast<int>(g);
+        if (dist < near_distance) {
+          near_distance = dist;
+          near_index = static_cast<int>(g);
         }
       }
-      if (best_index >= 0) {
-        const PartTruth& p = truth.parts[static_cast<size_t>(best_index)];
-        taken[static_cast<size_t>(best_index)] = 1;
+      int errors_to = -1;
+      if (free_index >= 0) {
+        o.verdict = DetectionVerdict::kTrue;
+        errors_to = free_index;
+        const PartTruth& p = truth.parts[static_cast<size_t>(free_index)];
+        taken[static_cast<size_t>(free_index)] = 1;
         o.truth_instance = p.instance_id;
         o.target = p.visible_fraction >= options.min_visible_fraction;
         if (o.target) ++out.targets_found[p.class_id];
+      } else if (taken_index >= 0) {
+        o.verdict = DetectionVerdict::kDuplicate;
+        errors_to = taken_index;
+      } else if (near_index >= 0) {
+        o.verdict = DetectionVerdict::kGross;
+        errors_to = near_index;
+      }
+      if (errors_to >= 0) {
+        const PartTruth& p = truth.parts[static_cast<size_t>(errors_to)];
+        o.near_instance = p.instance_id;
         o.translation_error = SymmetryAwareTranslationError(d.X_BO, p.X_BO, model->symmetry);
         o.rotation_error = SymmetryAwareRotationError(d.X_BO, p.X_BO, model->symmetry);
         o.adds = AddSDistance(model->points_O, d.X_BO, p.X_BO);
@@ -203,7 +303,7 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
   const auto figures = [&](const std::string& name, int class_id, bool all) {
     ClassFigures f;
     f.name = name;
-    std::vector<double> t, r;
+    std::vector<double> t, r, r_near;
     int adds_ok = 0;
     for (const FrameEvaluation& fe : frames) {
       for (const auto& [c, n] : fe.targets) f.targets += (all || c == class_id) ? n : 0;
@@ -211,11 +311,20 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
       for (const DetectionOutcome& o : fe.detections) {
         if (!all && o.class_id != class_id) continue;
         ++f.detections;
-        if (o.truth_instance < 0) continue;
+        adds_ok += o.adds_ok ? 1 : 0;
+        switch (o.verdict) {
+          case DetectionVerdict::kTrue: break;
+          case DetectionVerdict::kGross:
+            ++f.gross_errors;
+            r_near.push_back(o.rotation_error * 180.0 / kPi);
+            continue;
+          case DetectionVerdict::kDuplicate: ++f.duplicates; continue;
+          case DetectionVerdict::kFalse: ++f.false_positives; continue;
+        }
         ++f.true_positives;
         t.push_back(o.translation_error * 1000.0);
         r.push_back(o.rotation_error * 180.0 / kPi);
-        adds_ok += o.adds_ok ? 1 : 0;
+        r_near.push_back(o.rotation_error * 180.0 / kPi);
       }
     }
     f.recall = f.targets > 0 ? static_cast<double>(f.found) / f.targets : 1.0;
@@ -224,6 +333,9 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
     f.t_p95_mm = Percentile(t, 0.95);
     f.r_median_deg = Percentile(r, 0.5);
     f.r_p95_deg = Percentile(r, 0.95);
+    f.r_near_p95_deg = Percentile(r_near, 0.95);
+    f.r_near_max_deg = r_near.empty() ? 0.0 : *std::max_element(r_near.begin(), r_near.end());
+    f.gross_fraction = f.detections > 0 ? static_cast<double>(f.gross_errors) / f.detections : 0.0;
     f.adds_ok_fraction = f.detections > 0 ? static_cast<double>(adds_ok) / f.detections : 0.0;
     return f;
   };
@@ -250,6 +362,26 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
   std::vector<double> total;
   for (const FrameEvaluation& fe : frames) total.push_back(fe.total_ms);
   report.stages.push_back({"total", Percentile(total, 0.5), Percentile(total, 0.95)});
+
+  GraspFigures& g = report.grasps;
+  for (const FrameEvaluation& fe : frames) {
+    if (!fe.grasps_planned) continue;
+    ++g.frames;
+    if (!fe.grasps.empty()) {
+      ++g.frames_with_grasp;
+      g.first_on_part += fe.grasps.front().on_part ? 1 : 0;
+    }
+    for (const GraspOutcome& o : fe.grasps) {
+      ++g.grasps;
+      if (o.on_part) {
+        ++g.on_part;
+      } else {
+        ++g.failures[o.failure];
+      }
+    }
+  }
+  g.first_fraction = g.frames_with_grasp > 0 ? static_cast<double>(g.first_on_part) / g.frames_with_grasp : 1.0;
+  g.all_fraction = g.grasps > 0 ? static_cast<double>(g.on_part) / g.grasps : 1.0;
   return report;
 }
 

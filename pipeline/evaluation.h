@@ -1,12 +1,21 @@
 // Scoring perception output against ground truth (binpick eval, tests).
 //
-// Matching: detections, best score first, each take the nearest unmatched
-// ground-truth part of the same class whose origin is within
-// match_relative_distance * diameter. Recall counts only parts with
-// visible_fraction >= min_visible_fraction ("targets"); a detection matched to
-// a less visible part is still a true positive for precision. Errors are over
-// matched detections, modulo the part's symmetry. ADD-S < adds_relative *
-// diameter is counted over all detections (unmatched ones fail).
+// Strict matching (docs/perception.md, "How figures are measured"):
+// detections, best score first, each take the unmatched ground-truth part of
+// the same class whose pose is within the tolerance (translation_tolerance
+// metres AND rotation_tolerance radians, both modulo the part's symmetry);
+// among several, the one with the smallest error relative to the tolerance.
+// A detection matching no part in tolerance is
+//   - a gross error when a part of its class has its origin within
+//     gross_relative_distance * diameter (near a real part, wrong pose),
+//   - a duplicate when that part is within tolerance but already taken,
+//   - a false positive otherwise.
+// Only true positives count for precision and recall. Recall counts only
+// parts with visible_fraction >= min_visible_fraction ("targets"); a true
+// positive on a less visible part still counts for precision. Visibility is
+// the ground truth's: the part's pixels in the full scene's label render
+// divided by its pixels rendered alone from the same camera (before noise).
+// ADD-S < adds_relative * diameter is counted over all detections.
 #pragma once
 
 #include <map>
@@ -15,6 +24,8 @@
 #include <vector>
 
 #include <Eigen/Core>
+
+#include "core/pose.h"
 
 #include "core/cell.h"
 #include "core/status.h"
@@ -43,21 +54,65 @@ double SymmetryAwareTranslationError(const Pose& X_BO_a, const Pose& X_BO_b, con
 // ADD-S: mean over points_O of the distance from X_a p to the nearest X_b q, metres.
 double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_a, const Pose& X_BO_b);
 
+// Where a tool lands on the true parts. The grasp's point p_O and approach
+// a_O (unit; both in the part frame, as planned on the detection) are mapped
+// onto every true part of `class_id` under every symmetry element g (revolute
+// axes: the best angle, exactly): position error |t(X_BT) - X_BO g p_O| and
+// approach error angle(z of X_BT, R_BO g a_O). @returns the part and element
+// with the smallest position error (ties: the smaller approach error);
+// truth_instance -1 when no part of the class is in `parts`.
+struct GraspLanding {
+  int truth_instance = -1;
+  double position_error = 0.0;  // metres
+  double approach_error = 0.0;  // radians
+};
+GraspLanding LandOnTruth(const Pose& X_BT, const Vec3& p_O, const Vec3& a_O, int class_id, const Symmetry& symmetry,
+                         std::span<const PartTruth> parts);
+
 struct EvalOptions {
   double min_visible_fraction = 0.5;
-  double match_relative_distance = 0.25;
+  // Strict match: 5 mm and 5 deg, the pose error a grasp on a 40-100 mm part
+  // tolerates (binpick eval --tol-mm / --tol-deg).
+  double translation_tolerance = 0.005;             // metres
+  double rotation_tolerance = 5.0 * 3.14159265358979323846 / 180.0;  // radians
+  double gross_relative_distance = 0.25;  // of the part's diameter
   double adds_relative = 0.1;
 };
+
+enum class DetectionVerdict {
+  kTrue,       // within tolerance of an unmatched part of its class
+  kGross,      // near a part of its class (origin within a quarter diameter), outside tolerance
+  kDuplicate,  // within tolerance of a part another detection already took
+  kFalse,      // near no part of its class
+};
+const char* ToString(DetectionVerdict verdict);  // "true", "gross", "duplicate", "false"
 
 struct DetectionOutcome {
   size_t detection = 0;     // index into PerceptionResult::detections (outcomes are in score order)
   int class_id = 0;
-  int truth_instance = -1;  // matched ground-truth instance, -1 = false positive
+  DetectionVerdict verdict = DetectionVerdict::kFalse;
+  int truth_instance = -1;  // matched ground-truth instance (kTrue only), else -1
+  int near_instance = -1;   // the part the errors are measured to (kTrue, kGross, kDuplicate), else -1
   bool target = false;      // the matched part is a recall target
-  double translation_error = 0.0;  // metres (matched only)
-  double rotation_error = 0.0;     // radians (matched only)
-  double adds = 0.0;               // metres (matched only)
+  // Errors to near_instance, modulo its symmetry (0 without one).
+  double translation_error = 0.0;  // metres
+  double rotation_error = 0.0;     // radians
+  double adds = 0.0;               // metres
   bool adds_ok = false;
+};
+
+// One handed-out grasp judged against the true scene (grasp/grasp_judge.h
+// does the judging; the figures live here so that eval reports them).
+struct GraspOutcome {
+  int detection = -1;        // the detection it was planned on
+  int class_id = 0;
+  std::string name;          // the grasp's name (cell grasp, "@k" symmetry copy, "~v" turned)
+  Pose X_BT = Pose::Identity();
+  int truth_instance = -1;   // the true part whose grasp point is nearest the tool centre
+  double position_error = 0.0;  // metres: tool centre to that grasp point (modulo symmetry)
+  double approach_error = 0.0;  // radians: tool z to the grasp's approach on that part
+  bool on_part = false;         // within the judge's limits (grasp/grasp_judge.h)
+  std::string failure;          // "" when on_part, else "no_part", "off_part" or "approach"
 };
 
 struct FrameEvaluation {
@@ -66,6 +121,10 @@ struct FrameEvaluation {
   std::map<int, int> targets_found;  // class -> of those, matched
   std::vector<StageTiming> timings;
   double total_ms = 0.0;
+  // The planner's queue for the frame in order (the first is handed out
+  // first); empty when grasps were not planned or none survived.
+  std::vector<GraspOutcome> grasps;
+  bool grasps_planned = false;
 };
 
 FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth& truth,
@@ -74,9 +133,25 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
 struct ClassFigures {
   std::string name;  // class name or "all"
   int targets = 0, found = 0, detections = 0, true_positives = 0;
+  int gross_errors = 0, duplicates = 0, false_positives = 0;
   double recall = 0, precision = 0;
+  double gross_fraction = 0;  // gross errors / detections
+  // Over true positives.
   double t_median_mm = 0, t_p95_mm = 0, r_median_deg = 0, r_p95_deg = 0;
+  // Over true positives and gross errors (every detection near a part of its
+  // class): how far off the detections that are not right are.
+  double r_near_p95_deg = 0, r_near_max_deg = 0;
   double adds_ok_fraction = 0;
+};
+struct GraspFigures {
+  int frames = 0;              // frames whose grasps were planned
+  int frames_with_grasp = 0;   // of those, with at least one grasp
+  int first_on_part = 0;       // first grasps on their part
+  int grasps = 0;              // every grasp of every queue
+  int on_part = 0;
+  std::map<std::string, int> failures;  // cause -> grasps
+  double first_fraction = 0;   // first_on_part / frames_with_grasp (1 with none)
+  double all_fraction = 0;     // on_part / grasps (1 with none)
 };
 struct StageFigures {
   std::string stage;
@@ -86,6 +161,7 @@ struct EvalReport {
   int frames = 0;
   std::vector<ClassFigures> classes;  // one per class seen, then "all" last
   std::vector<StageFigures> stages;   // in pipeline order, then "total"
+  GraspFigures grasps;
 };
 
 // Segmentation against the ground-truth label image (organized synthetic

@@ -1,7 +1,10 @@
 // binpick eval: renders N synthetic scenes (seeds S, S+1, ...) or reads
-// frames with ground truth from a directory, runs the perception pipeline and
-// scores it (pipeline/evaluation.h). Progress on stderr, a table on stdout,
-// the same figures in JSON with --json.
+// frames with ground truth from a directory, runs the perception pipeline,
+// plans the task's grasps on its detections (PlanGrasps, as the planner does,
+// without its thorough retry) and scores both strictly (pipeline/evaluation.h,
+// grasp/grasp_judge.h). Progress on stderr, a table on stdout, the same
+// figures with every detection's and grasp's pose and verdict in JSON with
+// --json.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -19,12 +22,15 @@
 #include "apps/binpick/command.h"
 #include "core/cell.h"
 #include "core/mesh.h"
+#include "grasp/grasp_judge.h"
+#include "grasp/grasp_planning.h"
 #include "pipeline/capture_source.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
 #include "pipeline/perception.h"
 #include "pipeline/pose_estimator.h"
+#include "pipeline/pose_json.h"
 #include "pipeline/synthetic_source.h"
 
 namespace bp::cli {
@@ -59,6 +65,10 @@ struct EvalCliOptions {
   int config_id = 0;
   int threads = 2;
   int num_parts = 0;  // 0 = the cell's
+  double tol_mm = 5.0;
+  double tol_deg = 5.0;
+  int task_id = 0;    // the pick task whose grasps are judged; < 0: no grasps
+  bool variety = false;
   double normal_angle_deg = -1.0;
   double max_jump = -1.0;
   double context = -1.0;
@@ -119,23 +129,94 @@ void Progress(int done, int total, double last_ms) {
   std::fflush(stderr);
 }
 
-nlohmann::json ToJson(const EvalReport& report, const SegmentationFigures& seg, const EvalCliOptions& opt) {
-  nlohmann::json j;
+// One frame as JSON: every true part, every detection and every grasp with
+// its pose and verdict, so that another tool can re-score the run.
+nlohmann::ordered_json FrameJson(const std::string& name, const Frame& frame, const PerceptionResult& result,
+                                 const FrameEvaluation& fe, const EvalOptions& options) {
+  nlohmann::ordered_json j;
+  j["frame"] = name;
+  j["source"] = frame.source;
+  j["X_BC"] = PoseToJson(frame.X_BC);
+  nlohmann::ordered_json truth = nlohmann::ordered_json::array();
+  for (const PartTruth& p : frame.truth->parts) {
+    truth.push_back({{"instance", p.instance_id},
+                     {"class_id", p.class_id},
+                     {"visible_fraction", p.visible_fraction},
+                     {"target", p.visible_fraction >= options.min_visible_fraction},
+                     {"X_BO", PoseToJson(p.X_BO)}});
+  }
+  j["truth"] = std::move(truth);
+  nlohmann::ordered_json dets = nlohmann::ordered_json::array();
+  for (const DetectionOutcome& o : fe.detections) {
+    const Detection& d = result.detections[o.detection];
+    dets.push_back({{"detection", o.detection},
+                    {"class_id", d.class_id},
+                    {"score", d.score},
+                    {"verdict", ToString(o.verdict)},
+                    {"truth_instance", o.truth_instance},
+                    {"near_instance", o.near_instance},
+                    {"translation_error_mm", 1000.0 * o.translation_error},
+                    {"rotation_error_deg", o.rotation_error * 180.0 / M_PI},
+                    {"X_BO", PoseToJson(d.X_BO)}});
+  }
+  j["detections"] = std::move(dets);
+  nlohmann::ordered_json grasps = nlohmann::ordered_json::array();
+  for (const GraspOutcome& g : fe.grasps) {
+    grasps.push_back({{"detection", g.detection},
+                      {"class_id", g.class_id},
+                      {"name", g.name},
+                      {"on_part", g.on_part},
+                      {"failure", g.failure},
+                      {"truth_instance", g.truth_instance},
+                      {"position_error_mm", 1000.0 * g.position_error},
+                      {"approach_error_deg", g.approach_error * 180.0 / M_PI},
+                      {"X_BT", PoseToJson(g.X_BT)}});
+  }
+  j["grasps"] = std::move(grasps);
+  nlohmann::ordered_json stages = nlohmann::ordered_json::array();
+  for (const StageTiming& st : fe.timings) stages.push_back({{"stage", st.stage}, {"ms", st.ms}});
+  j["latency_ms"] = std::move(stages);
+  return j;
+}
+
+nlohmann::ordered_json ToJson(const EvalReport& report, const SegmentationFigures& seg, const EvalCliOptions& opt,
+                              nlohmann::ordered_json frames) {
+  nlohmann::ordered_json j;
   j["frames"] = report.frames;
   j["seed"] = opt.seed;
   j["source"] = opt.source.empty() ? "synthetic" : opt.source;
+  j["tolerance"] = {{"mm", opt.tol_mm}, {"deg", opt.tol_deg}, {"gross_relative_distance", 0.25}};
   for (const ClassFigures& c : report.classes) {
     j["classes"].push_back({{"name", c.name},
                             {"targets", c.targets},
                             {"found", c.found},
                             {"detections", c.detections},
                             {"true_positives", c.true_positives},
+                            {"gross_errors", c.gross_errors},
+                            {"duplicates", c.duplicates},
+                            {"false_positives", c.false_positives},
                             {"recall", c.recall},
                             {"precision", c.precision},
+                            {"gross_fraction", c.gross_fraction},
                             {"translation_error_mm", {{"median", c.t_median_mm}, {"p95", c.t_p95_mm}}},
-                            {"rotation_error_deg", {{"median", c.r_median_deg}, {"p95", c.r_p95_deg}}},
+                            {"rotation_error_deg",
+                             {{"median", c.r_median_deg},
+                              {"p95", c.r_p95_deg},
+                              {"near_p95", c.r_near_p95_deg},
+                              {"near_max", c.r_near_max_deg}}},
                             {"adds_lt_10pct_diameter", c.adds_ok_fraction}});
   }
+  const GraspFigures& g = report.grasps;
+  j["grasps"] = {{"task", opt.task_id},
+                 {"frames", g.frames},
+                 {"frames_with_grasp", g.frames_with_grasp},
+                 {"first_on_part", g.first_on_part},
+                 {"first_on_part_fraction", g.first_fraction},
+                 {"grasps", g.grasps},
+                 {"on_part", g.on_part},
+                 {"on_part_fraction", g.all_fraction},
+                 {"failures", g.failures}};
+  j["per_frame"] = std::move(frames);
   for (const StageFigures& s : report.stages) {
     j["latency_ms"].push_back({{"stage", s.stage}, {"median", s.median_ms}, {"p95", s.p95_ms}});
   }
@@ -148,14 +229,24 @@ nlohmann::json ToJson(const EvalReport& report, const SegmentationFigures& seg, 
   return j;
 }
 
-void PrintTable(const EvalReport& report, const SegmentationFigures& seg) {
-  std::printf("%d frames\n", report.frames);
-  std::printf("%-18s %7s %7s %7s %7s %9s %9s %9s %9s %8s\n", "class", "targets", "recall", "dets", "prec",
-              "t_med_mm", "t_p95_mm", "r_med_deg", "r_p95_deg", "adds<10%");
+void PrintTable(const EvalReport& report, const SegmentationFigures& seg, const EvalCliOptions& opt) {
+  std::printf("%d frames; strict: within %.1f mm and %.1f deg (modulo symmetry); recall over parts >= 50%% visible\n",
+              report.frames, opt.tol_mm, opt.tol_deg);
+  std::printf("%-16s %7s %6s %5s %6s %5s %4s %4s %8s %8s %8s %8s %8s\n", "class", "targets", "recall", "dets",
+              "prec", "gross", "dup", "fp", "t_med_mm", "r_med_dg", "r_p95_dg", "nr_p95dg", "nr_max");
   for (const ClassFigures& c : report.classes) {
-    std::printf("%-18s %7d %7.3f %7d %7.3f %9.3f %9.3f %9.3f %9.3f %8.3f\n", c.name.c_str(), c.targets, c.recall,
-                c.detections, c.precision, c.t_median_mm, c.t_p95_mm, c.r_median_deg, c.r_p95_deg,
-                c.adds_ok_fraction);
+    std::printf("%-16s %7d %6.3f %5d %6.3f %5d %4d %4d %8.3f %8.3f %8.3f %8.2f %8.2f\n", c.name.c_str(), c.targets,
+                c.recall, c.detections, c.precision, c.gross_errors, c.duplicates, c.false_positives, c.t_median_mm,
+                c.r_median_deg, c.r_p95_deg, c.r_near_p95_deg, c.r_near_max_deg);
+  }
+  std::printf("(t/r over true positives; nr_*: rotation error over true positives and gross errors)\n");
+  const GraspFigures& g = report.grasps;
+  if (g.frames > 0) {
+    std::string failures;
+    for (const auto& [cause, n] : g.failures) failures += " " + cause + " " + std::to_string(n);
+    std::printf("\ngrasps (task %d): first grasp on its part %d / %d frames (%.4f), all grasps %d / %d (%.4f)%s%s\n",
+                opt.task_id, g.first_on_part, g.frames_with_grasp, g.first_fraction, g.on_part, g.grasps,
+                g.all_fraction, failures.empty() ? "" : "; failed:", failures.c_str());
   }
   std::printf("\n%-10s %10s %10s\n", "stage", "median_ms", "p95_ms");
   for (const StageFigures& s : report.stages) std::printf("%-10s %10.2f %10.2f\n", s.stage.c_str(), s.median_ms, s.p95_ms);
@@ -170,6 +261,7 @@ int Run(const EvalCliOptions& opt) {
   Result<Cell> cell = LoadCellOrDefault(opt.cell_path);
   if (!cell.ok()) return Fail(cmd, cell.status());
   if (opt.num_parts > 0) cell->source.num_parts = opt.num_parts;
+  if (opt.variety && !cell->source.variety) cell->source.variety = VarietySpec{};
   cell->source.simulate_picks = false;
 
   std::vector<std::string> files;
@@ -200,6 +292,25 @@ int Run(const EvalCliOptions& opt) {
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
   if (!models.ok()) return Fail(cmd, models.status());
+  if (!(opt.tol_mm > 0) || !(opt.tol_deg > 0)) {
+    return Fail(cmd, Status::InvalidArgument("--tol-mm and --tol-deg must be > 0"));
+  }
+  EvalOptions eval_options;
+  eval_options.translation_tolerance = opt.tol_mm / 1000.0;
+  eval_options.rotation_tolerance = opt.tol_deg * M_PI / 180.0;
+  // The grasp stage: the task's grasps on each frame's detections.
+  const TaskSpec* task = nullptr;
+  std::shared_ptr<const GraspPlanningModel> grasp_model;
+  if (opt.task_id >= 0) {
+    task = cell->FindTask(opt.task_id);
+    if (task == nullptr || task->kind != TaskSpec::Kind::kPick) {
+      return Fail(cmd, Status::InvalidArgument("--task " + std::to_string(opt.task_id) + " is not a pick task of the cell"));
+    }
+    auto built = GraspPlanningModel::Build(*cell);
+    if (!built.ok()) return Fail(cmd, built.status());
+    grasp_model = std::move(*built);
+  }
+  nlohmann::ordered_json frames_json = nlohmann::ordered_json::array();
 
   tbb::task_arena arena(opt.threads);
   std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
@@ -231,7 +342,25 @@ int Run(const EvalCliOptions& opt) {
     arena.execute([&] { result = (*perception)->Run(*frame, {}, effort); });
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
-    evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models));
+    evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models, eval_options));
+    if (task != nullptr) {
+      FrameEvaluation& fe = evaluations.back();
+      const auto t0 = std::chrono::steady_clock::now();
+      GraspPlan plan;
+      arena.execute([&] { plan = PlanGrasps(*grasp_model, *task, *result); });
+      fe.timings.push_back({"grasps", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count()});
+      fe.grasps_planned = true;
+      for (const Grasp& g : plan.queue) {
+        GraspOutcome o = JudgeGrasp(*grasp_model, task->gripper, g, frame->truth->parts);
+        o.detection = g.instance_id;
+        fe.grasps.push_back(std::move(o));
+      }
+    }
+    if (!opt.json_path.empty()) {
+      const std::string name = files.empty() ? "seed " + std::to_string(opt.seed + static_cast<uint64_t>(i))
+                                             : files[static_cast<size_t>(i)];
+      frames_json.push_back(FrameJson(name, *frame, *result, evaluations.back(), eval_options));
+    }
     if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
       spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
@@ -332,10 +461,10 @@ int Run(const EvalCliOptions& opt) {
     Progress(i + 1, total, result->TotalMs());
   }
   const EvalReport report = Summarize(evaluations, *models);
-  PrintTable(report, seg_total);
+  PrintTable(report, seg_total, opt);
   if (!opt.json_path.empty()) {
     std::ofstream out(opt.json_path);
-    out << ToJson(report, seg_total, opt).dump(2) << "\n";
+    out << ToJson(report, seg_total, opt, std::move(frames_json)).dump(2) << "\n";
     if (!out) return Fail(cmd, Status::Internal("cannot write '" + opt.json_path + "'"));
   }
   if (!opt.detections_path.empty()) {
@@ -364,6 +493,19 @@ Command EvalCommand() {
                    sub.add_option("--config", opt->config_id, "camera config id (0 = cell default)");
                    sub.add_option("--threads", opt->threads, "oneTBB arena size")->capture_default_str();
                    sub.add_option("--parts", opt->num_parts, "parts per synthetic scene (0 = the cell's)");
+                   sub.add_option("--tol-mm", opt->tol_mm,
+                                  "strict match: largest translation error, mm (modulo symmetry)")
+                       ->capture_default_str();
+                   sub.add_option("--tol-deg", opt->tol_deg,
+                                  "strict match: largest rotation error, degrees (modulo symmetry)")
+                       ->capture_default_str();
+                   sub.add_flag("--variety", opt->variety,
+                                "draw each scene's camera pose, intrinsics, noise and drop style from its seed "
+                                "(the cell's source.variety, else the defaults; docs/synthetic.md)");
+                   sub.add_option("--task", opt->task_id,
+                                  "pick task whose grasps are planned on the detections and judged against the "
+                                  "truth (-1: none)")
+                       ->capture_default_str();
                    sub.add_option("--normal-angle", opt->normal_angle_deg,
                                   "segmentation normal-angle threshold, degrees (tuning)");
                    sub.add_option("--max-jump", opt->max_jump, "segmentation neighbour distance, metres (tuning)");

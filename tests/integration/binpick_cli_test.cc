@@ -8,6 +8,7 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
@@ -135,6 +136,54 @@ TEST(BinpickCli, InfoDescribesAnOrganizedDepthFrame) {
   EXPECT_THAT(r.out, HasSubstr("organized 8x6"));
   EXPECT_THAT(r.out, HasSubstr("48 valid of 48"));
   EXPECT_THAT(r.out, HasSubstr("0.7500 .. 1.2500 m"));
+}
+
+// One varied scene, scored strictly: the JSON carries every detection's and
+// grasp's pose and verdict, consistent with the counts; a bad tolerance is
+// refused. (Varied scenes are deterministic per seed: synthetic_test.cc.)
+TEST(BinpickCli, EvalWritesEveryDetectionAndGraspWithItsVerdict) {
+  const std::string dir = FreshDir();
+  const auto eval = [&](const std::string& out) {
+    return RunBinpick("eval --scenes 1 --seed 1003 --variety --threads 2 --json " + dir + "/" + out);
+  };
+  const test::CommandRun r = eval("a.json");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("strict: within 5.0 mm and 5.0 deg"));
+  EXPECT_THAT(r.out, HasSubstr("first grasp on its part"));
+  const nlohmann::json j = nlohmann::json::parse(std::ifstream(dir + "/a.json"));
+  ASSERT_EQ(j["per_frame"].size(), 1u);
+  const nlohmann::json& frame = j["per_frame"][0];
+  EXPECT_THAT(frame["source"].get<std::string>(), HasSubstr("variety: tilt"));
+  int detections = 0, right = 0;
+  for (const auto& d : frame["detections"]) {
+    ++detections;
+    const std::string verdict = d["verdict"];
+    EXPECT_THAT((std::vector<std::string>{"true", "gross", "duplicate", "false"}), ::testing::Contains(verdict));
+    EXPECT_EQ(d["X_BO"].size(), 4u);
+    if (verdict == "true") {
+      ++right;
+      EXPECT_LE(d["translation_error_mm"].get<double>(), 5.0);
+      EXPECT_LE(d["rotation_error_deg"].get<double>(), 5.0);
+      EXPECT_GE(d["truth_instance"].get<int>(), 1);
+    }
+  }
+  const nlohmann::json& all = j["classes"].back();
+  EXPECT_EQ(all["name"], "all");
+  EXPECT_EQ(all["detections"].get<int>(), detections);
+  EXPECT_EQ(all["true_positives"].get<int>(), right);
+  EXPECT_GT(right, 0);
+  int grasps = 0, on_part = 0;
+  for (const auto& g : frame["grasps"]) {
+    ++grasps;
+    on_part += g["on_part"].get<bool>() ? 1 : 0;
+    EXPECT_EQ(g["X_BT"].size(), 4u);
+  }
+  EXPECT_EQ(j["grasps"]["grasps"].get<int>(), grasps);
+  EXPECT_EQ(j["grasps"]["on_part"].get<int>(), on_part);
+  EXPECT_GT(grasps, 0);
+  const test::CommandRun bad = RunBinpick("eval --scenes 1 --tol-mm 0");
+  EXPECT_EQ(bad.exit_code, 2) << bad.out;
+  EXPECT_THAT(bad.out, HasSubstr("--tol-mm"));
 }
 
 }  // namespace

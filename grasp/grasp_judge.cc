@@ -1,0 +1,56 @@
+#include "grasp/grasp_judge.h"
+
+#include <cmath>
+
+namespace bp {
+
+namespace {
+
+// The grasp in the part frame as the cell defines it (the "~v" turn undone),
+// or as planned when the name is not a cell grasp (taught grasps).
+Pose NominalGraspInPart(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp) {
+  std::string name = grasp.name;
+  if (name.size() > 2 && name.compare(name.size() - 2, 2, "~v") == 0) name.resize(name.size() - 2);
+  for (const TaughtGrasp& g : model.CellGrasps(grasp.class_id, gripper)) {
+    if (g.name == name) return g.X_OG;
+  }
+  return grasp.X_BO.inverse() * grasp.X_BT;
+}
+
+}  // namespace
+
+GraspOutcome JudgeGrasp(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp,
+                        std::span<const PartTruth> truth, const GraspJudgeOptions& options) {
+  GraspOutcome out;
+  out.class_id = grasp.class_id;
+  out.name = grasp.name;
+  out.X_BT = grasp.X_BT;
+  const PartSpec* part = model.cell().FindPart(grasp.class_id);
+  const GripperSpec* spec = model.cell().FindGripper(gripper);
+  if (part == nullptr || spec == nullptr) {
+    out.failure = "no_part";
+    return out;
+  }
+  // The contact point is where the tool centre was planned (a "~v" turn keeps it).
+  const Vec3 p_O = grasp.X_BO.inverse() * grasp.X_BT.translation();
+  const Vec3 a_O = NominalGraspInPart(model, gripper, grasp).linear().col(2);
+  const GraspLanding landing = LandOnTruth(grasp.X_BT, p_O, a_O, grasp.class_id, part->symmetry, truth);
+  out.truth_instance = landing.truth_instance;
+  out.position_error = landing.position_error;
+  out.approach_error = landing.approach_error;
+  const double max_approach = spec->kind == GripperSpec::Kind::kSuction
+                                  ? model.options().suction_compliance_deg * M_PI / 180.0
+                                  : options.parallel_jaw_approach;
+  if (landing.truth_instance < 0) {
+    out.failure = "no_part";
+  } else if (landing.position_error > options.max_position) {
+    out.failure = "off_part";
+  } else if (landing.approach_error > max_approach + 1e-9) {
+    out.failure = "approach";
+  } else {
+    out.on_part = true;
+  }
+  return out;
+}
+
+}  // namespace bp

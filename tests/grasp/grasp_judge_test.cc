@@ -1,0 +1,137 @@
+// Judging grasps against the true scene (grasp/grasp_judge.h): the tool
+// centre at the grasp's own point on the true part (2 mm) and the approach
+// within the gripper's compliance, modulo the part's symmetry.
+#include "grasp/grasp_judge.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace bp {
+namespace {
+
+constexpr double kDeg = M_PI / 180.0;
+constexpr int kBushing = 0, kBracket = 1, kTee = 2;
+
+const Cell& DefaultCell() {
+  static const Cell cell = [] {
+    Result<Cell> c = LoadDefaultCell();
+    EXPECT_TRUE(c.ok()) << c.status().ToString();
+    return *c;
+  }();
+  return cell;
+}
+
+const GraspPlanningModel& Model() {
+  static const std::shared_ptr<const GraspPlanningModel> model = [] {
+    auto m = GraspPlanningModel::Build(DefaultCell());
+    EXPECT_TRUE(m.ok()) << m.status().ToString();
+    return *m;
+  }();
+  return *model;
+}
+
+Pose Rotated(const Vec3& t, const Vec3& axis, double deg) {
+  return MakePose(Mat3(Eigen::AngleAxisd(deg * kDeg, axis.normalized())), t);
+}
+
+PartTruth Truth(int instance, int class_id, const Pose& X_BO) {
+  PartTruth p;
+  p.instance_id = instance;
+  p.class_id = class_id;
+  p.X_BO = X_BO;
+  p.visible_fraction = 1.0;
+  return p;
+}
+
+// The cell grasp `name` of `class_id` for `gripper`, planned on a detection at X_BO_detected.
+Grasp Planned(int class_id, const std::string& gripper, const std::string& name, const Pose& X_BO_detected) {
+  Grasp g;
+  g.class_id = class_id;
+  g.X_BO = X_BO_detected;
+  g.name = name;
+  for (const TaughtGrasp& t : Model().CellGrasps(class_id, gripper)) {
+    if (t.name == name) g.X_BT = X_BO_detected * t.X_OG;
+  }
+  EXPECT_FALSE(g.X_BT.isApprox(Pose::Identity())) << name;
+  return g;
+}
+
+// A tee turned about its run axis with its origin exact (a gross error):
+// its branch grasp puts the tool into air beside the real branch.
+TEST(GraspJudge, ABranchGraspOnATeeTurnedAboutItsRunIsOffThePart) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitZ(), 15);
+  const std::vector<PartTruth> truth = {Truth(5, kTee, X_BO)};
+  const GraspOutcome right = JudgeGrasp(Model(), "suction", Planned(kTee, "suction", "branch_side@0", X_BO), truth);
+  EXPECT_TRUE(right.on_part) << right.failure;
+  EXPECT_EQ(right.truth_instance, 5);
+  EXPECT_NEAR(right.position_error, 0.0, 1e-9);
+  const Pose turned = X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 30);
+  const GraspOutcome wrong = JudgeGrasp(Model(), "suction", Planned(kTee, "suction", "branch_side@0", turned), truth);
+  EXPECT_FALSE(wrong.on_part);
+  EXPECT_EQ(wrong.failure, "off_part");
+  EXPECT_GT(wrong.position_error, 0.010);
+  // The run's top, 20 mm from the run's axis, moves along the pipe's surface
+  // by the chord 2 * 20 mm * sin(15 deg) = 10.4 mm.
+  const GraspOutcome run = JudgeGrasp(Model(), "suction", Planned(kTee, "suction", "run_top@0", turned), truth);
+  EXPECT_EQ(run.failure, "off_part");
+  EXPECT_NEAR(run.position_error, 2 * 0.020 * std::sin(15 * kDeg), 1e-6);
+}
+
+TEST(GraspJudge, TwoMillimetresAtTheGraspPointAndTheCompliance) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitY(), 0);
+  const std::vector<PartTruth> truth = {Truth(1, kBracket, X_BO), Truth(2, kBracket, X_BO * Rotated(Vec3(0.2, 0, 0), Vec3::UnitZ(), 0))};
+  const auto judge = [&](const Pose& X_BO_detected) {
+    return JudgeGrasp(Model(), "suction", Planned(kBracket, "suction", "base_top", X_BO_detected), truth);
+  };
+  EXPECT_TRUE(judge(X_BO * Rotated(Vec3(0.0019, 0, 0), Vec3::UnitZ(), 0)).on_part);
+  const GraspOutcome far = judge(X_BO * Rotated(Vec3(0.0021, 0, 0), Vec3::UnitZ(), 0));
+  EXPECT_EQ(far.failure, "off_part");
+  EXPECT_EQ(far.truth_instance, 1);
+  // A detection turned about the grasp point itself: the point stays, the
+  // approach turns; the cup complies up to 20 deg.
+  const Vec3 p_O(0.045, 0.0, 0.005);
+  const auto turned_about_point = [&](double deg) {
+    return X_BO * Rotated(p_O, Vec3::UnitX(), deg) * Rotated(-p_O, Vec3::UnitX(), 0);
+  };
+  EXPECT_TRUE(judge(turned_about_point(19)).on_part);
+  const GraspOutcome tilted = judge(turned_about_point(21));
+  EXPECT_EQ(tilted.failure, "approach");
+  EXPECT_NEAR(tilted.approach_error, 21 * kDeg, 1e-6);
+  EXPECT_NEAR(tilted.position_error, 0.0, 1e-9);
+  // A bushing's grasp where only brackets are: no part of its class.
+  Grasp bushing = Planned(kBushing, "suction", "hub_top@0", X_BO);
+  EXPECT_EQ(JudgeGrasp(Model(), "suction", bushing, truth).failure, "no_part");
+}
+
+// A "~v" candidate (turned toward vertical by the planner) spends part of the
+// cup's compliance: judged against the cell grasp's approach, not its own.
+TEST(GraspJudge, ATurnedSuctionGraspSpendsItsTurnOfTheCompliance) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitY(), 0);
+  const std::vector<PartTruth> truth = {Truth(1, kBracket, X_BO)};
+  Grasp g = Planned(kBracket, "suction", "base_top", X_BO);
+  const Vec3 p_B = g.X_BT.translation();
+  for (double turn : {10.0, 19.5, 20.5}) {
+    Grasp v = g;
+    v.name = "base_top~v";
+    v.X_BT.linear() = Eigen::AngleAxisd(turn * kDeg, Vec3::UnitY()).toRotationMatrix() * g.X_BT.linear();
+    v.X_BT.translation() = p_B;
+    const GraspOutcome o = JudgeGrasp(Model(), "suction", v, truth);
+    EXPECT_NEAR(o.approach_error, turn * kDeg, 1e-6);
+    EXPECT_EQ(o.on_part, turn <= 20.0) << turn;
+  }
+}
+
+TEST(GraspJudge, AParallelJawAllowsFiveDegrees) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitZ(), 30);
+  const std::vector<PartTruth> truth = {Truth(1, kBracket, X_BO)};
+  Grasp g = Planned(kBracket, "parallel", "base_pinch_y_up", X_BO);
+  EXPECT_TRUE(JudgeGrasp(Model(), "parallel", g, truth).on_part);
+  const Vec3 p_B = g.X_BT.translation();
+  g.X_BT.linear() = Eigen::AngleAxisd(6 * kDeg, Vec3::UnitX()).toRotationMatrix() * g.X_BT.linear();
+  g.X_BT.translation() = p_B;
+  EXPECT_EQ(JudgeGrasp(Model(), "parallel", g, truth).failure, "approach");
+}
+
+}  // namespace
+}  // namespace bp

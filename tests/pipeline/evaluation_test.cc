@@ -1,0 +1,199 @@
+// The strict evaluation rule (pipeline/evaluation.h): true positives within
+// the pose tolerance modulo symmetry, gross errors near a part in the wrong
+// pose, duplicates and false positives apart; and where a tool lands on the
+// true parts (LandOnTruth), modulo symmetry.
+#include "pipeline/evaluation.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+namespace bp {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = kPi / 180.0;
+constexpr int kBushing = 0, kBracket = 1, kTee = 2;
+
+Pose Rotated(const Vec3& t, const Vec3& axis, double deg) {
+  return MakePose(Mat3(Eigen::AngleAxisd(deg * kDeg, axis.normalized())), t);
+}
+
+const std::vector<EvalPartModel>& Models() {
+  static const std::vector<EvalPartModel> models = [] {
+    auto cell = LoadDefaultCell();
+    EXPECT_TRUE(cell.ok()) << cell.status().ToString();
+    auto m = LoadEvalModels(*cell);
+    EXPECT_TRUE(m.ok()) << m.status().ToString();
+    return *m;
+  }();
+  return models;
+}
+
+PartTruth Truth(int instance, int class_id, const Pose& X_BO, double visible = 1.0) {
+  PartTruth p;
+  p.instance_id = instance;
+  p.class_id = class_id;
+  p.X_BO = X_BO;
+  p.visible_pixels = static_cast<int>(100 * visible);
+  p.unoccluded_pixels = 100;
+  p.visible_fraction = visible;
+  return p;
+}
+
+Detection Detected(int class_id, const Pose& X_BO, double score) {
+  Detection d;
+  d.class_id = class_id;
+  d.X_BO = X_BO;
+  d.score = score;
+  return d;
+}
+
+// The default cell's tee: run along its x axis, branch along z, symmetric by
+// a half turn about z. Turned about its run axis, its origin stays exact.
+TEST(StrictEvaluation, ATeeTurnedAboutItsRunAxisAtAnExactOriginIsAGrossError) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3(0.3, 0.2, 1.0), 40);
+  GroundTruth truth;
+  truth.parts.push_back(Truth(1, kTee, X_BO));
+  for (double turn_deg : {30.0, 60.0, 90.0}) {
+    PerceptionResult result;
+    result.detections.push_back(Detected(kTee, X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), turn_deg), 0.95));
+    const FrameEvaluation fe = EvaluateFrame(result, truth, Models());
+    ASSERT_EQ(fe.detections.size(), 1u);
+    const DetectionOutcome& o = fe.detections[0];
+    EXPECT_EQ(o.verdict, DetectionVerdict::kGross) << turn_deg;
+    EXPECT_EQ(o.truth_instance, -1);
+    EXPECT_EQ(o.near_instance, 1);
+    EXPECT_NEAR(o.translation_error, 0.0, 1e-9);
+    EXPECT_NEAR(o.rotation_error, turn_deg * kDeg, 1e-6);
+    const EvalReport report = Summarize({fe}, Models());
+    const ClassFigures& all = report.classes.back();
+    EXPECT_EQ(all.found, 0);
+    EXPECT_EQ(all.true_positives, 0);
+    EXPECT_EQ(all.gross_errors, 1);
+    EXPECT_DOUBLE_EQ(all.precision, 0.0);
+    EXPECT_DOUBLE_EQ(all.gross_fraction, 1.0);
+    EXPECT_NEAR(all.r_near_max_deg, turn_deg, 1e-4);
+  }
+  // Its half turn about the branch axis is the same tee.
+  PerceptionResult result;
+  result.detections.push_back(Detected(kTee, X_BO * Rotated(Vec3::Zero(), Vec3::UnitZ(), 180), 0.95));
+  EXPECT_EQ(EvaluateFrame(result, truth, Models()).detections[0].verdict, DetectionVerdict::kTrue);
+}
+
+TEST(StrictEvaluation, TheToleranceIsTranslationAndRotationModuloSymmetry) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitY(), 20);
+  GroundTruth truth;
+  truth.parts.push_back(Truth(1, kBushing, X_BO));
+  const auto verdict = [&](const Pose& X, const EvalOptions& options = {}) {
+    PerceptionResult result;
+    result.detections.push_back(Detected(kBushing, X, 0.9));
+    return EvaluateFrame(result, truth, Models(), options).detections[0].verdict;
+  };
+  // The bushing is revolute about its z: any turn about it is free.
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3(0.004, 0, 0), Vec3::UnitZ(), 77)), DetectionVerdict::kTrue);
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3(0.006, 0, 0), Vec3::UnitZ(), 0)), DetectionVerdict::kGross);
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 4.5)), DetectionVerdict::kTrue);
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 5.5)), DetectionVerdict::kGross);
+  EvalOptions tight;
+  tight.translation_tolerance = 0.002;
+  tight.rotation_tolerance = 2 * kDeg;
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3(0.003, 0, 0), Vec3::UnitZ(), 0), tight), DetectionVerdict::kGross);
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 3), tight), DetectionVerdict::kGross);
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3(0.0015, 0, 0), Vec3::UnitX(), 1.5), tight), DetectionVerdict::kTrue);
+  // Farther than a quarter diameter from every part of its class: false.
+  EXPECT_EQ(verdict(X_BO * Rotated(Vec3(0.05, 0, 0), Vec3::UnitZ(), 0)), DetectionVerdict::kFalse);
+}
+
+TEST(StrictEvaluation, SeparatesDuplicatesWrongClassesAndLessVisibleParts) {
+  GroundTruth truth;
+  truth.parts.push_back(Truth(1, kBracket, Rotated(Vec3(0.7, 0, 0.05), Vec3::UnitZ(), 10)));
+  truth.parts.push_back(Truth(2, kBushing, Rotated(Vec3(0.8, 0, 0.05), Vec3::UnitZ(), 0), 0.3));  // not a target
+  PerceptionResult result;
+  result.detections.push_back(Detected(kBracket, truth.parts[0].X_BO, 0.95));
+  result.detections.push_back(Detected(kBracket, truth.parts[0].X_BO * Rotated(Vec3(0.001, 0, 0), Vec3::UnitZ(), 1), 0.9));
+  result.detections.push_back(Detected(kTee, truth.parts[0].X_BO, 0.85));  // a tee where the bracket is
+  result.detections.push_back(Detected(kBushing, truth.parts[1].X_BO, 0.8));
+  const FrameEvaluation fe = EvaluateFrame(result, truth, Models());
+  ASSERT_EQ(fe.detections.size(), 4u);
+  EXPECT_EQ(fe.detections[0].verdict, DetectionVerdict::kTrue);
+  EXPECT_TRUE(fe.detections[0].target);
+  EXPECT_EQ(fe.detections[1].verdict, DetectionVerdict::kDuplicate);
+  EXPECT_EQ(fe.detections[1].near_instance, 1);
+  EXPECT_EQ(fe.detections[2].verdict, DetectionVerdict::kFalse);
+  EXPECT_EQ(fe.detections[2].near_instance, -1);
+  EXPECT_EQ(fe.detections[3].verdict, DetectionVerdict::kTrue);
+  EXPECT_FALSE(fe.detections[3].target);
+  const ClassFigures all = Summarize({fe}, Models()).classes.back();
+  EXPECT_EQ(all.targets, 1);
+  EXPECT_EQ(all.found, 1);
+  EXPECT_EQ(all.true_positives, 2);
+  EXPECT_EQ(all.duplicates, 1);
+  EXPECT_EQ(all.false_positives, 1);
+  EXPECT_DOUBLE_EQ(all.precision, 0.5);
+}
+
+// A gross error of a higher score does not take the part from a true
+// detection of a lower one.
+TEST(StrictEvaluation, AGrossErrorDoesNotTakeThePartFromALaterTrueDetection) {
+  GroundTruth truth;
+  const Pose X_BO = Rotated(Vec3(0.7, 0, 0.05), Vec3::UnitZ(), 0);
+  truth.parts.push_back(Truth(1, kTee, X_BO));
+  PerceptionResult result;
+  result.detections.push_back(Detected(kTee, X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 45), 0.99));
+  result.detections.push_back(Detected(kTee, X_BO, 0.9));
+  const FrameEvaluation fe = EvaluateFrame(result, truth, Models());
+  EXPECT_EQ(fe.detections[0].verdict, DetectionVerdict::kGross);
+  EXPECT_EQ(fe.detections[1].verdict, DetectionVerdict::kTrue);
+  EXPECT_EQ(fe.targets_found.at(kTee), 1);
+}
+
+// Property: a tool at a grasp point of a true part, mapped by any element of
+// the part's symmetry, lands exactly; moved along the surface by d it is d off.
+TEST(GraspLandingOnTruth, IsExactModuloSymmetryAndMeasuresTheOffset) {
+  std::mt19937 rng{42};
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  Symmetry revolute;
+  revolute.kind = Symmetry::Kind::kRevolute;
+  Symmetry discrete;
+  discrete.kind = Symmetry::Kind::kDiscrete;
+  discrete.order = 2;
+  Symmetry none;
+  for (int trial = 0; trial < 50; ++trial) {
+    const Pose X_BO = Rotated(Vec3(0.7 + 0.1 * U(rng), 0.1 * U(rng), 0.05), Vec3(U(rng), U(rng), U(rng)), 180 * U(rng));
+    const Pose X_OG = Rotated(Vec3(0.03 * U(rng), 0.03 * U(rng), 0.03 * U(rng)), Vec3(U(rng), U(rng), U(rng)), 180 * U(rng));
+    const std::vector<PartTruth> parts = {Truth(3, kTee, X_BO), Truth(4, kBushing, X_BO * Rotated(Vec3(0.2, 0, 0), Vec3::UnitZ(), 0))};
+    const Vec3 p_O = X_OG.translation();
+    const Vec3 a_O = X_OG.linear().col(2);
+    struct Case {
+      const Symmetry* symmetry;
+      Pose element;
+    };
+    const Case cases[] = {{&none, Pose::Identity()},
+                          {&discrete, Rotated(Vec3::Zero(), Vec3::UnitZ(), 180)},
+                          {&revolute, Rotated(Vec3::Zero(), Vec3::UnitZ(), 360 * U(rng))}};
+    for (const Case& c : cases) {
+      // The tool planned on a detection that is the truth turned by a symmetry element.
+      const Pose X_BT = X_BO * c.element * X_OG;
+      const GraspLanding exact = LandOnTruth(X_BT, p_O, a_O, kTee, *c.symmetry, parts);
+      EXPECT_EQ(exact.truth_instance, 3);
+      EXPECT_NEAR(exact.position_error, 0.0, 1e-9);
+      EXPECT_NEAR(exact.approach_error, 0.0, 1e-6);
+      // 3 mm along the tool's x (normal to its approach), and tilted 7 deg.
+      const Pose moved = X_BT * Rotated(Vec3(0.003, 0, 0), Vec3::UnitY(), 7);
+      const GraspLanding off = LandOnTruth(moved, p_O, a_O, kTee, *c.symmetry, parts);
+      if (c.symmetry == &revolute) {
+        EXPECT_LE(off.position_error, 0.003 + 1e-9);  // part of the offset may be a turn about the axis
+      } else {
+        EXPECT_NEAR(off.position_error, 0.003, 1e-9);
+        EXPECT_NEAR(off.approach_error, 7 * kDeg, 1e-6);
+      }
+    }
+  }
+  // No part of the class in the scene.
+  EXPECT_EQ(LandOnTruth(Pose::Identity(), Vec3::Zero(), Vec3::UnitZ(), kBracket, none, {}).truth_instance, -1);
+}
+
+}  // namespace
+}  // namespace bp
