@@ -12,10 +12,181 @@
 #include "grasp/bin_picking_planner.h"
 #include "grasp/empty_box.h"
 #include "grasp/grasp_planning.h"
+#include "grasp/grasp_queue.h"
 #include "pipeline/capture_source.h"
 #include "pipeline/frame_io.h"
+#include "pipeline/synthetic_source.h"
 
 namespace bp {
+
+namespace {
+
+// The pile as it is now (after the picks since the last capture), in base.
+std::vector<PartTruth> PileTruth(const SyntheticSource& source) {
+  std::vector<PartTruth> out;
+  for (const PilePart& p : source.pile().parts()) {
+    PartTruth t;
+    t.instance_id = p.instance_id;
+    t.class_id = p.class_id;
+    t.class_name = source.pile().classes()[p.class_index].name;
+    t.X_BO = source.X_BW() * p.X_WO;
+    t.visible_fraction = 1.0;
+    out.push_back(std::move(t));
+  }
+  return out;
+}
+
+const PartTruth* FindInstance(const std::vector<PartTruth>& parts, int instance) {
+  for (const PartTruth& p : parts) {
+    if (p.instance_id == instance) return &p;
+  }
+  return nullptr;
+}
+
+// The plan whose grasps the robot takes on this capture: the primary task's,
+// else the first fallback task's with a grasp. `primary` is always the
+// primary task's (the final empty-box answer is the primary task's).
+struct CyclePlan {
+  PlanResult primary;
+  PlanResult taken;
+  const TaskSpec* used = nullptr;
+};
+
+Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, const TaskSpec& task,
+                            const std::vector<const TaskSpec*>& fallbacks, uint64_t seed, SceneClearReport& report) {
+  // Every candidate of a task's plan and why it was rejected (debug log).
+  const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
+    if (!spdlog::should_log(spdlog::level::debug)) return;
+    for (const GraspCandidate& c : plan.plan.candidates) {
+      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}", seed, report.cycles,
+                    t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
+                    c.rejected ? ToString(*c.rejected) : "ok");
+    }
+  };
+  CyclePlan out;
+  PlanRequest request;
+  request.task = task;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto detail = p.PlanDetailed(request, scene);
+  report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  if (!detail.ok()) return detail.status();
+  log_candidates(task, *detail);
+  out.primary = detail->result;
+  out.taken = detail->result;
+  out.used = &task;
+  if (!out.primary.grasps.empty()) return out;
+  for (const TaskSpec* fb : fallbacks) {
+    PlanRequest fb_request;
+    fb_request.task = *fb;
+    const auto t1 = std::chrono::steady_clock::now();
+    auto fb_detail = p.PlanDetailed(fb_request, scene);
+    report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
+    if (!fb_detail.ok()) return fb_detail.status();
+    log_candidates(*fb, *fb_detail);
+    if (!fb_detail->result.grasps.empty()) {
+      out.taken = std::move(fb_detail->result);
+      out.used = fb;
+      break;
+    }
+  }
+  return out;
+}
+
+// A pick judged against the pile as it is now.
+struct PickVerdict {
+  bool success = false;
+  int landed = -1;     // true instance the tool lands on (success: the part taken out)
+  std::string cause;   // failure cause (bin_clearing.h)
+  std::string line;    // the failure, for the report
+};
+
+// The grasp's verdict on one view of the pile: where it lands, and what the
+// swept gripper hits (the bin, another true part), if anything.
+struct Landing {
+  GraspOutcome outcome;
+  std::optional<RejectReason> hit;
+  std::vector<Detection> parts;  // the pile as detections (for the collision report)
+  int target = -1;               // index of the landed part in `parts`
+};
+
+Landing Land(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& grasp, const std::vector<PartTruth>& pile,
+             const GraspJudgeOptions& options) {
+  Landing l;
+  l.outcome = JudgeGrasp(p.model(), used.gripper, grasp, pile, options);
+  for (const PartTruth& t : pile) {
+    if (t.instance_id == l.outcome.truth_instance) l.target = static_cast<int>(l.parts.size());
+    Detection d;
+    d.class_id = t.class_id;
+    d.X_BO = t.X_BO;
+    l.parts.push_back(std::move(d));
+  }
+  l.hit = p.model().CheckAgainstParts(used.gripper, grasp.X_BT, l.parts, l.target);
+  return l;
+}
+
+PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& grasp, int cycle,
+                      const std::vector<PartTruth>& at_capture, const std::vector<PartTruth>& now,
+                      const GraspJudgeOptions& options, SceneClearReport& report) {
+  PickVerdict v;
+  const Landing l = Land(p, used, grasp, now, options);
+  v.landed = l.outcome.truth_instance;
+  if (l.hit) {
+    ++report.truth_collisions;
+    std::string line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
+                       " on instance " + std::to_string(l.outcome.truth_instance) + ": " + std::string(ToString(*l.hit));
+    for (size_t j = 0; j < now.size(); ++j) {
+      if (static_cast<int>(j) == l.target) continue;
+      const Detection pair[] = {l.parts[j]};
+      if (!p.model().CheckAgainstParts(used.gripper, grasp.X_BT, pair, -1)) continue;
+      line += "; hits instance " + std::to_string(now[j].instance_id) + " (" + now[j].class_name + ")";
+    }
+    report.collisions.push_back(std::move(line));
+  }
+  v.success = l.outcome.on_part && !l.hit;
+  if (v.success) return v;
+  // Stale: the pick would have succeeded on the pile as captured; what
+  // changed since (earlier picks of the queue and the resettling) made it fail.
+  const Landing then = Land(p, used, grasp, at_capture, options);
+  const bool stale = then.outcome.on_part && !then.hit;
+  v.cause = stale ? "stale_queue" : l.hit ? "collision" : l.outcome.failure;
+  char detail[200];
+  std::snprintf(detail, sizeof(detail), "%s, %.1f mm / %.1f deg from instance %d's grasp point%s", v.cause.c_str(),
+                1000 * l.outcome.position_error, l.outcome.approach_error * 180 / M_PI, l.outcome.truth_instance,
+                stale ? " (it would have landed on the pile as captured)" : "");
+  v.line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
+           " (detection " + std::to_string(grasp.instance_id) + "): " + detail;
+  return v;
+}
+
+// "instance 7 (l_bracket) at (...) mm: part z axis (...), up is part +y, 83% visible"
+std::string DescribeLeft(const PartTruth& t) {
+  const Vec3 z = t.X_BO.linear().col(2);
+  // The part axis nearest the base frame's up direction: how the part rests.
+  const Vec3 up_O = t.X_BO.linear().transpose() * Vec3::UnitZ();
+  Eigen::Index axis = 0;
+  up_O.cwiseAbs().maxCoeff(&axis);
+  const Vec3 at = 1000.0 * t.X_BO.translation();
+  char line[240];
+  std::snprintf(line, sizeof(line),
+                "instance %d (%s) at (%.0f, %.0f, %.0f) mm: part z axis (%.2f, %.2f, %.2f), up is part %c%c, "
+                "%.0f%% visible",
+                t.instance_id, t.class_name.c_str(), at.x(), at.y(), at.z(), z.x(), z.y(), z.z(),
+                up_O[axis] < 0 ? '-' : '+', static_cast<char>('x' + axis), 100.0 * t.visible_fraction);
+  return line;
+}
+
+Status SaveLeft(const Frame& frame, const std::string& dir, uint64_t seed, SceneClearReport& report) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return Status::Internal("clear: cannot create '" + dir + "': " + ec.message());
+  const std::string path = (std::filesystem::path(dir) / ("clear_seed" + std::to_string(seed) + "_depth.png")).string();
+  if (Status s = WriteDepthPng(frame, path); !s.ok()) return s;
+  if (Status s = WriteGroundTruthJson(frame, CompanionPath(path, "truth.json")); !s.ok()) return s;
+  report.saved_frame = path;
+  return Status::Ok();
+}
+
+}  // namespace
 
 Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::shared_ptr<const Perception> perception,
                                     const ClearOptions& options) {
@@ -35,8 +206,13 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     }
     fallbacks.push_back(fb);
   }
-  auto source = MakeCaptureSource(cell);
+  auto source = MakeSyntheticSource(cell);
   if (!source.ok()) return source.status();
+  // The planner owns the source; clearing reads its pile between picks and
+  // takes out the part a pick really landed on. One thread: no race with the
+  // planner's own use.
+  auto* pile = dynamic_cast<SyntheticSource*>(source->get());
+  if (pile == nullptr) return Status::Internal("clear: the synthetic source is not a SyntheticSource");
   BinPickingPlannerOptions planner_options;
   planner_options.teach_file = "-";  // clearing never teaches
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
@@ -51,134 +227,53 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   PlanResult last;
   std::vector<PartTruth> truth_parts;
   std::optional<Frame> last_frame;  // kept only for save_left_dir
-  for (int cycle = 0;; ++cycle) {
+  GraspQueue queue;
+  for (;;) {
     auto scene = p.Capture(request);
     if (!scene.ok()) return scene.status();
     const Frame& frame = static_cast<const CapturedFrame&>(**scene).frame();
     if (!frame.truth) return Status::Internal("clear: the synthetic frame has no ground truth");
     truth_parts = frame.truth->parts;
     if (!options.save_left_dir.empty()) last_frame = frame;
-    if (cycle == 0) {
+    if (report.cycles == 0) {
       report.parts_placed = static_cast<int>(truth_parts.size());
       if (max_cycles <= 0) max_cycles = 3 * report.parts_placed + 5;
     }
-    const auto t0 = std::chrono::steady_clock::now();
-    auto detail = p.PlanDetailed(request, **scene);
-    report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    if (!detail.ok()) return detail.status();
+    auto cycle = PlanCycle(p, **scene, *task, fallbacks, seed, report);
+    if (!cycle.ok()) return cycle.status();
     ++report.cycles;
-    last = detail->result;
-    // Every candidate of a task's plan and why it was rejected (debug log).
-    const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
-      if (!spdlog::should_log(spdlog::level::debug)) return;
-      for (const GraspCandidate& c : plan.plan.candidates) {
-        spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}", seed, report.cycles,
-                      t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
-                      c.rejected ? ToString(*c.rejected) : "ok");
-      }
-    };
-    log_candidates(*task, *detail);
-    // The task whose grasp is taken: the primary one, else the first
-    // fallback with a grasp on this frame. `last` stays the primary task's
-    // plan: the final empty-box answer is the primary task's.
-    const TaskSpec* used = task;
-    const PlanResult* taken = &last;
-    PlanResult fallback_result;
-    if (last.grasps.empty() && report.cycles < max_cycles) {
-      for (const TaskSpec* fb : fallbacks) {
-        PlanRequest fb_request;
-        fb_request.task = *fb;
-        const auto t1 = std::chrono::steady_clock::now();
-        auto fb_detail = p.PlanDetailed(fb_request, **scene);
-        report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
-        if (!fb_detail.ok()) return fb_detail.status();
-        log_candidates(*fb, *fb_detail);
-        if (!fb_detail->result.grasps.empty()) {
-          used = fb;
-          fallback_result = std::move(fb_detail->result);
-          taken = &fallback_result;
-          break;
-        }
-      }
-    }
-    if (taken->grasps.empty() || report.cycles >= max_cycles) break;
+    last = cycle->primary;
+    if (cycle->taken.grasps.empty() || report.cycles >= max_cycles) break;
 
-    // Judge the first grasp against the true scene.
-    const Grasp& grasp = taken->grasps.front();
-    const int instance = p.TruthInstanceOf(used->id, grasp.instance_id);
-    std::vector<Detection> truth;
-    int target = -1;
-    for (const PartTruth& t : truth_parts) {
-      Detection d;
-      d.class_id = t.class_id;
-      d.X_BO = t.X_BO;
-      if (t.instance_id == instance) target = static_cast<int>(truth.size());
-      truth.push_back(std::move(d));
-    }
-    if (target < 0) ++report.unmatched_picks;
-    if (auto hit = p.model().CheckAgainstParts(used->gripper, grasp.X_BT, truth, target)) {
-      ++report.truth_collisions;
-      std::string line = "cycle " + std::to_string(report.cycles) + ": task " + std::to_string(used->id) + " grasp " +
-                         grasp.name + " on instance " + std::to_string(instance) + ": " + std::string(ToString(*hit));
-      // How far the detection the grasp was planned on is from the truth.
-      const size_t det = static_cast<size_t>(grasp.instance_id);
-      if (target >= 0 && det < taken->parts.size()) {
-        const Pose& est = taken->parts[det].X_BO;
-        const Pose& real = truth[static_cast<size_t>(target)].X_BO;
-        char error[96];
-        std::snprintf(error, sizeof(error), " (its detection is %.1f mm, %.1f deg from the truth)",
-                      1000 * (est.translation() - real.translation()).norm(),
-                      Eigen::AngleAxisd(est.linear().transpose() * real.linear()).angle() * 180 / M_PI);
-        line += error;
+    const TaskSpec& used = *cycle->used;
+    queue.Replace(cycle->taken);
+    for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
+      const PickVerdict v = JudgePick(p, used, *popped.grasp, report.cycles, truth_parts, PileTruth(*pile),
+                                      options.judge, report);
+      ++report.attempts;
+      if (v.success) {
+        ++report.picks;
+        if (&used != task) ++report.fallback_picks;
+        pile->NotifyPicked(v.landed);  // removes it and lets the rest resettle
+      } else {
+        ++report.failed_picks;
+        report.stale_failures += v.cause == "stale_queue" ? 1 : 0;
+        ++report.failure_causes[v.cause];
+        report.failures.push_back(v.line);
       }
-      // Which true part it hits, how much of it the camera saw, and whether
-      // a detection lies within 10 mm of it.
-      for (size_t j = 0; j < truth.size(); ++j) {
-        if (static_cast<int>(j) == target) continue;
-        const Detection pair[] = {truth[j]};
-        if (!p.model().CheckAgainstParts(used->gripper, grasp.X_BT, pair, -1)) continue;
-        bool detected = false;
-        for (const DetectedPart& d : taken->parts) {
-          detected |= (d.X_BO.translation() - truth[j].X_BO.translation()).norm() < 0.01;
-        }
-        char hit_part[160];
-        std::snprintf(hit_part, sizeof(hit_part), "; hits instance %d (%s, %.0f%% visible, %s)",
-                      truth_parts[j].instance_id, truth_parts[j].class_name.c_str(),
-                      100 * truth_parts[j].visible_fraction, detected ? "detected" : "not detected");
-        line += hit_part;
-      }
-      report.collisions.push_back(std::move(line));
+      if (!options.serve_queue) break;
     }
-    p.NotifyHandedOut(*used, grasp);
-    ++report.picks;
-    if (used != task) ++report.fallback_picks;
   }
-  report.parts_left = static_cast<int>(truth_parts.size());
+  // What is left: the pile as it is, with the last capture's visibility.
+  std::vector<PartTruth> left = PileTruth(*pile);
+  for (PartTruth& t : left) {
+    if (const PartTruth* seen = FindInstance(truth_parts, t.instance_id)) t.visible_fraction = seen->visible_fraction;
+  }
+  report.parts_left = static_cast<int>(left.size());
   if (report.parts_left > 0 && last_frame) {
-    std::error_code ec;
-    std::filesystem::create_directories(options.save_left_dir, ec);
-    if (ec) return Status::Internal("clear: cannot create '" + options.save_left_dir + "': " + ec.message());
-    const std::string path =
-        (std::filesystem::path(options.save_left_dir) / ("clear_seed" + std::to_string(seed) + "_depth.png")).string();
-    if (Status s = WriteDepthPng(*last_frame, path); !s.ok()) return s;
-    if (Status s = WriteGroundTruthJson(*last_frame, CompanionPath(path, "truth.json")); !s.ok()) return s;
-    report.saved_frame = path;
+    if (Status s = SaveLeft(*last_frame, options.save_left_dir, seed, report); !s.ok()) return s;
   }
-  for (const PartTruth& t : truth_parts) {
-    const Vec3 z = t.X_BO.linear().col(2);
-    // The part axis nearest the base frame's up direction: how the part rests.
-    const Vec3 up_O = t.X_BO.linear().transpose() * Vec3::UnitZ();
-    Eigen::Index axis = 0;
-    up_O.cwiseAbs().maxCoeff(&axis);
-    const Vec3 at = 1000.0 * t.X_BO.translation();
-    char line[240];
-    std::snprintf(line, sizeof(line),
-                  "instance %d (%s) at (%.0f, %.0f, %.0f) mm: part z axis (%.2f, %.2f, %.2f), up is part %c%c, "
-                  "%.0f%% visible",
-                  t.instance_id, t.class_name.c_str(), at.x(), at.y(), at.z(), z.x(), z.y(), z.z(),
-                  up_O[axis] < 0 ? '-' : '+', static_cast<char>('x' + axis), 100.0 * t.visible_fraction);
-    report.left.push_back(line);
-  }
+  for (const PartTruth& t : left) report.left.push_back(DescribeLeft(t));
   report.final_roi_points = last.roi_points;
   report.final_largest_region = last.largest_region_points;
   report.final_detections = last.detections;
@@ -190,11 +285,14 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
 
 void ClearReport::Add(SceneClearReport scene) {
   parts_placed += scene.parts_placed;
+  attempts += scene.attempts;
   picks += scene.picks;
+  failed_picks += scene.failed_picks;
+  stale_failures += scene.stale_failures;
+  for (const auto& [cause, n] : scene.failure_causes) failure_causes[cause] += n;
   fallback_picks += scene.fallback_picks;
   cycles += scene.cycles;
   truth_collisions += scene.truth_collisions;
-  unmatched_picks += scene.unmatched_picks;
   parts_left += scene.parts_left;
   wrong_empty_answers += scene.wrong_empty_answer ? 1 : 0;
   scenes.push_back(std::move(scene));

@@ -1,17 +1,30 @@
-// Closed-loop bin clearing in simulation (`binpick clear`): render -> detect
-// -> take the first grasp -> remove that part from the pile and let the rest
-// resettle, until the queue is empty; then the empty-box check. Each chosen
-// grasp is judged against GROUND TRUTH (the true part meshes at their true
-// poses and the bin), not against the estimated poses it was planned on.
+// Closed-loop bin clearing in simulation (`binpick clear`), like the seed
+// robot program: capture -> detect -> queue -> take the queue's grasps one by
+// one (or only the first, ClearOptions::serve_queue = false) -> capture
+// again, until a capture gives no grasp; then the empty-box check.
+//
+// Each pick is judged like a robot would experience it, against GROUND TRUTH
+// at the time of the pick (the pile as earlier picks of the same queue left
+// it), not against the estimated poses it was planned on: it succeeds only
+// when the grasp lands on a true part at its grasp point (grasp/grasp_judge.h)
+// and the swept gripper collides with nothing (bin, other true parts). A
+// successful pick removes the part it landed on and the rest resettles; a
+// failed pick removes nothing and is listed with its cause:
+//   stale_queue  the pick would have succeeded on the pile as captured: an
+//                earlier pick of the queue (and the resettling) made it fail;
+//   collision    the gripper hits the bin or another true part;
+//   off_part / approach / no_part   the judge's causes (a wrong pose).
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "core/cell.h"
 #include "core/status.h"
+#include "grasp/grasp_judge.h"
 #include "pipeline/perception.h"
 
 namespace bp {
@@ -31,16 +44,23 @@ struct ClearOptions {
   // `binpick eval --source files:DIR` replays exactly what perception missed.
   // The directory is created when missing.
   std::string save_left_dir;
+  // true: a capture's whole queue is served before the next capture (the
+  // seed robot program: pick poses until NO_OBJECT_FOUND); false: one pick
+  // per capture.
+  bool serve_queue = true;
+  GraspJudgeOptions judge;
 };
 
 struct SceneClearReport {
   uint64_t seed = 0;
   int parts_placed = 0;         // parts in the pile at the start
-  int picks = 0;                // grasps taken
-  int fallback_picks = 0;       // of which planned by a fallback task
-  int cycles = 0;               // captures (one per pick, plus the last one)
-  int truth_collisions = 0;     // chosen grasps colliding with the true scene
-  int unmatched_picks = 0;      // grasps on no true part (a false detection)
+  int attempts = 0;             // grasps taken (picks + failed_picks)
+  int picks = 0;                // successful picks: a part left the bin
+  int failed_picks = 0;         // grasps that took nothing (the part stays)
+  int stale_failures = 0;       // of which failed on a queue made stale by an earlier pick
+  int fallback_picks = 0;       // successful picks planned by a fallback task
+  int cycles = 0;               // captures
+  int truth_collisions = 0;     // grasps colliding with the true scene
   int parts_left = 0;           // true parts in the pile at the end
   bool said_empty = false;      // the empty-box answer at the end
   bool wrong_empty_answer = false;  // EMPTY with parts left, or NOT_EMPTY with none
@@ -51,6 +71,9 @@ struct SceneClearReport {
   std::vector<std::string> left;  // "instance 7 (l_bracket): part z axis (0.00, 1.00, 0.00), 83% visible"
   double plan_ms_total = 0;     // perception + planning over all cycles
   std::vector<std::string> collisions;  // "cycle 3: grasp hub_top@5 on instance 7: part"
+  // Every failed pick: "cycle 3: task 0 grasp run_top@1~v (detection 4): off_part, 7.3 mm / 2.1 deg from instance 9's grasp point"
+  std::vector<std::string> failures;
+  std::map<std::string, int> failure_causes;  // cause -> failed picks
   std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty
 };
 
@@ -58,14 +81,14 @@ struct ClearReport {
   std::vector<SceneClearReport> scenes;
   bool oracle = false;  // detections came from the ground-truth oracle
   // Totals.
-  int parts_placed = 0, picks = 0, fallback_picks = 0, cycles = 0, truth_collisions = 0, unmatched_picks = 0,
-      parts_left = 0, wrong_empty_answers = 0;
+  int parts_placed = 0, attempts = 0, picks = 0, failed_picks = 0, stale_failures = 0, fallback_picks = 0, cycles = 0,
+      truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0;
+  std::map<std::string, int> failure_causes;
   // Appends `scene` and adds it to the totals.
   void Add(SceneClearReport scene);
   double CyclesPerPick() const { return picks > 0 ? static_cast<double>(cycles) / picks : 0.0; }
-  double ClearedFraction() const {
-    return parts_placed > 0 ? 1.0 - static_cast<double>(parts_left) / parts_placed : 1.0;
-  }
+  // Parts taken out by successful picks, over parts placed.
+  double ClearedFraction() const { return parts_placed > 0 ? static_cast<double>(picks) / parts_placed : 1.0; }
 };
 
 // Clears one synthetic scene of `cell` (source forced to synthetic with

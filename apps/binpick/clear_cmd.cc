@@ -1,7 +1,10 @@
-// binpick clear: closed-loop bin clearing on synthetic scenes (issue 4 §6).
-// render -> detect -> take the first grasp -> remove that part and resettle,
-// until the queue is empty; then the empty-box check. Prints one line per
-// scene and a summary; --json writes the whole report.
+// binpick clear: closed-loop bin clearing on synthetic scenes (issue 4 §6,
+// issue 37 §6). render -> detect -> take the queue's grasps like the seed
+// robot program -> each pick judged against the true pile (grasp/bin_clearing.h):
+// a successful one removes its part and the rest resettles, a failed one is
+// listed with its cause; until a capture gives no grasp; then the empty-box
+// check. Prints one line per scene and a summary; --json writes the whole
+// report.
 //
 // --oracle replaces perception with the ground-truth oracle (TruthPerception):
 // the numbers then measure grasp planning and the loop, NOT perception, and
@@ -34,6 +37,8 @@ struct ClearCliOptions {
   int task_id = 0;
   std::vector<int> fallback_task_ids;
   std::string save_left_dir;
+  bool capture_every_pick = false;
+  bool variety = false;
 };
 
 int Error(const Status& s) {
@@ -54,11 +59,14 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
   for (const SceneClearReport& s : r.scenes) {
     scenes.push_back({{"seed", s.seed},
                       {"parts", s.parts_placed},
+                      {"attempts", s.attempts},
                       {"picks", s.picks},
+                      {"failed_picks", s.failed_picks},
+                      {"stale_failures", s.stale_failures},
+                      {"failure_causes", s.failure_causes},
                       {"fallback_picks", s.fallback_picks},
                       {"cycles", s.cycles},
                       {"truth_collisions", s.truth_collisions},
-                      {"unmatched_picks", s.unmatched_picks},
                       {"parts_left", s.parts_left},
                       {"empty_answer", s.said_empty ? "EMPTY" : "NOT_EMPTY"},
                       {"wrong_empty_answer", s.wrong_empty_answer},
@@ -68,18 +76,22 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"final_outcome", s.final_outcome},
                       {"plan_ms_total", s.plan_ms_total},
                       {"collisions", s.collisions},
+                      {"failures", s.failures},
                       {"saved_frame", s.saved_frame},
                       {"left", s.left}});
   }
   j["scenes"] = scenes;
   j["total"] = {{"scenes", r.scenes.size()},
                 {"parts", r.parts_placed},
+                {"attempts", r.attempts},
                 {"picks", r.picks},
+                {"failed_picks", r.failed_picks},
+                {"stale_failures", r.stale_failures},
+                {"failure_causes", r.failure_causes},
                 {"fallback_picks", r.fallback_picks},
                 {"cycles", r.cycles},
                 {"cycles_per_pick", r.CyclesPerPick()},
                 {"truth_collisions", r.truth_collisions},
-                {"unmatched_picks", r.unmatched_picks},
                 {"parts_left", r.parts_left},
                 {"cleared_fraction", r.ClearedFraction()},
                 {"wrong_empty_answers", r.wrong_empty_answers}};
@@ -90,6 +102,7 @@ int Run(const ClearCliOptions& opt) {
   if (const char* level = std::getenv("BINPICK_LOG_LEVEL")) spdlog::set_level(spdlog::level::from_str(level));
   Result<Cell> cell = LoadCellOrDefault(opt.cell_path);
   if (!cell.ok()) return Error(cell.status());
+  if (opt.variety && !cell->source.variety) cell->source.variety = VarietySpec{};
   std::shared_ptr<const Perception> perception;
   if (opt.oracle) {
     perception = std::make_shared<TruthPerception>(*cell);
@@ -103,6 +116,7 @@ int Run(const ClearCliOptions& opt) {
   options.task_id = opt.task_id;
   options.fallback_task_ids = opt.fallback_task_ids;
   options.save_left_dir = opt.save_left_dir;
+  options.serve_queue = !opt.capture_every_pick;
   ClearReport report;
   report.oracle = opt.oracle;
   for (int i = 0; i < opt.scenes; ++i) {
@@ -110,23 +124,28 @@ int Run(const ClearCliOptions& opt) {
     auto scene = ClearScene(*cell, seed, perception, options);
     if (!scene.ok()) return Error(scene.status());
     const SceneClearReport& s = *scene;
-    std::printf("scene seed=%llu: %d parts, %d picks (%d by a fallback task), %d cycles, %d truth collisions, "
-                "%d unmatched, %d left, %s%s, %.0f ms planning%s\n",
-                static_cast<unsigned long long>(seed), s.parts_placed, s.picks, s.fallback_picks, s.cycles,
-                s.truth_collisions, s.unmatched_picks, s.parts_left, s.said_empty ? "EMPTY" : "NOT_EMPTY",
+    std::printf("scene seed=%llu: %d parts, %d picks (%d by a fallback task), %d failed (%d stale), %d cycles, "
+                "%d truth collisions, %d left, %s%s, %.0f ms planning%s\n",
+                static_cast<unsigned long long>(seed), s.parts_placed, s.picks, s.fallback_picks, s.failed_picks,
+                s.stale_failures, s.cycles, s.truth_collisions, s.parts_left, s.said_empty ? "EMPTY" : "NOT_EMPTY",
                 s.wrong_empty_answer ? " (WRONG)" : "", s.plan_ms_total, tag);
     for (const std::string& c : s.collisions) std::printf("  collision: %s\n", c.c_str());
+    for (const std::string& f : s.failures) std::printf("  failed pick: %s\n", f.c_str());
     if (s.parts_left > 0) std::printf("  last plan: %s\n", s.final_outcome.c_str());
     for (const std::string& l : s.left) std::printf("  left: %s\n", l.c_str());
     if (!s.saved_frame.empty()) std::printf("  saved: %s\n", s.saved_frame.c_str());
     report.Add(std::move(*scene));
     std::fflush(stdout);
   }
-  std::printf("total: %zu scenes, %d parts, %d picks (%d by a fallback task), %.2f cycles/pick, %d truth collisions, "
-              "%d unmatched, %d left (%.2f%% cleared), %d wrong empty answers%s\n",
-              report.scenes.size(), report.parts_placed, report.picks, report.fallback_picks, report.CyclesPerPick(),
-              report.truth_collisions, report.unmatched_picks, report.parts_left, 100.0 * report.ClearedFraction(),
-              report.wrong_empty_answers, tag);
+  std::string causes;
+  for (const auto& [cause, n] : report.failure_causes) causes += (causes.empty() ? " (" : ", ") + cause + " " + std::to_string(n);
+  if (!causes.empty()) causes += ")";
+  std::printf("total: %zu scenes, %d parts, %d successful picks (%d by a fallback task), %d failed picks%s, "
+              "%.2f cycles/pick, %d truth collisions, %d left (%.2f%% cleared by successful picks), "
+              "%d wrong empty answers%s\n",
+              report.scenes.size(), report.parts_placed, report.picks, report.fallback_picks, report.failed_picks,
+              causes.c_str(), report.CyclesPerPick(), report.truth_collisions, report.parts_left,
+              100.0 * report.ClearedFraction(), report.wrong_empty_answers, tag);
   if (!opt.json_out.empty()) {
     std::ofstream out(opt.json_out);
     out << ToJson(report).dump(2) << "\n";
@@ -155,6 +174,11 @@ Command ClearCommand() {
     sub.add_option("--save-left", opt->save_left_dir,
                    "write the last frame of every scene that ends with parts left to this directory (depth PNG, "
                    "intrinsics, ground truth), for `binpick eval --source files:DIR`");
+    sub.add_flag("--variety", opt->variety,
+                 "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "
+                 "source.variety, else the defaults; docs/synthetic.md)");
+    sub.add_flag("--capture-every-pick", opt->capture_every_pick,
+                 "capture again after every pick instead of serving the whole queue first");
     sub.add_flag("--oracle", opt->oracle,
                  "use ground-truth detections instead of perception (does NOT measure perception)");
     return [opt] { return Run(*opt); };
