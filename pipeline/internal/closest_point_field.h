@@ -68,7 +68,7 @@ class ClosestPointField {
   // (1 KB of 16-bit indices) where row-major order put them in four cache
   // lines on pages about 30 KB apart. ICP's lookups are cache misses; the
   // bricks made `BM_PerceptionRun` 640x480 about 7% faster (4^3 bricks
-  // about 6%), with the same lookups (docs/perception.md, "Refinement").
+  // about 6%), with the same lookups (docs/perception.md, "ICP").
   static constexpr int kBrickBits = 3, kBrick = 1 << kBrickBits;
   // The part of a voxel's storage index that its coordinate c along axis a
   // gives: brick stride times c / kBrick plus the within-brick stride times

@@ -19,15 +19,9 @@ constexpr double kDeg = M_PI / 180.0;
 // (merged within kFaceEdgeMergeDeg, modulo 90 deg).
 constexpr int kFaceEdgeDirections = 2;
 constexpr double kFaceEdgeMergeDeg = 5.0;
-// Face seeds are ranked by a verification of every this-many-th sample
-// (measured: 6 ranks as well as 3 on seeds 1-70, at half the cost), after a
-// screen of every kFaceSeedScreenStride-th sample has kept the best
-// kFaceSeedsScreened. Measured (all 130 scenes of
-// docs/perception_pipeline.md, 2026-12-03): the same detections as ranking
-// every seed at stride 6, for half the face seeds' time (seeds 11-40: 294
-// -> 141 ms over the 30 frames); on the held-out 30 one true L-bracket
-// detection fewer (a part under half visible: 490 / 494 -> 489 / 493); keeping 4 lost 3 true positives, a screen
-// at stride 48 lost recall (seeds 11-40: 0.952 -> 0.946).
+// Face seeds are ranked by a verification of every kFaceSeedStride-th
+// sample, after a screen of every kFaceSeedScreenStride-th sample has kept
+// the best kFaceSeedsScreened (docs/tuning.md, face_seeds).
 constexpr int kFaceSeedStride = 6;
 constexpr int kFaceSeedScreenStride = 24;
 constexpr size_t kFaceSeedsScreened = 6;

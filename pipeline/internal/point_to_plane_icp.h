@@ -42,15 +42,9 @@ struct IcpOptions {
   int shrink_iterations = 0;
   int min_correspondences = 12;
   // Stop once an iteration (at the final gate) changes the point-to-plane
-  // residuals and the boundary residuals each by less than this RMS, metres.
-  // The discrete closest points make the last iterations cycle with changes
-  // of 3-40 um; the earlier limit on the step itself (1 um / 0.0006 deg) was
-  // reached by 41% of fine passes only, the rest ran all 30 iterations.
-  // Measured with 20 um (`binpick eval`, seeds 1-10 / 11-40 / 41-70): 9.7
-  // instead of 21 iterations per fine pass, total median 75 / 73 / 81 ms
-  // instead of 86 / 83 / 88; recall 0.883 / 0.890 / 0.868 instead of
-  // 0.883 / 0.892 / 0.870, precision 0.981 / 0.966 / 0.969 instead of
-  // 0.987 / 0.968 / 0.969; median errors unchanged (0.04 mm, 0.05 deg).
+  // residuals and the boundary residuals each by less than this RMS, metres
+  // (> 0). A limit on the residuals, not the step: the discrete closest
+  // points make the last iterations cycle with steps of 3-40 um.
   float convergence = 2e-5f;
   // Optional per-scene-point flags (1 = on the boundary of the segment's
   // surface). A boundary point whose closest model sample lies at a convex

@@ -1,5 +1,5 @@
 // What PoseEstimator::Build derives from a part's mesh, read by every step of
-// an estimate (docs/perception.md, "Model"). Built once, then read
+// an estimate (docs/perception.md). Built once, then read
 // concurrently. Private to bp_pipeline. Frames: O part, B base. Metres.
 #pragma once
 

@@ -146,9 +146,7 @@ void AppendRestingSeeds(const PoseModel& m, std::span<const Eigen::Vector3f> sce
   // kRestTopBand of its top height (the 97th percentile, past outliers) are
   // laid over the part's samples within kRestTopBand of its top. The top is
   // what the camera sees whole; the segment's centre moves with the side
-  // faces an off-centre camera also sees (measured on 36 L-brackets lying on
-  // their side or standing, up to 17 cm off the optical axis: 6 not found
-  // with this centring, 7 with the segment's centre).
+  // faces an off-centre camera also sees.
   std::vector<float> sorted = heights;
   const size_t q = std::min(sorted.size() - 1, static_cast<size_t>(0.97 * static_cast<double>(sorted.size())));
   std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(q), sorted.end());
@@ -164,8 +162,8 @@ void AppendRestingSeeds(const PoseModel& m, std::span<const Eigen::Vector3f> sce
   top_mean /= static_cast<float>(std::max(1, top_count));
   const Eigen::Vector3f top_in_plane = u * top_mean.x() + v * top_mean.y();
   // A part leaning on a neighbour or a wall rests a few degrees off the floor
-  // (measured in cleared piles: L-brackets on their side tilted 3-9 deg,
-  // which ICP from a flat seed did not recover on 5 mm edges). The mean
+  // (3-9 deg in cleared piles), which ICP from a flat seed does not recover
+  // on thin edges. The mean
   // normal of the segment's upward faces (within kTiltedFaceDeg of the floor
   // normal) gives the tilt; above kMinSeedTiltDeg, every seed gets a tilted
   // copy whose upward faces' centroid sits on the segment's.

@@ -1,6 +1,6 @@
 // Perception's segmentation stages: the ROI's points -> connected regions and
 // segments -> the views the pose search matches (docs/perception_pipeline.md,
-// "Segmentation"). Private to bp_pipeline. Frames: B base, W bin. SI units.
+// "Stages"). Private to bp_pipeline. Frames: B base, W bin. SI units.
 //
 // Organized frames run on a grid of every stride-th pixel:
 //   LabelGrid          (stage "regions"): normals, connected regions, segments
