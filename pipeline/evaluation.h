@@ -59,8 +59,10 @@ double AddSDistance(std::span<const Eigen::Vector3f> points_O, const Pose& X_BO_
 // onto every true part of `class_id` under every symmetry element g (revolute
 // axes: the best angle, exactly): position error |t(X_BT) - X_BO g p_O| and
 // approach error angle(z of X_BT, R_BO g a_O). @returns the part and element
-// with the smallest position error (ties: the smaller approach error);
-// truth_instance -1 when no part of the class is in `parts`.
+// with the smallest position error + 10 mm per radian of approach error (so a
+// copy across a symmetry axis approached from the other side is not chosen for
+// being a little nearer); truth_instance -1 when no part of the class is in
+// `parts`.
 struct GraspLanding {
   int truth_instance = -1;
   double position_error = 0.0;  // metres

@@ -195,5 +195,23 @@ TEST(GraspLandingOnTruth, IsExactModuloSymmetryAndMeasuresTheOffset) {
   EXPECT_EQ(LandOnTruth(Pose::Identity(), Vec3::Zero(), Vec3::UnitZ(), kBracket, none, {}).truth_instance, -1);
 }
 
+// A grasp point 1 mm from a 2-fold axis, the tool 3 mm off it towards the copy
+// across the axis: that copy is nearer (1.6 mm) but approached 60 deg from the
+// other side, so the landing is measured against the grasp itself.
+TEST(GraspLandingOnTruth, PrefersTheCopyApproachedFromTheSameSideNearAnAxis) {
+  Symmetry discrete;
+  discrete.kind = Symmetry::Kind::kDiscrete;
+  discrete.order = 2;
+  const Pose X_BO = Rotated(Vec3(0.7, 0, 0.05), Vec3::UnitZ(), 0);
+  const Pose X_OG = Rotated(Vec3(0.001, 0, 0.01), Vec3::UnitY(), 150);
+  const std::vector<PartTruth> parts = {Truth(3, kTee, X_BO)};
+  const Pose moved = X_BO * X_OG * Rotated(Vec3(0.003, 0, 0), Vec3::UnitY(), 7);
+  const GraspLanding off =
+      LandOnTruth(moved, X_OG.translation(), X_OG.linear().col(2), kTee, discrete, parts);
+  EXPECT_EQ(off.truth_instance, 3);
+  EXPECT_NEAR(off.position_error, 0.003, 1e-9);
+  EXPECT_NEAR(off.approach_error, 7 * kDeg, 1e-6);
+}
+
 }  // namespace
 }  // namespace bp
