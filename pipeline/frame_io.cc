@@ -15,6 +15,8 @@
 #include <map>
 #include <sstream>
 #include <system_error>
+#include <utility>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -159,9 +161,18 @@ Status WriteJson(const OrderedJson& j, const std::string& path) {
 struct Sidecar {
   std::optional<Intrinsics> intrinsics;  // absent for unorganized clouds
   double depth_scale = kDepthPngScale;
-  Pose X_BC = Pose::Identity();
+  std::optional<Pose> X_BC;              // absent: the caller's default
   int64_t timestamp_ns = 0;
+  std::optional<std::string> unit;       // clouds: "m", "cm" or "mm"
 };
+
+// Metres per unit of a cloud's coordinates ("unit" in the sidecar).
+std::optional<double> MetresPerUnit(const std::string& unit) {
+  if (unit == "m") return 1.0;
+  if (unit == "cm") return 0.01;
+  if (unit == "mm") return 0.001;
+  return std::nullopt;
+}
 
 Status WriteSidecar(const Frame& frame, bool with_intrinsics, std::optional<double> depth_scale,
                     const std::string& data_path) {
@@ -229,6 +240,12 @@ Result<Sidecar> ReadSidecarUnnamed(const std::string& sidecar_path) {
       s.X_BC = *X;
     }
     if (j->contains("timestamp_ns")) s.timestamp_ns = j->at("timestamp_ns").get<int64_t>();
+    if (j->contains("unit")) {
+      s.unit = j->at("unit").get<std::string>();
+      if (!MetresPerUnit(*s.unit)) {
+        return Status::InvalidArgument(where + "unit '" + s.unit->substr(0, 16) + "' is not m, cm or mm");
+      }
+    }
     return s;
   } catch (const std::exception& e) {
     return Status::Corruption(where + "bad sidecar: " + e.what());
@@ -286,8 +303,7 @@ Status RequireValidPoints(const Frame& frame, const std::string& path) {
   return Status::Ok();
 }
 
-Result<Frame> LoadDepthPng(const std::string& path, const Pose& X_BC_default) {
-  (void)X_BC_default;  // the sidecar is required, and it carries X_BC
+Result<Frame> LoadDepthPng(const std::string& path, const Pose& X_BC_default, FrameFileInfo& info) {
   auto m = ReadGreyPng(path, CV_16U);
   if (!m.ok()) return m.status();
   const std::string sidecar_path = IntrinsicsSidecarPath(path);
@@ -306,10 +322,18 @@ Result<Frame> LoadDepthPng(const std::string& path, const Pose& X_BC_default) {
                               std::to_string(m->rows) + " but its sidecar says " + std::to_string(K.width) +
                               "x" + std::to_string(K.height));
   }
+  if (sidecar->unit) {
+    return Status::InvalidArgument(Quote(sidecar_path) + ": \"unit\" is for clouds; a depth PNG's unit is its "
+                                   "\"depth_scale\" (metres per count)");
+  }
   Frame frame;
   frame.intrinsics = K;
-  frame.X_BC = sidecar->X_BC;
+  frame.X_BC = sidecar->X_BC.value_or(X_BC_default);
   frame.timestamp_ns = sidecar->timestamp_ns;
+  info.has_sidecar = true;
+  info.X_BC_known = sidecar->X_BC.has_value();
+  info.width = K.width;
+  info.height = K.height;
   frame.depth = DepthImage(K.width, K.height, std::numeric_limits<float>::quiet_NaN());
   const double scale = sidecar->depth_scale;
   for (int v = 0; v < K.height; ++v) {
@@ -338,26 +362,88 @@ bool MatchesPinhole(const pcl::PointCloud<pcl::PointXYZ>& cloud, const Intrinsic
   return true;
 }
 
-// x, y, z of a parsed PCD blob, every byte range checked against the data:
-// PCL's own conversion (fromPCLPointCloud2) trusts the header, and a hostile
-// one made it read past the data (found by fuzz/pcd_fuzz).
-Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
+// PCD's TYPE and SIZE of a field's datatype ("F 4"), PLY's type word ("float").
+std::string PcdType(uint8_t datatype) {
+  switch (datatype) {
+    case pcl::PCLPointField::INT8: return "TYPE I SIZE 1";
+    case pcl::PCLPointField::UINT8: return "TYPE U SIZE 1";
+    case pcl::PCLPointField::INT16: return "TYPE I SIZE 2";
+    case pcl::PCLPointField::UINT16: return "TYPE U SIZE 2";
+    case pcl::PCLPointField::INT32: return "TYPE I SIZE 4";
+    case pcl::PCLPointField::UINT32: return "TYPE U SIZE 4";
+    case pcl::PCLPointField::FLOAT32: return "TYPE F SIZE 4";
+    case pcl::PCLPointField::FLOAT64: return "TYPE F SIZE 8";
+    default: return "an unknown type";
+  }
+}
+
+// A cloud file's format, for messages and FrameFileInfo.
+enum class CloudFormat { kPcd, kPly };
+const char* FormatName(CloudFormat f) { return f == CloudFormat::kPcd ? "PCD" : "PLY"; }
+
+// The points of a parsed cloud file, in its own frame F (before the sidecar's
+// unit and the PCD VIEWPOINT are applied).
+struct CloudData {
+  pcl::PointCloud<pcl::PointXYZ> cloud;  // width x height as stored, NaNs in place
+  Pose X_FS = Pose::Identity();          // PCD VIEWPOINT: the sensor in F
+  bool viewpoint_set = false;
+};
+
+// Checks that x, y, z are one float32 or float64 each. Errors name the format
+// and the field: PCD "field 'x' is TYPE U SIZE 1", PLY "property 'x' is uchar"
+// (`ply_types`: each vertex property's type word as the header gives it).
+Status CheckCoordinateFields(const pcl::PCLPointCloud2& blob, const std::string& path, CloudFormat format,
+                             const std::map<std::string, std::string>& ply_types, FrameFileInfo& info) {
+  std::array<bool, 3> found{};
+  bool float64 = false;
+  info.extra_fields.clear();
+  for (const auto& f : blob.fields) {
+    const int axis = f.name == "x" ? 0 : f.name == "y" ? 1 : f.name == "z" ? 2 : -1;
+    if (axis < 0) {
+      if (f.name != "_") info.extra_fields.push_back(f.name);  // "_": PCL's padding
+      continue;
+    }
+    const bool is_float = f.datatype == pcl::PCLPointField::FLOAT32 || f.datatype == pcl::PCLPointField::FLOAT64;
+    if (!is_float || f.count != 1) {
+      if (format == CloudFormat::kPly) {
+        const auto t = ply_types.find(f.name);
+        const std::string type = t != ply_types.end() ? t->second : PcdType(f.datatype);
+        return Status::InvalidArgument(Quote(path) + ": PLY property '" + f.name + "' is " + type +
+                                       "; coordinates must be float or double");
+      }
+      return Status::InvalidArgument(Quote(path) + ": PCD field '" + f.name + "' is " + PcdType(f.datatype) +
+                                     " COUNT " + std::to_string(f.count) +
+                                     "; coordinates must be TYPE F SIZE 4 or 8, COUNT 1");
+    }
+    float64 = float64 || f.datatype == pcl::PCLPointField::FLOAT64;
+    found[static_cast<size_t>(axis)] = true;
+  }
+  if (!found[0] || !found[1] || !found[2]) {
+    return Status::Corruption(Quote(path) + ": " + FormatName(format) + " has no x, y, z " +
+                              (format == CloudFormat::kPly ? "vertex properties" : "fields"));
+  }
+  info.coordinates = float64 ? "float64" : "float32";
+  return Status::Ok();
+}
+
+// x, y, z of a parsed blob (float32 or float64, checked by
+// CheckCoordinateFields), every byte range checked against the data: PCL's
+// own conversion (fromPCLPointCloud2) trusts the header, and a hostile one
+// made it read past the data (found by fuzz/pcd_fuzz).
+Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path, CloudFormat format,
                  pcl::PointCloud<pcl::PointXYZ>& cloud) {
   std::array<uint32_t, 3> offset{};
-  std::array<bool, 3> found{};
+  std::array<bool, 3> is_double{};
   for (const auto& f : blob.fields) {
     const int axis = f.name == "x" ? 0 : f.name == "y" ? 1 : f.name == "z" ? 2 : -1;
     if (axis < 0) continue;
-    if (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1) {
-      return Status::Corruption(Quote(path) + ": field '" + f.name + "' is not one float32 (PCD: SIZE 4, TYPE F, COUNT 1)");
-    }
     offset[static_cast<size_t>(axis)] = f.offset;
-    found[static_cast<size_t>(axis)] = true;
+    is_double[static_cast<size_t>(axis)] = f.datatype == pcl::PCLPointField::FLOAT64;
   }
-  if (!found[0] || !found[1] || !found[2]) return Status::Corruption(Quote(path) + ": no x, y, z fields");
   const uint64_t w = blob.width, h = blob.height;
   if (w * h == 0 || w * h > kMaxPcdPoints) {
-    return Status::Corruption(Quote(path) + ": " + std::to_string(w) + "x" + std::to_string(h) + " points");
+    return Status::Corruption(Quote(path) + ": " + FormatName(format) + " has " + std::to_string(w) + "x" +
+                              std::to_string(h) + " points");
   }
   cloud.clear();
   cloud.width = static_cast<uint32_t>(w);
@@ -371,10 +457,18 @@ Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
       float* out[3] = {&p.x, &p.y, &p.z};
       for (size_t a = 0; a < 3; ++a) {
         const uint64_t at = base + offset[a];
-        if (at + sizeof(float) > blob.data.size()) {
-          return Status::Corruption(Quote(path) + ": data ends before point " + std::to_string(r * w + c));
+        const size_t bytes = is_double[a] ? sizeof(double) : sizeof(float);
+        if (at + bytes > blob.data.size()) {
+          return Status::Corruption(Quote(path) + ": " + FormatName(format) + " data ends before point " +
+                                    std::to_string(r * w + c));
         }
-        std::memcpy(out[a], blob.data.data() + at, sizeof(float));
+        if (is_double[a]) {
+          double d;
+          std::memcpy(&d, blob.data.data() + at, sizeof(double));
+          *out[a] = static_cast<float>(d);
+        } else {
+          std::memcpy(out[a], blob.data.data() + at, sizeof(float));
+        }
       }
     }
   }
@@ -389,7 +483,8 @@ Status BlobToXyz(const pcl::PCLPointCloud2& blob, const std::string& path,
 // binary | binary_compressed; FIELDS, SIZE, TYPE (and COUNT) of one length;
 // WIDTH x HEIGHT = POINTS; the declared data at most 64 times the file
 // (binary_compressed's bound; ascii and binary are far below).
-Status CheckPcdHeader(const std::string& path) {
+// `fields` gets the FIELDS line's names.
+Status CheckPcdHeader(const std::string& path, std::vector<std::string>* fields) {
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
   const uint64_t file_size = fs::file_size(path, ec);
@@ -449,88 +544,124 @@ Status CheckPcdHeader(const std::string& path) {
   if (keys["POINTS"].size() != 1 || !number(keys["POINTS"][0], points)) return bad("bad POINTS");
   if (width > (1u << 30) || height > (1u << 30) || width * height != points) return bad("WIDTH x HEIGHT is not POINTS");
   if (points * point_step > 64 * file_size + 4096) return bad("declares more data than the file can hold");
+  *fields = keys["FIELDS"];
   return Status::Ok();
 }
 
-Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
+// Checks PCL's parse of a PCD header against what its reader will do with
+// the data. PCL trusts SIZE / TYPE / COUNT: a field that does not fit in its
+// point made its conversion read past the data; it checks WIDTH x HEIGHT
+// against POINTS in 32 bits, so a product that wraps passed and its
+// conversion then indexed an empty cloud (both found by fuzz/pcd_fuzz).
+Status CheckParsedPcdHeader(const pcl::PCLPointCloud2& header, int data_type, unsigned int data_idx,
+                            const std::string& path) {
+  for (const auto& f : header.fields) {
+    size_t bytes = 0;
+    switch (f.datatype) {
+      case pcl::PCLPointField::INT8: case pcl::PCLPointField::UINT8: bytes = 1; break;
+      case pcl::PCLPointField::INT16: case pcl::PCLPointField::UINT16: bytes = 2; break;
+      case pcl::PCLPointField::INT32: case pcl::PCLPointField::UINT32:
+      case pcl::PCLPointField::FLOAT32: bytes = 4; break;
+      case pcl::PCLPointField::FLOAT64: bytes = 8; break;
+      default: break;
+    }
+    if (bytes == 0 || f.count == 0 ||
+        static_cast<uint64_t>(f.offset) + static_cast<uint64_t>(bytes) * f.count > header.point_step) {
+      return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
+                                "' does not fit its point (SIZE, TYPE, COUNT disagree)");
+    }
+  }
+  // Zero points: PCL's conversion would take &cloud[0] of an empty cloud.
+  const uint64_t points = static_cast<uint64_t>(header.width) * header.height;
+  if (points == 0) return Status::Corruption(Quote(path) + ": PCD declares no points");
+  if (points > kMaxPcdPoints) {
+    return Status::Corruption(Quote(path) + ": PCD header says " + std::to_string(header.width) + "x" +
+                              std::to_string(header.height) + " points, more than " + std::to_string(kMaxPcdPoints));
+  }
+  // Binary data must fill width * height points; PCL checks this too, but
+  // its message goes to stderr.
+  if (data_type == 1) {
+    const uintmax_t need = static_cast<uintmax_t>(data_idx) + points * header.point_step;
+    std::error_code ec;
+    const uintmax_t have = fs::file_size(path, ec);
+    if (have < need) {
+      return Status::Corruption(Quote(path) + ": truncated PCD: " + std::to_string(have) + " bytes, header needs " +
+                                std::to_string(need));
+    }
+  }
+  return Status::Ok();
+}
+
+Result<CloudData> ReadPcd(const std::string& path, FrameFileInfo& info) {
   const std::string head = ReadHead(path, 64);
   if (!(head.rfind("#", 0) == 0 || head.rfind("VERSION", 0) == 0 || head.rfind("FIELDS", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PCD file (bad magic)");
   }
-  if (Status s = CheckPcdHeader(path); !s.ok()) return s;
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  {
-    QuietPcl quiet;
-    pcl::PCDReader reader;
-    pcl::PCLPointCloud2 header;
-    Eigen::Vector4f origin;
-    Eigen::Quaternionf orientation;
-    int pcd_version = 0, data_type = 0;
-    unsigned int data_idx = 0;
-    if (reader.readHeader(path, header, origin, orientation, pcd_version, data_type, data_idx) < 0) {
-      return Status::Corruption(Quote(path) + ": bad PCD header");
-    }
-    bool has[3] = {false, false, false};
-    for (const auto& f : header.fields) {
-      if (f.name == "x") has[0] = true;
-      if (f.name == "y") has[1] = true;
-      if (f.name == "z") has[2] = true;
-    }
-    if (!has[0] || !has[1] || !has[2]) return Status::Corruption(Quote(path) + ": PCD has no x, y, z fields");
-    // PCL trusts SIZE / TYPE / COUNT: a field that does not fit in its point
-    // made its conversion read past the data (found by fuzz/pcd_fuzz).
-    for (const auto& f : header.fields) {
-      size_t bytes = 0;
-      switch (f.datatype) {
-        case pcl::PCLPointField::INT8: case pcl::PCLPointField::UINT8: bytes = 1; break;
-        case pcl::PCLPointField::INT16: case pcl::PCLPointField::UINT16: bytes = 2; break;
-        case pcl::PCLPointField::INT32: case pcl::PCLPointField::UINT32:
-        case pcl::PCLPointField::FLOAT32: bytes = 4; break;
-        case pcl::PCLPointField::FLOAT64: bytes = 8; break;
-        default: break;
-      }
-      if (bytes == 0 || f.count == 0 ||
-          static_cast<uint64_t>(f.offset) + static_cast<uint64_t>(bytes) * f.count > header.point_step) {
-        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
-                                  "' does not fit its point (SIZE, TYPE, COUNT disagree)");
-      }
-      if ((f.name == "x" || f.name == "y" || f.name == "z") &&
-          (f.datatype != pcl::PCLPointField::FLOAT32 || f.count != 1)) {
-        return Status::Corruption(Quote(path) + ": PCD field '" + f.name +
-                                  "' is not one float32 (SIZE 4, TYPE F, COUNT 1)");
-      }
-    }
-    // PCL checks WIDTH x HEIGHT against POINTS in 32 bits, so a product that
-    // wraps passes and its conversion then indexes an empty cloud (found by
-    // fuzz/pcd_fuzz). Checked here in 64 bits.
-    // Zero points: PCL's conversion would take &cloud[0] of an empty cloud.
-    const uint64_t points = static_cast<uint64_t>(header.width) * header.height;
-    if (points == 0) return Status::Corruption(Quote(path) + ": PCD declares no points");
-    if (points > kMaxPcdPoints) {
-      return Status::Corruption(Quote(path) + ": PCD header says " + std::to_string(header.width) + "x" +
-                                std::to_string(header.height) + " points, more than " +
-                                std::to_string(kMaxPcdPoints));
-    }
-    // Binary data must fill width * height points; PCL checks this too, but
-    // its message goes to stderr.
-    if (data_type == 1) {
-      const uintmax_t need = static_cast<uintmax_t>(data_idx) +
-                             static_cast<uintmax_t>(header.width) * header.height * header.point_step;
-      std::error_code ec;
-      const uintmax_t have = fs::file_size(path, ec);
-      if (have < need) {
-        return Status::Corruption(Quote(path) + ": truncated PCD: " + std::to_string(have) + " bytes, header needs " +
-                                  std::to_string(need));
-      }
-    }
-    pcl::PCLPointCloud2 blob;
-    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
-    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
+  std::vector<std::string> fields;
+  if (Status s = CheckPcdHeader(path, &fields); !s.ok()) return s;
+  QuietPcl quiet;
+  pcl::PCDReader reader;
+  pcl::PCLPointCloud2 header;
+  Eigen::Vector4f origin;
+  Eigen::Quaternionf orientation;
+  int pcd_version = 0, data_type = 0;
+  unsigned int data_idx = 0;
+  if (reader.readHeader(path, header, origin, orientation, pcd_version, data_type, data_idx) < 0) {
+    return Status::Corruption(Quote(path) + ": bad PCD header");
   }
-  if (cloud.size() != static_cast<size_t>(cloud.width) * cloud.height) {
-    return Status::Corruption(Quote(path) + ": PCD has " + std::to_string(cloud.size()) + " points, header says " +
-                              std::to_string(cloud.width) + "x" + std::to_string(cloud.height));
+  info.encoding = data_type == 0 ? "ascii" : data_type == 1 ? "binary" : "binary_compressed";
+  if (Status s = CheckCoordinateFields(header, path, CloudFormat::kPcd, {}, info); !s.ok()) return s;
+  if (Status s = CheckParsedPcdHeader(header, data_type, data_idx, path); !s.ok()) return s;
+  // The FIELDS line's names (PCL's header drops some, e.g. rgba).
+  info.extra_fields.clear();
+  for (const std::string& name : fields) {
+    if (name != "x" && name != "y" && name != "z" && name != "_") info.extra_fields.push_back(name);
   }
+  CloudData data;
+  pcl::PCLPointCloud2 blob;
+  if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PCD data (truncated?)");
+  if (Status s = BlobToXyz(blob, path, CloudFormat::kPcd, data.cloud); !s.ok()) return s;
+  if (data.cloud.size() != static_cast<size_t>(data.cloud.width) * data.cloud.height) {
+    return Status::Corruption(Quote(path) + ": PCD has " + std::to_string(data.cloud.size()) + " points, header says " +
+                              std::to_string(data.cloud.width) + "x" + std::to_string(data.cloud.height));
+  }
+  // VIEWPOINT tx ty tz qw qx qy qz: the sensor's pose in the cloud's frame.
+  const Quat q = orientation.cast<double>();
+  if (!origin.head<3>().allFinite() || !q.coeffs().allFinite() || std::abs(q.norm() - 1.0) > 1e-3) {
+    return Status::Corruption(Quote(path) + ": PCD VIEWPOINT is not a position and a unit quaternion");
+  }
+  data.X_FS = MakePose(q.normalized(), origin.head<3>().cast<double>());
+  data.viewpoint_set = !origin.head<3>().isZero() || q.w() != 1.0;
+  return data;
+}
+
+// Median distance of the finite points from the origin (a sample of at most
+// 10000 points), 0 for none.
+double MedianRange(const pcl::PointCloud<pcl::PointXYZ>& cloud) {
+  const size_t step = std::max<size_t>(1, cloud.size() / 10000);
+  std::vector<float> r;
+  for (size_t i = 0; i < cloud.size(); i += step) {
+    const Eigen::Vector3f p = cloud.points[i].getVector3fMap();
+    if (p.allFinite()) r.push_back(p.norm());
+  }
+  if (r.empty()) return 0.0;
+  std::nth_element(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(r.size() / 2), r.end());
+  return r[r.size() / 2];
+}
+
+// A cloud this far away (median, metres) was written in millimetres:
+// binpick's cameras see 0.3 to 2 m, and no bin cell is 50 m across.
+constexpr double kUndeclaredMillimetresRange = 50.0;
+
+// The points of a cloud file as a frame: the sidecar's unit, X_BC and
+// timestamp; a set VIEWPOINT moves the points into the sensor's frame S
+// (X_BC = X_BF * X_FS); an organized cloud whose sidecar intrinsics reproduce
+// it becomes a depth image, anything else a point list in points_C.
+Result<Frame> CloudToFrame(CloudData data, const std::string& path, const Pose& X_BC_default,
+                           FrameFileInfo& info) {
+  pcl::PointCloud<pcl::PointXYZ>& cloud = data.cloud;
+  info.width = static_cast<int>(cloud.width);
+  info.height = static_cast<int>(cloud.height);
   Frame frame;
   frame.X_BC = X_BC_default;
   const std::string sidecar_path = IntrinsicsSidecarPath(path);
@@ -540,8 +671,30 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
     auto s = ReadSidecar(sidecar_path, path);
     if (!s.ok()) return s.status();
     sidecar = *s;
-    frame.X_BC = s->X_BC;
+    info.has_sidecar = true;
+    info.X_BC_known = s->X_BC.has_value();
+    frame.X_BC = s->X_BC.value_or(X_BC_default);
     frame.timestamp_ns = s->timestamp_ns;
+  }
+  if (sidecar && sidecar->unit) {
+    info.unit = *sidecar->unit;
+    info.unit_declared = true;
+    const auto scale = static_cast<float>(*MetresPerUnit(info.unit));
+    if (scale != 1.f) {
+      for (auto& p : cloud.points) p.getVector3fMap() *= scale;
+    }
+  } else if (const double range = MedianRange(cloud); range > kUndeclaredMillimetresRange) {
+    return Status::InvalidArgument(Quote(path) + ": the points are " + std::to_string(std::lround(range)) +
+                                   " units from the origin (median), read as metres: millimetres? declare "
+                                   "\"unit\": \"mm\" in " + Quote(sidecar_path));
+  }
+  if (data.viewpoint_set) {
+    // p_S = X_SF p_F; the frame's X_BC is then the sensor's.
+    const Eigen::Matrix3f R_SF = data.X_FS.linear().transpose().cast<float>();
+    const Eigen::Vector3f t_SF = -(R_SF * data.X_FS.translation().cast<float>());
+    for (auto& p : cloud.points) p.getVector3fMap() = R_SF * p.getVector3fMap() + t_SF;
+    frame.X_BC = frame.X_BC * data.X_FS;
+    info.viewpoint_used = true;
   }
   const bool organized = cloud.height > 1;
   if (organized && sidecar && sidecar->intrinsics) {
@@ -579,7 +732,10 @@ Result<Frame> LoadPcd(const std::string& path, const Pose& X_BC_default) {
 // printable ASCII words separated by single spaces (a trailing CR allowed);
 // a property only after an element; no element declaring more records than
 // the file has bytes (a record takes at least one).
-Status CheckPlyHeader(const std::string& path) {
+// `format_word` gets the format word, `vertex_properties` each vertex
+// property's name and type word, in header order.
+Status CheckPlyHeader(const std::string& path, std::string* format_word,
+                      std::vector<std::pair<std::string, std::string>>* vertex_properties) {
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
   const uint64_t file_size = fs::file_size(path, ec);
@@ -589,7 +745,7 @@ Status CheckPlyHeader(const std::string& path) {
                                                "float", "double", "int8",  "uint8",   "int16",   "uint16",
                                                "int32", "uint32", "float32", "float64"};
   std::string line;
-  bool format = false, element = false;
+  bool format = false, element = false, in_vertex = false;
   for (int n = 0; n < 256 && std::getline(in, line); ++n) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     const std::string shown = "line " + std::to_string(n + 1);
@@ -624,8 +780,10 @@ Status CheckPlyHeader(const std::string& path) {
         return bad(shown + ": format must be ascii, binary_little_endian or binary_big_endian 1.0");
       }
       format = true;
+      *format_word = w[1];
     } else if (key == "element") {
       if (w.size() != 3) return bad(shown + ": element takes a name and a count");
+      in_vertex = w[1] == "vertex";
       const std::string& count = w[2];
       if (count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
           std::stoull(count) > file_size) {
@@ -636,6 +794,7 @@ Status CheckPlyHeader(const std::string& path) {
       if (!element) return bad(shown + ": property before any element");
       const bool list = w.size() == 5 && w[1] == "list" && kTypes.count(w[2]) && kTypes.count(w[3]);
       if (!list && !(w.size() == 3 && kTypes.count(w[1]))) return bad(shown + ": malformed property");
+      if (in_vertex) vertex_properties->emplace_back(w.back(), list ? "a list of " + w[3] : w[1]);
     } else {
       return bad(shown + ": unknown keyword '" + key.substr(0, 32) + "'");
     }
@@ -643,33 +802,31 @@ Status CheckPlyHeader(const std::string& path) {
   return bad("no end_header in the first 256 lines");
 }
 
-Result<Frame> LoadPly(const std::string& path, const Pose& X_BC_default) {
+Result<CloudData> ReadPly(const std::string& path, FrameFileInfo& info) {
   const std::string head = ReadHead(path, 5);
   if (!(head.rfind("ply\n", 0) == 0 || head.rfind("ply\r\n", 0) == 0)) {
     return Status::Corruption(Quote(path) + ": not a PLY file (bad magic)");
   }
-  if (Status s = CheckPlyHeader(path); !s.ok()) return s;
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  {
-    QuietPcl quiet;
-    pcl::PLYReader reader;
-    pcl::PCLPointCloud2 blob;
-    if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
-    if (Status s = BlobToXyz(blob, path, cloud); !s.ok()) return s;
+  std::vector<std::pair<std::string, std::string>> properties;
+  if (Status s = CheckPlyHeader(path, &info.encoding, &properties); !s.ok()) return s;
+  QuietPcl quiet;
+  pcl::PLYReader reader;
+  pcl::PCLPointCloud2 blob;
+  if (reader.read(path, blob) < 0) return Status::Corruption(Quote(path) + ": cannot parse PLY (truncated?)");
+  const std::map<std::string, std::string> types(properties.begin(), properties.end());
+  if (Status s = CheckCoordinateFields(blob, path, CloudFormat::kPly, types, info); !s.ok()) return s;
+  // The header's names (PCL renames nx to normal_x and packs red green blue into rgb).
+  info.extra_fields.clear();
+  for (const auto& [name, type] : properties) {
+    if (name != "x" && name != "y" && name != "z") info.extra_fields.push_back(name);
   }
-  Frame frame;
-  frame.X_BC = X_BC_default;
-  const std::string sidecar_path = IntrinsicsSidecarPath(path);
-  std::error_code ec;
-  if (fs::exists(sidecar_path, ec)) {
-    auto s = ReadSidecar(sidecar_path, path);
-    if (!s.ok()) return s.status();
-    frame.X_BC = s->X_BC;
-    frame.timestamp_ns = s->timestamp_ns;
-  }
-  frame.points_C.reserve(cloud.size());
-  for (const auto& p : cloud.points) frame.points_C.emplace_back(p.x, p.y, p.z);
-  return frame;
+  CloudData data;
+  if (Status s = BlobToXyz(blob, path, CloudFormat::kPly, data.cloud); !s.ok()) return s;
+  // PCL's PLY reader makes a cloud of width x 1 (or its obj_info's grid); a
+  // PLY is a point list either way.
+  data.cloud.width = static_cast<uint32_t>(data.cloud.size());
+  data.cloud.height = 1;
+  return data;
 }
 
 // Attaches truth / intensity / labels found beside `path`.
@@ -706,7 +863,7 @@ Status AttachCompanions(const std::string& path, Frame& frame) {
   return Status::Ok();
 }
 
-Result<Frame> LoadFrameFileUnchecked(const std::string& path, const Pose& X_BC_default) {
+Result<Frame> LoadFrameFileUnchecked(const std::string& path, const Pose& X_BC_default, FrameFileInfo& info) {
   const std::string ext = LowerExtension(path);
   if (ext != ".pcd" && ext != ".ply" && ext != ".png") {
     return Status::InvalidArgument(Quote(path) + ": unsupported file type '" + ext +
@@ -714,9 +871,19 @@ Result<Frame> LoadFrameFileUnchecked(const std::string& path, const Pose& X_BC_d
   }
   auto size = CheckReadable(path);
   if (!size.ok()) return size.status();
-  Result<Frame> frame = ext == ".pcd"   ? LoadPcd(path, X_BC_default)
-                        : ext == ".ply" ? LoadPly(path, X_BC_default)
-                                        : LoadDepthPng(path, X_BC_default);
+  Result<Frame> frame = Status::Internal("not read");
+  if (ext == ".png") {
+    info.format = "depth PNG";
+    info.encoding = "16-bit";
+    info.coordinates = "uint16 depth";
+    frame = LoadDepthPng(path, X_BC_default, info);
+  } else {
+    const CloudFormat format = ext == ".pcd" ? CloudFormat::kPcd : CloudFormat::kPly;
+    info.format = FormatName(format);
+    Result<CloudData> data = format == CloudFormat::kPcd ? ReadPcd(path, info) : ReadPly(path, info);
+    if (!data.ok()) return data.status();
+    frame = CloudToFrame(std::move(*data), path, X_BC_default, info);
+  }
   if (!frame.ok()) return frame;
   if (Status s = RequireValidPoints(*frame, path); !s.ok()) return s;
   if (Status s = AttachCompanions(path, *frame); !s.ok()) return s;
@@ -906,11 +1073,14 @@ Result<GroundTruth> ReadGroundTruthJson(const std::string& path) {
   }
 }
 
-Result<Frame> LoadFrameFile(const std::string& path, const Pose& X_BC_default) {
+Result<Frame> LoadFrameFile(const std::string& path, const Pose& X_BC_default, FrameFileInfo* info) {
   // Last line of defence: PCL, OpenCV and nlohmann may throw on malformed
   // input; nothing crosses this boundary.
+  FrameFileInfo own;
+  FrameFileInfo& out = info != nullptr ? *info : own;
+  out = FrameFileInfo{};
   try {
-    return LoadFrameFileUnchecked(path, X_BC_default);
+    return LoadFrameFileUnchecked(path, X_BC_default, out);
   } catch (const std::exception& e) {
     return Status::Corruption(Quote(path) + ": " + e.what());
   } catch (...) {

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "core/pose.h"
 #include "core/status.h"
@@ -57,6 +58,25 @@ Result<GroundTruth> ReadGroundTruthJson(const std::string& path);
 Result<IntensityImage> ReadIntensityPng(const std::string& path);
 Result<LabelImage> ReadLabelPng(const std::string& path);
 
+// What a frame file holds, as LoadFrameFile read it (`binpick info`, the
+// file source's choice of view for an unorganized cloud).
+struct FrameFileInfo {
+  std::string format;            // "PCD", "PLY" or "depth PNG"
+  std::string encoding;          // PCD: ascii | binary | binary_compressed; PLY: ascii |
+                                 // binary_little_endian | binary_big_endian; PNG: 16-bit
+  std::string coordinates;       // "float32" or "float64" (clouds), "uint16 depth" (PNG)
+  int width = 0, height = 0;     // as stored; a cloud with height 1 is unorganized
+  std::vector<std::string> extra_fields;  // fields besides x y z, in file order (read, not used)
+  std::string unit = "m";        // the sidecar's "unit" (clouds), else metres
+  bool unit_declared = false;
+  bool has_sidecar = false;
+  // X_BC came from the file (the sidecar's "X_BC"); false: X_BC_default.
+  bool X_BC_known = false;
+  // PCD VIEWPOINT other than the identity: the points were moved into the
+  // sensor's frame and X_BC = X_BF * VIEWPOINT (docs/file_formats.md).
+  bool viewpoint_used = false;
+};
+
 // Loads one frame file, chosen by extension:
 //   .pcd  organized + sidecar      -> depth image (z of each point) + intrinsics
 //         organized without sidecar, or points off the sidecar's pinhole
@@ -64,16 +84,21 @@ Result<LabelImage> ReadLabelPng(const std::string& path);
 //         unorganized              -> points_C (as stored)
 //   .ply  vertices (faces ignored) -> points_C
 //   .png  16-bit depth + sidecar (required) -> depth image + intrinsics
-// X_BC and timestamp_ns come from the sidecar when there is one, else X_BC =
+// Cloud coordinates may be float32 or float64 (read as float32), in the
+// sidecar's "unit" (m, cm, mm; default m); other fields are ignored. X_BC and
+// timestamp_ns come from the sidecar when it has them, else X_BC =
 // X_BC_default and timestamp_ns = 0. Ground truth (CompanionPath "truth.json"
 // or "<stem>.truth.json"), intensity and labels PNGs beside the file are
-// attached when present. frame.source = path.
+// attached when present. frame.source = path. `info`, if given, says what
+// the file held.
 // @returns NotFound (file or required sidecar missing), InvalidArgument
-// (unsupported extension, 8-bit PNG), Corruption (empty, truncated, bad magic,
-// size mismatch, no valid points), each naming the file.
-Result<Frame> LoadFrameFile(const std::string& path, const Pose& X_BC_default);
+// (unsupported extension, 8-bit PNG, coordinates that are not float32 /
+// float64, an undeclared millimetre cloud), Corruption (empty, truncated, bad
+// magic, size mismatch, no valid points), each naming the file, its format
+// and the field.
+Result<Frame> LoadFrameFile(const std::string& path, const Pose& X_BC_default, FrameFileInfo* info = nullptr);
 Result<Frame> LoadFrameFile(const std::string& path);
-// True if LoadFrameFile(path) used a sidecar (so X_BC came from the file).
+// True if LoadFrameFile(path) used a sidecar.
 bool HasIntrinsicsSidecar(const std::string& data_path);
 
 }  // namespace bp
