@@ -4,8 +4,12 @@
 #include <cctype>
 #include <chrono>
 #include <filesystem>
+#include <set>
 #include <system_error>
 
+#include <spdlog/spdlog.h>
+
+#include "pipeline/cloud_projection.h"
 #include "pipeline/frame_io.h"
 
 namespace bp {
@@ -30,15 +34,17 @@ int64_t NowNs() {
 class FileSource final : public CaptureSource {
  public:
   FileSource(std::string origin, std::vector<std::string> files, const Cell& cell)
-      : origin_(std::move(origin)), files_(std::move(files)), camera_(cell.camera) {}
+      : origin_(std::move(origin)), files_(std::move(files)), cell_(cell) {}
 
   Result<Frame> Capture(const CaptureRequest& request) override {
     const std::string& path = files_[next_];
     next_ = (next_ + 1) % files_.size();  // wrap around; a bad file does not block the rest
-    Pose X_BC = camera_.X_BC;
-    if (camera_.eye_in_hand && request.X_BF) X_BC = *request.X_BF * camera_.X_FC;
-    Result<Frame> frame = LoadFrameFile(path, X_BC);
+    Pose X_BC = cell_.camera.X_BC;
+    if (cell_.camera.eye_in_hand && request.X_BF) X_BC = *request.X_BF * cell_.camera.X_FC;
+    std::string assumption;
+    Result<Frame> frame = LoadFrameForPerception(path, cell_, X_BC, &assumption);
     if (!frame.ok()) return frame;
+    if (!assumption.empty() && warned_.insert(path).second) spdlog::warn("files: {}", assumption);
     if (frame->timestamp_ns == 0) frame->timestamp_ns = NowNs();
     return frame;
   }
@@ -51,11 +57,31 @@ class FileSource final : public CaptureSource {
  private:
   std::string origin_;
   std::vector<std::string> files_;  // non-empty
-  CameraSpec camera_;
+  Cell cell_;
   size_t next_ = 0;
+  std::set<std::string> warned_;  // files whose assumed view was logged
 };
 
 }  // namespace
+
+Result<Frame> LoadFrameForPerception(const std::string& path, const Cell& cell, const Pose& X_BC_default,
+                                     std::string* assumption) {
+  if (assumption != nullptr) assumption->clear();
+  FrameFileInfo info;
+  Result<Frame> frame = LoadFrameFile(path, X_BC_default, &info);
+  if (!frame.ok() || frame->organized()) return frame;
+  Result<CloudProjection> projected = ProjectCloud(*frame, cell, info.X_BC_known);
+  if (!projected.ok()) return projected.status();
+  if (assumption != nullptr && projected->view != CloudViewSource::kCamera) {
+    *assumption = "'" + path + "': " +
+                  (projected->view == CloudViewSource::kAboveBinNoPose
+                       ? std::string("no X_BC (no sidecar, or no \"X_BC\" in it): the points are taken as in the "
+                                     "cell camera's frame and seen from +z of the bin frame")
+                       : std::string("its X_BC does not look down into the bin: the points are seen from +z of the "
+                                     "bin frame"));
+  }
+  return std::move(projected->frame);
+}
 
 bool IsFrameFileName(const std::string& file_name) {
   const std::string name = Lower(file_name);

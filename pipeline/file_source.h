@@ -23,6 +23,15 @@ bool IsFrameFileName(const std::string& file_name);
 // @returns NotFound if the directory does not exist or holds no frame file.
 Result<std::vector<std::string>> ListFrameFiles(const std::string& dir);
 
+// A frame file as perception takes it: LoadFrameFile (X_BC_default when the
+// file has no X_BC), then an unorganized cloud organized by ProjectCloud
+// (pipeline/cloud_projection.h). `assumption` (optional) gets a warning when
+// the cloud had to be seen from an assumed view (no X_BC, or one not
+// looking into the bin), else is cleared. Used by the file source, `binpick
+// eval --source files:` and `binpick replay DIR`.
+Result<Frame> LoadFrameForPerception(const std::string& path, const Cell& cell, const Pose& X_BC_default,
+                                     std::string* assumption = nullptr);
+
 // `dir_or_file`: a directory (see ListFrameFiles) or a single frame file
 // (served on every Capture). X_BC comes from a file's sidecar when it has
 // one, else from the cell: camera.X_BC (eye-to-hand) or X_BF * camera.X_FC

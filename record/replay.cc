@@ -239,7 +239,9 @@ Result<ReplayReport> ReplayDirectory(const std::string& dir, const ReplayOptions
       c.task_id = cell->tasks.front().id;
       PlanRequest request;
       request.task = cell->tasks.front();
-      Result<Frame> frame = LoadFrameFile(item, cell->camera.X_BC);
+      std::string assumption;
+      Result<Frame> frame = LoadFrameForPerception(item, *cell, cell->camera.X_BC, &assumption);
+      if (!assumption.empty()) spdlog::warn("replay: {}", assumption);
       if (frame.ok()) {
         PlanFrame(**planner, request, std::move(*frame), c);
       } else {

@@ -331,7 +331,9 @@ int Run(const EvalCliOptions& opt) {
       request.config_id = opt.config_id;
       frame = (*source)->Capture(request);
     } else {
-      frame = LoadFrameFile(files[static_cast<size_t>(i)], cell->camera.X_BC);
+      std::string assumption;
+      frame = LoadFrameForPerception(files[static_cast<size_t>(i)], *cell, cell->camera.X_BC, &assumption);
+      if (!assumption.empty()) spdlog::warn("{}", assumption);
       if (frame.ok() && !frame->truth) {
         return Fail(cmd, Status::NotFound(files[static_cast<size_t>(i)] + ": no ground-truth JSON beside it"));
       }

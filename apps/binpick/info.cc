@@ -11,10 +11,13 @@
 #include <memory>
 #include <set>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include "apps/binpick/command.h"
 #include "core/cell.h"
 #include "core/mesh.h"
+#include "pipeline/cloud_projection.h"
 #include "pipeline/frame_io.h"
 
 namespace bp::cli {
@@ -78,14 +81,34 @@ void PrintTruth(const GroundTruth& truth) {
   if (!truth.labels.empty()) std::printf("labels:      %dx%d\n", truth.labels.width, truth.labels.height);
 }
 
-int DescribeFrame(const std::string& path) {
-  Result<Frame> frame = LoadFrameFile(path);
+std::string Join(const std::vector<std::string>& words) {
+  std::string out;
+  for (const std::string& w : words) out += (out.empty() ? "" : " ") + w;
+  return out;
+}
+
+// How perception will take the frame: as stored, or the cloud organized
+// through a virtual pinhole (the file source's LoadFrameForPerception).
+std::string PerceptionLine(const Frame& frame, const FrameFileInfo& info, const Cell& cell) {
+  if (frame.organized()) return "the depth image as stored (organized path)";
+  Result<CloudProjection> p = ProjectCloud(frame, cell, info.X_BC_known);
+  if (!p.ok()) return "cannot be organized: " + p.status().ToString();
+  std::string line = p->Describe();
+  if (p->view != CloudViewSource::kCamera) line += " [warning: assumed view]";
+  return line;
+}
+
+int DescribeFrame(const std::string& path, const std::string& cell_path) {
+  Result<Cell> cell = LoadCellOrDefault(cell_path);
+  if (!cell.ok()) return Fail(kCmd, cell.status());
+  FrameFileInfo info;
+  Result<Frame> frame = LoadFrameFile(path, cell->camera.X_BC, &info);
   if (!frame.ok()) return Fail(kCmd, frame.status());
-  const std::string ext = Lower(fs::path(path).extension().string());
-  const char* type = ext == ".pcd" ? "PCD point cloud" : ext == ".ply" ? "PLY point cloud" : "16-bit depth PNG";
   std::error_code ec;
   std::printf("file:        %s\n", path.c_str());
-  std::printf("type:        %s, %s\n", type, HumanSize(fs::file_size(path, ec)).c_str());
+  const std::string kind = info.format == "depth PNG" ? "16-bit depth PNG" : info.format + " point cloud";
+  std::printf("type:        %s (%s, %s coordinates), %s\n", kind.c_str(), info.encoding.c_str(),
+              info.coordinates.c_str(), HumanSize(fs::file_size(path, ec)).c_str());
   const auto points = frame->PointsInCamera();
   const size_t total = frame->organized() ? frame->depth.data.size() : frame->points_C.size();
   if (frame->organized()) {
@@ -93,8 +116,17 @@ int DescribeFrame(const std::string& path) {
     std::printf("layout:      organized %dx%d\n", K.width, K.height);
     std::printf("intrinsics:  fx %.3f fy %.3f cx %.3f cy %.3f, distortion [%g, %g, %g, %g, %g]\n", K.fx, K.fy,
                 K.cx, K.cy, K.distortion[0], K.distortion[1], K.distortion[2], K.distortion[3], K.distortion[4]);
+  } else if (info.height > 1) {
+    std::printf("layout:      unorganized: stored as a %dx%d grid, but no sidecar intrinsics reproduce it "
+                "(point list)\n", info.width, info.height);
   } else {
     std::printf("layout:      unorganized (point list)\n");
+  }
+  if (info.format != "depth PNG") {
+    std::printf("fields:      x y z%s%s\n", info.extra_fields.empty() ? "" : "; not used: ",
+                Join(info.extra_fields).c_str());
+    std::printf("units:       %s\n", info.unit_declared ? (info.unit + " (the sidecar's \"unit\")").c_str()
+                                                        : "m (no \"unit\" declared)");
   }
   std::printf("points:      %zu valid of %zu (%.1f%%)\n", points.size(), total,
               total ? 100.0 * static_cast<double>(points.size()) / static_cast<double>(total) : 0.0);
@@ -103,8 +135,12 @@ int DescribeFrame(const std::string& path) {
   std::printf("depth range: %.4f .. %.4f m (z in the camera frame)\n", box.min().z(), box.max().z());
   std::printf("bounds (C):  x [%.4f, %.4f] y [%.4f, %.4f] z [%.4f, %.4f] m\n", box.min().x(), box.max().x(),
               box.min().y(), box.max().y(), box.min().z(), box.max().z());
-  std::printf("X_BC:        %s (%s)\n", FormatPose(frame->X_BC).c_str(),
-              HasIntrinsicsSidecar(path) ? "from sidecar" : "no sidecar: identity");
+  const char* pose_from = info.X_BC_known ? (info.viewpoint_used ? "the sidecar's X_BC times the PCD VIEWPOINT"
+                                                                  : "from the sidecar")
+                                          : (info.viewpoint_used ? "no X_BC: the cell camera's times the PCD VIEWPOINT"
+                                                                 : "no X_BC: the cell camera's (assumed)");
+  std::printf("X_BC:        %s (%s)\n", FormatPose(frame->X_BC).c_str(), pose_from);
+  std::printf("perception:  %s\n", PerceptionLine(*frame, info, *cell).c_str());
   if (!frame->intensity.empty()) std::printf("intensity:   %dx%d\n", frame->intensity.width, frame->intensity.height);
   if (frame->truth) PrintTruth(*frame->truth);
   return kExitOk;
@@ -159,7 +195,7 @@ int DescribeJson(const std::string& path) {
   return kExitOk;
 }
 
-int Run(const std::string& path) {
+int Run(const std::string& path, const std::string& cell_path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) return Fail(kCmd, Status::NotFound("'" + path + "': no such file"));
   if (fs::is_directory(path, ec)) {
@@ -174,7 +210,7 @@ int Run(const std::string& path) {
   if (ext == ".png" && name.find("depth") == std::string::npos) {
     return DescribeImage(path, name.find("label") != std::string::npos);
   }
-  return DescribeFrame(path);
+  return DescribeFrame(path, cell_path);
 }
 
 }  // namespace
@@ -183,8 +219,11 @@ Command InfoCommand() {
   return {"info", "Describe a frame file (.pcd, .ply, depth .png), truth .json, mesh (.ply/.stl) or cell .yaml",
           [](CLI::App& sub) -> std::function<int()> {
             auto path = std::make_shared<std::string>();
+            auto cell = std::make_shared<std::string>();
             sub.add_option("FILE", *path, "File to describe")->required();
-            return [path] { return Run(*path); };
+            sub.add_option("--cell", *cell,
+                           "cell whose camera and bin a frame is seen with (default: the embedded default cell)");
+            return [path, cell] { return Run(*path, *cell); };
           }};
 }
 

@@ -10,6 +10,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <nlohmann/json.hpp>
+
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
 #include "tests/testing/files.h"
@@ -184,6 +186,54 @@ TEST(BinpickCli, EvalWritesEveryDetectionAndGraspWithItsVerdict) {
   const test::CommandRun bad = RunBinpick("eval --scenes 1 --tol-mm 0");
   EXPECT_EQ(bad.exit_code, 2) << bad.out;
   EXPECT_THAT(bad.out, HasSubstr("--tol-mm"));
+}
+
+// CI runs `binpick eval` over the clouds other tools wrote
+// (tests/pipeline/data/clouds): every file loads, organized, and perception
+// finds the parts (the comparison with their depth images is
+// CloudPerception.CloudsFromOtherToolsFindWhatTheirDepthImagesFind).
+TEST(BinpickCli, EvalScoresCloudsFromOtherTools) {
+  const std::string data = std::string(BINPICK_SOURCE_DIR) + "/tests/pipeline/data/clouds";
+  const std::string json_path = FreshDir() + "/eval.json";
+  const test::CommandRun r = RunBinpick("eval --source files:" + data + " --json " + json_path);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, ::testing::Not(HasSubstr("assumed")));
+  const nlohmann::json j = nlohmann::json::parse(ReadAll(json_path));
+  EXPECT_EQ(j.at("frames").get<int>(), 5);
+  const nlohmann::json& all = j.at("classes").back();
+  ASSERT_EQ(all.at("name").get<std::string>(), "all");
+  EXPECT_GE(all.at("targets").get<int>(), 30);
+  EXPECT_GE(all.at("recall").get<double>(), 0.8);
+  EXPECT_GE(all.at("precision").get<double>(), 0.95);
+}
+
+TEST(BinpickCli, InfoSaysHowACloudIsReadAndHowPerceptionTakesIt) {
+  const std::string data = std::string(BINPICK_SOURCE_DIR) + "/tests/pipeline/data/clouds";
+  test::CommandRun r = RunBinpick("info " + data + "/s4601_open3d_cloud.ply");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("PLY point cloud (binary_little_endian, float64 coordinates)"));
+  EXPECT_THAT(r.out, HasSubstr("unorganized (point list)"));
+  EXPECT_THAT(r.out, HasSubstr("units:       m (no \"unit\" declared)"));
+  EXPECT_THAT(r.out, HasSubstr("a pinhole lattice recovered from the points"));
+  r = RunBinpick("info " + data + "/s4603_hand_cloud.pcd");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("not used: intensity"));
+  EXPECT_THAT(r.out, HasSubstr("units:       mm"));
+  r = RunBinpick("info " + data + "/s4604_grid_cloud.pcd");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("stored as a 320x240 grid"));
+  EXPECT_THAT(r.out, HasSubstr("VIEWPOINT"));
+  r = RunBinpick("info " + data + "/s4605_merged_cloud.pcd");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("no pixel lattice"));
+  // Without its sidecar: the assumed view, said.
+  const std::string dir = FreshDir();
+  fs::copy_file(data + "/s4602_pcl_cloud.pcd", dir + "/scan.pcd");
+  r = RunBinpick("info " + dir + "/scan.pcd");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("no X_BC: the cell camera's (assumed)"));
+  EXPECT_THAT(r.out, HasSubstr("[warning: assumed view]"));
+  EXPECT_THAT(r.out, HasSubstr("not used: rgba normal_x normal_y normal_z curvature"));
 }
 
 }  // namespace
