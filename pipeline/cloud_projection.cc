@@ -35,6 +35,20 @@ constexpr double kColumnGapRatio = 20.0;
 // The pitch without a lattice: nearest-neighbour distances of this many
 // sampled points (CloudProjectionOptions::spacing_quantile).
 constexpr size_t kSpacingQueries = 4000;
+// The pitch is coarsened by steps of kCoarsenStep, at most kMaxCoarsenSteps
+// times (x 21.7), while its grid leaves holes (Coverage): more than
+// kMaxHoleFraction one-pixel holes or less than kMinFill of the blocks
+// holding points filled. A camera's own depth image of a pile has 5% holes
+// (its dropouts) and fills 0.85 to 0.95 of its blocks (edges, dropouts); a
+// pitch below the sampling's leaves 20% holes and more, or fills a third.
+constexpr double kMaxHoleFraction = 0.12;
+constexpr double kMinFill = 0.7;
+constexpr int kFillBlock = 4;
+constexpr double kCoarsenStep = 1.08;
+constexpr int kMaxCoarsenSteps = 40;
+// Two pixels two apart are on one surface when their depths differ by less
+// than this fraction of their depth (1 cm at 1 m).
+constexpr float kHoleDepthStep = 0.01f;
 
 // A point's tangent coordinates in V (a = x/z, b = y/z) and depth.
 struct RayPoint {
@@ -293,10 +307,65 @@ double NeighbourSpacing(const std::vector<RayPoint>& rays, const RayBounds& boun
   return *at;
 }
 
-// Square pixels a little wider than nearly every point's spacing to its
-// nearest neighbour, so that a surface sampled by a warped or merged lattice
-// leaves no grid holes (holes split the organized path's regions), and
-// within max_pixels.
+// How a pixel grid covers the rays' surfaces. holes: empty pixels between
+// two filled neighbours in their row or column whose depths agree within
+// kHoleDepthStep of their depth (gaps at depth steps are the shadows of
+// nearer surfaces), over filled pixels plus holes. fill: filled pixels over
+// the pixels of the kFillBlock x kFillBlock blocks holding any point (wider
+// gaps than one pixel, which `holes` does not see).
+struct GridCoverage {
+  double holes = 0.0;
+  double fill = 1.0;
+};
+GridCoverage Coverage(const std::vector<RayPoint>& rays, const Intrinsics& K) {
+  const float kEmpty = std::numeric_limits<float>::infinity();
+  std::vector<float> z(static_cast<size_t>(K.width) * K.height, kEmpty);
+  for (const RayPoint& r : rays) {
+    const int i = PixelIndex(r, K);
+    if (i >= 0) z[static_cast<size_t>(i)] = std::min(z[static_cast<size_t>(i)], r.z);
+  }
+  const auto smooth = [&](size_t p, size_t q) {
+    return z[p] != kEmpty && z[q] != kEmpty && std::abs(z[p] - z[q]) <= kHoleDepthStep * std::min(z[p], z[q]);
+  };
+  const int bw = (K.width + kFillBlock - 1) / kFillBlock, bh = (K.height + kFillBlock - 1) / kFillBlock;
+  std::vector<uint8_t> block(static_cast<size_t>(bw) * bh, 0);
+  int64_t full = 0, holes = 0;
+  const auto W = static_cast<size_t>(K.width);
+  for (int v = 0; v < K.height; ++v) {
+    for (int u = 0; u < K.width; ++u) {
+      const size_t i = static_cast<size_t>(v) * W + static_cast<size_t>(u);
+      if (z[i] != kEmpty) {
+        ++full;
+        block[static_cast<size_t>(v / kFillBlock) * bw + static_cast<size_t>(u / kFillBlock)] = 1;
+        continue;
+      }
+      const bool row = u > 0 && u + 1 < K.width && smooth(i - 1, i + 1);
+      const bool col = v > 0 && v + 1 < K.height && smooth(i - W, i + W);
+      holes += (row || col) ? 1 : 0;
+    }
+  }
+  int64_t covered = 0;
+  for (int bv = 0; bv < bh; ++bv) {
+    for (int bu = 0; bu < bw; ++bu) {
+      if (!block[static_cast<size_t>(bv) * bw + bu]) continue;
+      covered += static_cast<int64_t>(std::min(kFillBlock, K.width - bu * kFillBlock)) *
+                 std::min(kFillBlock, K.height - bv * kFillBlock);
+    }
+  }
+  GridCoverage c;
+  if (full + holes > 0) c.holes = static_cast<double>(holes) / static_cast<double>(full + holes);
+  if (covered > 0) c.fill = static_cast<double>(full) / static_cast<double>(covered);
+  return c;
+}
+
+bool LeavesHoles(const GridCoverage& c) { return c.holes > kMaxHoleFraction || c.fill < kMinFill; }
+
+// Square pixels as wide as nearly every point's spacing to its nearest
+// neighbour, so that a surface sampled by a warped or merged lattice leaves
+// no grid holes (holes split the organized path's regions), within
+// max_pixels; coarsened while holes are more than kMaxHoleFraction of the
+// surfaces (points bunched so that the quantile falls below the sampling's
+// pitch, as where several cameras' clouds overlap).
 Intrinsics GridFromSpacing(const std::vector<RayPoint>& rays, const CloudProjectionOptions& options) {
   const RayBounds bounds = BoundsOf(rays);
   const double A = bounds.a1 - bounds.a0, B = bounds.b1 - bounds.b0;
@@ -309,8 +378,13 @@ Intrinsics GridFromSpacing(const std::vector<RayPoint>& rays, const CloudProject
   // nearest-neighbour spacing).
   const double mean = std::max(std::sqrt(A * B / static_cast<double>(rays.size())), fit);
   const double spacing = NeighbourSpacing(rays, bounds, 2.0 * mean, options.spacing_quantile);
-  const double pitch = std::max(spacing > 0.0 ? options.pitch_margin * spacing : mean, fit);
-  return GridOfPitch(bounds, pitch);
+  double pitch = std::max(spacing > 0.0 ? options.pitch_margin * spacing : mean, fit);
+  Intrinsics K = GridOfPitch(bounds, pitch);
+  for (int step = 0; step < kMaxCoarsenSteps && LeavesHoles(Coverage(rays, K)); ++step) {
+    pitch *= kCoarsenStep;
+    K = GridOfPitch(bounds, pitch);
+  }
+  return K;
 }
 
 }  // namespace
