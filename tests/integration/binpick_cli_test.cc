@@ -10,8 +10,6 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include <nlohmann/json.hpp>
-
 #include "pipeline/file_source.h"
 #include "pipeline/frame_io.h"
 #include "tests/testing/files.h"
@@ -202,9 +200,11 @@ TEST(BinpickCli, EvalScoresCloudsFromOtherTools) {
   EXPECT_EQ(j.at("frames").get<int>(), 5);
   const nlohmann::json& all = j.at("classes").back();
   ASSERT_EQ(all.at("name").get<std::string>(), "all");
+  // Strict: 0.824 / 0.967 (their depth images 0.853 / 1.000; the merged cloud
+  // turns one tee about its run).
   EXPECT_GE(all.at("targets").get<int>(), 30);
-  EXPECT_GE(all.at("recall").get<double>(), 0.8);
-  EXPECT_GE(all.at("precision").get<double>(), 0.95);
+  EXPECT_GE(all.at("recall").get<double>(), 0.75);
+  EXPECT_GE(all.at("precision").get<double>(), 0.9);
 }
 
 TEST(BinpickCli, InfoSaysHowACloudIsReadAndHowPerceptionTakesIt) {
