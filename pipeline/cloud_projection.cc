@@ -46,6 +46,8 @@ constexpr double kMinFill = 0.7;
 constexpr int kFillBlock = 4;
 constexpr double kCoarsenStep = 1.08;
 constexpr int kMaxCoarsenSteps = 40;
+// The grid from the point spacing has at most this many pixels per point.
+constexpr double kMaxPixelsPerPoint = 16.0;
 // Two pixels two apart are on one surface when their depths differ by less
 // than this fraction of their depth (1 cm at 1 m).
 constexpr float kHoleDepthStep = 0.01f;
@@ -369,9 +371,14 @@ bool LeavesHoles(const GridCoverage& c) { return c.holes > kMaxHoleFraction || c
 Intrinsics GridFromSpacing(const std::vector<RayPoint>& rays, const CloudProjectionOptions& options) {
   const RayBounds bounds = BoundsOf(rays);
   const double A = bounds.a1 - bounds.a0, B = bounds.b1 - bounds.b0;
-  // The smallest pitch p that fits the image: GridOfPitch's width is at most
-  // A / p + 1.5, so (A + 1.5 p)(B + 1.5 p) <= M p^2, the larger root.
-  const double M = std::max(static_cast<double>(options.max_pixels), 4.0) - 2.25;
+  // The smallest pitch p that fits the image (max_pixels, and at most
+  // kMaxPixelsPerPoint per point: a finer grid is mostly empty whatever the
+  // points): GridOfPitch's width is at most A / p + 1.5, so
+  // (A + 1.5 p)(B + 1.5 p) <= M p^2, the larger root.
+  const double M = std::max(std::min(static_cast<double>(options.max_pixels),
+                                     kMaxPixelsPerPoint * static_cast<double>(rays.size())),
+                            64.0) -
+                   2.25;
   const double fit = std::max((1.5 * (A + B) + std::sqrt(2.25 * (A + B) * (A + B) + 4.0 * M * A * B)) / (2.0 * M),
                               1e-9);
   // The mean spacing of the points spread over their bounds (at least their

@@ -341,6 +341,19 @@ TEST(ProjectCloud, ABigSparseCloudIsCoarsenedToTheLargestImage) {
   EXPECT_GT(static_cast<int64_t>(p->frame.intrinsics.width) * p->frame.intrinsics.height, 900);
 }
 
+// Found by fuzz/pcd_fuzz: a few points far apart on a line made a grid of
+// the largest image, mostly empty, searched again and again for holes (a
+// timeout). The grid has at most 16 pixels per point, 64 at the least.
+TEST(ProjectCloud, AFewPointsFarApartGetASmallGrid) {
+  Frame cloud;
+  cloud.X_BC = DefaultCell().camera.X_BC;
+  cloud.points_C = {{-0.5f, 0.f, 1.f}, {0.f, 0.f, 1.f}, {0.5f, 0.f, 1.f}};
+  Result<CloudProjection> p = ProjectCloud(cloud, DefaultCell(), true);
+  ASSERT_TRUE(p.ok()) << p.status().ToString();
+  EXPECT_LE(static_cast<int64_t>(p->frame.intrinsics.width) * p->frame.intrinsics.height, 16 * 3 + 64);
+  EXPECT_EQ(p->pixels, 3);
+}
+
 TEST(ProjectCloud, AnOrganizedFrameOrNoPointInFrontIsInvalidArgument) {
   const Cell& cell = DefaultCell();
   const Frame organized = FloorWithBox(cell.camera.FindConfig(1)->intrinsics, cell.camera.X_BC);
