@@ -5,6 +5,7 @@
 #include <cctype>
 #include <cerrno>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <filesystem>
@@ -722,6 +723,49 @@ Result<Frame> CloudToFrame(CloudData data, const std::string& path, const Pose& 
   return frame;
 }
 
+// One vertex property of a PLY header: its name, its type word ("list" for
+// a list) and its header line.
+struct PlyProperty {
+  std::string name, type;
+  int line = 0;
+};
+
+// The vertex properties PCL's PLY reader can take without aborting the
+// process or shifting the coordinates (found by fuzz/ply_frame_fuzz: a
+// "green" and "blue" without "red" hit an assert in
+// PLYReader::vertexColorCallback). PCL packs uchar red, green and blue into
+// one 4-byte field, written at "blue", and an alpha into it, so they come
+// together in that order, once, an alpha (uchar) straight after; it takes a
+// list property's size from the first vertex, so vertices hold scalars.
+Status CheckPlyVertexProperties(const std::vector<PlyProperty>& props, const std::string& path) {
+  auto bad = [&](const PlyProperty& p, const std::string& why) {
+    return Status::Corruption(Quote(path) + ": PLY header: line " + std::to_string(p.line) + ": vertex property '" +
+                              p.name + "' " + why);
+  };
+  const auto is_uchar = [](const PlyProperty& p) { return p.type == "uchar" || p.type == "uint8"; };
+  const auto is_colour = [](const std::string& name) {
+    const std::string c = name.rfind("diffuse_", 0) == 0 ? name.substr(8) : name;
+    return c == "red" || c == "green" || c == "blue" || name == "alpha";
+  };
+  static const char* const kColours =
+      "is out of place: PCL reads uchar colours as red, green, blue (then alpha) next to each other, once";
+  bool seen_colour = false;
+  for (size_t i = 0; i < props.size(); ++i) {
+    const PlyProperty& p = props[i];
+    if (p.type == "list") return bad(p, "is a list; a point's properties must be scalars");
+    if (!is_uchar(p) || !is_colour(p.name)) continue;
+    const std::string family = p.name.rfind("diffuse_", 0) == 0 ? "diffuse_" : "";
+    const bool triple = p.name == family + "red" && i + 2 < props.size() && is_uchar(props[i + 1]) &&
+                        props[i + 1].name == family + "green" && is_uchar(props[i + 2]) &&
+                        props[i + 2].name == family + "blue";
+    if (!triple || seen_colour) return bad(p, kColours);
+    seen_colour = true;
+    i += 2;
+    if (i + 1 < props.size() && props[i + 1].name == "alpha" && is_uchar(props[i + 1])) ++i;
+  }
+  return Status::Ok();
+}
+
 // Checks the header strictly before PCL sees it, as CheckPcdHeader does.
 // PCL's PLY parser asserts (aborting the process) on lines it tokenizes
 // differently from how it dispatches them, e.g. "\vobj_info" (found by
@@ -731,7 +775,10 @@ Result<Frame> CloudToFrame(CloudData data, const std::string& path, const Pose& 
 // obj_info, element NAME COUNT and property lines, then "end_header"; lines of
 // printable ASCII words separated by single spaces (a trailing CR allowed);
 // a property only after an element; no element declaring more records than
-// the file has bytes (a record takes at least one).
+// the file has bytes (a record takes at least one); one vertex element, its
+// properties as CheckPlyVertexProperties wants them; an obj_info grid
+// (num_cols x num_rows, which PCL sizes the cloud by) of at least the vertex
+// count and at most one point per byte of the file.
 // `format_word` gets the format word, `vertex_properties` each vertex
 // property's name and type word, in header order.
 Status CheckPlyHeader(const std::string& path, std::string* format_word,
@@ -745,7 +792,9 @@ Status CheckPlyHeader(const std::string& path, std::string* format_word,
                                                "float", "double", "int8",  "uint8",   "int16",   "uint16",
                                                "int32", "uint32", "float32", "float64"};
   std::string line;
-  bool format = false, element = false, in_vertex = false;
+  bool format = false, element = false, in_vertex = false, vertex_seen = false;
+  uint64_t vertices = 0, grid_cols = 0, grid_rows = 0;
+  std::vector<PlyProperty> props;
   for (int n = 0; n < 256 && std::getline(in, line); ++n) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     const std::string shown = "line " + std::to_string(n + 1);
@@ -763,7 +812,19 @@ Status CheckPlyHeader(const std::string& path, std::string* format_word,
       if (line != "ply") return bad("does not start with 'ply'");
       continue;
     }
-    if (key == "comment" || key == "obj_info") continue;  // free text after the keyword
+    if (key == "obj_info") {
+      // Free text, but PCL sizes the cloud by "num_cols N" and "num_rows N"
+      // (split at runs of spaces, N read by atoi into an unsigned int).
+      std::vector<std::string> t;
+      for (const std::string& word : w) {
+        if (!word.empty()) t.push_back(word);
+      }
+      if (t.size() >= 3 && (t[1] == "num_cols" || t[1] == "num_rows")) {
+        (t[1] == "num_cols" ? grid_cols : grid_rows) = static_cast<uint32_t>(std::atoi(t[2].c_str()));
+      }
+      continue;
+    }
+    if (key == "comment") continue;  // free text after the keyword
     for (const std::string& word : w) {
       if (word.empty()) return bad(shown + " has leading, trailing or doubled spaces");
     }
@@ -771,7 +832,11 @@ Status CheckPlyHeader(const std::string& path, std::string* format_word,
       if (w.size() != 1) return bad(shown + ": end_header takes no words");
       if (!format) return bad("no format line");
       if (!element) return bad("no element");
-      return Status::Ok();
+      if (grid_cols > 0 && grid_rows > 0 && (grid_cols * grid_rows < vertices || grid_cols * grid_rows > file_size)) {
+        return bad("obj_info num_cols x num_rows (" + std::to_string(grid_cols) + " x " + std::to_string(grid_rows) +
+                   ") is fewer points than the " + std::to_string(vertices) + " vertices or more than the file holds");
+      }
+      return CheckPlyVertexProperties(props, path);
     }
     if (key == "format") {
       if (format) return bad("format given twice");
@@ -784,17 +849,23 @@ Status CheckPlyHeader(const std::string& path, std::string* format_word,
     } else if (key == "element") {
       if (w.size() != 3) return bad(shown + ": element takes a name and a count");
       in_vertex = w[1] == "vertex";
+      if (in_vertex && vertex_seen) return bad(shown + ": a second vertex element");
+      vertex_seen = vertex_seen || in_vertex;
       const std::string& count = w[2];
       if (count.size() > 19 || count.find_first_not_of("0123456789") != std::string::npos ||
           std::stoull(count) > file_size) {
         return bad("element '" + w[1] + "' declares more records than the file holds");
       }
+      if (in_vertex) vertices = std::stoull(count);
       element = true;
     } else if (key == "property") {
       if (!element) return bad(shown + ": property before any element");
       const bool list = w.size() == 5 && w[1] == "list" && kTypes.count(w[2]) && kTypes.count(w[3]);
       if (!list && !(w.size() == 3 && kTypes.count(w[1]))) return bad(shown + ": malformed property");
-      if (in_vertex) vertex_properties->emplace_back(w.back(), list ? "a list of " + w[3] : w[1]);
+      if (in_vertex) {
+        vertex_properties->emplace_back(w.back(), list ? "a list of " + w[3] : w[1]);
+        props.push_back({w.back(), list ? "list" : w[1], n + 1});
+      }
     } else {
       return bad(shown + ": unknown keyword '" + key.substr(0, 32) + "'");
     }

@@ -162,7 +162,8 @@ TEST(CloudFormats, APlyErrorNamesPlyAndTheProperty) {
   EXPECT_THAT(frame.status().message(), ::testing::Not(HasSubstr("PCD")));
   // No coordinates at all.
   WriteText(dir + "/colours.ply",
-            "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar red\nend_header\n1\n");
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar red\nproperty uchar green\n"
+            "property uchar blue\nend_header\n1 2 3\n");
   frame = LoadFrameFile(dir + "/colours.ply");
   ASSERT_FALSE(frame.ok());
   EXPECT_THAT(frame.status().message(), HasSubstr("PLY has no x, y, z vertex properties"));

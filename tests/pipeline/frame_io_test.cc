@@ -218,6 +218,30 @@ TEST(CloudPly, HeadersPclCannotTakeAreCorruption) {
       {"ply\nformat ascii 1.0\nelement  vertex 1\n" + xyz + "end_header\n0 0 1\n", "doubled spaces"},
       {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz, "no end_header"},
       {"ply\nformat ascii 1.0\nvertex 1\nend_header\n", "unknown keyword 'vertex'"},
+      // PCL packs uchar colours into one field written at "blue": without
+      // "red" first it aborted (fuzz input regress-assert-colour-without-red),
+      // apart or out of order they shift the coordinates.
+      {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz + "property uchar green\nproperty uchar blue\n"
+       "end_header\n0 0 1 2 3\n", "vertex property 'green' is out of place"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar blue\nproperty uchar green\nproperty uchar red\n" +
+           xyz + "end_header\n3 2 1 0 0 1\n", "vertex property 'blue' is out of place"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar red\n" + xyz +
+           "property uchar green\nproperty uchar blue\nend_header\n1 0 0 1 2 3\n",
+       "vertex property 'red' is out of place"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz +
+           "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar red\n"
+           "property uchar green\nproperty uchar blue\nend_header\n0 0 1 1 2 3 1 2 3\n",
+       "line 10: vertex property 'red' is out of place"},
+      // A list's size is taken from the first vertex.
+      {"ply\nformat ascii 1.0\nelement vertex 2\n" + xyz + "property list uchar float w\nend_header\n"
+       "0 0 1 1 5\n0 0 1 3 5 5 5\n", "vertex property 'w' is a list"},
+      // PCL sizes the cloud by obj_info's grid.
+      {"ply\nformat ascii 1.0\nobj_info num_cols 1\nobj_info num_rows 1\nelement vertex 2\n" + xyz +
+           "end_header\n0 0 1\n0 0 1\n", "obj_info num_cols x num_rows (1 x 1)"},
+      {"ply\nformat ascii 1.0\nobj_info num_cols 100000\nobj_info num_rows -1\nelement vertex 1\n" + xyz +
+           "end_header\n0 0 1\n", "obj_info num_cols x num_rows (100000 x 4294967295)"},
+      {"ply\nformat ascii 1.0\nelement vertex 1\n" + xyz + "element vertex 1\n" + xyz + "end_header\n0 0 1\n0 0 1\n",
+       "a second vertex element"},
   };
   for (size_t i = 0; i < cases.size(); ++i) {
     const std::string path = dir + "/case" + std::to_string(i) + ".ply";
@@ -235,6 +259,27 @@ TEST(CloudPly, HeadersPclCannotTakeAreCorruption) {
   ASSERT_TRUE(ok.ok()) << ok.status().ToString();
   ASSERT_EQ(ok->points_C.size(), 1u);
   EXPECT_EQ(ok->points_C[0], Eigen::Vector3f(0.5f, 0.25f, 1.f));
+  // Colours as tools write them (red green blue, then alpha, or diffuse_*,
+  // before or after x y z; a float named after a colour anywhere) and an
+  // obj_info grid as PCL writes it load.
+  const std::vector<std::string> colour_headers = {
+      "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n" + xyz +
+          "property float confidence\n",
+      xyz + "property uchar diffuse_red\nproperty uchar diffuse_green\nproperty uchar diffuse_blue\n"
+            "property float red\n"};
+  for (size_t i = 0; i < colour_headers.size(); ++i) {
+    const std::string path = dir + "/colours" + std::to_string(i) + ".ply";
+    const bool alpha = i == 0;
+    const std::string row0 = alpha ? "1 2 3 4 0.5 0.25 1 0.5\n" : "0.5 0.25 1 1 2 3 0.5\n";
+    const std::string row1 = alpha ? "1 2 3 4 -0.5 -0.25 2 0.5\n" : "-0.5 -0.25 2 1 2 3 0.5\n";
+    WriteText(path, "ply\nformat ascii 1.0\nobj_info num_cols 2\nobj_info num_rows 1\nelement vertex 2\n" +
+                        colour_headers[i] + "end_header\n" + row0 + row1);
+    Result<Frame> colours = LoadFrameFile(path);
+    ASSERT_TRUE(colours.ok()) << colours.status().ToString();
+    ASSERT_EQ(colours->points_C.size(), 2u);
+    EXPECT_EQ(colours->points_C[0], Eigen::Vector3f(0.5f, 0.25f, 1.f)) << i;
+    EXPECT_EQ(colours->points_C[1], Eigen::Vector3f(-0.5f, -0.25f, 2.f)) << i;
+  }
 }
 
 TEST(CloudPly, LoadsVerticesAndIgnoresFaces) {
