@@ -26,6 +26,11 @@ constexpr double kDefaultViewHeight = 1.0;
 constexpr double kViewClearance = 0.1;
 // Points closer to V than this along its axis are dropped, metres.
 constexpr double kMinDepth = 1e-3;
+// Points more than atan(10) = 84.3 deg off V's axis are dropped (no pinhole
+// images them; binpick's cameras see up to about 40 deg off axis). Bounded
+// tangents keep every pixel coordinate exact to 1e-5 px: a point at tangent
+// 1e33 put its pixel's rounding error beyond the grid (fuzz/pcd_fuzz).
+constexpr double kMaxTangent = 10.0;
 // Lattice recovery: random sample of the points (seeded), its smallest
 // number of columns for a lattice, and the smallest ratio between the gaps
 // of one column's values and those between columns (SameColumnGap).
@@ -94,7 +99,9 @@ std::vector<RayPoint> ToRays(const Frame& cloud, const Pose& X_VC) {
     if (!p_C.allFinite()) continue;
     const Eigen::Vector3f p = same ? p_C : Eigen::Vector3f(R * p_C + t);
     if (!(p.z() > kMinDepth)) continue;
-    rays.push_back({static_cast<double>(p.x()) / p.z(), static_cast<double>(p.y()) / p.z(), p.z()});
+    const RayPoint r{static_cast<double>(p.x()) / p.z(), static_cast<double>(p.y()) / p.z(), p.z()};
+    if (std::abs(r.a) > kMaxTangent || std::abs(r.b) > kMaxTangent) continue;
+    rays.push_back(r);
   }
   return rays;
 }
@@ -435,7 +442,8 @@ Result<CloudProjection> ProjectCloud(const Frame& cloud, const Cell& cell, bool 
   if (out.view != CloudViewSource::kCamera) X_BV = ViewFromAboveBin(cell, cloud);
   const std::vector<RayPoint> rays = ToRays(cloud, X_BV.inverse() * cloud.X_BC);
   if (rays.empty()) {
-    return Status::InvalidArgument("'" + cloud.source + "': no point in front of the virtual camera");
+    return Status::InvalidArgument("'" + cloud.source +
+                                   "': no point in front of the virtual camera within 84.3 deg of its axis");
   }
 
   Intrinsics K;

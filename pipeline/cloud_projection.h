@@ -46,7 +46,7 @@ struct CloudProjection {
   CloudGrid grid = CloudGrid::kFromSpacing;
   CloudViewSource view = CloudViewSource::kCamera;
   int config_id = 0;       // kCameraConfig: the config's id
-  int64_t points = 0;      // finite points in front of V
+  int64_t points = 0;      // finite points in front of V, within 84.3 deg of its axis
   int64_t pixels = 0;      // pixels holding a point; points - pixels were behind a nearer point
   double max_shift_px = 0; // largest sideways distance of a point from its pixel's ray, pixels
   // One line: the view, the grid, the points kept.
@@ -75,7 +75,8 @@ struct CloudProjectionOptions {
 // virtual pinhole (header comment). `X_BC_known`: cloud.X_BC came from the
 // file rather than a default.
 // @returns InvalidArgument if the cloud is organized already or no point lies
-// in front of the virtual camera.
+// in front of the virtual camera within 84.3 deg of its axis (points
+// farther off it are dropped).
 Result<CloudProjection> ProjectCloud(const Frame& cloud, const Cell& cell, bool X_BC_known,
                                      const CloudProjectionOptions& options = {});
 

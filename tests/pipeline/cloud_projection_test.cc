@@ -354,6 +354,26 @@ TEST(ProjectCloud, AFewPointsFarApartGetASmallGrid) {
   EXPECT_EQ(p->pixels, 3);
 }
 
+// Found by fuzz/pcd_fuzz (regress-ubsan-huge-tangent): a point at a tangent
+// of 1e33 made pixel coordinates whose rounding put points off the grid
+// (an out-of-range index). Points more than 84.3 deg off the view's axis
+// are dropped.
+TEST(ProjectCloud, PointsFarOffTheViewAxisAreDropped) {
+  Frame cloud;
+  cloud.X_BC = DefaultCell().camera.X_BC;
+  for (int i = 0; i < 10; ++i) {
+    for (int j = 0; j < 10; ++j) cloud.points_C.emplace_back(0.01f * static_cast<float>(i), 0.01f * j, 1.f);
+  }
+  cloud.points_C.emplace_back(1e30f, 0.f, 1e-3f + 1e-6f);
+  cloud.points_C.emplace_back(0.f, -12.f, 1.f);
+  Result<CloudProjection> p = ProjectCloud(cloud, DefaultCell(), true);
+  ASSERT_TRUE(p.ok()) << p.status().ToString();
+  EXPECT_EQ(p->points, 100);
+  EXPECT_EQ(p->pixels, 100);
+  cloud.points_C = {{1e30f, 0.f, 1.f}};
+  EXPECT_EQ(ProjectCloud(cloud, DefaultCell(), true).status().code(), Status::Code::kInvalidArgument);
+}
+
 TEST(ProjectCloud, AnOrganizedFrameOrNoPointInFrontIsInvalidArgument) {
   const Cell& cell = DefaultCell();
   const Frame organized = FloorWithBox(cell.camera.FindConfig(1)->intrinsics, cell.camera.X_BC);
