@@ -29,7 +29,11 @@ int RunRobotCommand(int argc, char** argv) {
   app.add_option("--port", port, "DaoAI port");
   app.add_option("--robot", robot, "robot type (ur, abb, kuka, fanuc, yaskawa, ...): meta_1 and "
                                    "orientation convention");
-  app.add_option("--protocol-version", version, "meta_2 (1 = seed 004, 2 = seed 000)");
+  app.add_option("--protocol-version", version, "meta_2 (the seeds' own scripts send 1)");
+  std::string dialect = "vision_pilot";
+  app.add_option("--dialect", dialect,
+                 "the seed script the robot plays: vision_pilot (seed 000/003) or socket_v1 (seed 004); "
+                 "the server's cell must name the same robot.dialect");
   app.add_option("--position-scale", position_scale, "metres per wire unit (0.001 for mm)");
   app.add_option("--flow", flow.flow, flows)->required();
   app.add_option("--task", flow.task_id, "task id (payload_1)");
@@ -72,7 +76,13 @@ int RunRobotCommand(int argc, char** argv) {
     std::cerr << "binpick robot: unknown robot '" << robot << "'\n";
     return 2;
   }
+  const std::optional<DaoaiDialect> parsed_dialect = ParseDaoaiDialect(dialect);
+  if (!parsed_dialect) {
+    std::cerr << "binpick robot: unknown dialect '" << dialect << "' (vision_pilot or socket_v1)\n";
+    return 2;
+  }
   RobotClientOptions options;
+  options.dialect = *parsed_dialect;
   options.host = host;
   options.port = port;
   options.robot_type = model->type;

@@ -82,7 +82,7 @@ int main(int argc, char** argv) {
   std::unique_ptr<bp::DaoaiServer> server;
   if (port == 0) {
     planner = std::make_shared<bp::testing::ScriptedPlanner>();
-    bp::Cell cell = bp::testing::MakeTestCell(2);
+    bp::Cell cell = bp::testing::MakeTestCell();
     for (int i = 0; i < robots; ++i) {
       bp::TaskSpec t;
       t.id = task_base + i;

@@ -48,12 +48,15 @@ bool NeedsTask(int32_t command) {
   }
 }
 
-// Wire pose encoding for one request/response: the convention meta_1 names
-// and the cell's position unit.
+// How one request is read and answered: the pose encoding (the convention
+// meta_1 names, the cell's position unit), the cell's dialect, and the
+// request's meta_2, which every answer echoes.
 struct WireFormat {
   OrientationConvention convention = OrientationConvention::kAxisAngle;
   double position_scale = 1.0;  // metres per wire unit (before MULT)
-  int version = 2;
+  DaoaiDialect dialect = DaoaiDialect::kVisionPilot;
+  int32_t meta_2 = 2;
+  bool v1() const { return dialect == DaoaiDialect::kSocketV1; }
 };
 
 Result<Pose> DecodePose(const Request& r, const WireFormat& f) {
@@ -234,11 +237,15 @@ class RequestHandler::Impl {
 #endif
   }
 
-  Response Base(int32_t status) const {
+  // A status-only answer: meta_1 is the cell's robot type, meta_2 the
+  // request's version (echoed: the seeds' scripts raise a popup when it
+  // differs from their own).
+  Response Base(int32_t status, const WireFormat& f) const { return Base(status, f.meta_2); }
+  Response Base(int32_t status, int32_t meta_2) const {
     Response r;
     r.status = status;
     r.meta_1 = static_cast<int32_t>(cell_.robot.model.type);
-    r.meta_2 = cell_.robot.protocol_version;
+    r.meta_2 = meta_2;
     return r;
   }
 
@@ -384,7 +391,7 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
     const GraspQueue::Popped p = t.queue.Pop();
     if (p.grasp) {
       Response r = Base(t.spec.kind == TaskSpec::Kind::kPlace ? daoai::kDropOffPose
-                                                              : daoai::kObjectsFound);
+                                                              : daoai::kObjectsFound, f);
       Status s = EncodePose(p.grasp->X_BT, f, r);
       const Result<int32_t> remaining = ToFixed(p.remaining);
       const Result<int32_t> klass = ToFixed(p.grasp->class_id);
@@ -394,20 +401,20 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
       if (!s.ok()) {
         spdlog::error("daoai: task {} grasp on instance {} does not fit the wire format ({}); "
                       "answering NO_OBJECT_FOUND", t.spec.id, p.grasp->instance_id, s.ToString());
-        return Base(daoai::kNoObjectFound);
+        return Base(daoai::kNoObjectFound, f);
       }
       r.payload[0] = *remaining;
       r.payload[1] = *klass;
       return r;
     }
-    // Nothing to hand out: say why, in the version's vocabulary.
+    // Nothing to hand out: say why, in the dialect's vocabulary.
     int32_t status = daoai::kNoObjectFound;
     if (!p.outcome || *p.outcome == PlanResult::Outcome::kCaptureFailed) {
-      status = f.version == 1 ? daoai::kNoImageCaptured : daoai::kNoObjectFound;
+      status = f.v1() ? daoai::kNoImageCaptured : daoai::kNoObjectFound;
     } else if (*p.outcome == PlanResult::Outcome::kNoCollisionFree) {
-      status = f.version == 1 ? daoai::kNoObjectFound : daoai::kNoCollisionFreePose;
+      status = f.v1() ? daoai::kNoObjectFound : daoai::kNoCollisionFreePose;
     }
-    return Base(status);
+    return Base(status, f);
   };
 }
 
@@ -418,16 +425,16 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
     // A calibration step without a usable robot pose would poison the data.
     spdlog::warn("daoai: calibration command {} with an undecodable robot pose; rejected", command);
     if (command == daoai::kGuidanceCalibration) {
-      done(f.version == 1 ? Respond(Base(daoai::kGuidanceBad)) : NoResponse());
+      done(f.v1() ? Respond(Base(daoai::kGuidanceBad, f)) : NoResponse());
     } else {
-      done(Respond(Base(daoai::kUnknownCommand)));
+      done(Respond(Base(daoai::kUnknownCommand, f)));
     }
     return;
   }
   const Pose X_BF = pose.value_or(Pose::Identity());
   serial_.Post([this, command, X_BF, f, done = std::move(done)] {
     auto answer = [&](int32_t status, const std::optional<Pose>& pose = std::nullopt) {
-      Response r = Base(status);
+      Response r = Base(status, f);
       if (pose) {
         const Status s = EncodePose(*pose, f, r);
         if (!s.ok()) spdlog::error("daoai: calibration pose does not fit the wire: {}", s.ToString());
@@ -482,9 +489,9 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
           spdlog::warn("daoai: stop manual calibration outside manual calibration");
         }
         calibration_mode_.reset();
-        // Version 1 (seed 004) acknowledges with UNKNOWN_COMMAND; version 2's
-        // robot script reads no answer.
-        if (f.version == 1) {
+        // Seed 004 acknowledges with UNKNOWN_COMMAND; seed 000's
+        // daoai_stop_manual_calibration reads no answer.
+        if (f.v1()) {
           answer(daoai::kUnknownCommand);
         } else {
           done(NoResponse());
@@ -517,12 +524,12 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
       case daoai::kGuidanceCalibration: {
         // Each request is one pose; the first starts a guidance calibration.
         if (calibration_mode_ != CalibrationKind::kGuidance && !start(CalibrationKind::kGuidance)) {
-          if (f.version == 1) answer(daoai::kGuidanceBad); else done(NoResponse());
+          if (f.v1()) answer(daoai::kGuidanceBad); else done(NoResponse());
           return;
         }
         const auto step = accumulate(CalibrationKind::kGuidance);
-        if (f.version != 1) {
-          done(NoResponse());  // version 2: the robot script reads no answer
+        if (!f.v1()) {
+          done(NoResponse());  // seed 000: daoai_guidance_accumulate_calibration reads no answer
           return;
         }
         answer(!step || !step->good ? daoai::kGuidanceBad
@@ -566,12 +573,13 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   std::shared_ptr<AnswerEvent> answer_event;
   done = Observed(req, client, answer_event, std::move(done));
 
-  // meta_2 selects the protocol version; anything else is garbage (or a
-  // misaligned stream): answer UNKNOWN_COMMAND.
+  // meta_2 is 1 or 2 (both seeds' programs send 1, seed 000's text says 2)
+  // and is echoed; anything else is garbage (or a misaligned stream): answer
+  // UNKNOWN_COMMAND. The rules follow the cell's dialect, not meta_2.
   if (req.meta_2 != 1 && req.meta_2 != 2) {
     spdlog::warn("daoai: {} sent protocol version (meta_2) {} (command {}); expected 1 or 2; "
                  "answering UNKNOWN_COMMAND", client.peer, req.meta_2, req.command);
-    done(Respond(Base(daoai::kUnknownCommand)));
+    done(Respond(Base(daoai::kUnknownCommand, cell_.robot.protocol_version)));
     return;
   }
   // meta_1 selects the orientation convention of both directions.
@@ -579,7 +587,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   if (!model) {
     spdlog::warn("daoai: {} sent unknown robot type (meta_1) {} (command {}); answering "
                  "UNKNOWN_COMMAND", client.peer, req.meta_1, req.command);
-    done(Respond(Base(daoai::kUnknownCommand)));
+    done(Respond(Base(daoai::kUnknownCommand, req.meta_2)));
     return;
   }
   if (model->type != cell_.robot.model.type && !client.warned_meta_1) {
@@ -591,8 +599,14 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   }
   WireFormat f;
   f.convention = model->convention;
+  // meta_1 99 ("other") says only that the robot has no id of its own; the
+  // cell names which one it is (Adept, Kawasaki, Comau, Syntec, Turin).
+  if (model->type == RobotType::kOther && cell_.robot.model.type == RobotType::kOther) {
+    f.convention = cell_.robot.model.convention;
+  }
   f.position_scale = cell_.robot.position_scale;
-  f.version = req.meta_2;
+  f.dialect = cell_.robot.dialect;
+  f.meta_2 = req.meta_2;
 
   // Every message carries the robot pose: record it (status page, liveness,
   // eye-in-hand captures, calibration, teaching).
@@ -613,7 +627,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     if (it == tasks_.end()) {
       spdlog::warn("daoai: {} named unknown task id {} (payload_1) with command {}; answering "
                    "UNKNOWN_COMMAND", client.peer, req.payload_1, req.command);
-      done(Respond(Base(daoai::kUnknownCommand)));
+      done(Respond(Base(daoai::kUnknownCommand, f)));
       return;
     }
     task = it->second.get();
@@ -638,14 +652,14 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
 
     case daoai::kCaptureAndProcessAsync:
       // Answer at once; capture and detect in the background.
-      done(Respond(Base(daoai::kDetection)));
+      done(Respond(Base(daoai::kDetection, f)));
       StartDetection(*task, MakePlanRequest(*task, X_BF), nullptr);
       return;
 
     case daoai::kCaptureAndProcess: {
       // Answer when the image is captured, not when detection ends.
-      auto on_captured = [this, done = std::move(done)](bool ok) {
-        done(Respond(Base(ok ? daoai::kDetection : daoai::kCaptureFail)));
+      auto on_captured = [this, f, done = std::move(done)](bool ok) {
+        done(Respond(Base(ok ? daoai::kDetection : daoai::kCaptureFail, f)));
       };
       StartDetection(*task, MakePlanRequest(*task, X_BF), std::move(on_captured));
       return;
@@ -694,7 +708,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
 
     case daoai::kCheckEmptyBox: {
       PlanRequest plan_request = MakePlanRequest(*task, X_BF);
-      Spawn([this, task, plan_request = std::move(plan_request), done = std::move(done)] {
+      Spawn([this, task, f, plan_request = std::move(plan_request), done = std::move(done)] {
         const auto t0 = std::chrono::steady_clock::now();
         DetectionEvent event;
         event.task_id = task->spec.id;
@@ -720,7 +734,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
           // No image, no evidence that the box is empty: say not empty.
           spdlog::warn("daoai: task {} empty-box check could not capture: {}; answering "
                        "BOX_NOT_EMPTY", task->spec.id, scene.status().ToString());
-          done(Respond(Base(daoai::kBoxNotEmpty)));
+          done(Respond(Base(daoai::kBoxNotEmpty, f)));
           return;
         }
         Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
@@ -734,7 +748,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         if (!plan.ok()) {
           spdlog::warn("daoai: task {} empty-box check failed: {}; answering BOX_NOT_EMPTY",
                        task->spec.id, plan.status().ToString());
-          done(Respond(Base(daoai::kBoxNotEmpty)));
+          done(Respond(Base(daoai::kBoxNotEmpty, f)));
           return;
         }
         const EmptyBoxRule& rule = task->spec.empty_box;
@@ -743,14 +757,14 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         spdlog::info("daoai: task {} empty-box check: {} points (threshold {}), {} detections: {}",
                      task->spec.id, points, rule.threshold_points, plan->detections,
                      empty ? "EMPTY" : "NOT EMPTY");
-        done(Respond(Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty)));
+        done(Respond(Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, f)));
       });
       return;
     }
 
     case daoai::kPrecisionCheck: {
       PlanRequest plan_request = MakePlanRequest(*task, X_BF);
-      Spawn([this, plan_request = std::move(plan_request), done = std::move(done)] {
+      Spawn([this, f, plan_request = std::move(plan_request), done = std::move(done)] {
         Result<double> error_mm = Status::Unavailable("not run");
         {
           std::lock_guard lock(capture_mutex_);
@@ -760,10 +774,10 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         if (!fixed.ok()) {
           spdlog::warn("daoai: task {} precision check failed: {}", plan_request.task.id,
                        fixed.status().ToString());
-          done(Respond(Base(daoai::kPrecisionCheckFail)));
+          done(Respond(Base(daoai::kPrecisionCheckFail, f)));
           return;
         }
-        Response r = Base(daoai::kPrecisionCheckSuccess);
+        Response r = Base(daoai::kPrecisionCheckSuccess, f);
         r.payload[0] = *fixed;
         done(Respond(r));
       });
@@ -773,19 +787,19 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     case daoai::kSwitchConfig: {
       if (cell_.camera.FindConfig(req.payload_1) == nullptr) {
         spdlog::warn("daoai: {} asked for unknown camera config {}", client.peer, req.payload_1);
-        done(Respond(Base(daoai::kSwitchConfigFail)));
+        done(Respond(Base(daoai::kSwitchConfigFail, f)));
         return;
       }
       camera_config_id_ = req.payload_1;
       spdlog::info("daoai: camera config {} selected", req.payload_1);
-      done(Respond(Base(daoai::kSwitchConfigSuccess)));
+      done(Respond(Base(daoai::kSwitchConfigSuccess, f)));
       return;
     }
 
     default:
       spdlog::warn("daoai: {} sent unknown command {}; answering UNKNOWN_COMMAND", client.peer,
                    req.command);
-      done(Respond(Base(daoai::kUnknownCommand)));
+      done(Respond(Base(daoai::kUnknownCommand, f)));
       return;
   }
 }

@@ -173,13 +173,14 @@ Result<RobotReply> RobotClient::Call(int32_t command, int32_t payload_1, int32_t
   return Receive();
 }
 
-std::string DaoaiStatusName(int32_t status, int version) {
+std::string DaoaiStatusName(int32_t status, DaoaiDialect dialect) {
+  const bool v1 = dialect == DaoaiDialect::kSocketV1;
   switch (status) {
     case -1: return "UNKNOWN_COMMAND";
     case 2: return "OBJECTS_FOUND";
     case 3: return "NO_OBJECT_FOUND";
-    case 4: return version == 1 ? "NO_IMAGE_CAPTURED" : "NO_COLLISION_FREE_POSE";
-    case 5: return version == 1 ? "DETECTION" : "CAPTURE_SUCCESS";
+    case 4: return v1 ? "NO_IMAGE_CAPTURED" : "NO_COLLISION_FREE_POSE";
+    case 5: return v1 ? "DETECTION" : "CAPTURE_SUCCESS";
     case 6: return "DROP_OFF_POSE";
     case 9: return "CAPTURE_FAIL";
     case 10: return "MODE_CALIBRATION";

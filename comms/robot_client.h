@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "comms/daoai_message.h"
+#include "core/cell.h"
 #include "core/conventions.h"
 #include "core/pose.h"
 #include "core/status.h"
@@ -25,6 +26,9 @@ struct RobotClientOptions {
   RobotType robot_type = RobotType::kUR;            // meta_1
   OrientationConvention convention = OrientationConvention::kAxisAngle;
   int version = 2;                                  // meta_2
+  // Which seed's script the robot plays (docs/protocols.md "Dialects"):
+  // whether stop-manual (2) and guidance (10) read an answer, what status 4 means.
+  DaoaiDialect dialect = DaoaiDialect::kVisionPilot;
   double position_scale = 1.0;                      // metres per wire unit
   std::chrono::milliseconds timeout{10000};         // per receive
   // TCP_NODELAY on the robot's socket. Robot controllers rarely let a program
@@ -95,7 +99,7 @@ class RobotClient {
   Pose X_BF_ = Pose::Identity();
 };
 
-// Status names of seed 000 (version 2) / 004 (version 1), e.g. "OBJECTS_FOUND".
-std::string DaoaiStatusName(int32_t status, int version);
+// Status names of seed 000 (vision_pilot) / 004 (socket_v1), e.g. "OBJECTS_FOUND".
+std::string DaoaiStatusName(int32_t status, DaoaiDialect dialect);
 
 }  // namespace bp

@@ -63,7 +63,7 @@ class Runner {
     }
     summary_.latencies_ms.push_back(ms);
     summary_.last_status = reply->status;
-    Print(command, payload_1, DaoaiStatusName(reply->status, robot_.options().version) + "(" +
+    Print(command, payload_1, DaoaiStatusName(reply->status, robot_.options().dialect) + "(" +
                                   std::to_string(reply->status) + ")",
           &*reply, ms);
     for (const std::string& w : reply->warnings) out_ << "      popup: " << w << "\n";
@@ -241,9 +241,9 @@ Status ManualCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions&
       return Status::Ok();
     }
   }
-  // daoai_stop_manual_calibration(): version 2 reads no answer, version 1
+  // daoai_stop_manual_calibration(): seed 000 reads no answer, seed 004
   // reads UNKNOWN_COMMAND as the acknowledgement.
-  if (robot.options().version == 1) {
+  if (robot.options().dialect == DaoaiDialect::kSocketV1) {
     Result<RobotReply> stop = run.Call(daoai::kStopManualCalibration);
     if (!stop.ok()) return stop.status();
     s.ok = stop->status == daoai::kUnknownCommand;
@@ -285,8 +285,8 @@ Status AutoCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o
 Status GuidanceCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
   robot.SetPose(o.calib_start_X_BF.value_or(DetectionPose()));
-  if (robot.options().version != 1) {
-    // Version 2 (seed 000): daoai_guidance_accumulate_calibration() sends
+  if (robot.options().dialect != DaoaiDialect::kSocketV1) {
+    // Seed 000: daoai_guidance_accumulate_calibration() sends
     // and reads nothing; the robot program sends one pose per waypoint.
     for (int i = 0; i < o.manual_poses; ++i) {
       if (Status st = run.Send(daoai::kGuidanceCalibration); !st.ok()) return st;

@@ -882,7 +882,7 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
 }
 
 void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
-  ExpectMap(n, "robot", {"type", "protocol_version", "position_scale", "modbus", "workspace"});
+  ExpectMap(n, "robot", {"type", "dialect", "protocol_version", "position_scale", "modbus", "workspace"});
   RobotSpec& r = cell.robot;
   const YAML::Node type = Req(n, "robot", "type");
   const std::string name = Name(type, "robot.type");
@@ -895,6 +895,12 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
   }
   if (!model) Fail(type, "robot.type", "unknown robot type '" + name + "' (a robot name such as ur, abb, kuka, or a meta_1 id)");
   r.model = *model;
+  if (const YAML::Node d = n["dialect"]; d.IsDefined()) {
+    const std::string dialect = Name(d, "robot.dialect");
+    const std::optional<DaoaiDialect> parsed = ParseDaoaiDialect(dialect);
+    if (!parsed) Fail(d, "robot.dialect", "unknown dialect '" + dialect + "' (vision_pilot or socket_v1)");
+    r.dialect = *parsed;
+  }
   r.protocol_version = OptInt(n, "robot", "protocol_version", r.protocol_version);
   Check(r.protocol_version == 1 || r.protocol_version == 2, n["protocol_version"], "robot.protocol_version",
         "must be 1 or 2, got " + std::to_string(r.protocol_version));
@@ -1104,6 +1110,20 @@ Result<Cell> LoadCellOrDefault(const std::string& path) {
   return path.empty() ? LoadDefaultCell() : LoadCell(path);
 }
 
+std::string_view ToString(DaoaiDialect dialect) {
+  switch (dialect) {
+    case DaoaiDialect::kVisionPilot: return "vision_pilot";
+    case DaoaiDialect::kSocketV1: return "socket_v1";
+  }
+  return "?";
+}
+
+std::optional<DaoaiDialect> ParseDaoaiDialect(std::string_view name) {
+  if (name == "vision_pilot") return DaoaiDialect::kVisionPilot;
+  if (name == "socket_v1") return DaoaiDialect::kSocketV1;
+  return std::nullopt;
+}
+
 Status ValidateModbusRegisterMap(const ModbusRegisterMap& m) {
   constexpr int kRequestFields = 12, kResponseFields = 16, kMaxRead = 125;
   auto in = [](int reg, int base, int count) { return reg >= base && reg < base + count; };
@@ -1174,7 +1194,7 @@ std::string Describe(const Cell& cell) {
   os << "\n  tasks:";
   for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;
   os << "\n  robot: " << cell.robot.model.name << " (meta_1 id " << static_cast<int>(cell.robot.model.type) << ", "
-     << ToString(cell.robot.model.convention) << "), protocol " << cell.robot.protocol_version;
+     << ToString(cell.robot.model.convention) << "), dialect " << ToString(cell.robot.dialect);
   if (!cell.robot.modbus_host.empty()) os << ", modbus " << cell.robot.modbus_host << ":" << cell.robot.modbus_port;
   const Endpoints& e = cell.endpoints;
   os << "\n  endpoints: " << e.bind << " daoai " << e.daoai_port << ", gri " << e.gri_port << ", gri_official "

@@ -12,6 +12,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/conventions.h"
@@ -230,8 +231,22 @@ struct ModbusRegisterMap {
 // consecutive registers (one read must see it all).
 Status ValidateModbusRegisterMap(const ModbusRegisterMap& map);
 
+// Which seed's rules a DaoAI robot program follows (robot.dialect,
+// docs/protocols.md "Dialects"): which commands are answered and what status
+// 4 means. Chosen by the cell, never by a request's meta_2 (the seeds' own
+// programs send meta_2 = 1 whichever rules they follow).
+enum class DaoaiDialect {
+  kVisionPilot,  // seed 000 / 003 (UR socket and Modbus scripts): 2 and 10 unanswered, 4 = NO_COLLISION_FREE_POSE
+  kSocketV1,     // seed 004 (socket v1): 2 answered -1, 10 answered 12/13/32, 4 = NO_IMAGE_CAPTURED
+};
+std::string_view ToString(DaoaiDialect dialect);  // "vision_pilot", "socket_v1"
+std::optional<DaoaiDialect> ParseDaoaiDialect(std::string_view name);
+
 struct RobotSpec {
   RobotModel model;                 // from robot.type
+  DaoaiDialect dialect = DaoaiDialect::kVisionPilot;
+  // meta_2 of an answer to a request whose own meta_2 is not 1 or 2 (every
+  // other answer echoes the request's meta_2).
   int protocol_version = 2;
   double position_scale = 1.0;      // wire position unit in metres (1.0 = metres, 0.001 = mm)
   std::string modbus_host;          // empty: no Modbus master

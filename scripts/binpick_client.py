@@ -46,7 +46,7 @@ CHECK_EMPTY_BOX = 40
 PRECISION_CHECK = 50
 SWITCH_CONFIG = 69
 
-# Response statuses; 4 means NO_IMAGE_CAPTURED in version 1.
+# Response statuses; 4 means NO_IMAGE_CAPTURED in the socket_v1 dialect (seed 004).
 STATUS_NAMES = {
     -1: "UNKNOWN_COMMAND", 2: "OBJECTS_FOUND", 3: "NO_OBJECT_FOUND", 4: "NO_COLLISION_FREE_POSE",
     5: "CAPTURE_SUCCESS", 6: "DROP_OFF_POSE", 9: "CAPTURE_FAIL", 10: "MODE_CALIBRATION",
@@ -57,9 +57,10 @@ STATUS_NAMES = {
     67: "SWITCH_CONFIG_FAIL",
 }
 
-# Commands whose robot script reads no response (per protocol version).
-NO_RESPONSE = {1: {NO_COMMAND, SEND_POSE},
-               2: {NO_COMMAND, SEND_POSE, STOP_MANUAL_CALIBRATION, GUIDANCE_CALIBRATION}}
+# Commands whose robot script reads no response, per dialect (the cell's
+# robot.dialect, docs/protocols.md "Dialects"; never meta_2).
+NO_RESPONSE = {"socket_v1": {NO_COMMAND, SEND_POSE},
+               "vision_pilot": {NO_COMMAND, SEND_POSE, STOP_MANUAL_CALIBRATION, GUIDANCE_CALIBRATION}}
 
 
 def _fixed(value):
@@ -71,7 +72,7 @@ def _fixed(value):
 class Reply:
     """A decoded 64-byte response."""
 
-    def __init__(self, fields, version):
+    def __init__(self, fields, dialect):
         self.raw = fields
         self.position = tuple(f / MULT for f in fields[0:3])      # metres
         self.orientation = tuple(f / MULT for f in fields[3:7])   # robot convention
@@ -80,7 +81,7 @@ class Reply:
         self.meta_1 = fields[14]
         self.meta_2 = fields[15]
         name = STATUS_NAMES.get(self.status, "STATUS_%d" % self.status)
-        if version == 1 and self.status == 4:
+        if dialect == "socket_v1" and self.status == 4:
             name = "NO_IMAGE_CAPTURED"
         self.status_name = name
 
@@ -102,9 +103,13 @@ class Reply:
 class DaoaiClient:
     """One robot connection. Not thread-safe (one request at a time, like a robot)."""
 
-    def __init__(self, host="127.0.0.1", port=6969, robot_type=7, version=2, timeout=30.0):
+    def __init__(self, host="127.0.0.1", port=6969, robot_type=7, version=2, timeout=30.0,
+                 dialect="vision_pilot"):
+        if dialect not in NO_RESPONSE:
+            raise ValueError("dialect must be vision_pilot or socket_v1")
         self.robot_type = robot_type  # meta_1 (7 = UR)
-        self.version = version        # meta_2
+        self.version = version        # meta_2 (echoed by binpickd)
+        self.dialect = dialect        # the seed script's rules, as the cell's robot.dialect
         self.pose = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._sock = socket.create_connection((host, port), timeout=timeout)
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -130,12 +135,12 @@ class DaoaiClient:
             if not chunk:
                 raise ConnectionError("server closed the connection")
             data += chunk
-        return Reply(RESPONSE.unpack(data), self.version)
+        return Reply(RESPONSE.unpack(data), self.dialect)
 
     def call(self, command, payload_1=0, payload_2=0):
         """Sends a command; returns its Reply, or None when the command has no response."""
         self.send(command, payload_1, payload_2)
-        if command in NO_RESPONSE.get(self.version, NO_RESPONSE[2]):
+        if command in NO_RESPONSE[self.dialect]:
             return None
         return self.receive()
 
@@ -168,6 +173,8 @@ def _main(argv):
     parser.add_argument("--port", type=int, default=6969)
     parser.add_argument("--robot-type", type=int, default=7, help="meta_1 (7 = UR)")
     parser.add_argument("--protocol-version", type=int, default=2, help="meta_2")
+    parser.add_argument("--dialect", default="vision_pilot", choices=sorted(NO_RESPONSE),
+                        help="the server cell's robot.dialect")
     parser.add_argument("--pose", type=float, nargs=7, metavar="V",
                         default=[0.4, -0.3, 0.6, 3.1416, 0.0, 0.0, 0.0],
                         help="robot pose sent with requests: x y z (m) + 4 orientation fields")
@@ -178,7 +185,8 @@ def _main(argv):
     parser.add_argument("--command", type=int, default=0, help="raw: the command to send")
     args = parser.parse_args(argv)
 
-    with DaoaiClient(args.host, args.port, args.robot_type, args.protocol_version) as robot:
+    with DaoaiClient(args.host, args.port, args.robot_type, args.protocol_version,
+                     dialect=args.dialect) as robot:
         robot.pose = tuple(args.pose)
 
         def show(what, reply):

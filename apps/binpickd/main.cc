@@ -110,6 +110,10 @@ int main(int argc, char** argv) {
   app.add_option("--taught-grasps", taught_grasps,
                  "file of the grasps taught with command 30 (default: <cell file>.taught.yaml; the package's "
                  "service keeps it in /var/lib/binpick)");
+  std::string dialect;
+  app.add_option("--dialect", dialect,
+                 "DaoAI rules the robot program follows: vision_pilot (seed 000/003) or socket_v1 "
+                 "(seed 004) (default: the cell's robot.dialect)");
   app.add_flag("--no-record", no_record, "do not record captures and answers (default: the cell's recording)");
   app.add_option("--record-dir", record_dir, "directory of the recording sessions (default: the cell's)");
   app.add_option("--record-max-mb", record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
@@ -133,6 +137,14 @@ int main(int argc, char** argv) {
   if (!cell.ok()) {
     std::cerr << "binpickd: " << cell.status().ToString() << "\n";
     return 2;
+  }
+  if (!dialect.empty()) {
+    const std::optional<bp::DaoaiDialect> d = bp::ParseDaoaiDialect(dialect);
+    if (!d) {
+      std::cerr << "binpickd: --dialect '" << dialect << "' is not vision_pilot or socket_v1\n";
+      return 2;
+    }
+    cell->robot.dialect = *d;
   }
   if (http_port != 0) {
     status = std::make_shared<bp::StatusState>(*cell, metrics);

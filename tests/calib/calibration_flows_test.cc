@@ -39,8 +39,10 @@ class NoPartsPlanner final : public GraspPlanner {
 // A server (RequestHandler + DaoAI socket) with the real calibration service
 // and precision check, and a robot connected to it.
 struct Rig {
+  // `version` 1: a seed 004 robot (meta_2 1) on a socket_v1 cell; 2: a seed
+  // 000 robot sending meta_2 2 on a vision_pilot cell.
   Rig(Cell c, int version, const std::string& result_file) : cell(std::move(c)) {
-    cell.robot.protocol_version = version;
+    cell.robot.dialect = version == 1 ? DaoaiDialect::kSocketV1 : DaoaiDialect::kVisionPilot;
     camera = std::make_shared<SimulatedCalibrationCamera>(cell.camera, *cell.calibration);
     state = std::make_shared<HandEyeState>(cell.camera.eye_in_hand ? cell.camera.X_FC : cell.camera.X_BC);
     HandEyeServiceOptions o;
@@ -55,6 +57,7 @@ struct Rig {
     RobotClientOptions ro;
     ro.port = server->port();
     ro.version = version;
+    ro.dialect = cell.robot.dialect;
     ro.robot_type = cell.robot.model.type;
     ro.convention = cell.robot.model.convention;
     robot = std::move(RobotClient::Connect(ro).value());

@@ -102,10 +102,14 @@ daoai::Request Req(int32_t command, int32_t payload_1 = 0, int32_t version = 2, 
 
 class DaoaiServerTest : public ::testing::Test {
  protected:
-  void Start(int version = 2, std::chrono::milliseconds read_timeout = 5000ms) {
+  void Start(DaoaiDialect dialect = DaoaiDialect::kVisionPilot,
+             std::chrono::milliseconds read_timeout = 5000ms) {
+    Start(MakeTestCell(dialect), read_timeout);
+  }
+  void Start(Cell cell, std::chrono::milliseconds read_timeout = 5000ms) {
     planner_ = std::make_shared<ScriptedPlanner>();
     handler_ = std::make_unique<RequestHandler>(
-        MakeTestCell(version), planner_, std::make_unique<CountingCalibrationService>(3));
+        std::move(cell), planner_, std::make_unique<CountingCalibrationService>(3));
     DaoaiServerOptions options;
     options.port = 0;
     options.read_timeout = read_timeout;
@@ -161,8 +165,8 @@ class DaoaiServerTest : public ::testing::Test {
 #define EXPECT_RESPONSE(client, request, golden) \
   EXPECT_EQ(Exchange(client, request), Normalize(golden)) << "command " << (request).command
 
-TEST_F(DaoaiServerTest, AnswersEveryVersion2CommandWithGoldenBytes) {
-  Start(2);
+TEST_F(DaoaiServerTest, AnswersEveryCommandOfTheVisionPilotDialectWithGoldenBytes) {
+  Start();
   auto c = Connect(2);
   ASSERT_TRUE(c);
   // -1 pose update: no response.
@@ -248,8 +252,8 @@ TEST_F(DaoaiServerTest, AnswersEveryVersion2CommandWithGoldenBytes) {
   EXPECT_EQ(handler_->camera_config_id(), 2);
 }
 
-TEST_F(DaoaiServerTest, AnswersEveryVersion1CommandWithGoldenBytes) {
-  Start(1);
+TEST_F(DaoaiServerTest, AnswersEveryCommandOfTheSocketV1DialectWithGoldenBytes) {
+  Start(DaoaiDialect::kSocketV1);
   auto c = Connect(1);
   ASSERT_TRUE(c);
   ExpectNoResponse(*c, Req(daoai::kNoCommand, 0, 1));
@@ -282,22 +286,72 @@ TEST_F(DaoaiServerTest, AnswersEveryVersion1CommandWithGoldenBytes) {
   EXPECT_RESPONSE(*c, Req(42, 0, 1), kV1Unknown);
 }
 
-TEST_F(DaoaiServerTest, AnswersAVersion1RobotOnAVersion2CellWithTheCellsMeta) {
-  Start(2);
+// Seed 000's programs send meta_2 = 1 (DAOAI_META_VERSION = 1) and pop up
+// "interface version does not match" unless the answer carries it back; the
+// rules are the cell's dialect whatever meta_2 says.
+TEST_F(DaoaiServerTest, EchoesMeta2AndKeepsTheCellsDialect) {
+  Start();  // vision_pilot (seed 000)
   auto c = Connect(1);
   ASSERT_TRUE(c);
-  // Version-1 semantics (STOP answered), the cell's meta_2 (2): the robot's
-  // script will pop up "interface version does not match".
-  EXPECT_RESPONSE(*c, Req(daoai::kStopManualCalibration, 0, 1), kUnknown);
+  ExpectNoResponse(*c, Req(daoai::kStopManualCalibration, 0, 1));
+  ExpectNoResponse(*c, Req(daoai::kGuidanceCalibration, 0, 1));
+  ScriptedPlanner::Script blocked;
+  blocked.grasps = 0;
+  blocked.detections = 2;
+  blocked.outcome = PlanResult::Outcome::kNoCollisionFree;
+  planner_->SetScript(1, blocked);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 1, 1), kV1Capture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 1, 1),  // NO_COLLISION_FREE_POSE, meta_2 = 1
+                  "00000000 00000000 00000000" "00000000 00000000 00000000 00000000"
+                  "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000001");
   Result<RobotReply> r = c->Call(daoai::kSwitchConfig, 1);
   ASSERT_TRUE(r.ok());
   EXPECT_EQ(r->status, daoai::kSwitchConfigSuccess);
-  ASSERT_EQ(r->warnings.size(), 1u);
-  EXPECT_NE(r->warnings[0].find("version"), std::string::npos);
+  EXPECT_EQ(r->raw.meta_2, 1);
+  EXPECT_TRUE(r->warnings.empty()) << r->warnings[0];
+
+  // A socket_v1 cell answers a robot sending meta_2 = 2 by seed 004's rules, with meta_2 = 2.
+  TearDown();
+  Start(DaoaiDialect::kSocketV1);
+  auto v1 = Connect(2);
+  ASSERT_TRUE(v1);
+  EXPECT_RESPONSE(*v1, Req(daoai::kStopManualCalibration, 0, 2), kUnknown);
+  EXPECT_RESPONSE(*v1, Req(daoai::kPickPose, 0, 2), kNoCf4);  // here 4 = NO_IMAGE_CAPTURED
+}
+
+// meta_1 99 ("other"): the orientation convention is the cell's robot's
+// when the cell names one without an id of its own (a Kawasaki: Euler ZY'Z'').
+TEST_F(DaoaiServerTest, OtherRobotTypeUsesTheCellsRobotConvention) {
+  Cell cell = MakeTestCell();
+  cell.robot.model = *FindRobotModel("kawasaki");
+  ASSERT_EQ(cell.robot.model.type, RobotType::kOther);
+  Start(cell);
+  RobotClientOptions o;
+  o.port = server_->port();
+  o.robot_type = RobotType::kOther;
+  o.convention = OrientationConvention::kEulerZYZIntrinsic;
+  auto c = std::move(RobotClient::Connect(o).value());
+  // The robot at a pose whose ZY'Z'' and fixed-XYZ fields differ.
+  const Pose X_BF = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ()) *
+                                  Eigen::AngleAxisd(2.5, Vec3::UnitY()) *
+                                  Eigen::AngleAxisd(-0.7, Vec3::UnitZ())),
+                             Vec3(0.5, -0.25, 0.3));
+  c->SetPose(X_BF);
+  ASSERT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  Result<RobotReply> pick = c->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  ASSERT_EQ(pick->status, daoai::kObjectsFound);
+  ASSERT_TRUE(pick->X_BT);
+  const Pose expected = ScriptedPlanner::GraspPose(0, 0);
+  EXPECT_LT((pick->X_BT->translation() - expected.translation()).norm(), 1e-3);
+  EXPECT_LT(Eigen::AngleAxisd(pick->X_BT->linear().transpose() * expected.linear()).angle(), 1e-3);
+  // The capture saw the robot's pose decoded as ZY'Z'' too.
+  ASSERT_TRUE(planner_->last_X_BF());
+  EXPECT_LT(Eigen::AngleAxisd(planner_->last_X_BF()->linear().transpose() * X_BF.linear()).angle(), 1e-3);
 }
 
 TEST_F(DaoaiServerTest, CompletesAShortReadSentInThreeChunks) {
-  Start(2);
+  Start();
   auto c = Connect(2);
   ASSERT_TRUE(c);
   const auto bytes = daoai::EncodeRequest(Req(daoai::kSwitchConfig, 2));
@@ -330,7 +384,7 @@ int RoundsHeldByADelayedAck(const std::function<void()>& round) {
 }
 
 TEST_F(DaoaiServerTest, PoseUpdateThenCommandIsNotHeldByTheDelayedAck) {
-  Start(2);
+  Start();
   RobotClientOptions o;
   o.port = server_->port();
   o.tcp_nodelay = false;
@@ -353,7 +407,7 @@ TEST_F(DaoaiServerTest, PoseUpdateThenCommandIsNotHeldByTheDelayedAck) {
 TEST_F(DaoaiServerTest, RequestWrittenAnIntAtATimeIsNotHeldByTheDelayedAck) {
   // URScript's socket_send_int writes one int32 per call (seed 003,
   // send_robot_data_2d): 12 writes per request.
-  Start(2);
+  Start();
   RobotClientOptions o;
   o.port = server_->port();
   o.tcp_nodelay = false;
@@ -374,7 +428,7 @@ TEST_F(DaoaiServerTest, RequestWrittenAnIntAtATimeIsNotHeldByTheDelayedAck) {
 }
 
 TEST_F(DaoaiServerTest, ServesTwoRobotsOnTwoTasksConcurrently) {
-  Start(2);
+  Start();
   ScriptedPlanner::Script many;
   many.grasps = 25;
   many.plan_delay = 20ms;
@@ -411,7 +465,7 @@ TEST_F(DaoaiServerTest, ServesTwoRobotsOnTwoTasksConcurrently) {
 }
 
 TEST_F(DaoaiServerTest, RobotDisconnectingMidRequestLosesNoGrasp) {
-  Start(2);
+  Start();
   planner_->HoldPlans(true);
   {
     auto a = Connect(2);
@@ -435,7 +489,7 @@ TEST_F(DaoaiServerTest, RobotDisconnectingMidRequestLosesNoGrasp) {
 }
 
 TEST_F(DaoaiServerTest, PickPoseWaitsForTheDetectionAndCaptureDoesNot) {
-  Start(2);
+  Start();
   planner_->HoldPlans(true);  // detection cannot finish until released
   auto c = Connect(2);
   ASSERT_TRUE(c);
@@ -455,7 +509,7 @@ TEST_F(DaoaiServerTest, PickPoseWaitsForTheDetectionAndCaptureDoesNot) {
 }
 
 TEST_F(DaoaiServerTest, HalfMessageThenSilenceClosesOnlyThatConnection) {
-  Start(2, /*read_timeout=*/300ms);
+  Start(DaoaiDialect::kVisionPilot, /*read_timeout=*/300ms);
   auto stalled = Connect(2);
   auto silent = Connect(2);
   auto good = Connect(2);
@@ -477,7 +531,7 @@ TEST_F(DaoaiServerTest, HalfMessageThenSilenceClosesOnlyThatConnection) {
 }
 
 TEST_F(DaoaiServerTest, UnknownCommandAnswersMinusOneAndTheConnectionKeepsWorking) {
-  Start(2);
+  Start();
   auto c = Connect(2);
   ASSERT_TRUE(c);
   EXPECT_RESPONSE(*c, Req(1234), kUnknown);
@@ -487,7 +541,7 @@ TEST_F(DaoaiServerTest, UnknownCommandAnswersMinusOneAndTheConnectionKeepsWorkin
 }
 
 TEST_F(DaoaiServerTest, RemainingCountsRunDownToOneThenZero) {
-  Start(2);
+  Start();
   ScriptedPlanner::Script five;
   five.grasps = 5;
   planner_->SetScript(0, five);
@@ -508,7 +562,7 @@ TEST_F(DaoaiServerTest, RemainingCountsRunDownToOneThenZero) {
 }
 
 TEST_F(DaoaiServerTest, PipelinedRequestsAreAnsweredInOrder) {
-  Start(2);
+  Start();
   auto c = Connect(2);
   ASSERT_TRUE(c);
   // A misbehaving robot sends three requests without waiting.
@@ -527,7 +581,7 @@ TEST_F(DaoaiServerTest, PipelinedRequestsAreAnsweredInOrder) {
 }
 
 TEST_F(DaoaiServerTest, StopClosesRobotConnections) {
-  Start(2);
+  Start();
   auto c = Connect(2);
   ASSERT_TRUE(c);
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1), kCfgOk);

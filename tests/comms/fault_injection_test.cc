@@ -106,7 +106,7 @@ class FaultTest : public ::testing::Test {
     many.grasps = 6;
     planner_->SetScript(0, many);
     planner_->SetScript(1, many);
-    handler_ = std::make_unique<RequestHandler>(MakeTestCell(2), planner_, nullptr);
+    handler_ = std::make_unique<RequestHandler>(MakeTestCell(), planner_, nullptr);
     options.port = 0;
     if (options.read_timeout == DaoaiServerOptions{}.read_timeout) options.read_timeout = 300ms;
     auto server = DaoaiServer::Start(*handler_, options);
@@ -461,7 +461,7 @@ TEST_F(FaultTest, AboveMaxMessageRateRequestsAreDelayedNotDropped) {
 
 TEST(ServerAllowlist, PeersNotListedAreClosedAtAcceptOnBothServers) {
   auto planner = std::make_shared<ScriptedPlanner>();
-  RequestHandler handler(MakeTestCell(2), planner, nullptr);
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
   GriHandler gri_handler(handler);
   // Only 127.0.0.2 may connect; the test connects from 127.0.0.1.
   DaoaiServerOptions d;

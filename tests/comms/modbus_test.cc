@@ -155,7 +155,7 @@ class ModbusRig {
  public:
   explicit ModbusRig(RigOptions o = {}) : o_(o) {
     planner_ = std::make_shared<ScriptedPlanner>();
-    Cell cell = MakeTestCell(o.version);
+    Cell cell = MakeTestCell();
     cell.robot.position_scale = o.position_scale;
     handler_ = std::make_unique<RequestHandler>(cell, planner_,
                                                 std::make_unique<CountingCalibrationService>(4));
@@ -580,7 +580,7 @@ TEST(ModbusMaster, ServesAPymodbusRobotInBothVersions) {
   }
   for (int version : {1, 2}) {
     auto planner = std::make_shared<ScriptedPlanner>();
-    RequestHandler handler(MakeTestCell(version), planner, nullptr);
+    RequestHandler handler(MakeTestCell(), planner, nullptr);
     const int port = FreeLoopbackPort();
     ASSERT_GT(port, 0);
     ModbusMasterOptions mo;

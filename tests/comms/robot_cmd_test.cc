@@ -39,11 +39,11 @@ TEST(RobotCommand, ClearsTheBinPrintingEachPickAndExitsZero) {
   EXPECT_NE(pick.out.find("pick: 10 steps, 3 picks"), std::string::npos) << pick.out;
   EXPECT_NE(pick.out.find("BOX_EMPTY(41)"), std::string::npos) << pick.out;
 
-  // A version-1 robot against a version-2 cell: the script's popup is shown.
+  // The seeds' own scripts send meta_2 = 1: it is echoed, so no popup.
   const test::CommandRun v1 = RunRobot("--flow switch-config --config 2 --protocol-version 1" + port);
   EXPECT_EQ(v1.exit_code, 0) << v1.out;
-  EXPECT_NE(v1.out.find("popup: the DaoAI interface version (2) does not match"),
-            std::string::npos) << v1.out;
+  EXPECT_EQ(v1.out.find("popup"), std::string::npos) << v1.out;
+  EXPECT_EQ(RunRobot("--flow pick --dialect seed_999" + port).exit_code, 2);
   EXPECT_EQ(RunRobot("--flow switch-config --config 9" + port).exit_code, 1);
   EXPECT_EQ(RunRobot("--flow pick --robot nonsense" + port).exit_code, 2);
   EXPECT_EQ(RunRobot("--flow dance" + port).exit_code, 2);

@@ -17,18 +17,21 @@ namespace {
 using testing::MakeTestCell;
 using testing::ScriptedPlanner;
 
-class RobotFlowTest : public ::testing::TestWithParam<int> {
+// Parameter: the dialect of the cell and of the robot's script. The robot sends
+// meta_2 = 1, as both seeds' programs do.
+class RobotFlowTest : public ::testing::TestWithParam<DaoaiDialect> {
  protected:
   void SetUp() override {
     planner_ = std::make_shared<ScriptedPlanner>();
-    handler_ = std::make_unique<RequestHandler>(MakeTestCell(version()), planner_,
+    handler_ = std::make_unique<RequestHandler>(MakeTestCell(dialect()), planner_,
                                                 std::make_unique<CountingCalibrationService>(4));
     DaoaiServerOptions options;
     options.port = 0;
     server_ = std::move(DaoaiServer::Start(*handler_, options).value());
     RobotClientOptions o;
     o.port = server_->port();
-    o.version = version();
+    o.version = 1;
+    o.dialect = dialect();
     robot_ = std::move(RobotClient::Connect(o).value());
   }
   void TearDown() override {
@@ -36,7 +39,7 @@ class RobotFlowTest : public ::testing::TestWithParam<int> {
     server_->Stop();
     handler_->Shutdown();
   }
-  int version() const { return GetParam(); }
+  DaoaiDialect dialect() const { return GetParam(); }
 
   FlowSummary Run(FlowOptions o) {
     Result<FlowSummary> s = RunFlow(*robot_, o, out_);
@@ -92,7 +95,7 @@ TEST_P(RobotFlowTest, CalibrationFlowsEndAsTheRobotProgramsExpect) {
   // Auto: the counting service says done after 4 poses (start + 4 accumulates).
   EXPECT_NE(out_.str().find("DONE_CALIBRATION(33)"), std::string::npos) << out_.str();
   EXPECT_NE(out_.str().find("DONE_2D_AUTO_CALIBRATION(34)"), std::string::npos);
-  if (version() == 1) {
+  if (dialect() == DaoaiDialect::kSocketV1) {
     EXPECT_NE(out_.str().find("DONE_GUIDANCE_CALIBRATION(32)"), std::string::npos);
   }
 }
@@ -120,8 +123,9 @@ TEST_P(RobotFlowTest, HelperFlowsReportTheirStatus) {
   EXPECT_EQ(planner_->taught().size(), 1u);
 }
 
-INSTANTIATE_TEST_SUITE_P(Versions, RobotFlowTest, ::testing::Values(1, 2),
-                         [](const auto& info) { return "v" + std::to_string(info.param); });
+INSTANTIATE_TEST_SUITE_P(Dialects, RobotFlowTest,
+                         ::testing::Values(DaoaiDialect::kSocketV1, DaoaiDialect::kVisionPilot),
+                         [](const auto& info) { return std::string(ToString(info.param)); });
 
 }  // namespace
 }  // namespace bp

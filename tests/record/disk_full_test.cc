@@ -98,7 +98,7 @@ TEST(DiskFull, RecordingPausesOnENOSPCTheServerLosesNoGraspAndRecordingResumesWh
   auto sink = std::make_shared<spdlog::sinks::ostream_sink_mt>(log);
   spdlog::default_logger()->sinks().push_back(sink);
 
-  const Cell cell = testing::MakeTestCell(2);
+  const Cell cell = testing::MakeTestCell();
   RecorderOptions ro;
   ro.directory = disk + "/rec";
   ro.max_disk_bytes = int64_t{1} << 30;  // the cap is not what stops it: the disk is

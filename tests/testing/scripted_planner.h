@@ -66,6 +66,7 @@ class ScriptedPlanner final : public GraspPlanner {
       std::lock_guard lock(mutex_);
       ++captures_;
       last_config_ = request.camera_config_id;
+      last_X_BF_ = request.X_BF;
     }
     if (s.capture_throws) throw std::runtime_error("scripted capture exception");
     if (s.capture_fails) return Status::Unavailable("scripted capture failure");
@@ -130,6 +131,8 @@ class ScriptedPlanner final : public GraspPlanner {
   int captures() const { std::lock_guard lock(mutex_); return captures_; }
   int plans() const { std::lock_guard lock(mutex_); return plans_; }
   int last_config() const { std::lock_guard lock(mutex_); return last_config_; }
+  // The robot pose of the last capture (nullopt: none, or it did not decode).
+  std::optional<Pose> last_X_BF() const { std::lock_guard lock(mutex_); return last_X_BF_; }
   std::vector<std::pair<int, int>> handed_out() const { std::lock_guard lock(mutex_); return handed_out_; }
   std::vector<TeachRequest> taught() const { std::lock_guard lock(mutex_); return taught_; }
 
@@ -154,14 +157,15 @@ class ScriptedPlanner final : public GraspPlanner {
   std::map<int, Script> scripts_;
   bool hold_ = false;
   int captures_ = 0, plans_ = 0, last_config_ = 0;
+  std::optional<Pose> last_X_BF_;
   std::vector<std::pair<int, int>> handed_out_;
   std::vector<TeachRequest> taught_;
 };
 
-// A cell for protocol tests, built in code: UR robot, protocol `version`,
+// A cell for protocol tests, built in code: UR robot, DaoAI `dialect`,
 // camera configs 1 and 2, tasks 0 and 1 (pick), 2 (place), 3 (pick, empty-box
 // threshold 2000 points by largest region), 5 (precision).
-inline Cell MakeTestCell(int version = 2) {
+inline Cell MakeTestCell(DaoaiDialect dialect = DaoaiDialect::kVisionPilot) {
   Cell cell;
   cell.name = "test";
   cell.path = "<test>";
@@ -183,7 +187,7 @@ inline Cell MakeTestCell(int version = 2) {
                 task(2, TaskSpec::Kind::kPlace), task(3, TaskSpec::Kind::kPick),
                 task(5, TaskSpec::Kind::kPrecision)};
   cell.robot.model = *FindRobotModel("ur");
-  cell.robot.protocol_version = version;
+  cell.robot.dialect = dialect;
   return cell;
 }
 

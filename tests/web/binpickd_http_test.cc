@@ -218,8 +218,9 @@ TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
   const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
   const std::string dir = testing::FreshDir("binpickd_calib");
   const int daoai_port = FreePort();
+  // Seed 004's rules (socket_v1): guidance poses are answered 12 / 13 / 32.
   Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
-                 "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
+                 "--gri-official-port", "0", "--http-port", "-1", "--no-record", "--dialect", "socket_v1"},
                 dir + "/binpickd.log");
   const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
   ASSERT_GT(http, 0);
@@ -248,10 +249,10 @@ TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
   EXPECT_LT((xyz_mm(r["hand-eye X_BC in use"]) - cell.camera.X_BC.translation() * 1000).norm(), 0.01)
       << r["hand-eye X_BC in use"];
 
-  // Version 1 guidance from a robot that never moves: the second pose adds
+  // Seed 004 guidance from a robot that never moves: the second pose adds
   // nothing and is answered 13 with the reason.
   test::RunCommand(bin + "binpick-robot --port " + std::to_string(daoai_port) +
-                   " --protocol-version 1 --flow calib-guidance");
+                   " --protocol-version 1 --dialect socket_v1 --flow calib-guidance");
   r = rows();
   EXPECT_NE(r["last bad guidance pose (13)"].find("of a pose already kept"), std::string::npos)
       << r["last bad guidance pose (13)"];
