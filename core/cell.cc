@@ -832,10 +832,18 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
           "unknown gripper '" + task.gripper + "' (not in grippers)");
     if (const YAML::Node e = t["empty_box"]; e.IsDefined()) {
       const std::string ekey = Join(path, "empty_box");
-      ExpectMap(e, ekey, {"threshold_points", "mode"});
+      ExpectMap(e, ekey, {"threshold_points", "reference_resolution", "mode"});
       task.empty_box.threshold_points = OptInt(e, ekey, "threshold_points", task.empty_box.threshold_points);
       Check(task.empty_box.threshold_points >= 0, e["threshold_points"], Join(ekey, "threshold_points"),
             "must be >= 0");
+      if (const YAML::Node res = e["reference_resolution"]; res.IsDefined()) {
+        const std::string rkey = Join(ekey, "reference_resolution");
+        if (!res.IsSequence() || res.size() != 2) Fail(res, rkey, "expected [width, height] in pixels");
+        task.empty_box.reference_width = Int(res[0], At(rkey, 0));
+        task.empty_box.reference_height = Int(res[1], At(rkey, 1));
+        Check(task.empty_box.reference_width > 0, res[0], At(rkey, 0), "width must be > 0");
+        Check(task.empty_box.reference_height > 0, res[1], At(rkey, 1), "height must be > 0");
+      }
       if (const YAML::Node m = e["mode"]; m.IsDefined()) {
         task.empty_box.mode = Enum<EmptyBoxRule::Mode>(m, Join(ekey, "mode"), "empty_box mode",
                                                        {{"largest_region", EmptyBoxRule::Mode::kLargestRegion},
@@ -1110,6 +1118,12 @@ Result<Cell> LoadCellOrDefault(const std::string& path) {
   return path.empty() ? LoadDefaultCell() : LoadCell(path);
 }
 
+int64_t EffectiveThreshold(const EmptyBoxRule& rule, int64_t image_pixels) {
+  const double reference = static_cast<double>(rule.reference_width) * rule.reference_height;
+  if (image_pixels <= 0 || reference <= 0) return rule.threshold_points;
+  return std::llround(rule.threshold_points * (static_cast<double>(image_pixels) / reference));
+}
+
 std::string_view ToString(DaoaiDialect dialect) {
   switch (dialect) {
     case DaoaiDialect::kVisionPilot: return "vision_pilot";
@@ -1193,6 +1207,17 @@ std::string Describe(const Cell& cell) {
   }
   os << "\n  tasks:";
   for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;
+  // The empty-box threshold each camera config applies (EffectiveThreshold).
+  for (const TaskSpec& t : cell.tasks) {
+    if (t.kind != TaskSpec::Kind::kPick && t.kind != TaskSpec::Kind::kPick2D) continue;
+    const EmptyBoxRule& r = t.empty_box;
+    os << "\n  task " << t.id << " empty box: < " << r.threshold_points << " points at " << r.reference_width
+       << "x" << r.reference_height << ", effective:";
+    for (const CameraConfig& c : cell.camera.configs) {
+      os << " " << c.id << "=" << c.name << " "
+         << EffectiveThreshold(r, static_cast<int64_t>(c.intrinsics.width) * c.intrinsics.height);
+    }
+  }
   os << "\n  robot: " << cell.robot.model.name << " (meta_1 id " << static_cast<int>(cell.robot.model.type) << ", "
      << ToString(cell.robot.model.convention) << "), dialect " << ToString(cell.robot.dialect);
   if (!cell.robot.modbus_host.empty()) os << ", modbus " << cell.robot.modbus_host << ":" << cell.robot.modbus_port;

@@ -187,11 +187,22 @@ struct GripperSpec {
   std::vector<Eigen::Vector2d> footprint;
 };
 
+// The empty-box rule of a task (RC_CHECK_EMPTY_BOX, grasp/empty_box.h).
+// threshold_points is stated at a reference resolution and scaled by the
+// pixel count of the image it is applied to (EffectiveThreshold): the same
+// field of view at a quarter of the pixels shows a quarter of the points.
+// The defaults are the seed's: "ROI区域<2000个点" for the vendor's 1920 x 1200
+// camera (docs/protocols.md "Empty box").
 struct EmptyBoxRule {
   enum class Mode { kLargestRegion, kTotal };
   int threshold_points = 2000;
   Mode mode = Mode::kLargestRegion;
+  int reference_width = 1920;   // pixels
+  int reference_height = 1200;  // pixels
 };
+// threshold_points scaled to an image of `image_pixels` pixels (rounded to
+// the nearest point); `image_pixels` 0 (unknown): threshold_points as stated.
+int64_t EffectiveThreshold(const EmptyBoxRule& rule, int64_t image_pixels);
 
 // Weights of the grasp ranking score (docs/cell.md, tasks[].ranking): score =
 // height * (z of the grasp above the bin floor, m / bin height)

@@ -139,6 +139,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   // The perception the plan is made from (a thorough retry may replace it).
   const PerceptionResult& per = detail.perception;
   result.roi_points = per.roi_point_count;
+  result.image_pixels = static_cast<int64_t>(frame.intrinsics.width) * frame.intrinsics.height;
   result.largest_region_points = per.largest_region_points;
   result.detections = static_cast<int>(per.detections.size());
   for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});

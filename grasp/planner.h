@@ -69,6 +69,9 @@ struct PlanResult {
   std::vector<Grasp> grasps;          // queue order: the first is handed out first
   int64_t roi_points = 0;             // valid points inside the task's ROI
   int64_t largest_region_points = 0;  // points of the largest connected region in the ROI
+  // Pixels of the image the counts come from (width x height): scales the
+  // empty-box threshold (EffectiveThreshold); 0 when unknown.
+  int64_t image_pixels = 0;
   int detections = 0;                 // part instances detected (with or without grasps)
   std::vector<DetectedPart> parts;    // those instances (planners may leave it empty)
   std::vector<StageTime> stages;      // per-stage latency of this plan, in order

@@ -66,6 +66,7 @@ Result<PlanResult> Plane2DPlanner::Plan(const PlanRequest& request, const Captur
   result.stages.push_back({"detect_2d", Ms(t0)});
   t0 = std::chrono::steady_clock::now();
   result.roi_points = detected->foreground_pixels;
+  result.image_pixels = static_cast<int64_t>(plane->image.image.width) * plane->image.image.height;
   result.largest_region_points = detected->largest_blob_pixels;
   result.detections = static_cast<int>(detected->parts.size());
 

@@ -632,6 +632,41 @@ TEST_F(CellFileTest, DescribeSummarisesTheCell) {
   EXPECT_THAT(text, HasSubstr("0=bushing (revolute, 1 grasps)"));
   EXPECT_THAT(text, HasSubstr("suction (suction)"));
   EXPECT_THAT(text, HasSubstr("robot: ur (meta_1 id 7, "));
+  EXPECT_THAT(text, HasSubstr("dialect vision_pilot"));
+  // Task 1: 100 points at the default reference 1920 x 1200, scaled to VGA.
+  EXPECT_THAT(text, HasSubstr("task 1 empty box: < 100 points at 1920x1200, effective: 1=vga 13"));
+}
+
+// The seed's 2000 points are a 1920 x 1200 figure: the same field of view at
+// another resolution shows the part with proportionally fewer points.
+TEST(EmptyBoxRule, ThresholdScalesWithThePixelCountOfTheImage) {
+  EmptyBoxRule r;  // 2000 at 1920 x 1200
+  EXPECT_EQ(EffectiveThreshold(r, 1920 * 1200), 2000);
+  EXPECT_EQ(EffectiveThreshold(r, 640 * 480), 267);  // 2000 x 307200 / 2304000 = 266.7
+  EXPECT_EQ(EffectiveThreshold(r, 320 * 240), 67);
+  EXPECT_EQ(EffectiveThreshold(r, 0), 2000);  // unknown image: as stated
+  r.reference_width = 640;
+  r.reference_height = 480;
+  EXPECT_EQ(EffectiveThreshold(r, 640 * 480), 2000);
+  EXPECT_EQ(EffectiveThreshold(r, 1920 * 1200), 15000);
+}
+
+TEST_F(CellFileTest, EmptyBoxReferenceResolutionIsReadAndChecked) {
+  Result<Cell> cell = Load(Mutate(kBaseCell, "threshold_points: 100, mode: total",
+                                  "threshold_points: 100, reference_resolution: [640, 480], mode: total"));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_EQ(cell->FindTask(1)->empty_box.reference_width, 640);
+  EXPECT_EQ(cell->FindTask(1)->empty_box.reference_height, 480);
+  Result<Cell> bad = Load(Mutate(kBaseCell, "threshold_points: 100, mode: total",
+                                 "threshold_points: 100, reference_resolution: [640], mode: total"));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_THAT(bad.status().message(), HasSubstr("tasks[1].empty_box.reference_resolution"));
+  Result<Cell> dialect = Load(Mutate(kBaseCell, "  protocol_version: 2", "  protocol_version: 2\n  dialect: socket_v1"));
+  ASSERT_TRUE(dialect.ok()) << dialect.status().ToString();
+  EXPECT_EQ(dialect->robot.dialect, DaoaiDialect::kSocketV1);
+  Result<Cell> unknown = Load(Mutate(kBaseCell, "  protocol_version: 2", "  protocol_version: 2\n  dialect: v3"));
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_THAT(unknown.status().message(), HasSubstr("robot.dialect"));
 }
 
 // The default cell's meshes, as empty files in a temp assets dir: the loader
