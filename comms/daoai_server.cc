@@ -72,6 +72,7 @@ class Connection final : public Session {
       Done();
       return;
     }
+    client_.last_answer = *response;
     const auto bytes = daoai::EncodeResponse(*response);
     Write(std::vector<uint8_t>(bytes.begin(), bytes.end()));
   }

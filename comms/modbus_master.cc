@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <limits>
 #include <atomic>
 #include <cerrno>
 #include <condition_variable>
@@ -141,6 +142,19 @@ class ModbusMaster::Impl {
     ClientContext client;
     client.id = ++connections_;
     client.peer = "modbus " + address();
+    // The registers' range: the handler checks every answer against it, a
+    // pick pose before its grasp leaves the queue (docs/protocols.md "Value
+    // range"), and gets back what the robot will read (saturated counts).
+    // Called on this thread only, inside handler_.Handle().
+    bool range_refused = false;  // during the request being handled
+    client.wire_range = [&range_refused](const daoai::Response& r) -> Result<daoai::Response> {
+      Result<std::array<uint16_t, daoai::kResponseFields>> regs = modbus::EncodeResponse(r);
+      if (!regs.ok()) {
+        range_refused = true;
+        return regs.status();
+      }
+      return modbus::DecodeResponse(*regs);
+    };
     // The last request taken had no response: a request flag of 1 with the
     // marker in place is then the robot's own late flag write (see below).
     bool taken_without_response = false;
@@ -204,22 +218,24 @@ class ModbusMaster::Impl {
       }
       Count([](ModbusMasterStats& s) { ++s.requests; });
 
+      range_refused = false;
       const std::optional<daoai::Response> response = handler_.Handle(request, client);
+      if (range_refused) Count([](ModbusMasterStats& s) { ++s.refused; });
       taken_without_response = !response.has_value();
       if (!response) continue;  // no response for this command
-      std::vector<std::string> saturated;
-      Result<std::array<uint16_t, daoai::kResponseFields>> encoded =
-          modbus::EncodeResponse(*response, &saturated);
+      Result<std::array<uint16_t, daoai::kResponseFields>> encoded = modbus::EncodeResponse(*response);
       if (!encoded.ok()) {
+        // Not reached: the handler range-checked the answer (wire_range).
         spdlog::error("modbus: robot {} command {}: {}; refused: answering UNKNOWN_COMMAND "
                       "(status -1) with pose and payloads 0", address(), request.command,
                       encoded.status().message());
         Count([](ModbusMasterStats& s) { ++s.refused; });
         encoded = modbus::EncodeResponse(modbus::RefusedResponse(*response));
-      } else if (!saturated.empty()) {
-        for (const std::string& line : saturated) {
-          spdlog::debug("modbus: robot {} command {}: {}", address(), request.command, line);
-        }
+      } else if ((response->status == daoai::kObjectsFound || response->status == daoai::kDropOffPose) &&
+                 response->payload[0] == std::numeric_limits<int16_t>::max()) {
+        // wire_range saturated the remaining count (a multiple of MULT otherwise).
+        spdlog::debug("modbus: robot {} command {}: remaining count saturated to 3.2767", address(),
+                      request.command);
         Count([](ModbusMasterStats& s) { ++s.saturated; });
       }
       std::array<uint16_t, daoai::kResponseFields> out = *encoded;
@@ -242,6 +258,7 @@ class ModbusMaster::Impl {
         Count([](ModbusMasterStats& s) { ++s.lost; });
         return answered;
       }
+      client.last_answer = modbus::DecodeResponse(*encoded);
       Count([](ModbusMasterStats& s) { ++s.responses; });
     }
     return answered;

@@ -69,8 +69,9 @@ struct ModbusMasterStats {
   uint64_t connects = 0;       // successful connections
   uint64_t requests = 0;       // requests taken (flag cleared)
   uint64_t responses = 0;      // responses written with their flag set
-  uint64_t refused = 0;        // responses replaced by RefusedResponse (range)
-  uint64_t saturated = 0;      // responses with a saturated field
+  uint64_t refused = 0;        // requests whose answer had a value outside int16: a grasp left
+                               // queued, or the answer turned into UNKNOWN_COMMAND
+  uint64_t saturated = 0;      // responses with a saturated remaining count
   uint64_t lost = 0;           // responses whose write failed (robot gone)
   uint64_t unread = 0;         // new requests found over an unread response
   bool connected = false;

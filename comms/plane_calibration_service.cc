@@ -24,7 +24,10 @@ Status PlaneCalibrationService::Start(CalibrationKind kind, const Pose& X_PT) {
   if (kind != CalibrationKind::kAuto2D) return Status::Unavailable("the 2D calibration service handles RC 11/12 only");
   running_ = true;
   last_.reset();
+  fit_error_ = Status::Ok();
   X_PT_centre_ = X_PT;
+  centre_seen_ = false;
+  visited_ = 0;
   pixels_.clear();
   plane_xy_.clear();
   return Status::Ok();
@@ -36,25 +39,38 @@ Result<CalibrationStep> PlaneCalibrationService::Accumulate(CalibrationKind kind
   PlaneCaptureRequest request;
   request.marker_X_PT = X_PT;
   Result<PlaneImage> image = camera_->Capture(request);
-  if (!image.ok()) return image.status();
-  Result<Eigen::Vector2d> marker = FindMarker(image->image);
-  if (!marker.ok()) return marker.status();  // the pose is not counted: the robot is asked again
-  pixels_.push_back(*marker);
-  plane_xy_.push_back(X_PT.translation().head<2>());
-  // The start pose, then every grid point.
-  const size_t total = static_cast<size_t>(options_.grid_x * options_.grid_y) + 1;
+  Result<Eigen::Vector2d> marker = image.ok() ? FindMarker(image->image) : Result<Eigen::Vector2d>(image.status());
   CalibrationStep step;
-  if (pixels_.size() < total) {
-    step.next_X_BF = GridPose(pixels_.size() - 1);
+  if (!marker.ok()) {
+    // At the start pose: asked again there. At a grid point: skipped.
+    if (!centre_seen_) return marker.status();
+    spdlog::warn("2D calibration: grid point {} skipped: {}", visited_, marker.status().message());
+    step.good = false;
+  } else {
+    pixels_.push_back(*marker);
+    plane_xy_.push_back(X_PT.translation().head<2>());
+  }
+  // The start pose, then every grid point.
+  if (!centre_seen_) {
+    centre_seen_ = true;
+  } else {
+    ++visited_;
+  }
+  const size_t grid = static_cast<size_t>(options_.grid_x * options_.grid_y);
+  if (visited_ < grid) {
+    step.next_X_BF = GridPose(visited_);
     return step;
   }
-  // Fit now so that a failed fit is answered as a failed step, not as DONE.
+  // The grid is done: fit now, so that Finish publishes or reports why not.
   running_ = false;
   Result<PlaneCalibration> fit = FitPlaneCalibration(camera_->intrinsics(), pixels_, plane_xy_);
-  if (!fit.ok()) return fit.status();
-  spdlog::info("2D calibration: {} points, residual {:.3f} mm rms, {:.3f} mm max", fit->points,
-               fit->residual_rms_mm, fit->residual_max_mm);
-  last_ = *fit;
+  if (fit.ok()) {
+    spdlog::info("2D calibration: {} points, residual {:.3f} mm rms, {:.3f} mm max", fit->points,
+                 fit->residual_rms_mm, fit->residual_max_mm);
+    last_ = *fit;
+  } else {
+    fit_error_ = fit.status();
+  }
   step.done = true;
   return step;
 }
@@ -62,7 +78,8 @@ Result<CalibrationStep> PlaneCalibrationService::Accumulate(CalibrationKind kind
 Status PlaneCalibrationService::Finish(CalibrationKind kind) {
   if (kind != CalibrationKind::kAuto2D) return Status::Unavailable("the 2D calibration service handles RC 11/12 only");
   running_ = false;
-  if (!last_) return Status::InvalidArgument("2D calibration: finished before the grid was complete");
+  if (!fit_error_.ok()) return fit_error_;
+  if (!last_) return Status::InvalidArgument("2D calibration: ended before the grid was complete; the previous calibration stays in use");
   store_->Set(*last_);
   if (!options_.file.empty()) return SavePlaneCalibration(*last_, options_.file);
   return Status::Ok();

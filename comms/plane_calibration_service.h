@@ -5,11 +5,13 @@
 // The robot carries a marker at its tool centre point through a grid of
 // points of its plane. Start records the robot's centre pose; every
 // Accumulate captures the marker at the pose the robot sent (X_PT, tool in
-// the plane) and proposes the next grid point (same orientation and z); after
-// the last point it fits the image -> plane calibration
-// (twod/plane_calibration.h) and reports done (a failed fit is an error, so
-// the robot is not told DONE); Finish publishes it to the store and writes it
-// atomically (keeping a .bak).
+// the plane) and proposes the next grid point (same orientation and z). A
+// view without the marker is an error at the start pose (the robot is asked
+// again there) and skipped at a grid point (step.good false, the next point
+// proposed). After the last point it fits the image -> plane calibration
+// (twod/plane_calibration.h) with the points it has and reports done; Finish
+// publishes it to the store and writes it atomically (keeping a .bak), or
+// returns why there is none (the fit failed, or the calibration ended early).
 //
 // Thread-safety: the request handler serializes the calls.
 #pragma once
@@ -49,6 +51,9 @@ class PlaneCalibrationService final : public CalibrationService {
   std::shared_ptr<PlaneCalibrationStore> store_;
   PlaneCalibrationOptions options_;
   bool running_ = false;
+  bool centre_seen_ = false;  // the start pose's view has the marker
+  size_t visited_ = 0;        // grid points visited (seen or skipped)
+  Status fit_error_;          // the last fit's failure, reported by Finish
   Pose X_PT_centre_ = Pose::Identity();
   std::vector<Eigen::Vector2d> pixels_, plane_xy_;
   std::optional<PlaneCalibration> last_;

@@ -35,6 +35,17 @@ Reply Respond(Response r) {
   return [r] { return std::optional<Response>(r); };
 }
 
+bool IsPickTask(const TaskSpec& t) {
+  return t.kind == TaskSpec::Kind::kPick || t.kind == TaskSpec::Kind::kPick2D;
+}
+
+// What seed 000's script holds in daoai_payload_1 after reading `answer`
+// (`daoai_payload_1=daoai_data[8]/mult`) and sends back unless it sets it
+// (send_robot_data: `robot_data[8] = daoai_payload_1`, truncated to an int).
+int32_t StalePayload1(const Response& answer) {
+  return static_cast<int32_t>(answer.payload[0] / kMult);
+}
+
 bool NeedsTask(int32_t command) {
   switch (command) {
     case daoai::kCaptureAndProcessAsync:
@@ -56,8 +67,37 @@ struct WireFormat {
   double position_scale = 1.0;  // metres per wire unit (before MULT)
   DaoaiDialect dialect = DaoaiDialect::kVisionPilot;
   int32_t meta_2 = 2;
+  // The robot's own pose, the request's pose fields as sent. Set for the
+  // commands whose answer a seed program moves to (MovesTo): their answers
+  // carry it unless they carry a planned pose, so no answer ever sends the
+  // robot to a pose binpick did not mean (docs/protocols.md "Poses the robot
+  // moves to"). It fits the transport: it came through it.
+  std::optional<std::pair<std::array<int32_t, 3>, std::array<int32_t, 4>>> own_pose;
+  WireRange range;  // the transport's (ClientContext::wire_range); empty: int32
   bool v1() const { return dialect == DaoaiDialect::kSocketV1; }
 };
+
+// Commands whose answer pose a seed program moves to: seed 000's
+// `calibra_pose≔daoai_tcp_pose; MoveL calibra_pose` after 4 / 7 (and the 2D
+// loop after 11 / 12), `pick_pose = daoai_tcp_pose` after 21.
+bool MovesTo(int32_t command) {
+  switch (command) {
+    case daoai::kStartAutoCalibration:
+    case daoai::kAutoAccumulatePose:
+    case daoai::kStart2DAutoCalibration:
+    case daoai::kAutoAccumulate2DPose:
+    case daoai::kPickPose:
+      return true;
+    default:
+      return false;
+  }
+}
+
+// Consecutive failed views (board or marker not found) after which an auto
+// calibration (7, 12) ends with DONE (33 / 34), the status the seed's loop
+// stops on; it solves with the views it has, or keeps the previous
+// calibration when they are too few.
+constexpr int kMaxFailedViewsInARow = 3;
 
 Result<Pose> DecodePose(const Request& r, const WireFormat& f) {
   Vec3 t;
@@ -240,7 +280,14 @@ class RequestHandler::Impl {
   // A status-only answer: meta_1 is the cell's robot type, meta_2 the
   // request's version (echoed: the seeds' scripts raise a popup when it
   // differs from their own).
-  Response Base(int32_t status, const WireFormat& f) const { return Base(status, f.meta_2); }
+  Response Base(int32_t status, const WireFormat& f) const {
+    Response r = Base(status, f.meta_2);
+    if (f.own_pose) {
+      r.position = f.own_pose->first;
+      r.orientation = f.own_pose->second;
+    }
+    return r;
+  }
   Response Base(int32_t status, int32_t meta_2) const {
     Response r;
     r.status = status;
@@ -261,6 +308,29 @@ class RequestHandler::Impl {
   void StartDetection(TaskState& t, PlanRequest plan_request, std::function<void(bool)> on_captured);
   void FinishDetection(TaskState& t);
   Reply PickReply(TaskState& t, WireFormat f);
+  // Teach (30): the pick task payload_1 names, unless payload_1 is only what
+  // the last answer left in the script's daoai_payload_1 (seed 000's
+  // daoai_teach_pose never sets it: often a remaining count) and the
+  // connection has picked on a task; then, or when payload_1 names no pick
+  // task, the connection's last pick task. nullptr: neither.
+  const TaskState* TeachTask(const Request& req, const ClientContext& client) const {
+    const TaskState* named = FindTask(req.payload_1);
+    if (named && !IsPickTask(named->spec)) named = nullptr;
+    const TaskState* last = client.last_pick_task_id ? FindTask(*client.last_pick_task_id) : nullptr;
+    const bool stale = client.last_answer && req.payload_1 == StalePayload1(*client.last_answer);
+    if (named && !(stale && last)) return named;
+    return last;
+  }
+  // Every answer `done` is given passes through the transport's range: an
+  // answer that does not fit becomes UNKNOWN_COMMAND (with the robot's own
+  // pose where it moves to), logged. Observers see what the robot reads.
+  Completion InRange(const Request& req, const WireFormat& f, Completion done) const;
+  // One view of an auto calibration (7, or 12 for 2D), on the calibration
+  // sequence: the mode status with the next planned pose (a failed view is
+  // skipped), DONE (33 / 34) when the plan is complete or after
+  // kMaxFailedViewsInARow failed views in a row.
+  void AutoView(CalibrationKind kind, const Pose& X_BF,
+                const std::function<void(int32_t, const std::optional<Pose>&)>& answer);
   void Calibrate(const Request& req, const std::optional<Pose>& X_BF, const WireFormat& f,
                  Completion done);
 
@@ -274,6 +344,7 @@ class RequestHandler::Impl {
 
   // Calibration mode (seed 000 DAOAI_MODE_*): touched by serial_ jobs only.
   std::optional<CalibrationKind> calibration_mode_;
+  int failed_views_in_a_row_ = 0;  // of the auto calibration in progress (7 / 12)
 
   // Work spawned on the arena and not finished yet; Shutdown waits for 0.
   std::mutex pending_mutex_;
@@ -388,25 +459,44 @@ void RequestHandler::Impl::FinishDetection(TaskState& t) {
 
 Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
   return [this, &t, f]() -> std::optional<Response> {
-    const GraspQueue::Popped p = t.queue.Pop();
-    if (p.grasp) {
-      Response r = Base(t.spec.kind == TaskSpec::Kind::kPlace ? daoai::kDropOffPose
-                                                              : daoai::kObjectsFound, f);
-      Status s = EncodePose(p.grasp->X_BT, f, r);
-      const Result<int32_t> remaining = ToFixed(p.remaining);
-      const Result<int32_t> klass = ToFixed(p.grasp->class_id);
-      if (s.ok() && !remaining.ok()) s = remaining.status();
-      if (s.ok() && !klass.ok()) s = klass.status();
-      planner_->NotifyHandedOut(t.spec, *p.grasp);
-      if (!s.ok()) {
-        spdlog::error("daoai: task {} grasp on instance {} does not fit the wire format ({}); "
-                      "answering NO_OBJECT_FOUND", t.spec.id, p.grasp->instance_id, s.ToString());
-        return Base(daoai::kNoObjectFound, f);
-      }
-      r.payload[0] = *remaining;
+    // The answer for a grasp, as the robot will read it; OutOfRange when a
+    // field does not fit the wire (int32, or the transport's range).
+    const int32_t found =
+        t.spec.kind == TaskSpec::Kind::kPlace ? daoai::kDropOffPose : daoai::kObjectsFound;
+    auto answer_for = [&](const Grasp& g, int remaining) -> Result<Response> {
+      Response r = Base(found, f);
+      if (Status s = EncodePose(g.X_BT, f, r); !s.ok()) return s;
+      const Result<int32_t> left = ToFixed(remaining);
+      if (!left.ok()) return left.status();
+      const Result<int32_t> klass = ToFixed(g.class_id);
+      if (!klass.ok()) return klass.status();
+      r.payload[0] = *left;
       r.payload[1] = *klass;
-      return r;
+      return f.range ? f.range(r) : Result<Response>(r);
+    };
+    // Encoded and range-checked before the grasp leaves the queue: a grasp
+    // that cannot be sent stays queued (another robot, or a later plan, may
+    // use it); the next one that can is handed out.
+    std::optional<Response> answer;
+    Status refusal;
+    const GraspQueue::Popped p = t.queue.PopFirst([&](const Grasp& g, int remaining) {
+      Result<Response> r = answer_for(g, remaining);
+      if (!r.ok()) {
+        if (refusal.ok()) refusal = r.status();
+        return false;
+      }
+      answer = *r;
+      return true;
+    });
+    if (p.refused > 0) {
+      spdlog::error("daoai: task {}: {} grasp(s) cannot be sent to this robot ({}); they stay queued",
+                    t.spec.id, p.refused, refusal.ToString());
     }
+    if (p.grasp) {
+      planner_->NotifyHandedOut(t.spec, *p.grasp);
+      return answer;
+    }
+    if (p.refused > 0) return Base(daoai::kUnknownCommand, f);  // every seed program stops on it
     // Nothing to hand out: say why, in the dialect's vocabulary.
     int32_t status = daoai::kNoObjectFound;
     if (!p.outcome || *p.outcome == PlanResult::Outcome::kCaptureFailed) {
@@ -416,6 +506,65 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
     }
     return Base(status, f);
   };
+}
+
+RequestHandler::Completion RequestHandler::Impl::InRange(const Request& req, const WireFormat& f,
+                                                         Completion done) const {
+  if (!f.range) return done;
+  return [this, command = req.command, f, done = std::move(done)](Reply reply) {
+    if (!reply) {
+      done(std::move(reply));
+      return;
+    }
+    done([this, command, f, reply = std::move(reply)]() -> std::optional<Response> {
+      std::optional<Response> r = reply();
+      if (!r) return r;
+      Result<Response> sent = f.range(*r);
+      if (sent.ok()) return *sent;
+      spdlog::error("daoai: the answer to command {} does not fit this robot's link ({}); "
+                    "answering UNKNOWN_COMMAND", command, sent.status().ToString());
+      Response refused = Base(daoai::kUnknownCommand, f);  // the robot's own pose where it moves to
+      refused.meta_2 = r->meta_2;
+      // Its fields came from the robot through this link, so they fit; but
+      // never leave the robot without an answer.
+      Result<Response> fallback = f.range(refused);
+      return fallback.ok() ? *fallback : Base(daoai::kUnknownCommand, r->meta_2);
+    });
+  };
+}
+
+void RequestHandler::Impl::AutoView(CalibrationKind kind, const Pose& X_BF,
+                                    const std::function<void(int32_t, const std::optional<Pose>&)>& answer) {
+  const bool two_d = kind == CalibrationKind::kAuto2D;
+  const int32_t mode = two_d ? daoai::kMode2DAutoCalibration : daoai::kModeAutoCalibration;
+  const int32_t finished = two_d ? daoai::kDone2DAutoCalibration : daoai::kDoneCalibration;
+  if (calibration_mode_ != kind) {
+    spdlog::warn("daoai: {} accumulate outside its auto calibration", two_d ? "2D" : "3D");
+    answer(daoai::kUnknownCommand, std::nullopt);
+    return;
+  }
+  const Result<CalibrationStep> step = calibration_->Accumulate(kind, X_BF);
+  const bool failed = !step.ok() || !step->good;
+  failed_views_in_a_row_ = failed ? failed_views_in_a_row_ + 1 : 0;
+  if (!step.ok()) {
+    spdlog::warn("daoai: calibration view not used ({} in a row): {}", failed_views_in_a_row_,
+                 step.status().ToString());
+  }
+  const bool complete = step.ok() && step->done;
+  if (complete || failed_views_in_a_row_ >= kMaxFailedViewsInARow) {
+    if (!complete) {
+      spdlog::error("daoai: {} calibration views in a row failed; ending the calibration with the "
+                    "views it has", failed_views_in_a_row_);
+    }
+    const Status s = calibration_->Finish(kind);
+    if (!s.ok()) spdlog::error("daoai: calibration failed: {}", s.ToString());
+    calibration_mode_.reset();
+    answer(finished, std::nullopt);
+    return;
+  }
+  // A failed view is skipped: the next planned pose, or the robot's own
+  // when nothing is planned yet (the start view: it tries again there).
+  answer(mode, step.ok() ? step->next_X_BF : std::nullopt);
 }
 
 void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pose>& pose,
@@ -433,15 +582,25 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
   }
   const Pose X_BF = pose.value_or(Pose::Identity());
   serial_.Post([this, command, X_BF, f, done = std::move(done)] {
-    auto answer = [&](int32_t status, const std::optional<Pose>& pose = std::nullopt) {
+    // A planned pose, or (none given, or it does not fit the link) the
+    // robot's own where the robot moves to the answer (Base).
+    auto answer = [&](int32_t status, const std::optional<Pose>& planned = std::nullopt) {
       Response r = Base(status, f);
-      if (pose) {
-        const Status s = EncodePose(*pose, f, r);
-        if (!s.ok()) spdlog::error("daoai: calibration pose does not fit the wire: {}", s.ToString());
+      if (planned) {
+        Response with = r;
+        Status s = EncodePose(*planned, f, with);
+        if (s.ok() && f.range) s = f.range(with).status();
+        if (s.ok()) {
+          r = with;
+        } else {
+          spdlog::error("daoai: planned calibration pose does not fit the link ({}); answering the "
+                        "robot's own pose", s.ToString());
+        }
       }
       done(Respond(r));
     };
     auto start = [&](CalibrationKind kind) -> bool {
+      failed_views_in_a_row_ = 0;
       const Status s = calibration_->Start(kind, X_BF);
       if (!s.ok()) {
         spdlog::error("daoai: calibration start failed: {}", s.ToString());
@@ -499,28 +658,12 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
         return;
       }
       case daoai::kStartAutoCalibration:
-        if (start(CalibrationKind::kAuto)) {
-          answer(daoai::kModeAutoCalibration, X_BF);
-        } else {
-          answer(daoai::kUnknownCommand);
-        }
+        // The robot stays where it is (its own pose) for the first view.
+        answer(start(CalibrationKind::kAuto) ? daoai::kModeAutoCalibration : daoai::kUnknownCommand);
         return;
-      case daoai::kAutoAccumulatePose: {
-        if (calibration_mode_ != CalibrationKind::kAuto) {
-          spdlog::warn("daoai: auto accumulate outside auto calibration");
-          answer(daoai::kUnknownCommand);
-          return;
-        }
-        const auto step = accumulate(CalibrationKind::kAuto);
-        if (!step) {
-          answer(daoai::kUnknownCommand);
-        } else if (step->done) {
-          answer(daoai::kDoneCalibration);
-        } else {
-          answer(daoai::kModeAutoCalibration, step->next_X_BF.value_or(X_BF));
-        }
+      case daoai::kAutoAccumulatePose:
+        AutoView(CalibrationKind::kAuto, X_BF, answer);
         return;
-      }
       case daoai::kGuidanceCalibration: {
         // Each request is one pose; the first starts a guidance calibration.
         if (calibration_mode_ != CalibrationKind::kGuidance && !start(CalibrationKind::kGuidance)) {
@@ -538,28 +681,11 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
         return;
       }
       case daoai::kStart2DAutoCalibration:
-        if (start(CalibrationKind::kAuto2D)) {
-          answer(daoai::kMode2DAutoCalibration, X_BF);
-        } else {
-          answer(daoai::kUnknownCommand);
-        }
+        answer(start(CalibrationKind::kAuto2D) ? daoai::kMode2DAutoCalibration : daoai::kUnknownCommand);
         return;
-      case daoai::kAutoAccumulate2DPose: {
-        if (calibration_mode_ != CalibrationKind::kAuto2D) {
-          spdlog::warn("daoai: 2D accumulate outside 2D auto calibration");
-          answer(daoai::kUnknownCommand);
-          return;
-        }
-        const auto step = accumulate(CalibrationKind::kAuto2D);
-        if (!step) {
-          answer(daoai::kUnknownCommand);
-        } else if (step->done) {
-          answer(daoai::kDone2DAutoCalibration);
-        } else {
-          answer(daoai::kMode2DAutoCalibration, step->next_X_BF.value_or(X_BF));
-        }
+      case daoai::kAutoAccumulate2DPose:
+        AutoView(CalibrationKind::kAuto2D, X_BF, answer);
         return;
-      }
       default:
         answer(daoai::kUnknownCommand);
     }
@@ -572,6 +698,12 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   if (stopping_) return;  // shutting down: completions are dropped
   std::shared_ptr<AnswerEvent> answer_event;
   done = Observed(req, client, answer_event, std::move(done));
+  WireFormat f;
+  f.dialect = cell_.robot.dialect;
+  f.position_scale = cell_.robot.position_scale;
+  f.range = client.wire_range;
+  if (MovesTo(req.command)) f.own_pose.emplace(req.position, req.orientation);
+  done = InRange(req, f, std::move(done));
 
   // meta_2 is 1 or 2 (both seeds' programs send 1, seed 000's text says 2)
   // and is echoed; anything else is garbage (or a misaligned stream): answer
@@ -579,15 +711,17 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   if (req.meta_2 != 1 && req.meta_2 != 2) {
     spdlog::warn("daoai: {} sent protocol version (meta_2) {} (command {}); expected 1 or 2; "
                  "answering UNKNOWN_COMMAND", client.peer, req.meta_2, req.command);
-    done(Respond(Base(daoai::kUnknownCommand, cell_.robot.protocol_version)));
+    f.meta_2 = cell_.robot.protocol_version;
+    done(Respond(Base(daoai::kUnknownCommand, f)));
     return;
   }
+  f.meta_2 = req.meta_2;
   // meta_1 selects the orientation convention of both directions.
   const std::optional<RobotModel> model = FindRobotModel(static_cast<RobotType>(req.meta_1));
   if (!model) {
     spdlog::warn("daoai: {} sent unknown robot type (meta_1) {} (command {}); answering "
                  "UNKNOWN_COMMAND", client.peer, req.meta_1, req.command);
-    done(Respond(Base(daoai::kUnknownCommand, req.meta_2)));
+    done(Respond(Base(daoai::kUnknownCommand, f)));
     return;
   }
   if (model->type != cell_.robot.model.type && !client.warned_meta_1) {
@@ -597,16 +731,12 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
                  client.peer, ToString(model->type), req.meta_1, ToString(cell_.robot.model.type),
                  static_cast<int>(cell_.robot.model.type), ToString(model->convention));
   }
-  WireFormat f;
   f.convention = model->convention;
   // meta_1 99 ("other") says only that the robot has no id of its own; the
   // cell names which one it is (Adept, Kawasaki, Comau, Syntec, Turin).
   if (model->type == RobotType::kOther && cell_.robot.model.type == RobotType::kOther) {
     f.convention = cell_.robot.model.convention;
   }
-  f.position_scale = cell_.robot.position_scale;
-  f.dialect = cell_.robot.dialect;
-  f.meta_2 = req.meta_2;
 
   // Every message carries the robot pose: record it (status page, liveness,
   // eye-in-hand captures, calibration, teaching).
@@ -632,6 +762,11 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     }
     task = it->second.get();
     client.last_task_id = task->spec.id;
+    if (IsPickTask(task->spec) && (req.command == daoai::kCaptureAndProcessAsync ||
+                                   req.command == daoai::kCaptureAndProcess ||
+                                   req.command == daoai::kPickPose)) {
+      client.last_pick_task_id = task->spec.id;
+    }
   }
 
   switch (req.command) {
@@ -685,15 +820,14 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         done(NoResponse());
         return;
       }
-      auto it = tasks_.find(req.payload_1);
-      if (it == tasks_.end()) it = tasks_.find(client.last_task_id);
-      if (it == tasks_.end()) {
-        spdlog::warn("daoai: {} sent a teach pose for unknown task {}; ignored", client.peer,
-                     req.payload_1);
+      const TaskState* taught = TeachTask(req, client);
+      if (taught == nullptr) {
+        spdlog::warn("daoai: {} sent a teach pose, but payload_1 {} names no pick task and the "
+                     "connection has picked on none; ignored", client.peer, req.payload_1);
         done(NoResponse());
         return;
       }
-      TeachRequest teach{it->second->spec, *X_BF};
+      TeachRequest teach{taught->spec, *X_BF};
       done(NoResponse());
       serial_.Post([this, teach] {
         const Status s = Guard("teach", [&] { return planner_->Teach(teach); });
@@ -754,8 +888,9 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
         const EmptyBoxRule& rule = task->spec.empty_box;
         const int64_t points = EmptyBoxPoints(rule, plan->roi_points, plan->largest_region_points);
         const bool empty = IsBoxEmpty(rule, *plan);
-        spdlog::info("daoai: task {} empty-box check: {} points (threshold {}), {} detections: {}",
-                     task->spec.id, points, rule.threshold_points, plan->detections,
+        spdlog::info("daoai: task {} empty-box check: {} points (threshold {} at {} pixels), {} "
+                     "detections: {}", task->spec.id, points,
+                     EffectiveThreshold(rule, plan->image_pixels), plan->image_pixels, plan->detections,
                      empty ? "EMPTY" : "NOT EMPTY");
         done(Respond(Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, f)));
       });

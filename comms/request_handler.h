@@ -33,16 +33,31 @@
 
 namespace bp {
 
+// Turns an answer into what the robot will read on a transport (e.g. the
+// Modbus registers saturate the remaining count), or OutOfRange naming the
+// field that cannot be sent. Pure; may run on any thread.
+using WireRange = std::function<Result<daoai::Response>(const daoai::Response&)>;
+
 // Per-connection state a transport keeps and passes with each request.
-// Touched only during HandleAsync (the transport serializes its requests).
+// Touched only during HandleAsync (the transport serializes its requests),
+// except last_answer (below).
 struct ClientContext {
   uint64_t id = 0;
   std::string peer;                 // "ip:port", for logs
   std::optional<Pose> X_BF;         // last robot pose received (position scaled to metres)
   std::chrono::system_clock::time_point pose_time{};  // when X_BF was received
   uint64_t requests = 0;            // requests handled on this connection
-  int last_task_id = 0;             // task of the last 19/20/21/40/50 (teach default)
+  int last_task_id = 0;             // task of the last 19/20/21/40/50
+  std::optional<int> last_pick_task_id;  // task of the last 19/20/21 on a pick task (teach)
   bool warned_meta_1 = false;       // a meta_1 mismatch was logged once
+  // The transport's value range, set by the transport before its first
+  // request; empty: int32 fields as built (the DaoAI socket). Every answer
+  // passes through it before it is written, and a pick pose before its grasp
+  // leaves the queue.
+  WireRange wire_range;
+  // The last answer written on this connection, as the robot read it; set by
+  // the transport after writing it, before the next request.
+  std::optional<daoai::Response> last_answer;
 };
 
 struct RequestHandlerOptions {

@@ -39,6 +39,25 @@ GraspQueue::Popped GraspQueue::Pop() {
   return p;
 }
 
+GraspQueue::Popped GraspQueue::PopFirst(const std::function<bool(const Grasp&, int)>& sendable) {
+  std::lock_guard lock(mutex_);
+  Popped p;
+  p.generation = generation_;
+  if (summary_) p.outcome = summary_->outcome;
+  const int remaining = static_cast<int>(grasps_.size());
+  for (auto it = grasps_.begin(); it != grasps_.end(); ++it) {
+    if (!sendable(*it, remaining)) {
+      ++p.refused;
+      continue;
+    }
+    p.remaining = remaining;
+    p.grasp = std::move(*it);
+    grasps_.erase(it);
+    return p;
+  }
+  return p;
+}
+
 int GraspQueue::size() const {
   std::lock_guard lock(mutex_);
   return static_cast<int>(grasps_.size());

@@ -7,6 +7,7 @@
 
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <mutex>
 #include <optional>
 
@@ -26,6 +27,8 @@ class GraspQueue {
     // completed since construction or the last Reset().
     std::optional<PlanResult::Outcome> outcome;
     uint64_t generation = 0;  // increments with every Replace / Reset
+    // PopFirst: grasps the predicate refused, left queued in their order.
+    int refused = 0;
   };
 
   // A summary of the last plan without its grasps.
@@ -42,6 +45,14 @@ class GraspQueue {
   // Discards everything; Pop reports no outcome until the next Replace.
   void Reset();
   Popped Pop();
+  // Pops the first grasp, in queue order, that `sendable` accepts; it is
+  // given each grasp with the remaining count it would be answered with (the
+  // queue's size, including the grasp). The grasps it refuses stay queued,
+  // in order, and are counted in Popped::refused; `grasp` is empty when none
+  // is accepted. `sendable` runs under the queue's lock: it must not call
+  // back into the queue. Used to encode and range-check an answer before its
+  // grasp leaves the queue (docs/protocols.md, "Nothing lost in 16 bits").
+  Popped PopFirst(const std::function<bool(const Grasp&, int remaining)>& sendable);
   int size() const;
   std::optional<Summary> LastPlan() const;
 

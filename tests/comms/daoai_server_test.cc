@@ -50,16 +50,20 @@ std::string Normalize(const std::string& hex) {
 // Responses (16 words: position[3] orientation[4] payload[6] status meta_1 meta_2).
 // Status-only answers of a version-2 UR cell.
 const char* kCalib10 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000A 00000007 00000002";
-const char* kCalib33 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000021 00000007 00000002";
+// Answers the robot moves to (4, 7, 11, 12, 21) carry its own pose, the
+// request's (0.5, -0.25, 0.3) m, rotation vector (0, 0, 1.5708), unless they
+// carry a planned one.
+const char* kAuto33 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000021 00000007 00000002";
+const char* kPickUnknown = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "FFFFFFFF 00000007 00000002";
 // Auto calibration: the counting service proposes the robot's own pose,
 // (0.5, -0.25, 0.3) m, rotation vector (0, 0, 1.5708).
 const char* kAuto11 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000B 00000007 00000002";
 const char* k2D14 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000E 00000007 00000002";
-const char* k2D34 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000022 00000007 00000002";
+const char* k2D34 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000022 00000007 00000002";
 const char* kCapture5 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000005 00000007 00000002";
 const char* kFail9 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000009 00000007 00000002";
-const char* kNoObj3 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000002";
-const char* kNoCf4 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000002";
+const char* kNoObj3 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000002";
+const char* kNoCf4 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000002";
 const char* kUnknown = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "FFFFFFFF 00000007 00000002";
 // Task 0 grasps: (0.50 / 0.51 / 0.52, -0.1, 0.1) m, rotation vector (0, 0, pi/2);
 // payload_1 = remaining incl. this x MULT, payload_2 = class x MULT.
@@ -80,8 +84,8 @@ const char* kCfgFail = "00000000 00000000 00000000" "00000000 00000000 00000000 
 const char* kV1Unknown = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "FFFFFFFF 00000007 00000001";
 const char* kV1Good = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000C 00000007 00000001";
 const char* kV1Done32 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000020 00000007 00000001";
-const char* kV1NoImage4 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000001";
-const char* kV1NoObj3 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000001";
+const char* kV1NoImage4 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000001";
+const char* kV1NoObj3 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000003 00000007 00000001";
 const char* kV1Calib10 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000000A 00000007 00000001";
 const char* kV1Capture5 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "00000005 00000007 00000001";
 const char* kV1Pick0_3 = "00001388 FFFFFC18 000003E8" "00000000 00000000 00003D5C 00000000" "00007530 00000000 00000000 00000000 00000000 00000000" "00000002 00000007 00000001";
@@ -181,7 +185,7 @@ TEST_F(DaoaiServerTest, AnswersEveryCommandOfTheVisionPilotDialectWithGoldenByte
   EXPECT_RESPONSE(*c, Req(daoai::kStartAutoCalibration), kAuto11);
   EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kAuto11);
   EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kAuto11);
-  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kCalib33);
+  EXPECT_RESPONSE(*c, Req(daoai::kAutoAccumulatePose), kAuto33);
   // Guidance calibration: no answer in version 2.
   ExpectNoResponse(*c, Req(daoai::kGuidanceCalibration));
   // 2D auto calibration: 11 -> 14, 12 -> 14 ... -> 34.
@@ -238,7 +242,7 @@ TEST_F(DaoaiServerTest, AnswersEveryCommandOfTheVisionPilotDialectWithGoldenByte
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 7), kCfgFail);
   // Unknown command, unknown task, bad meta: UNKNOWN_COMMAND.
   EXPECT_RESPONSE(*c, Req(99), kUnknown);
-  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 9), kUnknown);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 9), kPickUnknown);
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, /*version=*/7), kUnknown);
   EXPECT_RESPONSE(*c, Req(daoai::kSwitchConfig, 1, 2, /*meta_1=*/55), kUnknown);
 
@@ -302,7 +306,7 @@ TEST_F(DaoaiServerTest, EchoesMeta2AndKeepsTheCellsDialect) {
   planner_->SetScript(1, blocked);
   EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 1, 1), kV1Capture5);
   EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 1, 1),  // NO_COLLISION_FREE_POSE, meta_2 = 1
-                  "00000000 00000000 00000000" "00000000 00000000 00000000 00000000"
+                  "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000"
                   "00000000 00000000 00000000 00000000 00000000 00000000" "00000004 00000007 00000001");
   Result<RobotReply> r = c->Call(daoai::kSwitchConfig, 1);
   ASSERT_TRUE(r.ok());
@@ -317,6 +321,29 @@ TEST_F(DaoaiServerTest, EchoesMeta2AndKeepsTheCellsDialect) {
   ASSERT_TRUE(v1);
   EXPECT_RESPONSE(*v1, Req(daoai::kStopManualCalibration, 0, 2), kUnknown);
   EXPECT_RESPONSE(*v1, Req(daoai::kPickPose, 0, 2), kNoCf4);  // here 4 = NO_IMAGE_CAPTURED
+}
+
+// Seed 000's daoai_teach_pose() never sets payload_1: it sends what the last
+// answer left in daoai_payload_1 (a remaining count after a pick pose).
+TEST_F(DaoaiServerTest, TeachFilesThePoseOnTheLastPickTaskWhenPayload1IsOnlyWhatTheLastAnswerLeft) {
+  Start();
+  auto c = Connect(1);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0, 1), kV1Capture5);
+  Result<RobotReply> pick = c->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  ASSERT_EQ(pick->raw.payload[0], 30000);  // 3 left: the script's daoai_payload_1 is now 3
+  ExpectNoResponse(*c, Req(daoai::kSendPose, 3, 1));  // stale 3 (task 3 is a pick task too)
+  ExpectNoResponse(*c, Req(daoai::kSendPose, 2, 1));  // task 2 is a place task
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0, 1), kV1Capture5);
+  ExpectNoResponse(*c, Req(daoai::kSendPose, 3, 1));  // payload_1 set on purpose: the last answer left 0
+  server_->Stop();
+  handler_->Shutdown();
+  const std::vector<TeachRequest> taught = planner_->taught();
+  ASSERT_EQ(taught.size(), 3u);
+  EXPECT_EQ(taught[0].task.id, 0);
+  EXPECT_EQ(taught[1].task.id, 0);
+  EXPECT_EQ(taught[2].task.id, 3);
 }
 
 // meta_1 99 ("other"): the orientation convention is the cell's robot's
@@ -363,6 +390,79 @@ TEST_F(DaoaiServerTest, CompletesAShortReadSentInThreeChunks) {
   std::array<uint8_t, daoai::kResponseSize> in{};
   ASSERT_TRUE(c->ReceiveBytes(in.data(), in.size()).ok());
   EXPECT_EQ(Hex(in), Normalize(kCfgOk));
+}
+
+// A calibration service whose views fail where told: a failure before the
+// plan exists is an error (the board was not seen from the start pose), a
+// failed planned view is skipped (good = false) and the next pose proposed.
+class FlakyCalibrationService final : public CalibrationService {
+ public:
+  explicit FlakyCalibrationService(std::vector<bool> view_ok) : view_ok_(std::move(view_ok)) {}
+  Status Start(CalibrationKind, const Pose&) override {
+    views_ = 0;
+    planned_ = false;
+    return Status::Ok();
+  }
+  Result<CalibrationStep> Accumulate(CalibrationKind, const Pose& X_BF) override {
+    const bool ok = views_ < view_ok_.size() && view_ok_[views_];
+    ++views_;
+    if (!ok && !planned_) return Status::NotFound("board not visible from the start pose");
+    planned_ = true;
+    CalibrationStep step;
+    step.good = ok;
+    step.next_X_BF = X_BF * MakePose(Mat3::Identity(), Vec3(0.01 * static_cast<double>(views_), 0, 0));
+    return step;
+  }
+  Status Finish(CalibrationKind) override {
+    ++finished;
+    return Status::InvalidArgument("too few views");
+  }
+  int finished = 0;
+
+ private:
+  std::vector<bool> view_ok_;
+  size_t views_ = 0;
+  bool planned_ = false;
+};
+
+TEST(DaoaiServerPoses, AnAutoCalibrationNeverAnswersAZeroPoseAndEndsAfterThreeFailedViewsInARow) {
+  // Views: start pose fails twice, then seen; then planned views ok, fail, ok,
+  // fail, fail, fail (three in a row: DONE).
+  auto service = std::make_unique<FlakyCalibrationService>(
+      std::vector<bool>{false, false, true, true, false, true, false, false, false});
+  FlakyCalibrationService* flaky = service.get();
+  RequestHandler handler(MakeTestCell(), std::make_shared<ScriptedPlanner>(), std::move(service));
+  ClientContext client;
+  const daoai::Request start = Req(daoai::kStartAutoCalibration);
+  const daoai::Request view = Req(daoai::kAutoAccumulatePose);
+  std::optional<daoai::Response> r = handler.Handle(start, client);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, daoai::kModeAutoCalibration);
+  EXPECT_EQ(r->position, start.position);  // stay for the first view
+  EXPECT_EQ(r->orientation, start.orientation);
+  const std::vector<int32_t> expected = {11, 11, 11, 11, 11, 11, 11, 11, 33};
+  std::vector<int32_t> statuses;
+  for (size_t i = 0; i < expected.size(); ++i) {
+    r = handler.Handle(view, client);
+    ASSERT_TRUE(r);
+    statuses.push_back(r->status);
+    // Never the base origin: the robot's own pose (start view, DONE) or a planned one.
+    EXPECT_NE(r->position, (std::array<int32_t, 3>{})) << "answer " << i;
+    const bool planned = i >= 2 && r->status == daoai::kModeAutoCalibration;
+    if (planned) {
+      EXPECT_NE(r->position, view.position) << "answer " << i << ": the next planned pose";
+    } else {
+      EXPECT_EQ(r->position, view.position) << "answer " << i << ": the robot's own pose";
+    }
+  }
+  EXPECT_EQ(statuses, expected);
+  EXPECT_EQ(flaky->finished, 1);
+  // The calibration has ended: a further view is answered -1, still with the robot's pose.
+  r = handler.Handle(view, client);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, daoai::kUnknownCommand);
+  EXPECT_EQ(r->position, view.position);
+  handler.Shutdown();
 }
 
 // A robot whose socket keeps Nagle's algorithm on (robot controllers rarely

@@ -494,17 +494,33 @@ TEST(ModbusMaster, OverflowSaturatesTheRemainingCountAndRefusesOtherFields) {
   EXPECT_EQ(rig.master_->stats().refused, 1u);
 }
 
-TEST(ModbusMaster, PoseThatDoesNotFitIsRefusedSoTheRobotDoesNotMove) {
+// Nothing is lost in 16 bits: the pick pose is encoded and range-checked
+// before its grasp leaves the queue; one that cannot be sent stays queued and
+// the robot gets UNKNOWN_COMMAND with its own pose (every seed program stops
+// on it and none moves anywhere new).
+TEST(ModbusMaster, PoseThatDoesNotFitStaysQueuedAndTheRobotKeepsItsPose) {
   RigOptions o;
   o.position_scale = 0.001;  // millimetres: 500 mm x MULT does not fit
   ModbusRig rig(o);
+  // The robot 2 mm from the base origin (its own pose fits: 20000 x 0.1 um).
+  rig.robot_->SetPose(MakePose(Mat3::Identity(), Vec3(0.002, -0.001, 0.003)));
   ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
   Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
   ASSERT_TRUE(pick.ok());
   EXPECT_EQ(pick->status, daoai::kUnknownCommand);
-  EXPECT_EQ(pick->raw.position, (std::array<int32_t, 3>{}));
+  EXPECT_EQ(pick->raw.position, (std::array<int32_t, 3>{20000, -10000, 30000}));
   EXPECT_EQ(pick->payload[0], 0.0);
   EXPECT_EQ(rig.master_->stats().refused, 1u);
+  EXPECT_EQ(rig.handler_->QueueSize(0), 3);  // nothing popped
+  EXPECT_TRUE(rig.planner_->handed_out().empty());
+  // A socket robot (int32 fields) on the same task gets the grasp.
+  ClientContext socket_robot;
+  daoai::Request request = rig.robot_->MakeRequest(daoai::kPickPose, 0);
+  const std::optional<daoai::Response> r = rig.handler_->Handle(request, socket_robot);
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, daoai::kObjectsFound);
+  EXPECT_EQ(r->payload[0], 30000);
+  EXPECT_EQ(rig.handler_->QueueSize(0), 2);
 }
 
 TEST(ModbusMaster, OnlyTheConfiguredUnitIdIsServed) {

@@ -192,7 +192,9 @@ TEST(PlaneCalibrationService, HandlesOnlyThe2DKind) {
   EXPECT_FALSE(service.Accumulate(CalibrationKind::kAuto2D, Pose::Identity()).ok());  // not started
 }
 
-TEST(PlaneCalibrationService, ACollinearGridFailsTheLastStepInsteadOfReportingDone) {
+// The robot is told DONE (34) either way, the status seed 000's loop stops
+// on; a fit that fails is reported by Finish and publishes nothing.
+TEST(PlaneCalibrationService, ACollinearGridEndsTheCalibrationAndFinishReportsTheFailedFit) {
   const Cell cell = testing::LoadTwodCell();
   std::shared_ptr<SyntheticPlaneCamera> camera = std::move(SyntheticPlaneCamera::Create(cell).value());
   auto store = std::make_shared<PlaneCalibrationStore>();
@@ -209,9 +211,42 @@ TEST(PlaneCalibrationService, ACollinearGridFailsTheLastStepInsteadOfReportingDo
     X = *step->next_X_BF;
   }
   Result<CalibrationStep> last = service.Accumulate(CalibrationKind::kAuto2D, X);
-  EXPECT_EQ(last.status().code(), Status::Code::kInvalidArgument) << last.status().ToString();
-  EXPECT_FALSE(service.Finish(CalibrationKind::kAuto2D).ok());
+  ASSERT_TRUE(last.ok()) << last.status().ToString();
+  EXPECT_TRUE(last->done);
+  EXPECT_FALSE(service.last().has_value());
+  EXPECT_EQ(service.Finish(CalibrationKind::kAuto2D).code(), Status::Code::kInvalidArgument);
   EXPECT_EQ(store->Get(), nullptr);
+}
+
+// A grid point where the marker is not found is skipped: the next point is
+// proposed and the fit uses the points seen.
+TEST(PlaneCalibrationService, AGridPointWithoutTheMarkerIsSkipped) {
+  const Cell cell = testing::LoadTwodCell();
+  std::shared_ptr<SyntheticPlaneCamera> camera = std::move(SyntheticPlaneCamera::Create(cell).value());
+  auto store = std::make_shared<PlaneCalibrationStore>();
+  PlaneCalibrationService service(camera, store, {});  // 5 x 4 grid
+  Pose X = Pose::Identity();
+  ASSERT_TRUE(service.Start(CalibrationKind::kAuto2D, X).ok());
+  int skipped = 0;
+  for (int i = 0; i <= 20; ++i) {
+    // The third grid point: the robot is 2 m away, the marker out of the image.
+    Pose at = X;
+    if (i == 3) at.translation().x() += 2.0;
+    Result<CalibrationStep> step = service.Accumulate(CalibrationKind::kAuto2D, at);
+    ASSERT_TRUE(step.ok()) << i << ": " << step.status().ToString();
+    skipped += step->good ? 0 : 1;
+    if (i < 20) {
+      ASSERT_FALSE(step->done) << i;
+      X = *step->next_X_BF;
+    } else {
+      EXPECT_TRUE(step->done);
+    }
+  }
+  EXPECT_EQ(skipped, 1);
+  ASSERT_TRUE(service.last().has_value());
+  EXPECT_EQ(service.last()->points, 20);  // the centre and 19 of the 20 grid points
+  EXPECT_TRUE(service.Finish(CalibrationKind::kAuto2D).ok());
+  EXPECT_NE(store->Get(), nullptr);
 }
 
 }  // namespace

@@ -63,6 +63,40 @@ TEST(GraspQueue, ReplaceDiscardsTheOldGraspsAndKeepsTheNewOutcome) {
   EXPECT_FALSE(q.Pop().outcome.has_value());
 }
 
+TEST(GraspQueue, PopFirstLeavesRefusedGraspsQueuedInOrder) {
+  GraspQueue q;
+  q.Replace(MakePlan(4));  // instances 0..3, classes 0, 1, 2, 0
+  // Class 1 cannot be sent (e.g. does not fit the robot's registers).
+  auto not_class_1 = [](const Grasp& g, int) { return g.class_id != 1; };
+  std::vector<int> remaining_seen;
+  GraspQueue::Popped p = q.PopFirst([&](const Grasp& g, int remaining) {
+    remaining_seen.push_back(remaining);
+    return g.class_id != 1;
+  });
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 0);
+  EXPECT_EQ(p.remaining, 4);
+  EXPECT_EQ(p.refused, 0);
+  EXPECT_EQ(remaining_seen, (std::vector<int>{4}));
+  p = q.PopFirst(not_class_1);  // skips instance 1
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 2);
+  EXPECT_EQ(p.remaining, 3);
+  EXPECT_EQ(p.refused, 1);
+  p = q.PopFirst(not_class_1);
+  EXPECT_EQ(p.grasp->instance_id, 3);
+  p = q.PopFirst(not_class_1);  // only the refused one is left: nothing popped
+  EXPECT_FALSE(p.grasp);
+  EXPECT_EQ(p.refused, 1);
+  EXPECT_EQ(p.outcome, PlanResult::Outcome::kGrasps);
+  EXPECT_EQ(q.size(), 1);
+  // Another robot (another range) still gets it.
+  p = q.Pop();
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 1);
+  EXPECT_EQ(p.remaining, 1);
+}
+
 TEST(GraspQueue, HandsEachGraspOnceUnderConcurrentPops) {
   constexpr int kGrasps = 20000;
   constexpr int kThreads = 8;
