@@ -1,0 +1,305 @@
+// The seed robot programs, run as written (issue 38): seed 000's and seed
+// 003's UR programs (comms/ur_seed_program.h) against binpickd on the default
+// cell (synthetic pile, real perception, the real hand-eye calibration), over
+// the DaoAI socket and over Modbus TCP (binpickd the master of the test's
+// robot, a libmodbus slave whose registers the program reads and writes one
+// at a time). The conformance gate of the DaoAI protocol: no popup a program
+// raises because of binpick's answer, no move to a pose binpick did not mean.
+//
+// BINPICK_SEED_PARTS (default 6) sets the parts in the bin; 20 is the default
+// cell's bin as shipped (docs/protocols.md "Seed programs" has that run).
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "calib/calibration_camera.h"
+#include "comms/modbus_robot_sim.h"
+#include "comms/ur_seed_program.h"
+#include "core/cell.h"
+#include "tests/testing/binpickd.h"
+#include "tests/testing/files.h"
+
+namespace bp {
+namespace {
+
+using namespace std::chrono_literals;
+
+enum class Link { kSocket, kModbus };
+
+// The default cell with `parts` parts from scene `seed`, relative paths made
+// absolute; calibration, precision references and taught grasps land next to it.
+std::string WriteCell(const std::string& dir, int parts, uint64_t seed) {
+  std::ifstream in(std::string(BINPICK_SOURCE_DIR) + "/assets/cells/default.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), {});
+  const std::string from = "num_parts: 20\n  seed: 1";
+  const size_t at = text.find(from);
+  if (at == std::string::npos) return "";
+  text.replace(at, from.size(), "num_parts: " + std::to_string(parts) + "\n  seed: " + std::to_string(seed));
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets/";
+  for (size_t p = text.find("../"); p != std::string::npos; p = text.find("../", p)) text.replace(p, 3, assets);
+  const std::string path = dir + "/seed_cell.yaml";
+  testing::WriteText(path, text);
+  return path;
+}
+
+int SeedParts() {
+  const char* env = std::getenv("BINPICK_SEED_PARTS");
+  return env ? std::atoi(env) : 6;
+}
+
+// Where the robot waits while the camera captures (seed: detection_pose):
+// above the bin, tool pointing down.
+UrPose DetectionPose() {
+  return ToUrPose(MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.4, -0.3, 0.6)));
+}
+
+bool IsZero(const UrPose& p) {
+  return std::abs(p[0]) + std::abs(p[1]) + std::abs(p[2]) < 1e-9;
+}
+
+// binpickd on the test cell, and the robot's side of the link.
+class Rig {
+ public:
+  Rig(Link link, int parts, uint64_t seed, const std::string& name) : link_(link) {
+    dir_ = testing::FreshDir(name);
+    cell_path_ = WriteCell(dir_, parts, seed);
+    const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+    std::vector<std::string> args = {bin + "binpickd", "--cell", cell_path_, "--gri-port", "0",
+                                     "--gri-official-port", "0", "--no-record"};
+    if (link == Link::kModbus) {
+      robot_ = std::move(ModbusRobotSim::Start(ModbusRobotSimOptions{}).value());
+      args.insert(args.end(), {"--daoai-port", "0", "--modbus-robot",
+                               "127.0.0.1:" + std::to_string(robot_->port())});
+    } else {
+      port_ = testing::FreeLoopbackTcpPort();
+      args.insert(args.end(), {"--daoai-port", std::to_string(port_)});
+    }
+    daemon_ = std::make_unique<testing::BinpickdProcess>(args, dir_ + "/binpickd.log");
+    // About a second normally; the model tables take far longer under ASan
+    // with other test binaries on the two cores.
+    ready_ = daemon_->ReadyLine(300000).find("binpickd ready") != std::string::npos;
+    if (ready_ && robot_) ready_ = robot_->WaitForMaster(30s);
+  }
+  ~Rig() {
+    if (daemon_) daemon_->Stop();
+    if (robot_) robot_->Stop();
+  }
+
+  bool ready() const { return ready_; }
+  std::string log() const { return testing::ReadBytes(dir_ + "/binpickd.log"); }
+  const std::string& cell_path() const { return cell_path_; }
+  std::string Sibling(const std::string& extension) const {
+    return std::filesystem::path(cell_path_).replace_extension(extension).string();
+  }
+
+  std::unique_ptr<UrSeedProgram> Program(const UrPose& start, UrSeedProgramOptions o = {}) {
+    if (link_ == Link::kModbus) return UrSeedProgram::OverModbus(*robot_, start, o);
+    Result<std::unique_ptr<UrSeedProgram>> p = UrSeedProgram::OverSocket("127.0.0.1", port_, start, o);
+    EXPECT_TRUE(p.ok()) << p.status().ToString();
+    return p.ok() ? std::move(*p) : nullptr;
+  }
+
+  // A request without an answer (teach, stop-manual) has been taken: over
+  // Modbus the master clears the request flag; over the socket TCP keeps the
+  // order. The seed's programs do not wait, their next move takes seconds.
+  void WaitTaken() {
+    if (!robot_) return;
+    const auto deadline = std::chrono::steady_clock::now() + 10s;
+    while (robot_->ReadRegister(144) == 1 && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(1ms);
+    }
+  }
+
+  // Waits up to 20 s for `path` to exist.
+  static bool WaitForFile(const std::string& path) {
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    while (!std::filesystem::exists(path) && std::chrono::steady_clock::now() < deadline) {
+      std::this_thread::sleep_for(20ms);
+    }
+    return std::filesystem::exists(path);
+  }
+
+ private:
+  Link link_;
+  std::string dir_, cell_path_;
+  int port_ = 0;
+  std::unique_ptr<ModbusRobotSim> robot_;
+  std::unique_ptr<testing::BinpickdProcess> daemon_;
+  bool ready_ = false;
+};
+
+class SeedPrograms : public ::testing::TestWithParam<Link> {};
+
+std::string Popups(const UrSeedProgram& p) {
+  std::string s;
+  for (const UrPopup& u : p.popups()) s += std::string(u.failure ? "  FAILURE: " : "  notice: ") + u.text + "\n";
+  return s;
+}
+
+// Seed 000's calibration programs, teach, precision check and config switch,
+// then its pick program until the box is empty.
+TEST_P(SeedPrograms, Seed000ProgramsCalibratePickAndClearTheBinWithoutAFailurePopup) {
+  const int parts = SeedParts();
+  Rig rig(GetParam(), parts, 3, "seed000");
+  ASSERT_TRUE(rig.ready()) << rig.log();
+  const Cell cell = LoadCell(rig.cell_path()).value();
+  const UrPose facing = ToUrPose(BoardFacingStartPose(cell));
+
+  {  // Auto calibration started where the camera cannot see the board: every
+     // answer keeps the robot where it is, and three failed views end it (33).
+    Pose away_pose = BoardFacingStartPose(cell);
+    away_pose.translation() += Vec3(0.6, 0, 0);
+    const UrPose away = ToUrPose(away_pose);
+    auto p = rig.Program(away);
+    ASSERT_TRUE(p);
+    int loops = 0;
+    ASSERT_TRUE(p->Run([&] { loops = p->AutoCalibrationProgram(away, 20); }).ok()) << rig.log();
+    EXPECT_EQ(loops, 2);  // 11, 11, then 33
+    EXPECT_EQ(p->status(), 33);
+    for (const UrPose& m : p->moves()) {
+      EXPECT_LT(std::abs(m[0] - away[0]) + std::abs(m[1] - away[1]) + std::abs(m[2] - away[2]), 2e-4);
+    }
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+  }
+  {  // Auto calibration from where the board faces the camera: binpickd plans
+     // the views, the robot moves to each, 33 ends it and the result is written.
+    auto p = rig.Program(facing);
+    int loops = 0;
+    ASSERT_TRUE(p->Run([&] { loops = p->AutoCalibrationProgram(facing, 30); }).ok()) << rig.log();
+    EXPECT_EQ(p->status(), 33);
+    EXPECT_GE(loops, cell.calibration->min_poses - 1);
+    for (const UrPose& m : p->moves()) EXPECT_FALSE(IsZero(m));
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    EXPECT_TRUE(Rig::WaitForFile(rig.cell_path() + ".calibration.yaml")) << rig.log();
+  }
+  {  // Manual calibration over 9 waypoints: 10 for each, no answer to 2.
+    std::vector<UrPose> waypoints;
+    const Pose start = BoardFacingStartPose(cell);
+    const Vec3 axes[] = {Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1), Vec3(1, 1, 0), Vec3(1, -1, 0),
+                         Vec3(0, 1, 1), Vec3(1, 0, -1), Vec3(1, 1, 1), Vec3(-1, 1, 1)};
+    for (int i = 0; i < 9; ++i) {
+      const double angle = (i % 2 == 0 ? 1.0 : -1.0) * (i == 0 ? 0.0 : 10.0 + 2.0 * (i % 3)) * M_PI / 180.0;
+      waypoints.push_back(ToUrPose(start * MakePose(Mat3(Eigen::AngleAxisd(angle, axes[i].normalized())),
+                                                    Vec3(0.01 * (i % 3 - 1), 0.01 * (i / 3 % 3 - 1), 0.0))));
+    }
+    auto p = rig.Program(waypoints[0]);
+    ASSERT_TRUE(p->Run([&] { p->ManualCalibrationProgram(waypoints); }).ok()) << rig.log();
+    EXPECT_EQ(p->status(), 10);
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    ASSERT_FALSE(p->popups().empty());
+    EXPECT_EQ(p->popups().back().text, "DaoAI Done Calibration.");
+    rig.WaitTaken();
+  }
+  {  // Precision check on task 0 (the first defines the reference: 0 mm), and
+     // the camera config switch, as printed (RC 69 carries the stale
+     // daoai_payload_1: the seed's `payload_1 = id` sets a local) and with the
+     // one-line fix.
+    auto p = rig.Program(DetectionPose());
+    bool precise = false, literal = true, started = false;
+    ASSERT_TRUE(p->Run([&] {
+      p->daoai_switch_job(0);
+      started = p->daoai_capture_and_process_async();  // 19: 5 at once
+      precise = p->daoai_precision_check();
+      literal = p->daoai_cam_config(2);
+    }).ok()) << rig.log();
+    EXPECT_TRUE(started);
+    EXPECT_TRUE(precise) << Popups(*p);
+    EXPECT_EQ(p->popups().at(0).text, "3D error is : 0mm");
+    EXPECT_FALSE(literal);  // daoai_payload_1 is 0 (the precision answer's payload_1 / mult): no config 0
+    EXPECT_EQ(p->failure_popups(), std::vector<std::string>{
+                                       "DaoAI switch camera config failed, please check your configs."});
+    UrSeedProgramOptions fixed;
+    fixed.cam_config_sets_payload = true;
+    auto q = rig.Program(DetectionPose(), fixed);
+    bool switched = false;
+    ASSERT_TRUE(q->Run([&] { switched = q->daoai_cam_config(1); }).ok());
+    EXPECT_TRUE(switched);
+    EXPECT_TRUE(q->failure_popups().empty()) << Popups(*q);
+  }
+  int picked = 0;
+  {  // Teach: after the last pose of a capture (payload_1 = 1, which names task
+     // 1) the robot stands at the pick pose and sends it; daoai_teach_pose never
+     // sets payload_1, so binpickd files it on the task last picked from (0),
+     // whose part it was: the taught grasp is stored.
+    auto p = rig.Program(DetectionPose());
+    bool taught = false;
+    ASSERT_TRUE(p->Run([&] {
+      p->daoai_switch_job(0);
+      if (!p->daoai_capture_and_process()) return;
+      while (p->daoai_get_picking_pose()) {
+        p->MoveL(p->pick_pose());
+        ++picked;
+        if (p->daoai_remaining_objects() <= 1) {
+          p->daoai_teach_pose();
+          taught = true;
+          break;
+        }
+      }
+    }).ok()) << rig.log();
+    ASSERT_TRUE(taught) << Popups(*p);
+    EXPECT_EQ(p->payload_1(), 1.0);
+    rig.WaitTaken();
+    EXPECT_TRUE(Rig::WaitForFile(rig.Sibling(".taught.yaml"))) << rig.log();
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+  }
+  {  // The pick program until the box is empty.
+    auto p = rig.Program(DetectionPose());
+    ASSERT_TRUE(p->Run([&] { picked += p->PickProgram(DetectionPose(), 3 * parts); }).ok()) << rig.log();
+    EXPECT_EQ(picked, parts) << Popups(*p);
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    ASSERT_FALSE(p->popups().empty());
+    EXPECT_EQ(p->popups().back().text, "Box Empty.");
+    for (const UrPose& m : p->moves()) EXPECT_FALSE(IsZero(m));
+  }
+  EXPECT_EQ(rig.log().find("interface version"), std::string::npos);
+}
+
+// Seed 003's "抓取 - 物体姿态修正 - 放置" program: stage 0 (pick) as printed,
+// one pick per pass of its Loop; stages 1 and 2 (the part's pose in the
+// gripper, the place area) need issue 44's task kinds and are counted as
+// pending, not run.
+TEST_P(SeedPrograms, Seed003PickStageClearsTheBinOnePickPerPass) {
+  const int parts = SeedParts();
+  Rig rig(GetParam(), parts, 3, "seed003");
+  ASSERT_TRUE(rig.ready()) << rig.log();
+  const UrPose detection = DetectionPose();
+  auto p = rig.Program(detection);
+  int picks = 0, passes = 0;
+  bool empty = false;
+  // The operator stops the Loop (it has no end): after one pass per part,
+  // then (a part perception missed in a pass is still there) a pass at a
+  // time until daoai_check_box_empty() says empty.
+  ASSERT_TRUE(p->Run([&] {
+    auto run = [&](int n) {
+      picks += p->PickCorrectPlaceProgram(detection, detection, detection, detection, detection, n,
+                                          /*in_hand_and_place=*/false);
+      passes += n;
+    };
+    run(parts);
+    empty = p->daoai_check_box_empty();
+    while (!empty && passes < 2 * parts) {
+      run(1);
+      empty = p->daoai_check_box_empty();
+    }
+  }).ok()) << rig.log();
+  EXPECT_EQ(picks, parts) << Popups(*p);
+  EXPECT_EQ(p->stages_pending(), picks);  // issue 44
+  EXPECT_TRUE(empty);
+  EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+  for (const UrPose& m : p->moves()) EXPECT_FALSE(IsZero(m));
+}
+
+INSTANTIATE_TEST_SUITE_P(Links, SeedPrograms, ::testing::Values(Link::kSocket, Link::kModbus),
+                         [](const auto& info) { return info.param == Link::kSocket ? "Socket" : "Modbus"; });
+
+}  // namespace
+}  // namespace bp
