@@ -24,6 +24,17 @@ struct Span {
   int lo = 0;
   int count = 0;
   bool marker = false;  // request flag inside the response registers
+  // Taking a request writes the marker and clears the request flag in one
+  // FC16 when every register from the marker to the flag is a response
+  // register (seed map: 139..144; 140..143 hold the last answer's payload_5,
+  // payload_6, status and meta_1, which the robot has read: it is sending a
+  // new request). Else two writes.
+  bool one_write_take = false;
+  // The answer and its flag in one FC16 when the flag follows the response
+  // block (seed map: 129..145). The slave applies the registers in address
+  // order, so the flag is still set last (seed 000: "在回应消息发送完成之后，此标志位
+  // 必须置成值1").
+  bool one_write_answer = false;
 };
 
 Span SpanOf(const ModbusRegisterMap& m) {
@@ -35,6 +46,14 @@ Span SpanOf(const ModbusRegisterMap& m) {
                            m.response_flag});
   s.count = hi - s.lo + 1;
   s.marker = m.request_flag >= m.response_base && m.request_flag < m.response_base + rsp;
+  const int marker_reg = m.request_base + modbus::kMarkerField;
+  s.one_write_take = s.marker && marker_reg < m.request_flag && marker_reg >= m.response_base &&
+                     m.request_flag - marker_reg <= 8 && m.response_flag != m.request_flag;
+  for (int r = marker_reg + 1; s.one_write_take && r < m.request_flag; ++r) {
+    const bool request_reg = r >= m.request_base && r < m.request_base + req;
+    if (request_reg || r == m.response_flag || r >= m.response_base + rsp) s.one_write_take = false;
+  }
+  s.one_write_answer = m.response_flag == m.response_base + rsp;
   return s;
 }
 
@@ -166,7 +185,9 @@ class ModbusMaster::Impl {
       spdlog::warn("modbus: robot {}: {} failed: {}; reconnecting", address(), what,
                    modbus_strerror(errno));
     };
+    ModbusRequestTiming timing;
     while (!stopping()) {
+      timing.read_start = Clock::now();
       if (modbus_read_registers(ctx, span_.lo, span_.count, regs.data()) != span_.count) {
         fail("reading the registers");
         return answered;
@@ -190,21 +211,33 @@ class ModbusMaster::Impl {
         if (!Sleep(o_.poll_interval)) return answered;
         continue;
       }
+      timing.seen = Clock::now();
       std::array<uint16_t, daoai::kRequestFields> fields{};
       for (size_t i = 0; i < fields.size(); ++i) fields[i] = at(m.request_base + static_cast<int>(i));
       const daoai::Request request = modbus::DecodeRequest(fields);
+      timing.command = request.command;
       // Taken: the marker goes back first, then the flag is cleared. When the
       // request flag is a response register, the flag may have read 1 before
       // the robot wrote it (a version-1 response left 1 there); the robot's
       // flag write can then land after the clear, and the marker keeps that
       // late 1 from being taken for a second request.
-      if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
-        fail("marking the request taken");
-        return answered;
-      }
-      if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
-        fail("clearing the request flag");
-        return answered;
+      if (span_.one_write_take) {
+        std::vector<uint16_t> take(static_cast<size_t>(m.request_flag - marker_reg + 1), 0);
+        take.front() = modbus::kMarker;  // and 0 up to the request flag
+        if (modbus_write_registers(ctx, marker_reg, static_cast<int>(take.size()), take.data()) !=
+            static_cast<int>(take.size())) {
+          fail("taking the request");
+          return answered;
+        }
+      } else {
+        if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
+          fail("marking the request taken");
+          return answered;
+        }
+        if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
+          fail("clearing the request flag");
+          return answered;
+        }
       }
       if (at(m.response_flag) != 0) {
         // The robot did not read the last response (its program restarted).
@@ -217,12 +250,19 @@ class ModbusMaster::Impl {
         }
       }
       Count([](ModbusMasterStats& s) { ++s.requests; });
+      timing.taken = Clock::now();
 
       range_refused = false;
       const std::optional<daoai::Response> response = handler_.Handle(request, client);
+      timing.handled = Clock::now();
       if (range_refused) Count([](ModbusMasterStats& s) { ++s.refused; });
       taken_without_response = !response.has_value();
-      if (!response) continue;  // no response for this command
+      timing.answered = response.has_value();
+      if (!response) {  // no response for this command
+        timing.written = timing.handled;
+        if (o_.on_request) o_.on_request(timing);
+        continue;
+      }
       Result<std::array<uint16_t, daoai::kResponseFields>> encoded = modbus::EncodeResponse(*response);
       if (!encoded.ok()) {
         // Not reached: the handler range-checked the answer (wire_range).
@@ -248,9 +288,17 @@ class ModbusMaster::Impl {
         // from the take.
         out[static_cast<size_t>(marker_reg - m.response_base)] = modbus::kMarker;
       }
-      written = written && modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()),
-                                                   out.data()) == static_cast<int>(out.size());
-      written = written && modbus_write_register(ctx, m.response_flag, 1) == 1;
+      if (span_.one_write_answer) {
+        std::array<uint16_t, daoai::kResponseFields + 1> with_flag{};
+        std::copy(out.begin(), out.end(), with_flag.begin());
+        with_flag.back() = 1;
+        written = modbus_write_registers(ctx, m.response_base, static_cast<int>(with_flag.size()),
+                                         with_flag.data()) == static_cast<int>(with_flag.size());
+      } else {
+        written = written && modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()),
+                                                     out.data()) == static_cast<int>(out.size());
+        written = written && modbus_write_register(ctx, m.response_flag, 1) == 1;
+      }
       if (!written) {
         spdlog::warn("modbus: robot {}: the response to command {} (status {}) was lost: {}; "
                      "reconnecting", address(), request.command, response->status,
@@ -260,6 +308,8 @@ class ModbusMaster::Impl {
       }
       client.last_answer = modbus::DecodeResponse(*encoded);
       Count([](ModbusMasterStats& s) { ++s.responses; });
+      timing.written = Clock::now();
+      if (o_.on_request) o_.on_request(timing);
     }
     return answered;
   }

@@ -42,6 +42,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -50,6 +51,19 @@
 #include "core/status.h"
 
 namespace bp {
+
+// Where one request's time went on the master's side (steady clock): the
+// handshake breakdown of docs/protocols.md "Latency" (bench/server_bench.cc).
+struct ModbusRequestTiming {
+  using Time = std::chrono::steady_clock::time_point;
+  Time read_start;  // the poll read (FC3) that found the request began
+  Time seen;        // ... and returned
+  Time taken;       // marker and request flag written
+  Time handled;     // the handler's answer built
+  Time written;     // response registers and response flag written (= handled without one)
+  int32_t command = 0;
+  bool answered = false;
+};
 
 struct ModbusMasterOptions {
   std::string host = "127.0.0.1";  // the robot (Modbus slave)
@@ -60,6 +74,8 @@ struct ModbusMasterOptions {
   std::chrono::milliseconds timeout{1000};       // connect and per transaction
   std::chrono::milliseconds backoff_min{50};     // first reconnect delay
   std::chrono::milliseconds backoff_max{2000};   // doubling up to this
+  // Called on the master's thread after each request taken (benches, tests).
+  std::function<void(const ModbusRequestTiming&)> on_request;
 };
 
 // From a cell's robot.modbus section (host, port, unit id, map, poll).
