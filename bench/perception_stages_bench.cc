@@ -1,7 +1,8 @@
 // Perception's stages one at a time on the default cell's 20-part pile at
-// 640x480 (config 1, seed 1), on a 2-thread oneTBB arena: the crop, the
-// grid labels, the segments, the pose stage (every view in waves, with
-// acceptance) and the second look. Each stage's input is built once, outside
+// 640x480 (config 1, seed 1), on a 2-thread oneTBB arena: the depth
+// smoothing (radius 1 and 2; this frame is not noisy enough to be smoothed
+// by the pipeline), the crop, the grid labels, the segments, the pose stage
+// (every view in waves, with acceptance) and the second look. Each stage's input is built once, outside
 // the timed loop.
 //
 //   build/bin/bp_bench --benchmark_filter=Stage --benchmark_repetitions=5
@@ -17,6 +18,7 @@
 #include "pipeline/capture_source.h"
 #include "pipeline/internal/acceptance.h"
 #include "pipeline/internal/class_model.h"
+#include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
@@ -93,7 +95,7 @@ StageData& Data() {
       data->segments = GroupGridSegments(data->roi, data->labels, data->segmentation());
     });
     data->fit_limit = std::make_unique<FitRmsLimit>(data->options.max_fit_rms_sigmas, data->options.min_fit_rms_limit,
-                                                    data->cell.camera, data->frame);
+                                                    DepthNoise(data->cell.camera, data->frame), data->frame);
     data->ok = true;
     return data;
   }();
@@ -106,6 +108,17 @@ StageData& Data() {
     state.SkipWithError("no synthetic frame or class models (OSMesa)"); \
     return;                                                              \
   }
+
+// SmoothDepth over the whole frame, window half width state.range(0).
+void BM_StageSmooth(benchmark::State& state) {
+  STAGE_DATA_OR_SKIP(d);
+  const DepthNoise noise(d.cell.camera, d.frame);
+  const int radius = static_cast<int>(state.range(0));
+  for (auto _ : state) {
+    Arena().execute([&] { benchmark::DoNotOptimize(SmoothDepth(d.frame.depth, radius, noise, 2.0)); });
+  }
+}
+BENCHMARK(BM_StageSmooth)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_StageCrop(benchmark::State& state) {
   STAGE_DATA_OR_SKIP(d);

@@ -1,6 +1,7 @@
 // A plain row-major image, so that public headers need neither OpenCV nor PCL.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 

@@ -10,7 +10,6 @@
 #include <Eigen/Geometry>
 
 #include "core/mesh.h"
-#include "pipeline/internal/roi_cloud.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp {
@@ -248,22 +247,28 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
   return out;
 }
 
-SegmentationFigures EvaluateSegmentation(const Frame& frame, const PerceptionResult& result, const Cell& cell,
+SegmentationFigures EvaluateSegmentation(const Frame& frame, const PerceptionResult& result, const Cell& /*cell*/,
                                          const EvalOptions& options) {
   SegmentationFigures out;
   if (!frame.truth || frame.truth->labels.empty() || !frame.organized()) return out;
-  // The crop is deterministic: redo it to learn each ROI point's pixel.
-  internal::RoiCloud roi;
-  internal::CropToRoi(frame, cell.bin.X_BW, internal::MakeRoiBox(cell), &roi);
-  if (roi.points_B.size() != result.segment_of_point.size()) return out;
+  // Each ROI point's pixel: its projection (the pipeline deprojected it from
+  // that pixel's centre, possibly from smoothed depth, so it rounds back).
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_CB = frame.X_BC.inverse();
+  const int w = frame.depth.width, h = frame.depth.height;
   int max_segment = -1;
   for (int32_t s : result.segment_of_point) max_segment = std::max(max_segment, s);
   out.segments = max_segment + 1;
   // counts[segment][instance]
   std::map<int, std::map<int, int>> by_segment;
   std::map<int, std::map<int, int>> by_instance;
-  for (size_t i = 0; i < roi.points_B.size(); ++i) {
-    const uint16_t label = frame.truth->labels.data[static_cast<size_t>(roi.pixel_of_point[i])];
+  const size_t n = std::min(result.roi_points_B.size(), result.segment_of_point.size());
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d q = X_CB * result.roi_points_B[i].cast<double>();
+    if (!(q.z() > 0.0)) continue;
+    const long u = std::lround(K.fx * q.x() / q.z() + K.cx), v = std::lround(K.fy * q.y() / q.z() + K.cy);
+    if (u < 0 || v < 0 || u >= w || v >= h) continue;
+    const uint16_t label = frame.truth->labels.data[static_cast<size_t>(v) * w + static_cast<size_t>(u)];
     const int32_t s = result.segment_of_point[i];
     if (label == 0 || label == GroundTruth::kBinLabel) {
       if (s >= 0) ++by_segment[s][0];

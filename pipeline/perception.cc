@@ -11,6 +11,7 @@
 
 #include "pipeline/internal/acceptance.h"
 #include "pipeline/internal/class_model.h"
+#include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
@@ -61,6 +62,18 @@ internal::SegmentationOptions SegmentationOptionsOf(const PerceptionOptions& o) 
   s.match_regions = o.match_regions;
   s.match_fragmented_regions = o.match_fragmented_regions;
   return s;
+}
+
+// The frame's depth smoothed (SmoothDepth); the camera pose, intrinsics and
+// source kept; no truth, intensity or unorganized points.
+Frame SmoothedFrame(const Frame& frame, int radius, const internal::DepthNoise& noise, double gate_sigmas) {
+  Frame out;
+  out.depth = internal::SmoothDepth(frame.depth, radius, noise, gate_sigmas);
+  out.intrinsics = frame.intrinsics;
+  out.X_BC = frame.X_BC;
+  out.timestamp_ns = frame.timestamp_ns;
+  out.source = frame.source;
+  return out;
 }
 
 // The bin floor in B: (n, d) with n . x + d = 0 on it, n = z of W.
@@ -193,8 +206,24 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   if (Status s = SelectModels(classes, &models, &model_problems); !s.ok()) return s;
   StageClock clock(&result.timings);
 
+  // A frame noisier than smoothing_target_sigma is smoothed first and every
+  // later stage sees the smoothed depth. The fit limit keeps the frame's
+  // noise as measured before smoothing (docs/perception_pipeline.md, "Depth
+  // noise and smoothing").
+  const internal::DepthNoise noise(cell_.camera, frame);
+  result.depth_noise_sigma = noise.measured_sigma();
+  result.depth_noise_at = noise.measured_at();
+  const int smoothing_radius =
+      internal::SmoothingRadius(noise, options_.smoothing_target_sigma, options_.smoothing_max_radius);
+  Frame smoothed;
+  if (smoothing_radius > 0) {
+    smoothed = SmoothedFrame(frame, smoothing_radius, noise, options_.smoothing_gate_sigmas);
+    clock.Lap("smooth");
+  }
+  const Frame& used = smoothing_radius > 0 ? smoothed : frame;
+
   internal::RoiCloud roi;
-  internal::CropToRoi(frame, cell_.bin.X_BW, box_, &roi);
+  internal::CropToRoi(used, cell_.bin.X_BW, box_, &roi);
   clock.Lap("roi");
   result.roi_point_count = static_cast<int64_t>(roi.points_B.size());
   if (roi.valid_points == 0 || roi.points_B.empty()) {
@@ -206,10 +235,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     return result;
   }
 
-  const internal::FitRmsLimit fit_limit(options_.max_fit_rms_sigmas, options_.min_fit_rms_limit, cell_.camera, frame);
-  result.depth_noise_sigma = fit_limit.measured_sigma();
-  result.depth_noise_at = fit_limit.measured_at();
-  internal::Segments segments = Segment(roi, frame, clock);
+  const internal::FitRmsLimit fit_limit(options_.max_fit_rms_sigmas, options_.min_fit_rms_limit, noise, used);
+  internal::Segments segments = Segment(roi, used, clock);
   result.segment_of_point = std::move(segments.segment_of_point);
   result.largest_region_points = internal::LargestRegionPoints(segments.region_of_point);
   result.roi_points_B = std::move(roi.points_B);
@@ -223,7 +250,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     result.reason = model_problems.empty() ? "no part class to look for" : "no pose model: " + model_problems;
     return result;
   }
-  MatchViews(segments, frame, models, effort == PerceptionEffort::kThorough, fit_limit, clock, result);
+  MatchViews(segments, used, models, effort == PerceptionEffort::kThorough, fit_limit, clock, result);
   return result;
 }
 
@@ -237,6 +264,12 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
       return Status::InvalidArgument(std::string("perception: ") + name +
                                      " counts must be >= 1, peaks_examined >= peaks_per_reference, stop_score in [0, 1]");
     }
+  }
+  if (!(options.smoothing_target_sigma >= 0.0) || !std::isfinite(options.smoothing_target_sigma) ||
+      options.smoothing_max_radius < 0 || !(options.smoothing_gate_sigmas > 0.0)) {
+    return Status::InvalidArgument(
+        "perception: smoothing_target_sigma must be finite and >= 0, smoothing_max_radius >= 0, "
+        "smoothing_gate_sigmas > 0");
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");

@@ -32,7 +32,7 @@ struct Detection {
 };
 
 struct StageTiming {
-  std::string stage;  // "deproject", "roi", "segment", "pose", "verify", ...
+  std::string stage;  // "smooth", "roi", "regions", "segment", "pose", "verify", ...
   double ms = 0.0;
 };
 
@@ -65,6 +65,14 @@ struct PerceptionResult {
 // behind each and its command). Distances in metres.
 struct PerceptionOptions {
   int threads = 2;  // arena size when the caller has none (Build's model tables); >= 1
+  // Depth smoothing (organized frames): a frame whose axial noise at its
+  // median depth exceeds smoothing_target_sigma (metres; 0 = never smooth)
+  // is averaged over the smallest window, of half width at most
+  // smoothing_max_radius pixels, that brings it there; neighbours farther
+  // than smoothing_gate_sigmas noise sigmas in depth stay out (edges).
+  double smoothing_target_sigma = 0.0005;
+  int smoothing_max_radius = 2;
+  double smoothing_gate_sigmas = 2.0;
   // Segmentation: neighbouring grid points join when closer than
   // segment_max_jump (> 0) and their normals differ by less than
   // segment_normal_angle_deg (0 = no normal condition). Fewest merges.

@@ -79,6 +79,7 @@ struct EvalCliOptions {
   bool thorough = false;
   double second_look = PerceptionOptions{}.second_look_below;
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
+  double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
 
@@ -287,6 +288,7 @@ int Run(const EvalCliOptions& opt) {
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
   popt.max_fit_rms_sigmas = opt.fit_rms;
+  popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   auto perception = Perception::Build(*cell, popt);
   if (!perception.ok()) return Fail(cmd, perception.status());
@@ -525,6 +527,10 @@ Command EvalCommand() {
                                   "largest fit residual, in sigma_z of the depth noise "
                                   "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 100.0));
+                   sub.add_option("--smooth", opt->smooth,
+                                  "smooth frames noisier than this at their median depth, metres "
+                                  "(PerceptionOptions::smoothing_target_sigma; 0 = never, tuning)")
+                       ->check(CLI::Range(0.0, 0.01));
                    sub.add_option("--second-look-skip", opt->second_look_skip_tried,
                                   "1: the second look does not refine again the coarse poses the waves refined "
                                   "(PerceptionOptions::second_look_skip_tried; tuning)")

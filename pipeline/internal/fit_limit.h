@@ -27,29 +27,44 @@ const NoiseModel* FrameNoise(const CameraSpec& camera, const Frame& frame);
 // {0, 0} for too few samples.
 std::pair<double, double> MeasureDepthNoise(const DepthImage& depth);
 
-// Per frame: the residual limit at a part's pose. sigma_z(z) is the capturing
-// config's NoiseModel at the part's depth, scaled up by measured / modelled
-// noise at the frame's median depth when the frame is noisier than modelled;
-// the measured sigma alone when the cell has no noise model.
-class FitRmsLimit {
+// The axial depth noise of one frame, sigma(z) in metres at depth z along
+// C's optical axis: the capturing config's NoiseModel (FrameNoise) scaled up
+// by measured / modelled at the frame's median depth when the frame is
+// noisier than modelled (never down: the model is the floor); the measured
+// sigma at every depth when the cell has no noise model; 0 when neither is
+// known.
+class DepthNoise {
  public:
-  // max_sigmas <= 0: no limit (and no measurement). min_limit: metres.
-  FitRmsLimit(double max_sigmas, double min_limit, const CameraSpec& camera, const Frame& frame);
-  bool enabled() const { return max_sigmas_ > 0.0; }
-  // Metres; infinity when there is no noise figure.
-  double At(const ClassModel& model, const Pose& X_BO) const;
+  DepthNoise() = default;
+  // Measures organized frames (MeasureDepthNoise).
+  DepthNoise(const CameraSpec& camera, const Frame& frame);
+  double Sigma(double z) const;
   double measured_sigma() const { return measured_sigma_; }  // 0: not measured
   double measured_at() const { return measured_at_; }        // median depth of the measurement
+  double scale() const { return scale_; }                    // measured / modelled, >= 1
 
  private:
   double ModelSigma(double z) const;
-  double max_sigmas_;
-  double min_limit_;
-  const NoiseModel* noise_ = nullptr;
+  const NoiseModel* model_ = nullptr;
   double measured_sigma_ = 0.0;
   double measured_at_ = 0.0;
-  double at_median_ = 0.0;
-  double noise_scale_ = 1.0;
+  double scale_ = 1.0;
+};
+
+// Per frame: the residual limit at a part's pose, max_sigmas x the frame's
+// DepthNoise at the part's centroid depth (and at least min_limit).
+class FitRmsLimit {
+ public:
+  // max_sigmas <= 0: no limit. min_limit: metres.
+  FitRmsLimit(double max_sigmas, double min_limit, const DepthNoise& noise, const Frame& frame);
+  bool enabled() const { return max_sigmas_ > 0.0; }
+  // Metres; infinity when there is no noise figure.
+  double At(const ClassModel& model, const Pose& X_BO) const;
+
+ private:
+  double max_sigmas_;
+  double min_limit_;
+  DepthNoise noise_;
   Pose X_CB_ = Pose::Identity();
 };
 

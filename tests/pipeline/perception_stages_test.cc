@@ -1,11 +1,13 @@
 // Perception's stages one at a time (pipeline/internal/): segmentation on
 // rendered frames, acceptance with spherical parts whose geometry is exact,
-// the residual views, the depth noise measurement, verification and the
-// model tables of a box.
+// the residual views, the depth noise measurement and smoothing,
+// verification and the model tables of a box.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <memory>
 #include <numeric>
 #include <random>
@@ -15,6 +17,7 @@
 #include <tbb/task_arena.h>
 
 #include "pipeline/internal/acceptance.h"
+#include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/planar_faces.h"
 #include "pipeline/internal/pose_model.h"
@@ -324,7 +327,7 @@ TEST(ViewPasses, AResidualViewIsTheUnclaimedPartOfASegmentWhenEnoughIsLeft) {
 
 TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   std::mt19937 rng{11};
-  for (const double sigma : {0.0003, 0.001}) {
+  for (const double sigma : {0.0003, 0.001, 0.0025}) {  // 0.0025: past the fixed 4 mm edge limit
     std::normal_distribution<float> noise(0.f, static_cast<float>(sigma));
     DepthImage depth(640, 480);
     for (int v = 0; v < depth.height; ++v) {
@@ -336,6 +339,82 @@ TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   }
   // Too few valid pixels: no figure.
   EXPECT_EQ(MeasureDepthNoise(DepthImage(20, 20, std::numeric_limits<float>::quiet_NaN())).first, 0.0);
+}
+
+// A frame of a tilted plane with a 20 mm step at u = 320 and a hole, axial
+// noise sigma (metres), seeded.
+Frame NoisyStepFrame(double sigma, uint32_t seed) {
+  std::mt19937 rng{seed};
+  std::normal_distribution<float> noise(0.f, static_cast<float>(sigma));
+  Frame frame;
+  frame.intrinsics = DefaultCamera().K;
+  frame.depth = DepthImage(640, 480);
+  for (int v = 0; v < 480; ++v) {
+    for (int u = 0; u < 640; ++u) {
+      const float clean = 0.9f + 0.0001f * static_cast<float>(v) + (u < 320 ? 0.f : 0.02f);
+      frame.depth.at(u, v) = clean + noise(rng);
+    }
+  }
+  for (int v = 100; v < 110; ++v) {
+    for (int u = 100; u < 110; ++u) frame.depth.at(u, v) = std::numeric_limits<float>::quiet_NaN();
+  }
+  return frame;
+}
+
+// Smoothing a 1 mm noisy plane over 3 x 3 pixels (radius 1) divides its noise
+// by about 3 away from the step; the pixels beside the 20 mm step keep their
+// own side's depth (the gate keeps the other side out); the hole stays a
+// hole and nothing else becomes one; the result does not depend on the
+// number of threads.
+TEST(DepthSmoothing, NoiseIsDividedByTheWindowAndAStepIsKept) {
+  const double sigma = 0.001;
+  const Frame frame = NoisyStepFrame(sigma, 3);
+  const DepthNoise noise(CameraSpec{}, frame);  // no noise model: the measured sigma
+  ASSERT_NEAR(noise.Sigma(0.9), sigma, 0.1 * sigma);
+  DepthImage smoothed;
+  tbb::task_arena(2).execute([&] { smoothed = SmoothDepth(frame.depth, 1, noise, 2.0); });
+  DepthImage one_thread;
+  tbb::task_arena(1).execute([&] { one_thread = SmoothDepth(frame.depth, 1, noise, 2.0); });
+  ASSERT_EQ(smoothed.data.size(), one_thread.data.size());
+  EXPECT_EQ(std::memcmp(smoothed.data.data(), one_thread.data.data(), smoothed.data.size() * sizeof(float)), 0);
+
+  double sum_sq = 0.0;
+  int n = 0;
+  double worst_beside_step = 0.0;
+  for (int v = 1; v + 1 < 480; ++v) {
+    for (int u = 1; u + 1 < 640; ++u) {
+      const float z = smoothed.at(u, v);
+      const bool in_hole = u >= 100 && u < 110 && v >= 100 && v < 110;
+      ASSERT_EQ(std::isfinite(z), !in_hole) << u << ", " << v;
+      if (in_hole) continue;
+      const float clean = 0.9f + 0.0001f * static_cast<float>(v) + (u < 320 ? 0.f : 0.02f);
+      if (u == 319 || u == 320) worst_beside_step = std::max(worst_beside_step, std::abs(double(z - clean)));
+      if (std::abs(u - 320) > 2 && (u < 98 || u > 111 || v < 98 || v > 111)) {
+        sum_sq += double(z - clean) * double(z - clean);
+        ++n;
+      }
+    }
+  }
+  const double rms = std::sqrt(sum_sq / n);
+  EXPECT_LT(rms, 0.45 * sigma);
+  EXPECT_GT(rms, 0.25 * sigma);
+  EXPECT_LT(worst_beside_step, 3 * sigma);  // averaged across the step: a third of it, 6.7 mm
+}
+
+// The window's half width: the smallest that brings the frame's noise down
+// to the target (r = ceil((sigma / target - 1) / 2)), at most max_radius;
+// none for a frame already below the target or without a target.
+TEST(DepthSmoothing, TheRadiusIsTheSmallestThatReachesTheTarget) {
+  const auto radius = [](double sigma, double target, int max_radius) {
+    return SmoothingRadius(DepthNoise(CameraSpec{}, NoisyStepFrame(sigma, 5)), target, max_radius);
+  };
+  EXPECT_EQ(radius(0.0003, 0.0005, 2), 0);
+  EXPECT_EQ(radius(0.0013, 0.0005, 2), 1);  // 2.6 x the target
+  EXPECT_EQ(radius(0.003, 0.0005, 5), 3);   // 6 x
+  EXPECT_EQ(radius(0.003, 0.0005, 2), 2);
+  EXPECT_EQ(radius(0.003, 0.0, 2), 0);
+  EXPECT_EQ(radius(0.003, 0.0005, 0), 0);
+  EXPECT_EQ(SmoothingRadius(DepthNoise(), 0.0005, 2), 0);  // no noise figure
 }
 
 // The model tables of a 60 x 40 x 20 mm block: six faces, six resting

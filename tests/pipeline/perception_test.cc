@@ -6,10 +6,13 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
+#include <limits>
 #include <map>
 #include <memory>
 #include <random>
 #include <set>
+#include <vector>
 
 #include <tbb/task_arena.h>
 
@@ -841,16 +844,31 @@ TEST(PerceptionEval, DetectionsNeverInterpenetrate) {
 
 // The frame's own depth noise, measured (it scales the fit residual limit up
 // for cameras noisier than their cell says: the 0.8 mm frame of
-// AFragmentedLonePartIsMatchedAsOneSegment keeps its bracket).
+// AFragmentedLonePartIsMatchedAsOneSegment keeps its bracket), before
+// smoothing; a frame above smoothing_target_sigma (0.5 mm) is smoothed
+// (stage "smooth") and its part still found, one below is not; bad smoothing
+// options are refused.
 TEST_F(PerceptionTest, MeasuresTheDepthNoiseOfTheFrame) {
   for (double sigma : {0.0003, 0.0008}) {
     const PerceptionResult r = fx().Run(fx().Render({{0, PoseW(0.0, 0.0, 0.0, 0.0)}}, sigma));
     EXPECT_NEAR(r.depth_noise_sigma, sigma, 0.1 * sigma);
     EXPECT_NEAR(r.depth_noise_at, 1.05, 0.01);  // the bin floor fills most of the frame
     EXPECT_EQ(r.detections.size(), 1u) << r.reason;
+    const bool smoothed =
+        std::any_of(r.timings.begin(), r.timings.end(), [](const auto& t) { return t.stage == "smooth"; });
+    EXPECT_EQ(smoothed, sigma > PerceptionOptions{}.smoothing_target_sigma) << sigma;
   }
   const PerceptionResult none = fx().Run(fx().Render({}, 0.0));
   EXPECT_LT(none.depth_noise_sigma, 0.00002);  // rendered depth: float rounding only
+
+  for (const auto& spoil : std::vector<std::function<void(PerceptionOptions&)>>{
+           [](PerceptionOptions& o) { o.smoothing_gate_sigmas = 0.0; },
+           [](PerceptionOptions& o) { o.smoothing_target_sigma = std::numeric_limits<double>::quiet_NaN(); },
+           [](PerceptionOptions& o) { o.smoothing_max_radius = -1; }}) {
+    PerceptionOptions bad;
+    spoil(bad);
+    EXPECT_EQ(Perception::Build(fx().cell, bad).status().code(), Status::Code::kInvalidArgument);
+  }
 }
 
 // A bushing fitted onto a pipe tee whose run shows only in part (a 36 mm hub
