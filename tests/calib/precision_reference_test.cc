@@ -77,7 +77,7 @@ TEST(PrecisionReference, SurvivesARestartAndTheNextCheckMeasuresAgainstIt) {
     EXPECT_EQ(define->raw.payload[0], 0);  // reference defined
   }
   ASSERT_TRUE(std::filesystem::exists(file));
-  EXPECT_FALSE(std::filesystem::exists(AtomicTempPath(file)));
+  EXPECT_TRUE(AtomicTempFiles(file).empty());
 
   Server second(cell, file);
   ASSERT_TRUE(second.load.ok()) << second.load.ToString();

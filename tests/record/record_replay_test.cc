@@ -203,7 +203,7 @@ TEST_F(RecordReplay, RecordsCutOffMidWriteAreSkippedWithAWarningAndReplayGoesOn)
   const std::string manifest = session_ + "/cap_000003/record.json";
   const std::string text = testing::ReadBytes(manifest);
   fs::remove(manifest);
-  testing::WriteText(AtomicTempPath(manifest), text.substr(0, text.size() / 3));
+  testing::WriteText(AtomicTempPath(manifest) + ".00001a2b000000070badc0de", text.substr(0, text.size() / 3));
   // cap 5: the staging directory of a record being written when the server died.
   fs::create_directories(session_ + "/cap_000005.partial");
   testing::WriteText(session_ + "/cap_000005.partial/cloud.pcd", "# .PCD v0.7");
