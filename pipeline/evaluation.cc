@@ -118,10 +118,11 @@ std::optional<double> AngleAbout(const Vec3& a, const Vec3& u, const Vec3& v) {
 double AngleBetween(const Vec3& u, const Vec3& v) { return std::atan2(u.cross(v).norm(), u.dot(v)); }
 
 // How far a landing is from a grasp, in metres: position error plus 10 mm per
-// radian of approach error (1 mm per 5.7 deg, the ratio of the strict 5 mm /
-// 5 deg tolerances rounded). Choosing the symmetric copy by position alone
-// would pick, for a grasp point near a 2-fold axis, the copy across the axis
-// that is a little nearer but approached from the other side.
+// radian of approach error (1 mm per 5.7 deg). A copy approached tens of
+// degrees off costs several millimetres more, so it never wins by being a
+// little nearer; between copies approached alike, position decides. Choosing
+// by position alone picked, for a grasp point near a 2-fold axis, the copy
+// across the axis, approached from the other side.
 double LandingCost(double position, double approach) { return position + 0.01 * approach; }
 
 }  // namespace
