@@ -64,9 +64,9 @@ struct CloudProjectionOptions {
   double lattice_tolerance_px = 0.01;
   // No lattice: the pixel is pitch_margin times this quantile of the points'
   // spacing to their nearest neighbour (angle seen from V). A lattice
-  // written in another frame spans +-7% about its median spacing; its 95th
-  // percentile found the most parts, strictly, on seeds 1001-1020 (rotated
-  // and merged clouds; docs/tuning.md, "Unorganized clouds").
+  // written in another frame spreads about its median spacing; a high
+  // quantile leaves few holes in the grid (docs/tuning.md, "Unorganized
+  // clouds").
   double spacing_quantile = 0.95;  // (0, 1]
   double pitch_margin = 1.0;       // > 0
 };

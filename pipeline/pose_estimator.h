@@ -38,13 +38,14 @@ struct PoseEstimatorOptions {
   // Angle quantisation of the point pair feature, degrees in [3, 45].
   double ppf_angle_step_deg = 12.0;
   // Table buckets keep at most this many model pairs (>= 1): bounds the
-  // voting cost; 100 lost one of two touching parts.
+  // voting cost; fuller buckets let a touching part's votes drown the other's
+  // (docs/tuning.md).
   int ppf_max_bucket_entries = 50;
   // Spacing of the dense model samples ICP and the closest-point field
-  // use (> 0); 1.2 mm lost recall.
+  // use (> 0), metres; coarser samples lose recall (docs/tuning.md).
   double icp_model_spacing = 0.0008;
-  // Spacing of the model samples verification uses (> 0); 2 mm was 10 ms
-  // per frame slower for no gain.
+  // Spacing of the model samples verification uses (> 0), metres; denser
+  // samples cost time for no gain (docs/tuning.md).
   double verify_model_spacing = 0.003;
 
   // --- coarse stage ---
@@ -68,7 +69,7 @@ struct PoseEstimatorOptions {
   // Fine-pass ICP iterations (>= 1); most stop early.
   int icp_iterations = 30;
   // Coarse-pass ICP iterations (>= 1): most coarse poses are wrong and run
-  // all of them; 5 kept recall at the least time.
+  // all of them, so the fewest that keep recall (docs/tuning.md).
   int icp_coarse_iterations = 5;
   // The fine pass uses at most this many view points (strided, >= 100);
   // 800 left touching parts 1 mm off.
