@@ -26,14 +26,14 @@ int32_t FloorFixed(double value) {
 
 }  // namespace
 
-Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptions& options) {
+Result<int> ConnectTcp(const std::string& host, int port) {
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
   addrinfo* found = nullptr;
-  const std::string port = std::to_string(options.port);
-  if (const int rc = getaddrinfo(options.host.c_str(), port.c_str(), &hints, &found); rc != 0) {
-    return Status::Unavailable("cannot resolve " + options.host + ": " + gai_strerror(rc));
+  const std::string service = std::to_string(port);
+  if (const int rc = getaddrinfo(host.c_str(), service.c_str(), &hints, &found); rc != 0) {
+    return Status::Unavailable("cannot resolve " + host + ": " + gai_strerror(rc));
   }
   int fd = -1;
   std::string error = "no address";
@@ -46,9 +46,14 @@ Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptio
     fd = -1;
   }
   freeaddrinfo(found);
-  if (fd < 0) {
-    return Status::Unavailable("cannot connect to " + options.host + ":" + port + ": " + error);
-  }
+  if (fd < 0) return Status::Unavailable("cannot connect to " + host + ":" + service + ": " + error);
+  return fd;
+}
+
+Result<std::unique_ptr<RobotClient>> RobotClient::Connect(const RobotClientOptions& options) {
+  Result<int> connected = ConnectTcp(options.host, options.port);
+  if (!connected.ok()) return connected.status();
+  const int fd = *connected;
   if (options.tcp_nodelay) {
     const int one = 1;
     ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));

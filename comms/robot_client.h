@@ -58,6 +58,11 @@ struct RobotReply {
   std::vector<std::string> warnings;  // the script's popups for meta mismatches
 };
 
+// A TCP connection to host:port over the first address getaddrinfo gives
+// that connects, with the socket's default options. @returns the connected
+// descriptor (the caller closes it), or Unavailable naming host, port and why.
+Result<int> ConnectTcp(const std::string& host, int port);
+
 class RobotClient {
  public:
   // @returns Unavailable when the server cannot be reached.

@@ -13,6 +13,7 @@
 #include <sstream>
 #include <thread>
 
+#include "comms/robot_client.h"
 #include "core/conventions.h"
 
 namespace bp {
@@ -164,29 +165,11 @@ class UrSeedProgram::ModbusLink final : public Link {
 Result<std::unique_ptr<UrSeedProgram>> UrSeedProgram::OverSocket(const std::string& host, int port,
                                                                  const UrPose& start,
                                                                  UrSeedProgramOptions options) {
-  addrinfo hints{};
-  hints.ai_family = AF_UNSPEC;
-  hints.ai_socktype = SOCK_STREAM;
-  addrinfo* found = nullptr;
-  const std::string service = std::to_string(port);
-  if (const int rc = getaddrinfo(host.c_str(), service.c_str(), &hints, &found); rc != 0) {
-    return Status::Unavailable("socket_open: cannot resolve " + host + ": " + gai_strerror(rc));
-  }
-  int fd = -1;
-  std::string error = "no address";
-  for (addrinfo* a = found; a; a = a->ai_next) {
-    fd = ::socket(a->ai_family, a->ai_socktype, a->ai_protocol);
-    if (fd < 0) continue;
-    if (::connect(fd, a->ai_addr, a->ai_addrlen) == 0) break;
-    error = std::strerror(errno);
-    ::close(fd);
-    fd = -1;
-  }
-  freeaddrinfo(found);
-  if (fd < 0) return Status::Unavailable("socket_open(" + host + ", " + service + ") failed: " + error);
+  Result<int> fd = ConnectTcp(host, port);
+  if (!fd.ok()) return Status::Unavailable("socket_open: " + fd.status().message());
   // No TCP_NODELAY: URScript's socket_open has no such option.
   return std::unique_ptr<UrSeedProgram>(
-      new UrSeedProgram(std::make_unique<SocketLink>(fd), start, std::move(options)));
+      new UrSeedProgram(std::make_unique<SocketLink>(*fd), start, std::move(options)));
 }
 
 std::unique_ptr<UrSeedProgram> UrSeedProgram::OverModbus(ModbusRobotSim& robot, const UrPose& start,
