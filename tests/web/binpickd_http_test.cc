@@ -2,13 +2,7 @@
 // cell (synthetic pile, real perception), a simulated robot picking through
 // the DaoAI socket, then the JSON API, /metrics and the page in Chromium
 // checked against what the robot was told.
-#include <arpa/inet.h>
-#include <fcntl.h>
-#include <netinet/in.h>
-#include <poll.h>
 #include <signal.h>
-#include <sys/socket.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
@@ -21,6 +15,7 @@
 #include <thread>
 
 #include "core/cell.h"
+#include "tests/testing/binpickd.h"
 #include "tests/testing/files.h"
 #include "tests/testing/run_command.h"
 #include "tests/web/web_test_util.h"
@@ -30,77 +25,9 @@ namespace {
 
 using json = nlohmann::json;
 
-int FreePort() {
-  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  socklen_t len = sizeof(addr);
-  int port = 0;
-  if (fd >= 0 && ::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr)) == 0 &&
-      ::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) == 0) {
-    port = ntohs(addr.sin_port);
-  }
-  if (fd >= 0) ::close(fd);
-  return port;
-}
-
-// binpickd as a child process; stdout (the ready line) through a pipe.
-class Daemon {
- public:
-  Daemon(const std::vector<std::string>& args, const std::string& log) {
-    int fds[2];
-    if (pipe(fds) != 0) return;
-    pid_ = fork();
-    if (pid_ == 0) {
-      dup2(fds[1], 1);
-      const int err = open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      if (err >= 0) dup2(err, 2);
-      close(fds[0]);
-      std::vector<char*> argv;
-      for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-      argv.push_back(nullptr);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    close(fds[1]);
-    out_ = fds[0];
-  }
-  ~Daemon() {
-    if (pid_ > 0) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-    if (out_ >= 0) close(out_);
-  }
-  // The ready line, or "" after timeout_ms.
-  std::string ReadyLine(int timeout_ms) {
-    std::string line;
-    pollfd p{out_, POLLIN, 0};
-    while (line.find('\n') == std::string::npos && poll(&p, 1, timeout_ms) > 0) {
-      char c;
-      if (read(out_, &c, 1) != 1) break;
-      line += c;
-    }
-    return line;
-  }
-  // SIGTERM, then the exit code (-1 if it did not exit normally).
-  int Stop() {
-    kill(pid_, SIGTERM);
-    int status = 0;
-    waitpid(pid_, &status, 0);
-    pid_ = -1;
-    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-  int out_ = -1;
-};
-
 // Waits for binpickd's ready line and returns the HTTP port it names; -1
 // (with a failure naming the line and the log) when there is none.
-int HttpPortOnceReady(Daemon& daemon, const std::string& log) {
+int HttpPortOnceReady(testing::BinpickdProcess& daemon, const std::string& log) {
   // Normally ready in about a second; under ASan, with another test binary
   // sharing the two cores, building the model tables alone took over 60 s.
   const std::string ready = daemon.ReadyLine(180000);
@@ -115,8 +42,8 @@ int HttpPortOnceReady(Daemon& daemon, const std::string& log) {
 TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
   const std::string dir = testing::FreshDir("binpickd");
-  const int daoai_port = FreePort();
-  Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
+  const int daoai_port = testing::FreeLoopbackTcpPort();
+  testing::BinpickdProcess daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
                  "--gri-official-port", "0", "--http-port", "-1", "--no-record"},
                 dir + "/binpickd.log");
   const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
@@ -186,7 +113,7 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
   ASSERT_NE(at, std::string::npos);
   cell.insert(at, "  http_allowlist: [127.0.0.2]\n");
   testing::WriteText(dir + "/cell.yaml", cell);
-  Daemon daemon({bin + "binpickd", "--cell", dir + "/cell.yaml", "--daoai-port", std::to_string(FreePort()),
+  testing::BinpickdProcess daemon({bin + "binpickd", "--cell", dir + "/cell.yaml", "--daoai-port", std::to_string(testing::FreeLoopbackTcpPort()),
                  "--gri-port", "0", "--gri-official-port", "0", "--http-port", "-1", "--record-dir",
                  dir + "/rec"},
                 dir + "/binpickd.log");
@@ -217,9 +144,9 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
 TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
   const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
   const std::string dir = testing::FreshDir("binpickd_calib");
-  const int daoai_port = FreePort();
+  const int daoai_port = testing::FreeLoopbackTcpPort();
   // Seed 004's rules (socket_v1): guidance poses are answered 12 / 13 / 32.
-  Daemon daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
+  testing::BinpickdProcess daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port", "0",
                  "--gri-official-port", "0", "--http-port", "-1", "--no-record", "--dialect", "socket_v1"},
                 dir + "/binpickd.log");
   const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
