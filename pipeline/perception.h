@@ -29,6 +29,13 @@ struct Detection {
   double visible_fraction = 0.0;  // estimated fraction of the part's surface that is visible
   double rms_residual = 0.0;      // point-to-plane RMS of the fit over its support, metres
   std::vector<int32_t> support;   // indices into PerceptionResult::roi_points_B
+  // Hypotheses that differ by more than the pose tolerance explain the view
+  // about equally well (issue 37 item 3; PoseHypothesis::alternatives): the
+  // other poses the part may have, besides X_BO. Free space has ruled out
+  // those it could. A grasp is valid on such a detection only when it is
+  // valid at every one of them as well (grasp/grasp_planning.h).
+  std::vector<Pose> alternatives_X_BO = {};
+  bool pose_ambiguous = false;  // !alternatives_X_BO.empty()
 };
 
 struct StageTiming {

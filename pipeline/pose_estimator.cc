@@ -121,6 +121,12 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
       !(near_symmetry_score_slack >= 0 && near_symmetry_score_slack < 1)) {
     return fail("near_symmetry_min_overlap must be in [0, 1], near_symmetry_score_slack in [0, 1), max_near_symmetries >= 0");
   }
+  if (!(turn_step_deg >= 0 && turn_step_deg <= 180)) return fail("turn_step_deg must be in [0, 180]");
+  if (!(ambiguity_translation > 0) || !(ambiguity_rotation_deg > 0) || !(ambiguity_slack >= 0 && ambiguity_slack < 1) ||
+      max_alternatives < 0) {
+    return fail("ambiguity_translation and ambiguity_rotation_deg must be > 0, ambiguity_slack in [0, 1), "
+                "max_alternatives >= 0");
+  }
   if (!(hole_margin > 0) || hole_min_visible < 1 || !(hole_max_filled >= 0)) {
     return fail("hole_margin must be > 0, hole_min_visible >= 1, hole_max_filled >= 0");
   }
@@ -152,6 +158,7 @@ Result<std::unique_ptr<PoseEstimator>> PoseEstimator::Build(const TriangleMesh& 
   BuildShapeTables(mesh, *impl);
   BuildIcpTables(*impl);
   impl->near_symmetries = internal::FindNearSymmetries(*impl);
+  impl->turn_axes = internal::FindTurnAxes(*impl);
   if (Status s = BuildPpfTable(*impl); !s.ok()) return s;
   return std::unique_ptr<PoseEstimator>(new PoseEstimator(std::move(impl)));
 }
@@ -192,6 +199,11 @@ const std::vector<Eigen::Vector3f>& PoseEstimator::surface_points_O() const { re
 Eigen::Vector3f PoseEstimator::centroid_O() const { return impl_->centroid_O; }
 const Symmetry& PoseEstimator::symmetry() const { return impl_->symmetry; }
 const std::vector<Pose>& PoseEstimator::near_symmetries() const { return impl_->near_symmetries; }
+std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> PoseEstimator::turn_axes() const {
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> out;
+  for (const internal::TurnAxis& a : impl_->turn_axes) out.emplace_back(a.point, a.direction);
+  return out;
+}
 
 
 Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X_BO) const {

@@ -11,6 +11,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -123,6 +124,21 @@ struct PoseEstimatorOptions {
   double near_symmetry_min_overlap = 0.35;
   int max_near_symmetries = 4;
   double near_symmetry_score_slack = 0.02;
+  // Turn axes (turn_axes()): axes the part is nearly round about, found at
+  // multiples of this step (degrees, in [0, 180]; 0 = none). Each final
+  // hypothesis is also tried turned about them by every multiple, then
+  // bisected to an eighth of the step around the best turn.
+  double turn_step_deg = 30.0;
+  // Pose ambiguity (PoseHypothesis::alternatives): a turned or competing
+  // pose more than ambiguity_translation (metres) or ambiguity_rotation_deg
+  // from the hypothesis (modulo symmetry; the strict evaluation tolerance)
+  // whose supported minus free-space samples are within ambiguity_slack (a
+  // fraction, in [0, 1)) of the hypothesis's explains the view as well; at
+  // most max_alternatives (>= 0; 0 = ambiguity not sought).
+  double ambiguity_translation = 0.005;
+  double ambiguity_rotation_deg = 5.0;
+  double ambiguity_slack = 0.05;
+  int max_alternatives = 4;
   // Filled holes (depth image only): points of a large face's plane that the
   // face encloses, at least hole_margin (> 0) from it, are holes; with >=
   // hole_min_visible in view and more than hole_max_filled of them showing
@@ -216,6 +232,12 @@ struct PoseHypothesis {
   int filled_hole_points = 0; // of those, where the measured surface goes on through the hole
   double rms_residual = 0;   // ICP point-to-plane RMS over supporting points, metres
   int coarse_votes = 0;      // summed PPF votes of the cluster this came from
+  // Other poses of the part, each beyond the ambiguity tolerance of X_BO and
+  // of each other, that explain the view about as well
+  // (PoseEstimatorOptions::ambiguity_slack): the view cannot tell them
+  // apart from X_BO (a tee turned about its run with the branch hidden).
+  // Empty: the pose is unambiguous.
+  std::vector<Pose> alternatives;
   // Indices into SceneView::points_B of the points within support_distance.
   std::vector<int> supporting_indices;
 };
@@ -282,6 +304,9 @@ class PoseEstimator {
   // The near symmetries found (transforms of O, see
   // PoseEstimatorOptions::near_symmetry_min_overlap), most overlap first.
   const std::vector<Pose>& near_symmetries() const;
+  // The axes the part is nearly round about (PoseEstimatorOptions::
+  // turn_step_deg), each as a point on it and a unit direction in O.
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> turn_axes() const;
 
  private:
   friend class internal::PoseEstimatorAccess;

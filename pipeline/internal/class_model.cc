@@ -72,6 +72,7 @@ class PpfClassModel final : public ClassModel {
       const int seen = h.visible_points - h.occluded_points;
       c.visible_fraction = h.visible_points > 0 ? static_cast<double>(std::max(0, seen)) / h.visible_points : 0.0;
       c.support = std::move(h.supporting_indices);
+      c.alternatives = std::move(h.alternatives);
       out.hypotheses.push_back(std::move(c));
     }
     if (out.hypotheses.empty()) out.reason = est->no_result_reason;

@@ -38,6 +38,7 @@ struct ClassHypothesis {
   double visible_fraction = 0.0;
   double rms_residual = 0.0;
   std::vector<int> support;  // indices into SegmentView::points_B
+  std::vector<Pose> alternatives;  // PoseHypothesis::alternatives
 };
 
 struct ClassEstimate {

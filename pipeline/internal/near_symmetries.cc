@@ -25,15 +25,74 @@ constexpr double kSameTransformRelative = 0.05;
 // Plates: two antiparallel faces at most this fraction of the diameter apart
 // whose boxes overlap.
 constexpr double kPlateRelativeThickness = 0.2;
+
+// The fraction of the verification samples F maps within
+// kNearSymmetryDistance of a dense sample whose normal is within
+// kNearSymmetryDeg of the mapped one.
+double Overlap(const PoseModel& m, const Pose& F) {
+  const float cos_normal = static_cast<float>(std::cos(kNearSymmetryDeg * kDeg));
+  const Eigen::Matrix3f R = F.linear().cast<float>();
+  const Eigen::Vector3f t = F.translation().cast<float>();
+  size_t on = 0;
+  for (size_t i = 0; i < m.verify.size(); ++i) {
+    const Eigen::Vector3f q = R * m.verify.points[i] + t;
+    const int idx = m.field.Nearest(q, m.dense.points);
+    if (idx < 0) continue;
+    on += (q - m.dense.points[static_cast<size_t>(idx)]).squaredNorm() <= kNearSymmetryDistance * kNearSymmetryDistance &&
+          (R * m.verify.normals[i]).dot(m.dense.normals[static_cast<size_t>(idx)]) >= cos_normal;
+  }
+  return static_cast<double>(on) / static_cast<double>(std::max<size_t>(1, m.verify.size()));
+}
+
+// The box centre of a planar face (holes pull its centroid off it).
+Eigen::Vector3f BoxCentre(const PlanarFace& f) {
+  return f.c + 0.5f * (f.lo.x() + f.hi.x()) * f.u + 0.5f * (f.lo.y() + f.hi.y()) * f.v;
+}
+
+// Two turn axes are one line: directions within kSameTransformDeg (either
+// sense) and each point within kSameTransformRelative diameters of the
+// other's line.
+bool SameLine(const TurnAxis& a, const TurnAxis& b, double diameter) {
+  if (std::abs(a.direction.dot(b.direction)) < std::cos(kSameTransformDeg * kDeg)) return false;
+  const Eigen::Vector3f d = b.point - a.point;
+  return (d - d.dot(a.direction) * a.direction).norm() < kSameTransformRelative * diameter;
+}
+
 }  // namespace
+
+Pose TurnAxis::Turn(double angle_rad) const {
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle_rad, direction.cast<double>().normalized()).toRotationMatrix();
+  const Eigen::Vector3d c = point.cast<double>();
+  return MakePose(R, c - R * c);
+}
+
+std::vector<TurnAxis> FindTurnAxes(const PoseModel& m) {
+  const double step = m.options.turn_step_deg;
+  if (!(step > 0) || m.faces.empty()) return {};
+  const int turns = static_cast<int>(std::floor(360.0 / step - 1e-9));
+  std::vector<TurnAxis> out;
+  for (const PlanarFace& f : m.faces) {
+    if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
+    const TurnAxis axis{BoxCentre(f), f.n.normalized()};
+    if (std::any_of(out.begin(), out.end(), [&](const TurnAxis& a) { return SameLine(a, axis, m.diameter); })) continue;
+    bool round = turns >= 1;
+    for (int k = 1; k <= turns && round; ++k) {
+      const Pose F = axis.Turn(k * step * kDeg);
+      // A turn the declared symmetry covers is no evidence of roundness.
+      round = SymmetricRotationError(F, Pose::Identity(), m.symmetry) >= kSameTransformDeg * kDeg &&
+              Overlap(m, F) >= m.options.near_symmetry_min_overlap;
+    }
+    if (round) out.push_back(axis);
+  }
+  return out;
+}
 
 std::vector<Pose> FindNearSymmetries(const PoseModel& m) {
   if (m.options.max_near_symmetries <= 0 || !(m.options.near_symmetry_min_overlap > 0) || m.faces.empty()) return {};
   std::vector<Pose> candidates;
   for (const PlanarFace& f : m.faces) {
     if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
-    // The centre of the face's box (holes pull its centroid off it).
-    const Eigen::Vector3f box_c = f.c + 0.5f * (f.lo.x() + f.hi.x()) * f.u + 0.5f * (f.lo.y() + f.hi.y()) * f.v;
+    const Eigen::Vector3f box_c = BoxCentre(f);
     candidates.push_back(HalfTurn(f.n, box_c));
     // A plate: the antiparallel face nearest behind this one whose box
     // overlaps it; turns about the in-plane axes through the mid-plane.
@@ -57,21 +116,10 @@ std::vector<Pose> FindNearSymmetries(const PoseModel& m) {
     return SymmetricRotationError(a, b, m.symmetry) < kSameTransformDeg * kDeg &&
            (a * centroid - b * centroid).norm() < kSameTransformRelative * m.diameter;
   };
-  const float cos_normal = static_cast<float>(std::cos(kNearSymmetryDeg * kDeg));
   std::vector<std::pair<double, Pose>> scored;
   for (const Pose& F : candidates) {
     if (same(F, Pose::Identity())) continue;
-    const Eigen::Matrix3f R = F.linear().cast<float>();
-    const Eigen::Vector3f t = F.translation().cast<float>();
-    size_t on = 0;
-    for (size_t i = 0; i < m.verify.size(); ++i) {
-      const Eigen::Vector3f q = R * m.verify.points[i] + t;
-      const int idx = m.field.Nearest(q, m.dense.points);
-      if (idx < 0) continue;
-      on += (q - m.dense.points[static_cast<size_t>(idx)]).squaredNorm() <= kNearSymmetryDistance * kNearSymmetryDistance &&
-            (R * m.verify.normals[i]).dot(m.dense.normals[static_cast<size_t>(idx)]) >= cos_normal;
-    }
-    const double overlap = static_cast<double>(on) / static_cast<double>(std::max<size_t>(1, m.verify.size()));
+    const double overlap = Overlap(m, F);
     if (overlap >= m.options.near_symmetry_min_overlap) scored.emplace_back(overlap, F);
   }
   std::stable_sort(scored.begin(), scored.end(), [](const auto& a, const auto& b) { return a.first > b.first; });

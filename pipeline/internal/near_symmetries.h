@@ -11,6 +11,8 @@
 
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "core/pose.h"
 
 namespace bp::internal {
@@ -20,5 +22,22 @@ struct PoseModel;
 // Most overlap first. Reads the model's faces, field, dense and verify
 // samples, centroid, diameter, symmetry and options.
 std::vector<Pose> FindNearSymmetries(const PoseModel& model);
+
+// An axis the part is nearly round about (a pipe's run): turned about it by
+// any multiple of PoseEstimatorOptions::turn_step_deg, the part keeps at
+// least near_symmetry_min_overlap of its surface on its surface. Seen from a
+// side that hides what is not round (a tee's branch), the turns explain a
+// view equally well.
+struct TurnAxis {
+  Eigen::Vector3f point = Eigen::Vector3f::Zero();      // on the axis, in O
+  Eigen::Vector3f direction = Eigen::Vector3f::UnitX();  // unit
+  // The part turned about the axis by angle_rad: X_O'O applied as X_BO * Turn.
+  Pose Turn(double angle_rad) const;
+};
+
+// Candidates are the normals of the large planar faces through their box
+// centres (a tube's end faces), one per line; none the declared symmetry
+// covers (a revolute part's axis). Empty with turn_step_deg 0.
+std::vector<TurnAxis> FindTurnAxes(const PoseModel& model);
 
 }  // namespace bp::internal

@@ -14,6 +14,7 @@
 #include "core/pose.h"
 #include "pipeline/internal/closest_point_field.h"
 #include "pipeline/internal/model_sampling.h"
+#include "pipeline/internal/near_symmetries.h"
 #include "pipeline/internal/planar_faces.h"
 #include "pipeline/internal/point_to_plane_icp.h"
 #include "pipeline/internal/ppf_matcher.h"
@@ -44,6 +45,7 @@ struct PoseModel {
   // hole_margin from the rest of the part's surface.
   std::vector<HolePoint> holes;
   std::vector<Pose> near_symmetries;  // PoseEstimatorOptions::near_symmetry_min_overlap
+  std::vector<TurnAxis> turn_axes;    // PoseEstimatorOptions::turn_step_deg
 
   // The closest-point field's bounding sphere (ClosestPointField::grid_radius)
   // at X_BO: centre in B, squared radius.

@@ -40,6 +40,15 @@ constexpr double kNearSymmetryScreen = 0.8;
 // keep_better_than_fine: a hypothesis the fine pass leaves below this score
 // is also verified at its pose before the fine pass.
 constexpr double kKeepBetterThanFineBelow = 0.9;
+// The quick look of the near-symmetric turns, the turn axes and the
+// ambiguity screen: every third verification sample.
+constexpr int kQuickStride = 3;
+// Ambiguity: at most this many times max_alternatives poses are refined
+// and verified in full per hypothesis.
+constexpr int kAlternativeTriesPerAlternative = 2;
+
+// What a pose explains of the view: supported minus free-space samples.
+int Net(const VerifyStats& v) { return v.supported - v.free_space; }
 
 // Estimate's inputs: InvalidArgument naming the first one that is wrong.
 Status CheckEstimateInputs(const SceneView& view, const PoseSearch& search) {
@@ -66,6 +75,11 @@ struct Candidate {
   IcpResult icp;
   int votes = 0;
   std::pair<int, int> holes{0, 0};  // in view, filled
+  // The fine pass's quick look (kQuickStride) at X_BO, and the other poses
+  // it looked at on the way (turns, the pose a turn replaced) with their
+  // quick look's Net: the ambiguity screen's candidates.
+  VerifyStats quick;
+  std::vector<std::pair<Pose, int>> tried;
 };
 
 // One estimate's search: the steps share the view, the model and what the
@@ -149,6 +163,16 @@ class SearchRun {
   std::vector<Candidate> Survivors();
   std::optional<Candidate> FinePass(Candidate c);
   void TryNearSymmetries(Candidate& c);
+  void TryTurns(Candidate& c);
+  // Refines a pose another look found, from X_BO; nullopt when ICP fails.
+  std::optional<Candidate> RefineAt(const Pose& X_BO);
+  // c replaced by `by` (a turn that explains more), c's pose kept as tried.
+  void Replace(Candidate& c, Candidate by);
+  bool Distinct(const Pose& a, const Pose& b) const {
+    return SymmetricTranslationError(a, b, m_.symmetry) > opt_.ambiguity_translation ||
+           SymmetricRotationError(a, b, m_.symmetry) > opt_.ambiguity_rotation_deg * M_PI / 180.0;
+  }
+  std::vector<Pose> Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates);
   void Keep(std::vector<Candidate> finals);
 
   const PoseModel& m_;
@@ -250,7 +274,10 @@ void SearchRun::FirstPass(std::vector<CoarsePose>& list) {
                       opt_.icp_coarse_iterations, opt_.icp_coarse_convergence);
     });
     if (!icp.ok) continue;
-    Candidate c{icp.X_BO, {}, icp, cp.votes};
+    Candidate c;
+    c.X_BO = icp.X_BO;
+    c.icp = icp;
+    c.votes = cp.votes;
     // Most refined coarse poses are wrong and score far below the pass's
     // bar; the screen's bar is never above the pass's own.
     const double screen_bar = std::min(opt_.quick_screen_min_score, kFirstPassScoreFraction * min_score_);
@@ -318,7 +345,11 @@ std::optional<Candidate> SearchRun::FinePass(Candidate c) {
     Reject(c.stats);
     return std::nullopt;
   }
-  if (search_.near_symmetries && !m_.near_symmetries.empty()) TryNearSymmetries(c);
+  if (search_.near_symmetries) {
+    Timed(verify_ms_, [&] { c.quick = VerifyAt(c.X_BO, kQuickStride); });
+    if (!m_.near_symmetries.empty()) TryNearSymmetries(c);
+    if (!m_.turn_axes.empty()) TryTurns(c);
+  }
   if (opt_.hole_max_filled < 1 && have_depth_) {
     Timed(verify_ms_, [&] { c.holes = HoleStats(m_, c.X_BO, view_); });
     if (c.holes.first >= opt_.hole_min_visible && c.holes.second > opt_.hole_max_filled * c.holes.first) {
@@ -336,28 +367,136 @@ std::optional<Candidate> SearchRun::FinePass(Candidate c) {
 // most near_symmetry_score_slack lower. By score alone the turn that hides
 // more of the part (its denominator) would win.
 void SearchRun::TryNearSymmetries(Candidate& c) {
-  const auto net = [](const VerifyStats& v) { return v.supported - v.free_space; };
   const Pose X = c.X_BO;
-  VerifyStats quick;
-  Timed(verify_ms_, [&] { quick = VerifyAt(X, 3); });
+  const int base = Net(c.quick);
   for (const Pose& F : m_.near_symmetries) {
     VerifyStats q;
-    Timed(verify_ms_, [&] { q = VerifyAt(X * F, 3); });
-    if (net(q) < kNearSymmetryScreen * net(quick)) continue;
-    IcpResult alt;
-    Timed(refine_ms_, [&] {
-      alt = m_.Refine(p_.fine, p_.fine_boundary, X * F, camera_B_, std::max(gate1_, 0.75f * m_.step), gate1_,
-                      opt_.icp_iterations, opt_.icp_convergence);
-    });
-    if (!alt.ok || !alt.X_BO.matrix().allFinite()) continue;
-    VerifyStats st;
-    Timed(verify_ms_, [&] { st = VerifyAt(alt.X_BO, 1); });
-    if (Passes(st, min_score_) && net(st) > net(c.stats) && st.score >= c.stats.score - opt_.near_symmetry_score_slack) {
-      c.X_BO = alt.X_BO;
-      c.icp = alt;
-      c.stats = st;
+    Timed(verify_ms_, [&] { q = VerifyAt(X * F, kQuickStride); });
+    c.tried.emplace_back(X * F, Net(q));
+    if (Net(q) < kNearSymmetryScreen * base) continue;
+    std::optional<Candidate> alt = RefineAt(X * F);
+    if (alt && Passes(alt->stats, min_score_) && Net(alt->stats) > Net(c.stats) &&
+        alt->stats.score >= c.stats.score - opt_.near_symmetry_score_slack) {
+      Replace(c, std::move(*alt));
     }
   }
+}
+
+// A tee turned about its run fits the run's points at any angle; what is
+// not round (the branch) decides. The part is turned about each turn axis
+// by every multiple of turn_step_deg, the best turn (by Net at a quick look;
+// no turn when none beats the pose) bisected to an eighth of the step; a
+// turn is refined and verified, and replaces the pose by the near
+// symmetries' rule. Every look is kept for the ambiguity screen.
+void SearchRun::TryTurns(Candidate& c) {
+  const double step = opt_.turn_step_deg * M_PI / 180.0;
+  const int turns = static_cast<int>(std::floor(2.0 * M_PI / step - 1e-9));
+  for (const TurnAxis& axis : m_.turn_axes) {
+    const Pose X = c.X_BO;
+    int best = Net(c.quick);
+    double best_angle = 0.0;
+    const auto look = [&](double angle) {
+      const Pose turned = X * axis.Turn(angle);
+      VerifyStats q;
+      Timed(verify_ms_, [&] { q = VerifyAt(turned, kQuickStride); });
+      c.tried.emplace_back(turned, Net(q));
+      return Net(q);
+    };
+    for (int k = 1; k <= turns; ++k) {
+      const int net = look(k * step);
+      if (net > best) {
+        best = net;
+        best_angle = k * step;
+      }
+    }
+    // Bisected around the pose itself too when no turn beats it: the small
+    // turns are the ambiguity screen's candidates (a branch hidden from a
+    // turn of 10-20 deg either way), not replacements (ICP converged there).
+    const bool turned = best_angle != 0.0;
+    for (double h = 0.5 * step; h > step / 16.0; h *= 0.5) {
+      const double centre = best_angle;
+      for (const double angle : {centre - h, centre + h}) {
+        const int net = look(angle);
+        if (net > best) {
+          best = net;
+          best_angle = angle;
+        }
+      }
+    }
+    if (!turned) continue;
+    std::optional<Candidate> alt = RefineAt(X * axis.Turn(best_angle));
+    if (alt && Passes(alt->stats, min_score_) && Net(alt->stats) > Net(c.stats) &&
+        alt->stats.score >= c.stats.score - opt_.near_symmetry_score_slack) {
+      Replace(c, std::move(*alt));
+    }
+  }
+}
+
+std::optional<Candidate> SearchRun::RefineAt(const Pose& X_BO) {
+  IcpResult icp;
+  Timed(refine_ms_, [&] {
+    icp = m_.Refine(p_.fine, p_.fine_boundary, X_BO, camera_B_, std::max(gate1_, 0.75f * m_.step), gate1_,
+                    opt_.icp_iterations, opt_.icp_convergence);
+  });
+  if (!icp.ok || !icp.X_BO.matrix().allFinite()) return std::nullopt;
+  Candidate out;
+  out.X_BO = icp.X_BO;
+  out.icp = icp;
+  Timed(verify_ms_, [&] { out.stats = VerifyAt(icp.X_BO, 1); });
+  return out;
+}
+
+void SearchRun::Replace(Candidate& c, Candidate by) {
+  c.tried.emplace_back(c.X_BO, Net(c.quick));
+  c.X_BO = by.X_BO;
+  c.icp = by.icp;
+  c.stats = by.stats;
+  Timed(verify_ms_, [&] { c.quick = VerifyAt(c.X_BO, kQuickStride); });
+}
+
+// The poses that explain the view about as well as c (Net within
+// ambiguity_slack) and lie beyond the ambiguity tolerance of c and of each
+// other: the fine pass's other looks (best first; verified in full as they
+// are, else refined and verified) and the finals NMS folded into c
+// (duplicates).
+std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates) {
+  std::vector<Pose> out;
+  if (opt_.max_alternatives <= 0) return out;
+  const double keep = 1.0 - opt_.ambiguity_slack;
+  const double full_bar = keep * Net(c.stats);
+  const auto take = [&](const Pose& X) {
+    if (!Distinct(X, c.X_BO)) return;
+    for (const Pose& Y : out) {
+      if (!Distinct(X, Y)) return;
+    }
+    out.push_back(X);
+  };
+  for (const Candidate* d : duplicates) {
+    if (static_cast<int>(out.size()) >= opt_.max_alternatives) return out;
+    if (Passes(d->stats, min_score_) && Net(d->stats) >= full_bar) take(d->X_BO);
+  }
+  std::vector<std::pair<Pose, int>> looks;
+  const double quick_bar = keep * Net(c.quick);
+  for (const auto& [X, net] : c.tried) {
+    if (net >= quick_bar && Distinct(X, c.X_BO)) looks.emplace_back(X, net);
+  }
+  std::stable_sort(looks.begin(), looks.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+  int tries = kAlternativeTriesPerAlternative * opt_.max_alternatives;
+  for (const auto& [X, net] : looks) {
+    if (static_cast<int>(out.size()) >= opt_.max_alternatives || tries-- <= 0) break;
+    if (std::any_of(out.begin(), out.end(), [&](const Pose& Y) { return !Distinct(X, Y); })) continue;
+    // As looked at first: a turn the view cannot tell from c (a hidden
+    // branch) may still be one ICP slides back from; failing that, refined.
+    VerifyStats as_is;
+    Timed(verify_ms_, [&] { as_is = VerifyAt(X, 1); });
+    if (Passes(as_is, min_score_) && Net(as_is) >= full_bar) {
+      take(X);
+      continue;
+    }
+    std::optional<Candidate> alt = RefineAt(X);
+    if (alt && Passes(alt->stats, min_score_) && Net(alt->stats) >= full_bar) take(alt->X_BO);
+  }
+  return out;
 }
 
 // The fine pass's poses best first, one per part, as hypotheses with their
@@ -366,9 +505,22 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
   std::stable_sort(finals.begin(), finals.end(),
                    [](const Candidate& a, const Candidate& b) { return a.stats.score > b.stats.score; });
   std::vector<Candidate> kept;
+  std::vector<std::vector<const Candidate*>> duplicates;  // per kept: the finals NMS folded into it
+  const double nms = opt_.nms_relative_distance * m_.diameter;
   for (const Candidate& c : finals) {
-    if (DuplicateOf(c.X_BO, kept)) continue;
+    const Eigen::Vector3d centre = c.X_BO * m_.centroid_O.cast<double>();
+    const auto of = std::find_if(kept.begin(), kept.end(), [&](const Candidate& k) {
+      return (k.X_BO * m_.centroid_O.cast<double>() - centre).norm() < nms;
+    });
+    if (of != kept.end()) {
+      duplicates[static_cast<size_t>(of - kept.begin())].push_back(&c);
+      continue;
+    }
     kept.push_back(c);
+    duplicates.emplace_back();
+  }
+  for (size_t i = 0; i < kept.size(); ++i) {
+    const Candidate& c = kept[i];
     PoseHypothesis h;
     h.X_BO = c.X_BO;
     h.score = c.stats.score;
@@ -381,6 +533,7 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     h.filled_hole_points = c.holes.second;
     h.rms_residual = c.icp.rms;
     h.coarse_votes = c.votes;
+    if (search_.near_symmetries) h.alternatives = Alternatives(c, duplicates[i]);
     out_.hypotheses.push_back(std::move(h));
   }
   const auto t3 = Clock::now();

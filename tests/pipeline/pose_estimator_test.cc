@@ -629,6 +629,34 @@ TEST(PoseEstimator, FindsTheNearSymmetriesOfTheShippedParts) {
   EXPECT_EQ(PoseEstimator::Build(MakeLBracket(), Symmetry{}, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
+// A pipe tee is nearly round about its run (the branch aside): its one turn
+// axis. A revolute part's axis is its declared symmetry, not a turn axis.
+TEST(PoseEstimator, FindsTheTurnAxisOfATeesRunAndNoneOfARevolutePart) {
+  Symmetry tee;
+  tee.kind = Symmetry::Kind::kDiscrete;
+  tee.order = 2;
+  auto est = PoseEstimator::Build(MakePipeTee(), tee);
+  ASSERT_TRUE(est.ok()) << est.status().ToString();
+  const auto axes = (*est)->turn_axes();
+  ASSERT_EQ(axes.size(), 1u);
+  EXPECT_GT(std::abs(axes[0].second.x()), std::cos(1 * kDeg));
+  EXPECT_LT(axes[0].first.tail<2>().norm(), 0.001);  // on the run's axis (part x)
+  auto bushing = PoseEstimator::Build(MakeFlangedBushing(), testing::RevoluteZ());
+  ASSERT_TRUE(bushing.ok());
+  EXPECT_TRUE((*bushing)->turn_axes().empty());
+  PoseEstimatorOptions none;
+  none.turn_step_deg = 0;
+  auto off = PoseEstimator::Build(MakePipeTee(), tee, none);
+  ASSERT_TRUE(off.ok());
+  EXPECT_TRUE((*off)->turn_axes().empty());
+  PoseEstimatorOptions bad;
+  bad.turn_step_deg = 200;
+  EXPECT_FALSE(PoseEstimator::Build(MakePipeTee(), tee, bad).ok());
+  bad = PoseEstimatorOptions{};
+  bad.ambiguity_slack = 1.0;
+  EXPECT_FALSE(PoseEstimator::Build(MakePipeTee(), tee, bad).ok());
+}
+
 TEST(PoseEstimator, AFlangeFittedIntoALargerPlateFillsTheBoreAndIsRejected) {
   // The false detection the hole test is for: a bushing upside down with its
   // flange's bottom face in a plate's top face (its hub inside the plate,
