@@ -17,6 +17,7 @@
 #include "core/mesh.h"
 #include "core/mesh_gen.h"
 #include "grasp/internal/occupancy_grid.h"
+#include "pipeline/evaluation.h"
 
 namespace bp {
 
@@ -24,6 +25,7 @@ std::string_view ToString(RejectReason reason) {
   switch (reason) {
     case RejectReason::kTilt: return "tilt";
     case RejectReason::kWorkspace: return "workspace";
+    case RejectReason::kAmbiguous: return "ambiguous";
     case RejectReason::kBin: return "bin";
     case RejectReason::kPart: return "part";
     case RejectReason::kSelf: return "self";
@@ -229,6 +231,13 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
       !(options.contact_margin >= 0)) {
     return Status::InvalidArgument("grasp planning options: steps and resolution must be > 0");
   }
+  if (!(options.suction_compliance_deg >= 0) || !(options.suction_compliance_margin_deg >= 0)) {
+    return Status::InvalidArgument("grasp planning options: suction compliance and its margin must be >= 0");
+  }
+  if (!(options.ambiguity_max_position > 0) || !(options.ambiguity_jaw_approach_deg >= 0)) {
+    return Status::InvalidArgument(
+        "grasp planning options: ambiguity_max_position must be > 0, ambiguity_jaw_approach_deg >= 0");
+  }
   auto impl = std::make_unique<Impl>();
   impl->cell = cell;
   impl->options = options;
@@ -281,6 +290,27 @@ struct FrameObstacles {
   PointObstaclePtr points;      // ROI points no detection explains
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
+
+// Whether a tool at X_BT, planned as the grasp X_OG_nominal (the cell's,
+// before any "~v" turn) on `det` at det.X_BO, lands on the part at each of
+// the detection's alternative poses too: tool centre within max_position of
+// the grasp's contact point there and approach within max_approach of its
+// approach, both modulo the part's symmetry (LandOnTruth, the strict grasp
+// judge's rule).
+bool LandsUnderEveryAlternative(const Detection& det, const Symmetry& symmetry, const Pose& X_BT,
+                                const Pose& X_OG_nominal, double max_position, double max_approach) {
+  if (det.alternatives_X_BO.empty()) return true;
+  const Vec3 p_O = det.X_BO.inverse() * X_BT.translation();
+  const Vec3 a_O = X_OG_nominal.linear().col(2);
+  for (const Pose& X_BO : det.alternatives_X_BO) {
+    const PartTruth at{0, det.class_id, {}, X_BO, 0, 0, 0.0};
+    const GraspLanding l = LandOnTruth(X_BT, p_O, a_O, det.class_id, symmetry, std::span<const PartTruth>(&at, 1));
+    if (l.truth_instance < 0 || l.position_error > max_position || l.approach_error > max_approach + 1e-9) {
+      return false;
+    }
+  }
+  return true;
+}
 
 double TiltRad(const Pose& X_BT) {
   // Straight down: the tool's +z (into the part) is -z of the base.
@@ -336,11 +366,27 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   const GraspPlanningModel::Impl::Gripper& gripper = gripper_it->second;
 
   // Candidates.
+  // How far a "~v" variant turns toward vertical at most: the cup's
+  // compliance less the margin kept for the pose error.
   const double compliance =
-      gripper.spec->kind == GripperSpec::Kind::kSuction ? m.options.suction_compliance_deg * M_PI / 180.0 : 0.0;
+      gripper.spec->kind == GripperSpec::Kind::kSuction
+          ? std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0
+          : 0.0;
+  // Per candidate: whether it lands under every alternative pose of its
+  // detection (an unambiguous detection: always).
+  const double ambiguity_approach = gripper.spec->kind == GripperSpec::Kind::kSuction
+                                        ? m.options.suction_compliance_deg * M_PI / 180.0
+                                        : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+  std::vector<uint8_t> lands_everywhere;
   for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
     const Detection& det = detections[d];
     if (!wanted(det.class_id)) continue;
+    const PartSpec* part = cell.FindPart(det.class_id);
+    const Symmetry symmetry = part != nullptr ? part->symmetry : Symmetry{};
+    const auto lands = [&](const Pose& X_BT, const Pose& X_OG_nominal) -> uint8_t {
+      return LandsUnderEveryAlternative(det, symmetry, X_BT, X_OG_nominal, m.options.ambiguity_max_position,
+                                        ambiguity_approach);
+    };
     auto add = [&](const TaughtGrasp& g) {
       GraspCandidate c;
       c.detection = d;
@@ -364,8 +410,12 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
         turned.tilt_rad = TiltRad(turned.X_BT);
         turned.name += "~v";
       }
+      lands_everywhere.push_back(lands(c.X_BT, g.X_OG));
       plan.candidates.push_back(std::move(c));
-      if (turn) plan.candidates.push_back(std::move(turned));
+      if (turn) {
+        lands_everywhere.push_back(lands(turned.X_BT, g.X_OG));
+        plan.candidates.push_back(std::move(turned));
+      }
     };
     for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
     for (const TaughtGrasp& t : taught) {
@@ -438,6 +488,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
       }
+      if (!lands_everywhere[i]) return RejectReason::kAmbiguous;
       const CollisionGeometry& sweep = *gripper.sweep;
       if (Collides(sweep, c.X_BT, *m.bin, cell.bin.X_BW)) return RejectReason::kBin;
       const int self[] = {c.detection};

@@ -18,6 +18,14 @@
 // with the gripper lifted by contact_margin along -z: the tool touches the part
 // at the grasp point by design, and the points are inflated by a voxel.
 //
+// Pose ambiguity (issue 37 item 3). A detection whose view other poses
+// explain as well (Detection::alternatives_X_BO: a tee turned about its run
+// with its branch hidden) keeps only the candidates that land on the part
+// at their grasp point under every one of those poses too (kAmbiguous,
+// checked right after the workspace). A part with none is left for the next
+// capture; when no part has one, the plan is kNoCollisionFree, which the
+// robot hears as "no collision-free grasp" (docs/protocols.md, pick pose).
+//
 // Thread-safety: GraspPlanningModel is immutable after Build; PlanGrasps may
 // run concurrently. PlanGrasps parallelises over candidates with oneTBB in the
 // calling thread's arena.
@@ -45,12 +53,13 @@ namespace bp {
 enum class RejectReason : int {
   kTilt = 0,   // approach further from vertical than task.max_tilt_deg
   kWorkspace,  // flange outside robot.workspace at the grasp or pre-grasp
+  kAmbiguous,  // would miss its grasp point under another pose the view allows (Detection::alternatives_X_BO)
   kBin,        // swept gripper hits the bin
   kPart,       // swept gripper hits another detected part
   kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
   kPoints,     // lifted swept gripper hits scene points no detection explains
 };
-inline constexpr int kNumRejectReasons = 6;
+inline constexpr int kNumRejectReasons = 7;
 std::string_view ToString(RejectReason reason);
 
 struct GraspPlanningOptions {
@@ -65,9 +74,23 @@ struct GraspPlanningOptions {
   bool occluded_columns = true;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
-  // vertical approach by min(tilt, suction_compliance_deg) (name + "~v").
-  // 0 disables the variants.
+  // vertical approach by min(tilt, suction_compliance_deg -
+  // suction_compliance_margin_deg) (name + "~v"). The margin is left for the
+  // pose error: a turn by the whole compliance is tipped past it by any
+  // error of the detected pose. 5 deg is the strict pose tolerance (a
+  // detection counted right may be that far off). Compliance 0, or a margin
+  // at least the compliance, disables the variants.
   double suction_compliance_deg = 20.0;
+  double suction_compliance_margin_deg = 5.0;
+  // Pose ambiguity (issue 37 item 3): on a detection with alternative poses
+  // (Detection::alternatives_X_BO) a grasp is kept only when it lands on the
+  // part at each of them as well: tool centre within ambiguity_max_position
+  // (m) of the grasp's point on the part there, modulo symmetry, and approach
+  // within the gripper's compliance (suction_compliance_deg; parallel jaws
+  // ambiguity_jaw_approach_deg). The figures are the strict grasp judge's
+  // (grasp/grasp_judge.h): a grasp offered must land whichever pose is true.
+  double ambiguity_max_position = 0.002;
+  double ambiguity_jaw_approach_deg = 5.0;
 };
 
 // A grasp of a part class in the part frame, before symmetry expansion.
@@ -145,7 +168,8 @@ class GraspPlanningModel {
 // task's gripper), filtered, ranked by task.ranking; one primary grasp per
 // part, its other collision-free grasps as related_X_B (best first).
 // Outcome: kNoObjects without detections of the task's classes,
-// kNoCollisionFree when there are some but no grasp survives, else kGrasps.
+// kNoCollisionFree when there are some but no grasp survives (also when every
+// grasp of an ambiguous detection is kAmbiguous), else kGrasps.
 // Grasp::instance_id is the detection index.
 GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
                      std::span<const TaughtGrasp> taught = {});

@@ -83,7 +83,10 @@ TEST(StrictClearing, PicksOffTheGraspPointFailAndTheirPartsStay) {
 // the next capture; captured again after every pick, none does.
 TEST(StrictClearing, GraspsOnPartsAnEarlierPickDisturbedFailAsStale) {
   int stale = 0;
-  for (uint64_t seed = 1; seed <= 6 && stale == 0; ++seed) {
+  // Seed 13 first: its pile has such a pick (the others of the list did
+  // with the suction turn spending the cup's whole compliance).
+  for (uint64_t seed : {13u, 1u, 2u, 3u, 4u, 5u, 6u}) {
+    if (stale > 0) break;
     const Cell cell = SyntheticCell(10, seed);
     auto oracle = std::make_shared<TruthPerception>(cell);
     auto queued = ClearScene(cell, seed, oracle);
@@ -104,7 +107,7 @@ TEST(StrictClearing, GraspsOnPartsAnEarlierPickDisturbedFailAsStale) {
       EXPECT_EQ(fresh->failed_picks, 0);
     }
   }
-  EXPECT_GT(stale, 0) << "no pile of seeds 1-6 has a pick that disturbs a queued part";
+  EXPECT_GT(stale, 0) << "no pile of the seeds tried has a pick that disturbs a queued part";
 }
 
 }  // namespace

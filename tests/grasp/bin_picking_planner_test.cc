@@ -349,11 +349,11 @@ TEST(BinClearing, AScenesLastFrameIsSavedOnlyWhenPartsAreLeft) {
   EXPECT_TRUE(frame->organized());
 
   options.max_cycles = 0;
-  auto clean = ClearScene(cell, 6, std::make_shared<TruthPerception>(cell), options);
+  auto clean = ClearScene(cell, 8, std::make_shared<TruthPerception>(cell), options);
   ASSERT_TRUE(clean.ok()) << clean.status().ToString();
   ASSERT_EQ(clean->parts_left, 0) << clean->final_outcome;
   EXPECT_TRUE(clean->saved_frame.empty());
-  EXPECT_FALSE(std::filesystem::exists(dir + "/clear_seed6_depth.png"));
+  EXPECT_FALSE(std::filesystem::exists(dir + "/clear_seed8_depth.png"));
 }
 
 // The default cell's L-bracket lying on its side shows only 5 mm edges from
