@@ -9,10 +9,12 @@
 
 #include <cmath>
 #include <limits>
+#include <span>
 #include <string>
 #include <vector>
 
 #include "core/mesh.h"
+#include "grasp/grasp_judge.h"
 #include "grasp/grasp_planning.h"
 #include "pipeline/pose_estimator.h"
 #include "tests/pipeline/pose_test_util.h"
@@ -65,6 +67,14 @@ const GraspPlanningModel& Model() {
 Pose TeeOnItsSide() {
   return DefaultCell().bin.X_BW *
          MakePose(Mat3(Eigen::AngleAxisd(M_PI / 2, Vec3::UnitX())), Vec3(0.01, 0.02, 0.020));
+}
+
+// The tee tipped over onto its branch: turned 135 deg about its run, the
+// branch points 45 deg below the horizontal, away from the camera, its rim
+// just above the floor. What the camera could see of it is a grazing side.
+Pose TeeBranchAwayFromTheCamera() {
+  return DefaultCell().bin.X_BW *
+         MakePose(Mat3(Eigen::AngleAxisd(135.0 * M_PI / 180, Vec3::UnitX())), Vec3(0.01, 0.02, 0.050));
 }
 
 struct View {
@@ -184,6 +194,32 @@ TEST(PoseAmbiguity, ATeeWhoseBranchIsHiddenCarriesItsTurnsAndYieldsNoGraspOnTheB
   const GraspPlan plan = Plan(v, d);
   EXPECT_EQ(Offered(plan, "branch_"), 0);
   EXPECT_GT(plan.stats.rejected[static_cast<int>(RejectReason::kAmbiguous)], 0);
+}
+
+// The case: the branch points away from the camera and its grazing
+// side reads no depth. The view cannot tell the turns about the run apart;
+// the true pose is among those the detection carries, no grasp on the
+// branch is offered, and whatever is offered lands on the true tee.
+TEST(PoseAmbiguity, ATeeWhoseBranchPointsAwayFromTheCameraYieldsNoGraspOnTheBranch) {
+  const Pose truth = TeeBranchAwayFromTheCamera();
+  const View v = Look(truth, /*hide_branch=*/true);
+  const Detection d = Detect(v);
+  ASSERT_FALSE(d.alternatives_X_BO.empty());
+  const Symmetry& sym = DefaultCell().FindPart(kTee)->symmetry;
+  const auto within_tolerance = [&](const Pose& X_BO) {
+    return SymmetricTranslationError(X_BO, truth, sym) <= 0.005 &&
+           SymmetricRotationError(X_BO, truth, sym) <= 5.0 * M_PI / 180;
+  };
+  bool truth_carried = within_tolerance(d.X_BO);
+  for (const Pose& alt : d.alternatives_X_BO) truth_carried = truth_carried || within_tolerance(alt);
+  EXPECT_TRUE(truth_carried);
+  const GraspPlan plan = Plan(v, d);
+  EXPECT_EQ(Offered(plan, "branch_"), 0);
+  EXPECT_GT(plan.stats.rejected[static_cast<int>(RejectReason::kAmbiguous)], 0);
+  const PartTruth part{0, kTee, {}, truth, 0, 0, 0.0};
+  for (const Grasp& g : plan.queue) {
+    EXPECT_TRUE(JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1)).on_part) << g.name;
+  }
 }
 
 }  // namespace
