@@ -21,6 +21,12 @@ struct Grasp {
   // Further poses in base the task may need (e.g. a place pose paired with a
   // pick); empty for plain picks.
   std::vector<Pose> related_X_B;
+  // instance_id values of the same plan whose hand-out makes this grasp
+  // stale: parts touching this one, and parts its swept gripper passes close
+  // to (GraspPlanningOptions::touch_distance, approach_margin). GraspQueue::Pop
+  // withdraws it when one of them is handed out (docs/protocols.md, "Stale
+  // grasps"). Empty: no part disturbs it (or the planner does not say).
+  std::vector<int> stale_after;
 };
 
 }  // namespace bp

@@ -1,8 +1,14 @@
 // One task's queue of grasps, refilled by each detection.
 //
+// A stale queue is never served: when Pop hands out a grasp on part P, the
+// queued grasps whose Grasp::stale_after names P (parts that touched P, or
+// whose approach passes close to it) leave the queue with it, and the
+// remaining count says so (docs/protocols.md, "Stale grasps").
+//
 // Thread-safety: every member is safe to call concurrently; each grasp of a
-// Replace() is handed out by exactly one Pop(). Replace and Pop are atomic
-// with respect to each other: a Pop sees either the old or the new queue.
+// Replace() is handed out by at most one Pop() (exactly one unless withdrawn).
+// Replace and Pop are atomic with respect to each other: a Pop sees either
+// the old or the new queue.
 #pragma once
 
 #include <cstdint>
@@ -10,6 +16,7 @@
 #include <functional>
 #include <mutex>
 #include <optional>
+#include <vector>
 
 #include "grasp/grasp.h"
 #include "grasp/planner.h"
@@ -20,9 +27,11 @@ class GraspQueue {
  public:
   struct Popped {
     std::optional<Grasp> grasp;  // empty when the queue is exhausted or was never filled
-    // Grasps left INCLUDING this one (the DaoAI payload_1): N for the first of
-    // N, 1 for the last, 0 when `grasp` is empty.
+    // Grasps left INCLUDING this one (the DaoAI payload_1), after the
+    // withdrawal: N for the first of N, 1 for the last, 0 when `grasp` is empty.
     int remaining = 0;
+    // Queued grasps withdrawn with this one (stale: Grasp::stale_after).
+    std::vector<Grasp> withdrawn;
     // Outcome of the plan that filled the queue; empty when no plan has
     // completed since construction or the last Reset().
     std::optional<PlanResult::Outcome> outcome;
@@ -38,16 +47,19 @@ class GraspQueue {
     int64_t roi_points = 0;
     int64_t largest_region_points = 0;
     int detections = 0;
+    int withdrawn = 0;  // grasps withdrawn as stale since the plan was queued
   };
 
   // Discards what is left and queues result.grasps in order.
   void Replace(PlanResult result);
   // Discards everything; Pop reports no outcome until the next Replace.
   void Reset();
+  // Hands out the first grasp and withdraws the queued grasps it makes stale.
   Popped Pop();
   // Pops the first grasp, in queue order, that `sendable` accepts; it is
   // given each grasp with the remaining count it would be answered with (the
-  // queue's size, including the grasp). The grasps it refuses stay queued,
+  // queue's size, including the grasp, less the grasps it would withdraw as
+  // stale). The accepted grasp withdraws the grasps it makes stale, as Pop. The grasps it refuses stay queued,
   // in order, and are counted in Popped::refused; `grasp` is empty when none
   // is accepted. `sendable` runs under the queue's lock: it must not call
   // back into the queue. Used to encode and range-check an answer before its
@@ -61,6 +73,13 @@ class GraspQueue {
   std::deque<Grasp> grasps_;        // GUARDED_BY(mutex_)
   std::optional<Summary> summary_;  // GUARDED_BY(mutex_)
   uint64_t generation_ = 0;         // GUARDED_BY(mutex_)
+  bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
+
+  // Queued grasps that handing out part `picked` makes stale. Needs mutex_.
+  int StaleCount(int picked) const;
+  // Hands out *it into p, withdraws the grasps it makes stale, sets
+  // p.remaining (after the withdrawal, including p.grasp). Needs mutex_.
+  void TakeAt(std::deque<Grasp>::iterator it, Popped& p);
 };
 
 }  // namespace bp

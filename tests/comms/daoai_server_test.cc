@@ -6,8 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
-#include <functional>
 #include <cctype>
+#include <cmath>
+#include <functional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -659,6 +660,39 @@ TEST_F(DaoaiServerTest, RemainingCountsRunDownToOneThenZero) {
   }
   EXPECT_EQ(remaining, (std::vector<double>{5, 4, 3, 2, 1, 0, 0}));
   EXPECT_EQ(statuses, (std::vector<int32_t>{2, 2, 2, 2, 2, 3, 3}));
+}
+
+// Grasps 1 and 3 lie on parts touching part 0 (Grasp::stale_after): handing
+// out grasp 0 withdraws them, so the robot is told 3 left (0, 2, 4), not 5,
+// and never gets a grasp on a part that may have moved.
+TEST_F(DaoaiServerTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndTheRemainingCountSaysSo) {
+  Start();  // vision_pilot: payload_1 counts the grasp handed out
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  five.stale_after = {{1, {0}}, {3, {0, 2}}};
+  planner_->SetScript(0, five);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  ASSERT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  std::vector<double> remaining, x_mm;
+  std::vector<int32_t> statuses;
+  for (int i = 0; i < 4; ++i) {
+    Result<RobotReply> r = c->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(r.ok());
+    statuses.push_back(r->status);
+    remaining.push_back(r->payload[0]);
+    if (r->status == daoai::kObjectsFound) {
+      ASSERT_TRUE(r->X_BT);
+      x_mm.push_back(std::round(1000 * r->X_BT->translation().x()));
+    }
+  }
+  EXPECT_EQ(remaining, (std::vector<double>{3, 2, 1, 0}));
+  EXPECT_EQ(statuses, (std::vector<int32_t>{2, 2, 2, 3}));
+  EXPECT_EQ(x_mm, (std::vector<double>{500, 520, 540}));  // grasps 0, 2, 4
+  const auto handed = planner_->handed_out();
+  ASSERT_EQ(handed.size(), 3u);
+  EXPECT_EQ(handed[1].second, 2);
+  EXPECT_EQ(handler_->QueueSize(0), 0);
 }
 
 TEST_F(DaoaiServerTest, PipelinedRequestsAreAnsweredInOrder) {

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cctype>
+#include <cmath>
 #include <set>
 #include <string>
 #include <thread>
@@ -445,6 +446,35 @@ TEST_P(GriServerTest, DaoaiAndGriRobotsOnOneTaskShareItsQueue) {
   EXPECT_EQ(instances, (std::set<int>{0, 1, 2, 3}));
   EXPECT_EQ(scripted_->handed_out().size(), 4u);
   daoai->Stop();
+}
+
+// Grasps 1 and 3 lie on parts touching part 0 (Grasp::stale_after): the
+// first pose says 2 left (grasps 2 and 4), and the next poses are those.
+TEST_P(GriServerTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndTheRemainingCountSaysSo) {
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  five.stale_after = {{1, {0}}, {3, {0, 2}}};
+  scripted_->SetScript(0, five);
+  auto robot = Connect();
+  std::vector<double> x_mm;
+  std::vector<int32_t> left;
+  gri::Response r = Ask(*robot, gri::kTriggerJobSync, 0);
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_EQ(r.error_code, 0) << i;
+    x_mm.push_back(std::round(r.pose[0]));
+    left.push_back(Primary(r));
+    if (i == 0) {
+      // The related poses' answer reports the primary poses still queued too.
+      const gri::Response related = Ask(*robot, gri::kGetRelatedPose, 0);
+      EXPECT_EQ(Primary(related), 2);
+    }
+    if (i < 2) r = Ask(*robot, gri::kGetNextPose, 0);
+  }
+  EXPECT_EQ(x_mm, (std::vector<double>{500, 520, 540}));  // grasps 0, 2, 4
+  EXPECT_EQ(left, (std::vector<int32_t>{2, 1, 0}));
+  EXPECT_EQ(JobStatus(Ask(*robot, gri::kGetJobStatus, 0)), kInactive);
+  EXPECT_EQ(Ask(*robot, gri::kGetNextPose, 0).error_code, Code(gri::Code::kNoPosesFound));
+  EXPECT_EQ(scripted_->handed_out().size(), 3u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Formats, GriServerTest, ::testing::Values(Format::kV2, Format::kOfficial),

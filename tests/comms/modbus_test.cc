@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstdlib>
@@ -231,6 +232,31 @@ TEST_P(ModbusVersionTest, PickCycleClearsTheBinThenFindsItEmpty) {
   EXPECT_NE(rig.out_.str().find("pose [0.5000 -0.1000 0.1000"), std::string::npos) << rig.out_.str();
   EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
   EXPECT_EQ(rig.master_->stats().requests, static_cast<uint64_t>(s.steps));
+}
+
+// Grasps 1 and 3 lie on parts touching part 0 (Grasp::stale_after): over
+// Modbus too, the first pick pose says 3 left (grasps 0, 2, 4), not 5.
+TEST_P(ModbusVersionTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndTheRemainingCountSaysSo) {
+  RigOptions o;
+  o.version = GetParam();
+  ModbusRig rig(o);
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  five.stale_after = {{1, {0}}, {3, {0, 2}}};
+  rig.planner_->SetScript(0, five);
+  Result<RobotReply> capture = rig.robot_->Call(daoai::kCaptureAndProcess, 0);
+  ASSERT_TRUE(capture.ok()) << capture.status().ToString();
+  ASSERT_EQ(capture->status, daoai::kDetection);
+  std::vector<double> remaining, x_mm;
+  for (int i = 0; i < 4; ++i) {
+    Result<RobotReply> r = rig.robot_->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(r.ok()) << r.status().ToString();
+    remaining.push_back(r->payload[0]);
+    if (r->status == daoai::kObjectsFound && r->X_BT) x_mm.push_back(std::round(1000 * r->X_BT->translation().x()));
+  }
+  EXPECT_EQ(remaining, (std::vector<double>{3, 2, 1, 0}));
+  EXPECT_EQ(x_mm, (std::vector<double>{500, 520, 540}));  // grasps 0, 2, 4
+  EXPECT_EQ(rig.planner_->handed_out().size(), 3u);
 }
 
 TEST_P(ModbusVersionTest, AutoCalibrationStartsAndAccumulatesUntilDone) {

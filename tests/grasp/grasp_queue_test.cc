@@ -1,10 +1,12 @@
 #include "grasp/grasp_queue.h"
 
 #include <gtest/gtest.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <random>
 #include <thread>
 #include <vector>
 
@@ -97,6 +99,67 @@ TEST(GraspQueue, PopFirstLeavesRefusedGraspsQueuedInOrder) {
   EXPECT_EQ(p.remaining, 1);
 }
 
+TEST(GraspQueue, HandingOutAPartWithdrawsTheGraspsItMakesStaleAndCountsThemOut) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(5);
+  plan.grasps[1].stale_after = {0};     // touches part 0
+  plan.grasps[3].stale_after = {0, 2};  // touches parts 0 and 2
+  plan.grasps[4].stale_after = {3};     // only part 3, which is never handed out
+  q.Replace(plan);
+  GraspQueue::Popped first = q.Pop();
+  ASSERT_TRUE(first.grasp);
+  EXPECT_EQ(first.grasp->instance_id, 0);
+  EXPECT_EQ(first.remaining, 3);  // 0, 2, 4
+  ASSERT_EQ(first.withdrawn.size(), 2u);
+  EXPECT_EQ(first.withdrawn[0].instance_id, 1);
+  EXPECT_EQ(first.withdrawn[1].instance_id, 3);
+  EXPECT_EQ(q.size(), 2);
+  std::vector<int> instances, remaining;
+  for (int i = 0; i < 3; ++i) {
+    const GraspQueue::Popped p = q.Pop();
+    instances.push_back(p.grasp ? p.grasp->instance_id : -1);
+    remaining.push_back(p.remaining);
+    EXPECT_TRUE(p.withdrawn.empty());
+  }
+  EXPECT_EQ(instances, (std::vector<int>{2, 4, -1}));
+  EXPECT_EQ(remaining, (std::vector<int>{2, 1, 0}));
+  ASSERT_TRUE(q.LastPlan());
+  EXPECT_EQ(q.LastPlan()->withdrawn, 2);
+  EXPECT_EQ(q.LastPlan()->total_grasps, 5);
+}
+
+// The answer path encodes the remaining count before the grasp leaves
+// (PopFirst): it is the count after the withdrawal, as with Pop.
+TEST(GraspQueue, PopFirstOffersTheCountAfterTheWithdrawalAndWithdrawsLikePop) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(5);
+  plan.grasps[1].stale_after = {0};
+  plan.grasps[3].stale_after = {0, 2};
+  q.Replace(plan);
+  std::vector<int> offered;
+  GraspQueue::Popped p = q.PopFirst([&](const Grasp&, int remaining) {
+    offered.push_back(remaining);
+    return true;
+  });
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 0);
+  EXPECT_EQ(offered, (std::vector<int>{3}));
+  EXPECT_EQ(p.remaining, 3);
+  EXPECT_EQ(p.withdrawn.size(), 2u);
+  EXPECT_EQ(q.size(), 2);  // 2 and 4
+  EXPECT_EQ(q.Pop().grasp->instance_id, 2);
+}
+
+TEST(GraspQueue, AGraspWithoutAnInstanceWithdrawsNothing) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(2);
+  plan.grasps[0].instance_id = -1;
+  plan.grasps[1].stale_after = {-1};
+  q.Replace(plan);
+  EXPECT_EQ(q.Pop().remaining, 2);
+  EXPECT_EQ(q.Pop().remaining, 1);
+}
+
 TEST(GraspQueue, HandsEachGraspOnceUnderConcurrentPops) {
   constexpr int kGrasps = 20000;
   constexpr int kThreads = 8;
@@ -131,6 +194,55 @@ TEST(GraspQueue, HandsEachGraspOnceUnderConcurrentPops) {
     EXPECT_EQ(all[i], i);                 // every grasp exactly once
     EXPECT_EQ(all_remaining[i], i + 1);   // every remaining count exactly once
   }
+}
+
+TEST(GraspQueue, EachGraspIsHandedOutOrWithdrawnExactlyOnceUnderConcurrentPops) {
+  // Each pop scans the queue (a plan queues tens of grasps): 2000 keep it quick.
+  constexpr int kGrasps = 2000;
+  const spdlog::level::level_enum level = spdlog::get_level();
+  spdlog::set_level(spdlog::level::warn);  // a withdrawal logs a line
+  struct Restore {
+    spdlog::level::level_enum level;
+    ~Restore() { spdlog::set_level(level); }
+  } restore{level};
+  constexpr int kThreads = 8;
+  GraspQueue q;
+  PlanResult plan = MakePlan(kGrasps);
+  std::mt19937 rng{42};
+  std::uniform_int_distribution<int> pick(0, kGrasps - 1);
+  for (Grasp& g : plan.grasps) {
+    for (int k = 0; k < 2; ++k) g.stale_after.push_back(pick(rng));
+  }
+  q.Replace(plan);
+  std::vector<std::vector<int>> handed(kThreads), withdrawn(kThreads);
+  std::atomic<bool> go{false};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      while (!go.load()) std::this_thread::yield();
+      for (;;) {
+        const auto p = q.Pop();
+        if (!p.grasp) break;
+        handed[t].push_back(p.grasp->instance_id);
+        for (const Grasp& w : p.withdrawn) withdrawn[t].push_back(w.instance_id);
+      }
+    });
+  }
+  go = true;
+  for (auto& th : threads) th.join();
+  std::vector<int> all, out;
+  for (int t = 0; t < kThreads; ++t) {
+    all.insert(all.end(), handed[t].begin(), handed[t].end());
+    out.insert(out.end(), withdrawn[t].begin(), withdrawn[t].end());
+  }
+  EXPECT_GT(out.size(), 0u);
+  const size_t handed_count = all.size();
+  all.insert(all.end(), out.begin(), out.end());
+  std::sort(all.begin(), all.end());
+  ASSERT_EQ(all.size(), static_cast<size_t>(kGrasps));
+  for (int i = 0; i < kGrasps; ++i) EXPECT_EQ(all[i], i);
+  EXPECT_EQ(q.LastPlan()->withdrawn, static_cast<int>(out.size()));
+  EXPECT_EQ(handed_count + out.size(), static_cast<size_t>(kGrasps));
 }
 
 TEST(GraspQueue, PopsConcurrentWithReplaceSeeOnePlanEach) {

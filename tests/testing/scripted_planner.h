@@ -39,6 +39,9 @@ class ScriptedPlanner final : public GraspPlanner {
     // grasp removes a part; a plan offers min(grasps, parts left), and an
     // empty bin reports no objects, no detections and no ROI points.
     int pile = -1;
+    // Grasp i -> the instance ids whose hand-out makes it stale
+    // (Grasp::stale_after: parts touching it); GraspQueue withdraws it then.
+    std::map<int, std::vector<int>> stale_after;
   };
 
   void SetScript(int task_id, Script script) {
@@ -103,6 +106,7 @@ class ScriptedPlanner final : public GraspPlanner {
         g.instance_id = i;
         g.class_id = i % 3;
         g.score = 1.0 - 0.01 * i;
+        if (auto it = s.stale_after.find(i); it != s.stale_after.end()) g.stale_after = it->second;
         r.grasps.push_back(g);
       }
     }
