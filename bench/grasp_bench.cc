@@ -2,7 +2,8 @@
 // target: <= 10 ms median on 2 threads). The scene is a rendered synthetic
 // frame of the default cell (seed 1); detections are all 20 true parts at
 // their true poses (TruthPerception support points, so the scene-point OcTree
-// holds the points of the bin no detection explains).
+// holds the points of the bin no detection explains), and the frame's depth
+// for the seen-contact check (the hidden parts' grasps fail it).
 //   ./build/bin/bp_grasp_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 #include <tbb/task_arena.h>
@@ -19,6 +20,7 @@ namespace {
 
 struct BenchScene {
   Cell cell;
+  Frame frame;  // the seen-contact check reads its depth image
   PerceptionResult perception;
   std::shared_ptr<const GraspPlanningModel> model;
 };
@@ -45,6 +47,7 @@ const BenchScene& Scene() {
     options.min_support_points = 0;
     auto perception = TruthPerception(b.cell, options).Run(*frame);
     if (!perception.ok()) Die(perception.status());
+    b.frame = *frame;
     b.perception = std::move(*perception);
     // Every true part, also the hidden ones (no support points).
     for (const PartTruth& t : frame->truth->parts) {
@@ -70,7 +73,7 @@ void Run(benchmark::State& state, const BenchScene& s) {
   tbb::task_arena arena(static_cast<int>(state.range(0)));
   GraspPlan plan;
   for (auto _ : state) {
-    arena.execute([&] { plan = PlanGrasps(*s.model, task, s.perception); });
+    arena.execute([&] { plan = PlanGrasps(*s.model, task, s.perception, {}, &s.frame); });
     benchmark::DoNotOptimize(plan.queue.data());
   }
   state.counters["parts"] = static_cast<double>(s.perception.detections.size());
@@ -79,6 +82,11 @@ void Run(benchmark::State& state, const BenchScene& s) {
   state.counters["collision_free"] = plan.stats.accepted;
   state.counters["queued_parts"] = static_cast<double>(plan.queue.size());
   state.counters["obstacles_ms"] = plan.stats.obstacles_ms;
+  state.counters["neighbours_ms"] = plan.stats.neighbours_ms;
+  state.counters["rejected_unseen"] = plan.stats.rejected[static_cast<int>(RejectReason::kUnseen)];
+  int stale = 0;
+  for (const Grasp& g : plan.queue) stale += static_cast<int>(g.stale_after.size());
+  state.counters["stale_links"] = stale;
   size_t explained = 0;
   for (const Detection& d : s.perception.detections) explained += d.support.size();
   state.counters["unexplained_points"] = static_cast<double>(s.perception.roi_points_B.size() - explained);

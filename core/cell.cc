@@ -286,6 +286,7 @@ class Parser {
   void ParseBin(const YAML::Node& n, Cell& cell) const;
   void ParseRoi(const YAML::Node& n, Cell& cell) const;
   void ParseGrippers(const YAML::Node& n, Cell& cell) const;
+  SeenContactRule ParseSeenContact(const YAML::Node& n, const std::string& path, GripperSpec::Kind kind) const;
   void ParseParts(const YAML::Node& n, Cell& cell) const;
   Symmetry ParseSymmetry(const YAML::Node& n, const std::string& path) const;
   void ParseTasks(const YAML::Node& n, Cell& cell) const;
@@ -633,7 +634,7 @@ void Parser::ParseGrippers(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node g = n[i];
     const std::string path = At("grippers", i);
-    ExpectMap(g, path, {"name", "kind", "mesh", "tcp", "approach_distance", "opening", "footprint"});
+    ExpectMap(g, path, {"name", "kind", "mesh", "tcp", "approach_distance", "opening", "footprint", "seen_contact"});
     GripperSpec spec;
     spec.name = Name(Req(g, path, "name"), Join(path, "name"));
     Check(cell.FindGripper(spec.name) == nullptr, g["name"], Join(path, "name"),
@@ -652,8 +653,35 @@ void Parser::ParseGrippers(const YAML::Node& n, Cell& cell) const {
             "a parallel_jaw gripper needs an opening > 0 (m)");
     }
     if (const YAML::Node f = g["footprint"]; f.IsDefined()) spec.footprint = Polygon(f, Join(path, "footprint"));
+    spec.seen_contact = ParseSeenContact(g["seen_contact"], Join(path, "seen_contact"), spec.kind);
     cell.grippers.push_back(std::move(spec));
   }
+}
+
+// Absent: the kind's default rule with default thresholds.
+SeenContactRule Parser::ParseSeenContact(const YAML::Node& n, const std::string& path, GripperSpec::Kind kind) const {
+  SeenContactRule r;
+  r.when = kind == GripperSpec::Kind::kSuction ? SeenContactRule::When::kAlways : SeenContactRule::When::kIfAmbiguous;
+  if (!n.IsDefined()) return r;
+  ExpectMap(n, path, {"rule", "max_distance", "min_fraction", "radius", "pad_width", "pad_depth"});
+  if (const YAML::Node w = n["rule"]; w.IsDefined()) {
+    r.when = Enum<SeenContactRule::When>(w, Join(path, "rule"), "seen_contact rule",
+                                         {{"always", SeenContactRule::When::kAlways},
+                                          {"if_ambiguous", SeenContactRule::When::kIfAmbiguous},
+                                          {"off", SeenContactRule::When::kOff}});
+  }
+  r.max_distance = OptNumber(n, path, "max_distance", r.max_distance);
+  Check(r.max_distance > 0 && r.max_distance <= 0.05, n["max_distance"], Join(path, "max_distance"),
+        "must be in (0, 0.05] (m)");
+  r.min_fraction = OptNumber(n, path, "min_fraction", r.min_fraction);
+  Check(r.min_fraction > 0 && r.min_fraction <= 1, n["min_fraction"], Join(path, "min_fraction"), "must be in (0, 1]");
+  r.radius = OptNumber(n, path, "radius", r.radius);
+  Check(r.radius >= 0, n["radius"], Join(path, "radius"), "must be >= 0 (m; 0 = from the mesh)");
+  r.pad_width = OptNumber(n, path, "pad_width", r.pad_width);
+  Check(r.pad_width > 0, n["pad_width"], Join(path, "pad_width"), "must be > 0 (m)");
+  r.pad_depth = OptNumber(n, path, "pad_depth", r.pad_depth);
+  Check(r.pad_depth > 0, n["pad_depth"], Join(path, "pad_depth"), "must be > 0 (m)");
+  return r;
 }
 
 Symmetry Parser::ParseSymmetry(const YAML::Node& n, const std::string& path) const {

@@ -174,6 +174,32 @@ struct PartSpec {
   std::optional<Flat2DSpec> flat_2d;  // parts[].flat_2d: the part in 2D tasks
 };
 
+// When a grasp needs its contact region shown by the frame's depth
+// (grippers[].seen_contact, docs/cell.md): the model surface under the
+// suction cup's footprint disk, or under each parallel-jaw finger pad, is
+// sampled; a sample is seen when a measured point of the frame's ROI lies
+// within max_distance of it; the grasp passes when at least min_fraction of
+// the samples are seen (per finger for a jaw). A grasp on a surface the
+// camera never saw (a hidden face of a well-fitting but wrongly turned
+// pose) would put the tool in air or on another part.
+struct SeenContactRule {
+  enum class When {
+    kOff,          // never checked
+    kAlways,       // every grasp
+    kIfAmbiguous,  // only grasps on detections whose pose is ambiguous (Detection::pose_ambiguous())
+  };
+  When when = When::kAlways;
+  double max_distance = 0.003;  // m, measured point to contact sample
+  double min_fraction = 0.6;    // share of the samples seen, in (0, 1]
+  // Suction: radius of the footprint disk (m) in the tool's xy plane at the
+  // tool centre point; 0 = the gripper mesh's largest radius at z = 0.
+  double radius = 0.0;
+  // Parallel jaw: each finger pad is pad_width (m, along the tool's y) by
+  // pad_depth (m, along z up from the finger tips, the mesh's largest z).
+  double pad_width = 0.02;
+  double pad_depth = 0.015;
+};
+
 struct GripperSpec {
   enum class Kind { kSuction, kParallelJaw };
   std::string name;
@@ -185,6 +211,10 @@ struct GripperSpec {
   // Top view of the gripper in the tool frame (x, y in m) for 2D collision
   // checks (grippers[].footprint); empty = no 2D footprint.
   std::vector<Eigen::Vector2d> footprint;
+  // Default: kAlways for suction, kIfAmbiguous for parallel jaws (their
+  // fingers close on faces parallel to the approach, which a camera looking
+  // along it rarely sees).
+  SeenContactRule seen_contact;
 };
 
 // The empty-box rule of a task (RC_CHECK_EMPTY_BOX, grasp/empty_box.h).

@@ -103,7 +103,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   } else {
     std::vector<TaughtGrasp> taught = teach_->All();
     auto t0 = std::chrono::steady_clock::now();
-    detail.plan = PlanGrasps(*model_, task, detail.perception, taught);
+    detail.plan = PlanGrasps(*model_, task, detail.perception, taught, &frame);
     grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
                                  detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
@@ -111,7 +111,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
       t0 = std::chrono::steady_clock::now();
       Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
       if (again.ok()) {
-        GraspPlan plan = PlanGrasps(*model_, task, *again, taught);
+        GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
         spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
                       again->detections.size(), plan.stats.Describe());
         // Adopted when it gives grasps, and also when it finds parts where

@@ -8,6 +8,7 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <tuple>
 #include <utility>
@@ -16,6 +17,7 @@
 #include "collision/point_obstacle.h"
 #include "core/mesh.h"
 #include "core/mesh_gen.h"
+#include "grasp/internal/contact_region.h"
 #include "grasp/internal/occupancy_grid.h"
 #include "pipeline/evaluation.h"
 
@@ -26,6 +28,7 @@ std::string_view ToString(RejectReason reason) {
     case RejectReason::kTilt: return "tilt";
     case RejectReason::kWorkspace: return "workspace";
     case RejectReason::kAmbiguous: return "ambiguous";
+    case RejectReason::kUnseen: return "unseen";
     case RejectReason::kBin: return "bin";
     case RejectReason::kPart: return "part";
     case RejectReason::kSelf: return "self";
@@ -40,7 +43,7 @@ std::string FilterStats::Describe() const {
   for (int r = 0; r < kNumRejectReasons; ++r) {
     if (rejected[r] > 0) os << "; " << ToString(static_cast<RejectReason>(r)) << " " << rejected[r];
   }
-  os << " (" << filter_ms << " ms, obstacles " << obstacles_ms << " ms)";
+  os << " (" << filter_ms << " ms, obstacles " << obstacles_ms << " ms, neighbours " << neighbours_ms << " ms)";
   return os.str();
 }
 
@@ -157,6 +160,46 @@ std::vector<Eigen::AlignedBox3d> SlabBoxes(const TriangleMesh& mesh, int slabs) 
   return boxes;
 }
 
+// `mesh` grown outward by `by` (m): each vertex (welded by position) moves
+// along its averaged face normal n far enough that every face around it
+// moves out by at least `by` (by / min(n . n_face), capped at 3 * by on
+// needle tips). A convex edge or corner reaches up to about sqrt(3) * by
+// further than the exact offset surface; flat and smooth parts move by
+// `by`. Colliding with the grown mesh is then "closer than `by`" to the
+// original, at the cost of an FCL collision query (early exit) instead of a
+// distance query.
+TriangleMesh Inflated(const TriangleMesh& mesh, double by) {
+  std::map<std::tuple<float, float, float>, int> weld;
+  std::vector<int> position_of(mesh.vertices.size());
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    const Eigen::Vector3f& v = mesh.vertices[i];
+    position_of[i] = weld.emplace(std::make_tuple(v.x(), v.y(), v.z()), static_cast<int>(weld.size())).first->second;
+  }
+  std::vector<Vec3> normal_sum(weld.size(), Vec3::Zero());
+  std::vector<std::vector<Vec3>> face_normals(weld.size());
+  for (const Eigen::Vector3i& t : mesh.triangles) {
+    const Vec3 a = mesh.vertices[t[0]].cast<double>(), b = mesh.vertices[t[1]].cast<double>(),
+               c = mesh.vertices[t[2]].cast<double>();
+    const Vec3 n = (b - a).cross(c - a);
+    if (n.norm() < 1e-15) continue;
+    for (int k = 0; k < 3; ++k) {
+      normal_sum[position_of[t[k]]] += n.normalized();
+      face_normals[position_of[t[k]]].push_back(n.normalized());
+    }
+  }
+  std::vector<Vec3> offset(weld.size(), Vec3::Zero());
+  for (size_t p = 0; p < weld.size(); ++p) {
+    if (normal_sum[p].norm() < 1e-12) continue;
+    const Vec3 n = normal_sum[p].normalized();
+    double least = 1.0;
+    for (const Vec3& f : face_normals[p]) least = std::min(least, n.dot(f));
+    offset[p] = n * (by / std::max(least, 1.0 / 3.0));
+  }
+  TriangleMesh out = mesh;
+  for (size_t i = 0; i < out.vertices.size(); ++i) out.vertices[i] += offset[position_of[i]].cast<float>();
+  return out;
+}
+
 Eigen::AlignedBox3d WorldBox(const Eigen::AlignedBox3d& local, const Pose& X_WL) {
   Eigen::AlignedBox3d box;
   for (int i = 0; i < 8; ++i) box.extend(X_WL * local.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i)));
@@ -170,17 +213,34 @@ class GraspPlanningModel::Impl {
   struct Gripper {
     const GripperSpec* spec = nullptr;
     CollisionGeometryPtr sweep;               // swept along the approach, in T
+    CollisionGeometryPtr sweep_margin;        // `sweep` grown by options.approach_margin
     std::vector<Eigen::AlignedBox3d> slabs;   // boxes covering `sweep`, in T
+    internal::ContactShape contact;           // where it touches a part, in T
   };
   Cell cell;
   GraspPlanningOptions options;
   std::map<int, CollisionGeometryPtr> parts;     // by class id, in O
+  std::map<int, CollisionGeometryPtr> parts_touch;  // `parts` grown by options.touch_distance
+  std::map<int, TriangleMesh> part_meshes;       // by class id, in O (contact ray casts)
   CollisionGeometryPtr bin;                      // in W
   std::map<std::string, Gripper> grippers;       // by name
   // (class id, gripper) -> expanded cell grasps
   std::map<std::pair<int, std::string>, std::vector<TaughtGrasp>> cell_grasps;
   // CollisionScene::Add refreshes cached bounds inside shared geometries.
   mutable std::mutex scene_build_mutex;
+
+  // The contact region of grasp g (in its frame G), or null when its
+  // gripper's seen-contact rule is off or the class / gripper is unknown.
+  std::shared_ptr<const internal::ContactRegion> SampleContact(const TaughtGrasp& g) const {
+    auto gripper = grippers.find(g.gripper);
+    auto mesh = part_meshes.find(g.class_id);
+    if (gripper == grippers.end() || mesh == part_meshes.end() ||
+        gripper->second.spec->seen_contact.when == SeenContactRule::When::kOff) {
+      return nullptr;
+    }
+    return std::make_shared<const internal::ContactRegion>(
+        internal::SampleContactRegion(gripper->second.contact, mesh->second, g.X_OG));
+  }
 
   std::vector<TaughtGrasp> Expand(const TaughtGrasp& g) const {
     const PartSpec* part = cell.FindPart(g.class_id);
@@ -228,8 +288,9 @@ const std::vector<TaughtGrasp>& GraspPlanningModel::CellGrasps(int class_id, con
 Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(const Cell& cell,
                                                                             const GraspPlanningOptions& options) {
   if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
-      !(options.contact_margin >= 0)) {
-    return Status::InvalidArgument("grasp planning options: steps and resolution must be > 0");
+      !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0)) {
+    return Status::InvalidArgument(
+        "grasp planning options: steps and resolution must be > 0, margins and distances >= 0");
   }
   if (!(options.suction_compliance_deg >= 0) || !(options.suction_compliance_margin_deg >= 0)) {
     return Status::InvalidArgument("grasp planning options: suction compliance and its margin must be >= 0");
@@ -248,6 +309,10 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
     auto geometry = CollisionGeometry::FromMesh(*mesh);
     if (!geometry.ok()) return Status::InvalidArgument("part '" + part.name + "': " + geometry.status().message());
     impl->parts[part.class_id] = *geometry;
+    auto grown = CollisionGeometry::FromMesh(Inflated(*mesh, options.touch_distance));
+    if (!grown.ok()) return Status::InvalidArgument("part '" + part.name + "': " + grown.status().message());
+    impl->parts_touch[part.class_id] = *grown;
+    impl->part_meshes[part.class_id] = std::move(*mesh);
   }
   TriangleMesh bin_mesh;
   if (c.bin.mesh.empty()) {
@@ -266,18 +331,24 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
     const TriangleMesh sweep = SweepAlongApproach(*mesh, g.approach_distance, options.approach_step);
     auto geometry = CollisionGeometry::FromMesh(sweep);
     if (!geometry.ok()) return Status::InvalidArgument("gripper '" + g.name + "': " + geometry.status().message());
+    Result<internal::ContactShape> contact = internal::MakeContactShape(g, *mesh);
+    if (!contact.ok()) return contact.status();
     Impl::Gripper entry;
     entry.spec = c.FindGripper(g.name);
     entry.sweep = *geometry;
+    auto grown = CollisionGeometry::FromMesh(Inflated(sweep, options.approach_margin));
+    if (!grown.ok()) return Status::InvalidArgument("gripper '" + g.name + "': " + grown.status().message());
+    entry.sweep_margin = *grown;
     entry.slabs = SlabBoxes(sweep, 12);
+    entry.contact = *contact;
     impl->grippers[g.name] = std::move(entry);
   }
   for (const PartSpec& part : c.parts) {
     for (const GraspSpec& g : part.grasps) {
       auto& list = impl->cell_grasps[{part.class_id, g.gripper}];
-      for (TaughtGrasp& e : impl->Expand(TaughtGrasp{part.class_id, g.name, g.gripper, g.X_OG})) {
-        list.push_back(std::move(e));
-      }
+      TaughtGrasp base{part.class_id, g.name, g.gripper, g.X_OG, nullptr};
+      base.contact = impl->SampleContact(base);  // shared by the symmetric copies
+      for (TaughtGrasp& e : impl->Expand(base)) list.push_back(std::move(e));
     }
   }
   return std::shared_ptr<const GraspPlanningModel>(new GraspPlanningModel(std::move(impl)));
@@ -340,53 +411,46 @@ std::optional<RejectReason> GraspPlanningModel::CheckAgainstParts(const std::str
   return std::nullopt;
 }
 
-GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
-                     std::span<const TaughtGrasp> taught) {
-  const auto t0 = std::chrono::steady_clock::now();
+namespace {
+
+using Gripper = GraspPlanningModel::Impl::Gripper;
+
+// Whether the seen-contact rule of `rule` applies to grasps on `d`.
+bool NeedsSeenContact(const SeenContactRule& rule, const Detection& d) {
+  switch (rule.when) {
+    case SeenContactRule::When::kAlways: return true;
+    case SeenContactRule::When::kIfAmbiguous: return d.pose_ambiguous();
+    case SeenContactRule::When::kOff: return false;
+  }
+  return false;
+}
+
+// Stage 1: every cell and taught grasp of the task's gripper on every wanted
+// detection, plus the suction compliance variants.
+std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, const Gripper& gripper,
+                                           const TaskSpec& task, std::span<const Detection> detections,
+                                           std::span<const TaughtGrasp> taught,
+                                           const std::function<bool(int)>& wanted) {
   const GraspPlanningModel::Impl& m = model.impl();
-  const Cell& cell = m.cell;
-  GraspPlan plan;
-
-  auto wanted = [&task](int class_id) {
-    return task.part_classes.empty() ||
-           std::find(task.part_classes.begin(), task.part_classes.end(), class_id) != task.part_classes.end();
-  };
-  const auto& detections = perception.detections;
-  int relevant = 0;
-  for (const Detection& d : detections) relevant += wanted(d.class_id) ? 1 : 0;
-  if (relevant == 0) {
-    plan.outcome = PlanResult::Outcome::kNoObjects;
-    return plan;
+  // Taught grasps of the task's gripper, their contact regions sampled once
+  // per plan (cell grasps were sampled at Build), expanded per class.
+  std::map<int, std::vector<TaughtGrasp>> taught_by_class;
+  for (const TaughtGrasp& t : taught) {
+    if (t.gripper != task.gripper || !wanted(t.class_id)) continue;
+    TaughtGrasp base = t;
+    if (!base.contact) base.contact = m.SampleContact(base);
+    for (TaughtGrasp& e : model.Expand(base)) taught_by_class[t.class_id].push_back(std::move(e));
   }
-  auto gripper_it = m.grippers.find(task.gripper);
-  if (gripper_it == m.grippers.end()) {  // cell validation makes this unreachable
-    plan.outcome = PlanResult::Outcome::kNoCollisionFree;
-    return plan;
-  }
-  const GraspPlanningModel::Impl::Gripper& gripper = gripper_it->second;
-
-  // Candidates.
   // How far a "~v" variant turns toward vertical at most: the cup's
   // compliance less the margin kept for the pose error.
   const double compliance =
       gripper.spec->kind == GripperSpec::Kind::kSuction
           ? std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0
           : 0.0;
-  // Per candidate: whether it lands under every alternative pose of its
-  // detection (an unambiguous detection: always).
-  const double ambiguity_approach = gripper.spec->kind == GripperSpec::Kind::kSuction
-                                        ? m.options.suction_compliance_deg * M_PI / 180.0
-                                        : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
-  std::vector<uint8_t> lands_everywhere;
+  std::vector<GraspCandidate> candidates;
   for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
     const Detection& det = detections[d];
     if (!wanted(det.class_id)) continue;
-    const PartSpec* part = cell.FindPart(det.class_id);
-    const Symmetry symmetry = part != nullptr ? part->symmetry : Symmetry{};
-    const auto lands = [&](const Pose& X_BT, const Pose& X_OG_nominal) -> uint8_t {
-      return LandsUnderEveryAlternative(det, symmetry, X_BT, X_OG_nominal, m.options.ambiguity_max_position,
-                                        ambiguity_approach);
-    };
     auto add = [&](const TaughtGrasp& g) {
       GraspCandidate c;
       c.detection = d;
@@ -396,6 +460,8 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
       c.X_BT = det.X_BO * g.X_OG;
       c.X_BT_pre = c.X_BT * TranslateZ(-gripper.spec->approach_distance);
       c.tilt_rad = TiltRad(c.X_BT);
+      c.X_BG = c.X_BT;
+      c.contact = g.contact;
       const bool turn = compliance > 0 && c.tilt_rad > 1e-3;
       GraspCandidate turned;
       if (turn) {
@@ -410,22 +476,21 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
         turned.tilt_rad = TiltRad(turned.X_BT);
         turned.name += "~v";
       }
-      lands_everywhere.push_back(lands(c.X_BT, g.X_OG));
-      plan.candidates.push_back(std::move(c));
-      if (turn) {
-        lands_everywhere.push_back(lands(turned.X_BT, g.X_OG));
-        plan.candidates.push_back(std::move(turned));
-      }
+      candidates.push_back(std::move(c));
+      if (turn) candidates.push_back(std::move(turned));
     };
     for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
-    for (const TaughtGrasp& t : taught) {
-      if (t.class_id != det.class_id || t.gripper != task.gripper) continue;
-      for (const TaughtGrasp& g : model.Expand(t)) add(g);
+    if (auto it = taught_by_class.find(det.class_id); it != taught_by_class.end()) {
+      for (const TaughtGrasp& g : it->second) add(g);
     }
   }
+  return candidates;
+}
 
-  // Obstacles of this frame, built once.
-  const auto t_obstacles = std::chrono::steady_clock::now();
+// Stage 2: the other parts as meshes, the points no detection explains (and
+// the occluded columns under them) as an OcTree and an occupancy bitmap.
+FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception) {
+  const auto& detections = perception.detections;
   FrameObstacles obstacles;
   {
     std::lock_guard lock(m.scene_build_mutex);
@@ -434,67 +499,97 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
       if (p != m.parts.end()) (void)obstacles.parts.Add(d, p->second, detections[d].X_BO);
     }
   }
-  {
-    std::vector<uint8_t> explained(perception.roi_points_B.size(), 0);
-    for (const Detection& det : detections) {
-      for (int32_t i : det.support) {
-        if (i >= 0 && static_cast<size_t>(i) < explained.size()) explained[i] = 1;
-      }
+  std::vector<uint8_t> explained(perception.roi_points_B.size(), 0);
+  for (const Detection& det : detections) {
+    for (int32_t i : det.support) {
+      if (i >= 0 && static_cast<size_t>(i) < explained.size()) explained[i] = 1;
     }
-    std::vector<Eigen::Vector3f> rest;
-    rest.reserve(perception.roi_points_B.size());
-    for (size_t i = 0; i < explained.size(); ++i) {
-      if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
-    }
-    if (m.options.occluded_columns && !rest.empty()) {
-      // One point per voxel (in the bin frame W, z up from the floor) under
-      // each unexplained point, down to the floor; the surface points stay.
-      const float res = static_cast<float>(m.options.octree_resolution);
-      const Eigen::Affine3f X_WB = cell.bin.X_BW.inverse().cast<float>();
-      const Eigen::Affine3f X_BW = cell.bin.X_BW.cast<float>();
-      auto cell_of = [res](float v) { return static_cast<int64_t>(std::floor(v / res)); };
-      std::vector<std::tuple<int64_t, int64_t, int64_t>> tops;
-      tops.reserve(rest.size());
-      for (const Eigen::Vector3f& p : rest) {
-        const Eigen::Vector3f w = X_WB * p;
-        tops.emplace_back(cell_of(w.x()), cell_of(w.y()), cell_of(w.z()));
-      }
-      // Per (x, y) column the highest voxel; everything below it is filled.
-      std::sort(tops.begin(), tops.end(), std::greater<>());
-      for (size_t k = 0; k < tops.size();) {
-        const auto [cx, cy, top] = tops[k];
-        while (k < tops.size() && std::get<0>(tops[k]) == cx && std::get<1>(tops[k]) == cy) ++k;
-        for (int64_t cz = top - 1; cz >= 0; --cz) {
-          rest.push_back(X_BW * Eigen::Vector3f((cx + 0.5f) * res, (cy + 0.5f) * res, (cz + 0.5f) * res));
-        }
-      }
-    }
-    auto points = PointObstacle::FromPoints(rest, m.options.octree_resolution);
-    if (points.ok()) obstacles.points = *points;
-    obstacles.grid = internal::OccupancyGrid(rest, 0.01);
   }
+  std::vector<Eigen::Vector3f> rest;
+  rest.reserve(perception.roi_points_B.size());
+  for (size_t i = 0; i < explained.size(); ++i) {
+    if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
+  }
+  if (m.options.occluded_columns && !rest.empty()) {
+    // One point per voxel (in the bin frame W, z up from the floor) under
+    // each unexplained point, down to the floor; the surface points stay.
+    const float res = static_cast<float>(m.options.octree_resolution);
+    const Eigen::Affine3f X_WB = m.cell.bin.X_BW.inverse().cast<float>();
+    const Eigen::Affine3f X_BW = m.cell.bin.X_BW.cast<float>();
+    auto cell_of = [res](float v) { return static_cast<int64_t>(std::floor(v / res)); };
+    std::vector<std::tuple<int64_t, int64_t, int64_t>> tops;
+    tops.reserve(rest.size());
+    for (const Eigen::Vector3f& p : rest) {
+      const Eigen::Vector3f w = X_WB * p;
+      tops.emplace_back(cell_of(w.x()), cell_of(w.y()), cell_of(w.z()));
+    }
+    // Per (x, y) column the highest voxel; everything below it is filled.
+    std::sort(tops.begin(), tops.end(), std::greater<>());
+    for (size_t k = 0; k < tops.size();) {
+      const auto [cx, cy, top] = tops[k];
+      while (k < tops.size() && std::get<0>(tops[k]) == cx && std::get<1>(tops[k]) == cy) ++k;
+      for (int64_t cz = top - 1; cz >= 0; --cz) {
+        rest.push_back(X_BW * Eigen::Vector3f((cx + 0.5f) * res, (cy + 0.5f) * res, (cz + 0.5f) * res));
+      }
+    }
+  }
+  auto points = PointObstacle::FromPoints(rest, m.options.octree_resolution);
+  if (points.ok()) obstacles.points = *points;
+  obstacles.grid = internal::OccupancyGrid(rest, 0.01);
+  return obstacles;
+}
 
-  plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
+// The least seen share over a grasp's contacts (0 without a contact region).
+double SeenShare(const GraspCandidate& c, const internal::SeenSurface& seen) {
+  if (!c.contact || c.contact->contacts.empty()) return 0.0;
+  double least = 1.0;
+  for (const auto& samples : c.contact->contacts) least = std::min(least, internal::SeenFraction(samples, c.X_BG, seen));
+  return least;
+}
 
-  // Filtering, in parallel over candidates (the caller's arena).
+// Stage 3: each candidate's verdict, cheapest check first, in parallel over
+// candidates (the caller's arena). `seen` is null when no grasp needs it.
+void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper, const TaskSpec& task,
+                      std::span<const Detection> detections, const FrameObstacles& obstacles,
+                      const internal::SeenSurface* seen, std::vector<GraspCandidate>& candidates) {
+  const Cell& cell = m.cell;
   const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
   const Eigen::AlignedBox3d& workspace = cell.robot.workspace;
   const Pose X_TF = gripper.spec->X_FT.inverse();
+  const SeenContactRule& rule = gripper.spec->seen_contact;
   const double pad = m.options.octree_resolution;
-  tbb::parallel_for(size_t{0}, plan.candidates.size(), [&](size_t i) {
-    GraspCandidate& c = plan.candidates[i];
+  // Pose ambiguity: a candidate must land under every alternative pose of
+  // its detection, within the judge's position and the gripper's approach
+  // limit; the part's symmetry per detection.
+  const double ambiguity_approach = gripper.spec->kind == GripperSpec::Kind::kSuction
+                                        ? m.options.suction_compliance_deg * M_PI / 180.0
+                                        : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+  std::vector<Symmetry> symmetry(detections.size());
+  for (size_t d = 0; d < detections.size(); ++d) {
+    if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry[d] = part->symmetry;
+  }
+  tbb::parallel_for(size_t{0}, candidates.size(), [&](size_t i) {
+    GraspCandidate& c = candidates[i];
+    const Detection& det = detections[c.detection];
     auto verdict = [&]() -> std::optional<RejectReason> {
       if (c.tilt_rad > max_tilt + 1e-9) return RejectReason::kTilt;
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
       }
-      if (!lands_everywhere[i]) return RejectReason::kAmbiguous;
+      // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
+      if (!LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
+                                      m.options.ambiguity_max_position, ambiguity_approach)) {
+        return RejectReason::kAmbiguous;
+      }
+      if (seen != nullptr && NeedsSeenContact(rule, det)) {
+        c.seen_fraction = SeenShare(c, *seen);
+        if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
+      }
       const CollisionGeometry& sweep = *gripper.sweep;
       if (Collides(sweep, c.X_BT, *m.bin, cell.bin.X_BW)) return RejectReason::kBin;
       const int self[] = {c.detection};
       if (obstacles.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
       const Pose X_BT_lift = c.X_BT * TranslateZ(-m.options.contact_margin);
-      const Detection& det = detections[c.detection];
       if (auto p = m.parts.find(det.class_id); p != m.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
         return RejectReason::kSelf;
       }
@@ -515,26 +610,33 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     };
     c.rejected = verdict();
   });
+}
 
-  // Ranking.
+// Stage 4: scores of the accepted candidates (task.ranking) and the counts.
+void RankCandidates(const Cell& cell, const TaskSpec& task, std::span<const Detection> detections,
+                    std::vector<GraspCandidate>& candidates, FilterStats& stats) {
+  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
   const Pose X_WB = cell.bin.X_BW.inverse();
   const double height = std::max(1e-6, cell.bin.inner_size.z());
-  for (GraspCandidate& c : plan.candidates) {
-    ++plan.stats.candidates;
+  for (GraspCandidate& c : candidates) {
+    ++stats.candidates;
     if (c.rejected) {
-      ++plan.stats.rejected[static_cast<int>(*c.rejected)];
+      ++stats.rejected[static_cast<int>(*c.rejected)];
       continue;
     }
-    ++plan.stats.accepted;
+    ++stats.accepted;
     const double z_W = (X_WB * c.X_BT).translation().z();
     const double tilt_norm = max_tilt > 0 ? c.tilt_rad / max_tilt : 0.0;
     c.score = task.ranking.height * (z_W / height) + task.ranking.detection * detections[c.detection].score -
               task.ranking.tilt * tilt_norm;
   }
+}
 
-  // One primary grasp per part, parts ordered by their best grasp.
+// Stage 5: one primary grasp per part, parts ordered by their best grasp,
+// the part's other accepted grasps as related_X_B.
+std::vector<Grasp> QueueByPart(std::span<const Detection> detections, const std::vector<GraspCandidate>& candidates) {
   std::map<int, std::vector<const GraspCandidate*>> by_part;
-  for (const GraspCandidate& c : plan.candidates) {
+  for (const GraspCandidate& c : candidates) {
     if (!c.rejected) by_part[c.detection].push_back(&c);
   }
   std::vector<std::vector<const GraspCandidate*>> parts;
@@ -543,6 +645,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     parts.push_back(std::move(list));
   }
   std::stable_sort(parts.begin(), parts.end(), [](const auto& a, const auto& b) { return a[0]->score > b[0]->score; });
+  std::vector<Grasp> queue;
   for (const auto& list : parts) {
     const GraspCandidate& best = *list[0];
     Grasp g;
@@ -554,8 +657,122 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     g.score = best.score;
     g.name = best.name;
     for (size_t k = 1; k < list.size(); ++k) g.related_X_B.push_back(list[k]->X_BT);
-    plan.queue.push_back(std::move(g));
+    queue.push_back(std::move(g));
   }
+  return queue;
+}
+
+// Stage 6: each queued grasp's stale neighbours among the queued parts
+// (Grasp::stale_after): parts within touch_distance of its part, and parts
+// its swept gripper passes within approach_margin of (the grown geometries
+// of Inflated). Bounding boxes pick the pairs worth an FCL collision query;
+// the queries run in parallel.
+void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripper, std::vector<Grasp>& queue) {
+  const size_t n = queue.size();
+  if (n < 2) return;
+  const double touch = m.options.touch_distance, margin = m.options.approach_margin;
+  std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
+  std::vector<Eigen::AlignedBox3d> box(n);
+  for (size_t i = 0; i < n; ++i) {
+    auto p = m.parts.find(queue[i].class_id);
+    if (p == m.parts.end()) continue;
+    part[i] = p->second.get();
+    part_touch[i] = m.parts_touch.at(queue[i].class_id).get();
+    box[i] = part[i]->WorldBounds(queue[i].X_BO);
+  }
+  auto grown = [](Eigen::AlignedBox3d b, double by) {
+    b.min().array() -= by;
+    b.max().array() += by;
+    return b;
+  };
+  struct Query {
+    size_t i, j;
+    bool approach;  // i's swept gripper against part j; else part i against part j (i < j)
+  };
+  std::vector<Query> queries;
+  for (size_t i = 0; i < n; ++i) {
+    if (part[i] == nullptr) continue;
+    std::vector<Eigen::AlignedBox3d> sweep_boxes;
+    for (const auto& slab : gripper.slabs) sweep_boxes.push_back(grown(WorldBox(slab, queue[i].X_BT), margin));
+    for (size_t j = 0; j < n; ++j) {
+      if (j == i || part[j] == nullptr) continue;
+      if (j > i && grown(box[i], touch).intersects(box[j])) queries.push_back({i, j, false});
+      for (const auto& b : sweep_boxes) {
+        if (b.intersects(box[j])) {
+          queries.push_back({i, j, true});
+          break;
+        }
+      }
+    }
+  }
+  // Closer than the distance = colliding with the grown geometry.
+  std::vector<uint8_t> close(queries.size(), 0);
+  tbb::parallel_for(size_t{0}, queries.size(), [&](size_t k) {
+    const Query& q = queries[k];
+    close[k] = q.approach ? Collides(*gripper.sweep_margin, queue[q.i].X_BT, *part[q.j], queue[q.j].X_BO)
+                          : Collides(*part_touch[q.i], queue[q.i].X_BO, *part[q.j], queue[q.j].X_BO);
+  });
+  std::vector<std::set<int>> stale(n);
+  for (size_t k = 0; k < queries.size(); ++k) {
+    if (!close[k]) continue;
+    const Query& q = queries[k];
+    stale[q.i].insert(queue[q.j].instance_id);
+    if (!q.approach) stale[q.j].insert(queue[q.i].instance_id);
+  }
+  for (size_t i = 0; i < n; ++i) queue[i].stale_after.assign(stale[i].begin(), stale[i].end());
+}
+
+}  // namespace
+
+GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
+                     std::span<const TaughtGrasp> taught, const Frame* frame) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const GraspPlanningModel::Impl& m = model.impl();
+  GraspPlan plan;
+
+  const std::function<bool(int)> wanted = [&task](int class_id) {
+    return task.part_classes.empty() ||
+           std::find(task.part_classes.begin(), task.part_classes.end(), class_id) != task.part_classes.end();
+  };
+  const auto& detections = perception.detections;
+  int relevant = 0;
+  for (const Detection& d : detections) relevant += wanted(d.class_id) ? 1 : 0;
+  if (relevant == 0) {
+    plan.outcome = PlanResult::Outcome::kNoObjects;
+    return plan;
+  }
+  auto gripper_it = m.grippers.find(task.gripper);
+  if (gripper_it == m.grippers.end()) {  // cell validation makes this unreachable
+    plan.outcome = PlanResult::Outcome::kNoCollisionFree;
+    return plan;
+  }
+  const Gripper& gripper = gripper_it->second;
+
+  plan.candidates = MakeCandidates(model, gripper, task, detections, taught, wanted);
+
+  const auto t_obstacles = std::chrono::steady_clock::now();
+  const FrameObstacles obstacles = BuildObstacles(m, perception);
+  // What the frame measured, for the seen-contact check: its depth image, or
+  // its ROI points when it has none (built only when a grasp needs it).
+  const SeenContactRule& rule = gripper.spec->seen_contact;
+  std::optional<internal::SeenSurface> seen;
+  if (std::any_of(detections.begin(), detections.end(),
+                  [&](const Detection& d) { return wanted(d.class_id) && NeedsSeenContact(rule, d); })) {
+    if (frame != nullptr && frame->organized()) {
+      seen.emplace(frame->depth, frame->intrinsics, frame->X_BC, rule.max_distance);
+    } else {
+      seen.emplace(perception.roi_points_B, rule.max_distance);
+    }
+  }
+  plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
+
+  FilterCandidates(m, gripper, task, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
+  RankCandidates(m.cell, task, detections, plan.candidates, plan.stats);
+  plan.queue = QueueByPart(detections, plan.candidates);
+  const auto t_neighbours = std::chrono::steady_clock::now();
+  MarkStaleNeighbours(m, gripper, plan.queue);
+  plan.stats.neighbours_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_neighbours).count();
   plan.outcome = plan.queue.empty() ? PlanResult::Outcome::kNoCollisionFree : PlanResult::Outcome::kGrasps;
   plan.stats.filter_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return plan;

@@ -26,6 +26,24 @@
 // capture; when no part has one, the plan is kNoCollisionFree, which the
 // robot hears as "no collision-free grasp" (docs/protocols.md, pick pose).
 //
+// Seen contact (issue 37 item 2). A grasp is kept only when this frame's
+// depth shows its contact region, by the rule of the task's gripper
+// (grippers[].seen_contact, SeenContactRule in core/cell.h): the model
+// surface under the suction cup's footprint, or under each jaw finger pad,
+// sampled once per cell grasp, must have measured points within
+// max_distance at min_fraction of its samples. It runs right after the
+// ambiguity check (no FCL involved). A well-fitting detection can be turned
+// wrongly where the part's distinguishing feature is hidden (a tee turned
+// about its run with its branch out of view): its grasps on the hidden
+// feature are rejected as kUnseen, whether or not the view left the pose
+// ambiguous.
+//
+// Stale neighbours (issue 37 item 4). Each queued grasp lists the queued
+// parts whose hand-out makes it stale (Grasp::stale_after): parts within
+// touch_distance of its part (both at their estimated poses), and parts its
+// swept gripper passes within approach_margin of. GraspQueue::Pop withdraws
+// it when one of them is handed out.
+//
 // Thread-safety: GraspPlanningModel is immutable after Build; PlanGrasps may
 // run concurrently. PlanGrasps parallelises over candidates with oneTBB in the
 // calling thread's arena.
@@ -54,12 +72,13 @@ enum class RejectReason : int {
   kTilt = 0,   // approach further from vertical than task.max_tilt_deg
   kWorkspace,  // flange outside robot.workspace at the grasp or pre-grasp
   kAmbiguous,  // would miss its grasp point under another pose the view allows (Detection::alternatives_X_BO)
+  kUnseen,     // the frame's depth does not show the contact region (SeenContactRule)
   kBin,        // swept gripper hits the bin
   kPart,       // swept gripper hits another detected part
   kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
   kPoints,     // lifted swept gripper hits scene points no detection explains
 };
-inline constexpr int kNumRejectReasons = 7;
+inline constexpr int kNumRejectReasons = 8;
 std::string_view ToString(RejectReason reason);
 
 struct GraspPlanningOptions {
@@ -91,7 +110,19 @@ struct GraspPlanningOptions {
   // (grasp/grasp_judge.h): a grasp offered must land whichever pose is true.
   double ambiguity_max_position = 0.002;
   double ambiguity_jaw_approach_deg = 5.0;
+  // Stale neighbours (Grasp::stale_after): parts closer than touch_distance
+  // (m) at their estimated poses touch; a grasp whose swept gripper passes
+  // closer than approach_margin (m) to another part is stale once that part
+  // is picked. 3 mm covers the detections' pose error (about 1 mm) on parts
+  // resting on each other; 10 mm is the space a picked neighbour's
+  // resettling parts can move into.
+  double touch_distance = 0.003;
+  double approach_margin = 0.010;
 };
+
+namespace internal {
+struct ContactRegion;  // grasp/internal/contact_region.h
+}  // namespace internal
 
 // A grasp of a part class in the part frame, before symmetry expansion.
 struct TaughtGrasp {
@@ -99,6 +130,9 @@ struct TaughtGrasp {
   std::string name;
   std::string gripper;
   Pose X_OG = Pose::Identity();
+  // The part surface the gripper touches (in the grasp's frame; shared by
+  // the symmetric copies). Null: sampled by PlanGrasps when its rule needs it.
+  std::shared_ptr<const internal::ContactRegion> contact;
 };
 
 struct GraspCandidate {
@@ -109,6 +143,12 @@ struct GraspCandidate {
   Pose X_BT = Pose::Identity();
   Pose X_BT_pre = Pose::Identity();
   double tilt_rad = 0.0;    // approach direction from straight down
+  // The contact region's frame: X_BT before the suction compliance turn
+  // (a turned cup still seals on the same surface), and its samples.
+  Pose X_BG = Pose::Identity();
+  std::shared_ptr<const internal::ContactRegion> contact;
+  // The least seen share over the grasp's contacts; -1 when not checked.
+  double seen_fraction = -1.0;
   std::optional<RejectReason> rejected;
   double score = 0.0;       // ranking score (accepted candidates)
 };
@@ -118,6 +158,7 @@ struct FilterStats {
   int accepted = 0;
   std::array<int, kNumRejectReasons> rejected{};
   double obstacles_ms = 0.0;  // building this frame's obstacles (part scene, point OcTree)
+  double neighbours_ms = 0.0; // the queued grasps' stale neighbours
   double filter_ms = 0.0;     // the whole PlanGrasps call
   std::string Describe() const;  // "560 candidates, 120 accepted; tilt 200, bin 12, ..."
 };
@@ -166,12 +207,16 @@ class GraspPlanningModel {
 // Plans grasps for `task` from a perception result: candidates for every
 // detection of the task's part classes (cell grasps plus `taught`, for the
 // task's gripper), filtered, ranked by task.ranking; one primary grasp per
-// part, its other collision-free grasps as related_X_B (best first).
+// part, its other collision-free grasps as related_X_B (best first), its
+// stale neighbours in stale_after.
 // Outcome: kNoObjects without detections of the task's classes,
 // kNoCollisionFree when there are some but no grasp survives (also when every
 // grasp of an ambiguous detection is kAmbiguous), else kGrasps.
 // Grasp::instance_id is the detection index.
+// `frame`: the frame perception ran on. The seen-contact check reads its
+// depth image when it is organized, else perception.roi_points_B (also
+// without a frame): with neither, no contact region is seen.
 GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
-                     std::span<const TaughtGrasp> taught = {});
+                     std::span<const TaughtGrasp> taught = {}, const Frame* frame = nullptr);
 
 }  // namespace bp

@@ -33,9 +33,11 @@ struct Detection {
   // about equally well (issue 37 item 3; PoseHypothesis::alternatives): the
   // other poses the part may have, besides X_BO. Free space has ruled out
   // those it could. A grasp is valid on such a detection only when it is
-  // valid at every one of them as well (grasp/grasp_planning.h).
+  // valid at every one of them as well (kAmbiguous, grasp/grasp_planning.h),
+  // and its contact region must be seen even under a gripper's
+  // `if_ambiguous` seen-contact rule (SeenContactRule).
   std::vector<Pose> alternatives_X_BO = {};
-  bool pose_ambiguous = false;  // !alternatives_X_BO.empty()
+  bool pose_ambiguous() const { return !alternatives_X_BO.empty(); }
 };
 
 struct StageTiming {

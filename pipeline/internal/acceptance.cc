@@ -141,7 +141,6 @@ void Acceptance::Accept(std::vector<Candidate> candidates) {
     d.rms_residual = c.h.rms_residual;
     d.support = std::move(c.support_roi);
     d.alternatives_X_BO = std::move(c.h.alternatives);
-    d.pose_ambiguous = !d.alternatives_X_BO.empty();
     detections_.push_back(std::move(d));
   }
 }

@@ -294,6 +294,20 @@ std::vector<BadCase> BadCases() {
        "must be > 0"},
       {"parallel_jaw_without_opening", "    kind: suction", "    kind: parallel_jaw", "grippers[0].opening",
        "opening > 0"},
+      {"seen_contact_rule_unknown", "    approach_distance: 0.08", "    approach_distance: 0.08\n    seen_contact: {rule: sometimes}",
+       "grippers[0].seen_contact.rule", "unknown seen_contact rule 'sometimes'"},
+      {"seen_contact_unknown_key", "    approach_distance: 0.08", "    approach_distance: 0.08\n    seen_contact: {max_dist: 0.002}",
+       "grippers[0].seen_contact.max_dist", "unknown key"},
+      {"seen_contact_distance_zero", "    approach_distance: 0.08",
+       "    approach_distance: 0.08\n    seen_contact: {max_distance: 0}", "grippers[0].seen_contact.max_distance",
+       "must be in (0, 0.05]"},
+      {"seen_contact_fraction_above_one", "    approach_distance: 0.08",
+       "    approach_distance: 0.08\n    seen_contact: {min_fraction: 1.5}", "grippers[0].seen_contact.min_fraction",
+       "must be in (0, 1]"},
+      {"seen_contact_radius_negative", "    approach_distance: 0.08",
+       "    approach_distance: 0.08\n    seen_contact: {radius: -0.01}", "grippers[0].seen_contact.radius", "must be >= 0"},
+      {"seen_contact_pad_zero", "    approach_distance: 0.08",
+       "    approach_distance: 0.08\n    seen_contact: {pad_width: 0}", "grippers[0].seen_contact.pad_width", "must be > 0"},
       {"duplicate_task_id", "{id: 1, name: bushings", "{id: 0, name: bushings", "tasks[1].id", "duplicate task id 0"},
       {"task_unknown_part", "parts: [0]", "parts: [7]", "tasks[1].parts[0]", "unknown part class 7"},
       {"task_unknown_gripper", "name: pick, kind: pick, gripper: suction}", "name: pick, kind: pick, gripper: jaw}",
@@ -395,6 +409,34 @@ TEST_F(CellFileTest, SourceVarietyIsParsedAndAbsentByDefault) {
   EXPECT_DOUBLE_EQ(cell->source.variety->max_roll_deg, VarietySpec{}.max_roll_deg);
   ASSERT_EQ(cell->source.variety->drop_styles.size(), 1u);
   EXPECT_EQ(cell->source.variety->drop_styles[0], DropStyle::kJumbled);
+}
+
+TEST_F(CellFileTest, SeenContactDefaultsByGripperKindAndIsParsed) {
+  Result<Cell> plain = LoadCell(Write(kBaseCell));
+  ASSERT_TRUE(plain.ok()) << plain.status().ToString();
+  const SeenContactRule& rule = plain->grippers[0].seen_contact;
+  EXPECT_EQ(rule.when, SeenContactRule::When::kAlways);  // suction
+  EXPECT_DOUBLE_EQ(rule.max_distance, 0.003);
+  EXPECT_DOUBLE_EQ(rule.min_fraction, 0.6);
+  EXPECT_DOUBLE_EQ(rule.radius, 0.0);
+  const std::string jaw = Mutate(Mutate(kBaseCell, "    kind: suction", "    kind: parallel_jaw"),
+                                 "    approach_distance: 0.08", "    approach_distance: 0.08\n    opening: 0.06");
+  Result<Cell> jaw_cell = LoadCell(Write(jaw));
+  ASSERT_TRUE(jaw_cell.ok()) << jaw_cell.status().ToString();
+  EXPECT_EQ(jaw_cell->grippers[0].seen_contact.when, SeenContactRule::When::kIfAmbiguous);
+  const std::string text =
+      Mutate(kBaseCell, "    approach_distance: 0.08",
+             "    approach_distance: 0.08\n    seen_contact: {rule: off, max_distance: 0.002, min_fraction: 0.75, "
+             "radius: 0.01, pad_width: 0.03, pad_depth: 0.02}");
+  Result<Cell> cell = LoadCell(Write(text));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  const SeenContactRule& r = cell->grippers[0].seen_contact;
+  EXPECT_EQ(r.when, SeenContactRule::When::kOff);
+  EXPECT_DOUBLE_EQ(r.max_distance, 0.002);
+  EXPECT_DOUBLE_EQ(r.min_fraction, 0.75);
+  EXPECT_DOUBLE_EQ(r.radius, 0.01);
+  EXPECT_DOUBLE_EQ(r.pad_width, 0.03);
+  EXPECT_DOUBLE_EQ(r.pad_depth, 0.02);
 }
 
 TEST_F(CellFileTest, ErrorMessageStartsWithFileAndLineOfTheOffendingValue) {

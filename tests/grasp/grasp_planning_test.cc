@@ -4,7 +4,10 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "grasp/grasp_queue.h"
 
@@ -24,9 +27,17 @@ const Cell& DefaultCell() {
   return cell;
 }
 
+// The scenes here are detections without a depth frame: the seen-contact
+// rule (tests/grasp/seen_contact_test.cc) is off so that they test the rest.
+Cell CellWithoutSeenContact() {
+  Cell cell = DefaultCell();
+  for (GripperSpec& g : cell.grippers) g.seen_contact.when = SeenContactRule::When::kOff;
+  return cell;
+}
+
 const GraspPlanningModel& Model() {
   static const std::shared_ptr<const GraspPlanningModel> model = [] {
-    auto m = GraspPlanningModel::Build(DefaultCell());
+    auto m = GraspPlanningModel::Build(CellWithoutSeenContact());
     EXPECT_TRUE(m.ok()) << m.status().ToString();
     return *m;
   }();
@@ -128,7 +139,7 @@ TEST(GraspFilter, RejectsAGraspWhoseApproachHitsTheWallAndAcceptsItAwayFromTheWa
   TaskSpec task = PickTask();
   GraspPlanningOptions options;
   options.suction_compliance_deg = 0;  // judge the grasp as defined
-  auto model = GraspPlanningModel::Build(DefaultCell(), options);
+  auto model = GraspPlanningModel::Build(CellWithoutSeenContact(), options);
   ASSERT_TRUE(model.ok());
   const GraspPlan near = PlanGrasps(**model, task, Scene({Bushing(0.20, 0, 0.02, 30)}));
   const GraspPlan away = PlanGrasps(**model, task, Scene({Bushing(0.0, 0, 0.02, 30)}));
@@ -173,7 +184,7 @@ TEST(GraspFilter, PinchesAPlateWhereItIsClearOfTheWallWhenItsMiddleIsNot) {
 TEST(GraspFilter, RejectsApproachesTiltedPastTheTasksLimit) {
   GraspPlanningOptions options;
   options.suction_compliance_deg = 0;
-  auto model = GraspPlanningModel::Build(DefaultCell(), options);
+  auto model = GraspPlanningModel::Build(CellWithoutSeenContact(), options);
   ASSERT_TRUE(model.ok());
   TaskSpec task = PickTask();
   task.max_tilt_deg = 25;
@@ -221,7 +232,6 @@ TEST(GraspFilter, OnAnAmbiguousDetectionOffersOnlyGraspsThatLandUnderEveryAltern
   Detection same = upright;
   same.alternatives_X_BO = {upright.X_BO * MakePose(Mat3(Eigen::AngleAxisd(0.7, Vec3::UnitZ())), Vec3::Zero()),
                             upright.X_BO * MakePose(Mat3::Identity(), Vec3(0.001, 0, 0))};
-  same.pose_ambiguous = true;
   const GraspPlan kept = PlanGrasps(Model(), PickTask(), Scene({same}));
   EXPECT_EQ(kept.outcome, PlanResult::Outcome::kGrasps);
   EXPECT_EQ(Count(Verdicts(kept, 0, "hub_top@"), std::nullopt), 24);
@@ -231,7 +241,6 @@ TEST(GraspFilter, OnAnAmbiguousDetectionOffersOnlyGraspsThatLandUnderEveryAltern
   // the part is left and, alone in the scene, the plan says so.
   Detection flipped = upright;
   flipped.alternatives_X_BO = {upright.X_BO * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0, 0, 0.045))};
-  flipped.pose_ambiguous = true;
   const GraspPlan left = PlanGrasps(Model(), PickTask(), Scene({flipped}));
   EXPECT_EQ(Count(Verdicts(left, 0, "hub_top@"), RejectReason::kAmbiguous), 24);
   EXPECT_TRUE(left.queue.empty());
@@ -245,7 +254,7 @@ TEST(GraspFilter, OnAnAmbiguousDetectionOffersOnlyGraspsThatLandUnderEveryAltern
 }
 
 TEST(GraspFilter, RejectsFlangePosesOutsideTheWorkspace) {
-  Cell cell = DefaultCell();
+  Cell cell = CellWithoutSeenContact();
   // The flange is 0.27 m above a straight-down grasp; cap the workspace below it.
   cell.robot.workspace = Eigen::AlignedBox3d(Vec3(-2, -2, -1), Vec3(2, 2, 0.25));
   auto model = GraspPlanningModel::Build(cell);
@@ -302,7 +311,7 @@ TEST(GraspFilter, TheSpaceUnderAnUnexplainedEdgeBlocksATiltedToolThatPassesBelow
   };
   GraspPlanningOptions surface_only;
   surface_only.occluded_columns = false;
-  auto flat = GraspPlanningModel::Build(DefaultCell(), surface_only);
+  auto flat = GraspPlanningModel::Build(CellWithoutSeenContact(), surface_only);
   ASSERT_TRUE(flat.ok()) << flat.status().ToString();
   EXPECT_EQ(hub_top(PlanGrasps(**flat, PickTask(), scene), std::nullopt), 24);
   EXPECT_EQ(hub_top(PlanGrasps(Model(), PickTask(), scene), RejectReason::kPoints), 24);
@@ -343,6 +352,57 @@ TEST(GraspPlan, QueuesOnePrimaryGraspPerPartHighestFirstWithTheRestAsRelatedPose
   EXPECT_EQ(remaining, (std::vector<int>{3, 2, 1, 0}));
 }
 
+// Stale neighbours (Grasp::stale_after). Bushings: flange r = 30 mm, hub
+// r = 18 mm up to 40 mm; hub_top grasps sit 12 mm off the axis.
+TEST(StaleNeighbours, PartsTouchingEachOtherListEachOtherAndAFarPartNeither) {
+  // A and B flange to flange 1 mm apart (touching within 3 mm); C far away.
+  const PerceptionResult scene = Scene({Bushing(-0.1, 0), Bushing(-0.039, 0), Bushing(0.15, 0.1)});
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), scene);
+  ASSERT_EQ(plan.queue.size(), 3u);
+  std::map<int, std::vector<int>> stale;
+  for (const Grasp& g : plan.queue) stale[g.instance_id] = g.stale_after;
+  EXPECT_EQ(stale[0], (std::vector<int>{1}));
+  EXPECT_EQ(stale[1], (std::vector<int>{0}));
+  EXPECT_TRUE(stale[2].empty());
+  // 6 mm apart: no longer touching, and no approach passes within 10 mm
+  // (the cups are 12 mm off the axes, over the hubs).
+  const PerceptionResult apart = Scene({Bushing(-0.1, 0), Bushing(-0.034, 0)});
+  for (const Grasp& g : PlanGrasps(Model(), PickTask(), apart).queue) {
+    EXPECT_TRUE(g.stale_after.empty()) << g.instance_id << " " << g.name;
+  }
+}
+
+TEST(StaleNeighbours, AGraspWhoseApproachPassesCloseToAPartIsStaleOnceThatPartIsPicked) {
+  // B upright; its straight-down hub-top grasp's rod (r = 10 mm) rises 12 mm
+  // off B's axis. C, a bushing lying on its side 20 mm above the floor, its
+  // flange rim 6 mm beside that rod and clear of B: picking C makes B's
+  // grasp stale; picking B leaves C's grasp (on top of C, 40 mm away) alone.
+  TaskSpec task = PickTask();
+  task.max_tilt_deg = 5;  // straight-down grasps only
+  const Detection b = Bushing(0, 0);
+  const GraspPlan alone = PlanGrasps(Model(), task, Scene({b}));
+  ASSERT_FALSE(alone.queue.empty());
+  const Vec3 axis_W(0, 0, 0);
+  const Vec3 grasp_W = DefaultCell().bin.X_BW.inverse() * alone.queue[0].X_BT.translation();
+  const Vec3 dir = Vec3(grasp_W.x() - axis_W.x(), grasp_W.y() - axis_W.y(), 0).normalized();
+  const Vec3 along = Vec3::UnitZ().cross(dir);  // C's axis, horizontal
+  Mat3 R;
+  R.col(0) = dir;
+  R.col(1) = along.cross(dir);
+  R.col(2) = along;
+  Detection c = Bushing(0, 0);
+  c.X_BO = DefaultCell().bin.X_BW * MakePose(R, (0.012 + 0.010 + 0.006 + 0.030) * dir + Vec3(0, 0, 0.060));
+  const GraspPlan plan = PlanGrasps(Model(), task, Scene({b, c}));
+  ASSERT_EQ(plan.queue.size(), 2u) << plan.stats.Describe();
+  std::map<int, std::vector<int>> stale;
+  for (const Grasp& g : plan.queue) stale[g.instance_id] = g.stale_after;
+  EXPECT_EQ(stale[0], (std::vector<int>{1}));
+  EXPECT_TRUE(stale[1].empty());
+  // 15 mm beside the rod: beyond the margin.
+  c.X_BO = DefaultCell().bin.X_BW * MakePose(R, (0.012 + 0.010 + 0.015 + 0.030) * dir + Vec3(0, 0, 0.060));
+  for (const Grasp& g : PlanGrasps(Model(), task, Scene({b, c})).queue) EXPECT_TRUE(g.stale_after.empty());
+}
+
 TEST(GraspPlan, RankingWeightsDecideTheOrder) {
   // A higher part with a worse detection score against a lower, better-seen one.
   Detection high = Bushing(-0.1, 0, 0.05), low = Bushing(0.1, 0);
@@ -357,7 +417,7 @@ TEST(GraspPlan, RankingWeightsDecideTheOrder) {
 
 TEST(GraspPlan, TaughtGraspsJoinTheCandidatesExpandedOverSymmetry) {
   TaughtGrasp taught{kBushing, "taught_1", "suction",
-                     MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.0, 0.010, 0.040))};
+                     MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.0, 0.010, 0.040)), nullptr};
   const GraspPlan plan = PlanGrasps(Model(), PickTask(), Scene({Bushing(0, 0)}), std::span(&taught, 1));
   EXPECT_EQ(Count(Verdicts(plan, 0, "taught_1@"), std::nullopt), 24);
 }

@@ -144,7 +144,6 @@ Detection Detect(const View& v) {
   d.X_BO = h.X_BO;
   d.score = h.score;
   d.alternatives_X_BO = h.alternatives;
-  d.pose_ambiguous = !h.alternatives.empty();
   for (int i : h.supporting_indices) d.support.push_back(i);
   return d;
 }
