@@ -351,7 +351,7 @@ int Run(const EvalCliOptions& opt) {
       FrameEvaluation& fe = evaluations.back();
       const auto t0 = std::chrono::steady_clock::now();
       GraspPlan plan;
-      arena.execute([&] { plan = PlanGrasps(*grasp_model, *task, *result); });
+      arena.execute([&] { plan = PlanGrasps(*grasp_model, *task, *result, {}, &*frame); });
       fe.timings.push_back({"grasps", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count()});
       fe.grasps_planned = true;
       for (const Grasp& g : plan.queue) {
