@@ -1033,5 +1033,10 @@ void RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job
 }
 
 Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id) { return impl_->PopGrasp(task_id); }
+std::optional<GraspQueue::Contents> RequestHandler::QueueContents(int task_id) const {
+  const Impl::TaskState* t = impl_->FindTask(task_id);
+  if (t == nullptr) return std::nullopt;
+  return t->queue.contents();
+}
 
 }  // namespace bp

@@ -98,6 +98,8 @@ class RequestHandler {
   const Cell& cell() const;
   int camera_config_id() const;       // current RC_SWITCH_CONFIG selection
   int QueueSize(int task_id) const;   // grasps left; -1 for an unknown task
+  // The task's queued and withdrawn grasps (GraspQueue::contents); nullopt for an unknown task.
+  std::optional<GraspQueue::Contents> QueueContents(int task_id) const;
 
   // Task-level operations for the other protocols (the GRI: comms/gri_handler.h).
   // They drive the same per-task detections and grasp queue as the DaoAI

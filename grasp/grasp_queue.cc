@@ -22,6 +22,7 @@ void GraspQueue::Replace(PlanResult result) {
   std::lock_guard lock(mutex_);
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
+  withdrawn_ids_.clear();
   summary_ = s;
   ++generation_;
 }
@@ -30,6 +31,7 @@ void GraspQueue::Reset() {
   std::deque<Grasp> old;
   std::lock_guard lock(mutex_);
   grasps_.swap(old);
+  withdrawn_ids_.clear();
   summary_.reset();
   ++generation_;
 }
@@ -65,6 +67,7 @@ void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
     std::deque<Grasp> kept;
     for (Grasp& g : grasps_) {
       if (StaleAfter(g, picked)) {
+        withdrawn_ids_.push_back(g.instance_id);
         p.withdrawn.push_back(std::move(g));
       } else {
         kept.push_back(std::move(g));
@@ -113,6 +116,14 @@ GraspQueue::Popped GraspQueue::PopFirst(const std::function<bool(const Grasp&, i
 int GraspQueue::size() const {
   std::lock_guard lock(mutex_);
   return static_cast<int>(grasps_.size());
+}
+
+GraspQueue::Contents GraspQueue::contents() const {
+  Contents c;
+  std::lock_guard lock(mutex_);
+  for (const Grasp& g : grasps_) c.queued.push_back(g.instance_id);
+  c.withdrawn = withdrawn_ids_;
+  return c;
 }
 
 std::optional<GraspQueue::Summary> GraspQueue::LastPlan() const {

@@ -40,6 +40,14 @@ class GraspQueue {
     int refused = 0;
   };
 
+  // The instance ids of the grasps still queued (in hand-out order) and of
+  // those withdrawn as stale since the last Replace / Reset (for the status
+  // page: a grasp in neither was handed out).
+  struct Contents {
+    std::vector<int> queued;
+    std::vector<int> withdrawn;
+  };
+
   // A summary of the last plan without its grasps.
   struct Summary {
     PlanResult::Outcome outcome = PlanResult::Outcome::kNoObjects;
@@ -59,13 +67,14 @@ class GraspQueue {
   // Pops the first grasp, in queue order, that `sendable` accepts; it is
   // given each grasp with the remaining count it would be answered with (the
   // queue's size, including the grasp, less the grasps it would withdraw as
-  // stale). The accepted grasp withdraws the grasps it makes stale, as Pop. The grasps it refuses stay queued,
-  // in order, and are counted in Popped::refused; `grasp` is empty when none
+  // stale). The accepted grasp withdraws the grasps it makes stale, as Pop.
+  // The grasps it refuses stay queued, in order, and are counted in Popped::refused; `grasp` is empty when none
   // is accepted. `sendable` runs under the queue's lock: it must not call
   // back into the queue. Used to encode and range-check an answer before its
   // grasp leaves the queue (docs/protocols.md, "Nothing lost in 16 bits").
   Popped PopFirst(const std::function<bool(const Grasp&, int remaining)>& sendable);
   int size() const;
+  Contents contents() const;
   std::optional<Summary> LastPlan() const;
 
  private:
@@ -74,6 +83,7 @@ class GraspQueue {
   std::optional<Summary> summary_;  // GUARDED_BY(mutex_)
   uint64_t generation_ = 0;         // GUARDED_BY(mutex_)
   bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
+  std::vector<int> withdrawn_ids_;  // GUARDED_BY(mutex_): since the last Replace / Reset
 
   // Queued grasps that handing out part `picked` makes stale. Needs mutex_.
   int StaleCount(int picked) const;

@@ -278,6 +278,7 @@ class StatusState::Impl {
     Calibration calibration;
     uint64_t detections = 0;
     std::function<int(int)> queue_size;
+    QueueContentsProbe queue_contents;
     CalibrationProbe calibration_probe;
     {
       std::lock_guard lock(mutex_);
@@ -287,6 +288,7 @@ class StatusState::Impl {
       calibration = calibration_;
       detections = detections_;
       queue_size = queue_size_;
+      queue_contents = queue_contents_;
       calibration_probe = calibration_probe_;
     }
     d.scene.reset();
@@ -337,13 +339,16 @@ class StatusState::Impl {
       j["detection"] = nullptr;
     }
 
-    // The queue: the grasps of the last plan that refilled a queue; those
-    // before the grasps left were handed out (GraspQueue pops from the front).
+    // The queue: the grasps of the last plan that refilled a queue, each
+    // handed out, next, queued or withdrawn (GraspStates).
     if (queue.seq > 0) {
       const int total = static_cast<int>(queue.grasps.size());
       int left = total;
       if (queue_size) left = std::clamp(queue_size(queue.task_id), 0, total);
-      const int served = total - left;
+      const std::vector<internal::GraspState> states =
+          GraspStates(queue.grasps, left, queue_contents ? queue_contents(queue.task_id) : std::nullopt);
+      int withdrawn = 0;
+      for (internal::GraspState s : states) withdrawn += s == internal::GraspState::kWithdrawn;
       json grasps = json::array();
       for (int i = 0; i < total; ++i) {
         const Grasp& g = queue.grasps[static_cast<size_t>(i)];
@@ -355,11 +360,11 @@ class StatusState::Impl {
         gj["instance_id"] = g.instance_id;
         gj["score"] = g.score;
         gj["name"] = g.name;
-        gj["state"] = i < served ? "served" : i == served ? "next" : "queued";
+        gj["state"] = StateName(states[static_cast<size_t>(i)]);
         grasps.push_back(gj);
       }
       j["queue"] = {{"seq", queue.seq}, {"task", queue.task_id}, {"total", total},
-                    {"remaining", left}, {"grasps", grasps}};
+                    {"remaining", left}, {"withdrawn", withdrawn}, {"grasps", grasps}};
     } else {
       j["queue"] = nullptr;
     }
@@ -410,6 +415,7 @@ class StatusState::Impl {
     std::vector<Grasp> grasps;  // drawn when this capture refilled the queue
     int task_id = 0;
     std::function<int(int)> queue_size;
+    QueueContentsProbe queue_contents;
     {
       std::lock_guard lock(mutex_);
       if (!last_.scene) return std::nullopt;
@@ -417,21 +423,21 @@ class StatusState::Impl {
       if (queue_.seq == d.seq) grasps = queue_.grasps;
       task_id = queue_.task_id;
       queue_size = queue_size_;
+      queue_contents = queue_contents_;
     }
     const auto* captured = dynamic_cast<const CapturedFrame*>(d.scene.get());
     if (!captured) return std::nullopt;
-    int served = 0;
-    if (queue_size) {
-      const int total = static_cast<int>(grasps.size());
-      served = total - std::clamp(queue_size(task_id), 0, total);
-    }
+    const int total = static_cast<int>(grasps.size());
+    const int left = queue_size ? std::clamp(queue_size(task_id), 0, total) : total;
+    const std::vector<internal::GraspState> states =
+        GraspStates(grasps, left, queue_contents ? queue_contents(task_id) : std::nullopt);
     const size_t slot = which == internal::OverlayImage::kDepth ? 0 : 1;
     std::lock_guard cache_lock(png_mutex_);  // HTTP thread only: never contended by robots
     PngCache& cached = png_cache_[slot];
-    if (cached.png && cached.seq == d.seq && cached.served == served) return cached.png;
-    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, grasps, served);
+    if (cached.png && cached.seq == d.seq && cached.states == states) return cached.png;
+    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, grasps, states);
     cached.seq = d.seq;
-    cached.served = served;
+    cached.states = states;
     return cached.png;
   }
 
@@ -481,9 +487,46 @@ class StatusState::Impl {
   std::map<int, std::string> part_names_;
   std::shared_ptr<ErrorSink> sink_;
 
+  // Each grasp's state. With `contents` (the live queue): queued ones are
+  // next / queued, withdrawn ones withdrawn, the rest handed out. Without
+  // it, the first total - left were handed out (GraspQueue pops from the front).
+  static std::vector<internal::GraspState> GraspStates(const std::vector<Grasp>& grasps, int left,
+                                                       const std::optional<GraspQueue::Contents>& contents) {
+    using internal::GraspState;
+    std::vector<GraspState> states(grasps.size(), GraspState::kQueued);
+    const int total = static_cast<int>(grasps.size());
+    if (!contents) {
+      const int served = total - left;
+      for (int i = 0; i < total; ++i) {
+        states[static_cast<size_t>(i)] = i < served ? GraspState::kServed : i == served ? GraspState::kNext
+                                                                                         : GraspState::kQueued;
+      }
+      return states;
+    }
+    auto has = [](const std::vector<int>& ids, int id) { return std::find(ids.begin(), ids.end(), id) != ids.end(); };
+    for (size_t i = 0; i < grasps.size(); ++i) {
+      const int id = grasps[i].instance_id;
+      if (has(contents->queued, id)) {
+        states[i] = !contents->queued.empty() && contents->queued.front() == id ? GraspState::kNext : GraspState::kQueued;
+      } else {
+        states[i] = has(contents->withdrawn, id) ? GraspState::kWithdrawn : GraspState::kServed;
+      }
+    }
+    return states;
+  }
+  static const char* StateName(internal::GraspState s) {
+    switch (s) {
+      case internal::GraspState::kServed: return "served";
+      case internal::GraspState::kNext: return "next";
+      case internal::GraspState::kQueued: return "queued";
+      case internal::GraspState::kWithdrawn: return "withdrawn";
+    }
+    return "?";
+  }
+
   struct PngCache {
     uint64_t seq = 0;
-    int served = -1;
+    std::vector<internal::GraspState> states;
     std::optional<std::vector<uint8_t>> png;
   };
   mutable std::mutex png_mutex_;
@@ -491,6 +534,7 @@ class StatusState::Impl {
 
   mutable std::mutex mutex_;
   std::function<int(int)> queue_size_;    // GUARDED_BY(mutex_); called outside it
+  QueueContentsProbe queue_contents_;     // GUARDED_BY(mutex_); called outside it
   CalibrationProbe calibration_probe_;    // GUARDED_BY(mutex_); called outside it
   Detection last_;                        // GUARDED_BY(mutex_)
   Queue queue_;                           // GUARDED_BY(mutex_)
@@ -522,6 +566,10 @@ void StatusState::OnAnswer(const AnswerEvent& event) {
 void StatusState::SetQueueProbe(std::function<int(int)> queue_size) {
   std::lock_guard lock(impl_->mutex_);
   impl_->queue_size_ = std::move(queue_size);
+}
+void StatusState::SetQueueContentsProbe(QueueContentsProbe probe) {
+  std::lock_guard lock(impl_->mutex_);
+  impl_->queue_contents_ = std::move(probe);
 }
 void StatusState::SetCalibrationProbe(CalibrationProbe probe) {
   std::lock_guard lock(impl_->mutex_);

@@ -24,6 +24,7 @@
 
 #include "comms/server_observer.h"
 #include "core/cell.h"
+#include "grasp/grasp_queue.h"
 #include "web/metrics.h"
 
 namespace spdlog::sinks {
@@ -52,6 +53,12 @@ class StatusState final : public ServerObserver {
   // Grasps left in a task's queue (RequestHandler::QueueSize), so the page
   // can mark the grasps already handed out. Thread-safe; called on the HTTP thread.
   void SetQueueProbe(std::function<int(int task_id)> queue_size);
+  // The queued and withdrawn grasps of a task (RequestHandler::QueueContents):
+  // with it the page tells grasps handed out from grasps withdrawn as stale
+  // (docs/protocols.md, "Stale grasps"); without it, every grasp no longer
+  // queued counts as handed out. Thread-safe; called on the HTTP thread.
+  using QueueContentsProbe = std::function<std::optional<GraspQueue::Contents>(int task_id)>;
+  void SetQueueContentsProbe(QueueContentsProbe probe);
   // Calibration hook: rows (name, value) shown under "Calibration", replacing
   // what the state infers from answers (mode, poses accumulated, last status).
   // The calibration engine sets it once it has a state to show. Thread-safe;

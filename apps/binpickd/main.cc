@@ -238,6 +238,7 @@ int main(int argc, char** argv) {
   bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);
   if (status) {
     status->SetQueueProbe([&handler](int task_id) { return handler.QueueSize(task_id); });
+    status->SetQueueContentsProbe([&handler](int task_id) { return handler.QueueContents(task_id); });
     handler.AddObserver(status);
   }
 

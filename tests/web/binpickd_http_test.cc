@@ -64,7 +64,10 @@ TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
   EXPECT_EQ(j["cell"], "default");
   EXPECT_EQ(j["detection"]["outcome"], "grasps");
   EXPECT_FALSE(j["detection"]["stages"].empty());
-  EXPECT_EQ(j["queue"]["total"], picks);  // one capture, every grasp picked
+  // One capture: every grasp handed out, or withdrawn as stale when a part
+  // it touched was picked (docs/protocols.md, "Stale grasps").
+  const int withdrawn = j["queue"]["withdrawn"];
+  EXPECT_EQ(j["queue"]["total"], picks + withdrawn);
   EXPECT_EQ(j["queue"]["remaining"], 0);
   ASSERT_EQ(j["robots"].size(), 1u);
   EXPECT_FALSE(j["robots"][0]["pose"].is_null());
@@ -94,6 +97,12 @@ TEST(BinpickdHttp, StatusApiMetricsAndPageAgreeWithWhatTheRobotWasTold) {
       ++served;
     }
     EXPECT_EQ(served, static_cast<size_t>(picks)) << dom.out;
+    size_t withdrawn_rows = 0;
+    for (size_t at = dom.out.find("<tr class=\"grasp withdrawn\""); at != std::string::npos;
+         at = dom.out.find("<tr class=\"grasp withdrawn\"", at + 1)) {
+      ++withdrawn_rows;
+    }
+    EXPECT_EQ(withdrawn_rows, static_cast<size_t>(withdrawn)) << dom.out;
   } else {
     std::cout << "chromium absent: the page was not loaded in a browser here\n";
   }

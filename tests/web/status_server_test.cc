@@ -61,6 +61,7 @@ struct Stack {
     handler = std::make_unique<RequestHandler>(cell, std::make_shared<webtest::FramePlanner>(script),
                                                nullptr);
     status->SetQueueProbe([h = handler.get()](int task) { return h->QueueSize(task); });
+    status->SetQueueContentsProbe([h = handler.get()](int task) { return h->QueueContents(task); });
     handler->AddObserver(status);
     options.port = 0;
     auto started = StatusServer::Start(*status, metrics, options);
@@ -80,6 +81,28 @@ json GetJson(int port, const std::string& target) {
   EXPECT_EQ(r.status, 200);
   EXPECT_EQ(r.content_type, "application/json");
   return json::parse(r.body);
+}
+
+// Grasps 1 and 3 touch part 0 (Grasp::stale_after): once 0 is handed out the
+// page shows them withdrawn, not handed out, and 2 next.
+TEST(StatusServer, GraspsWithdrawnAsStaleAreShownWithdrawnNotServed) {
+  Stack s;
+  ClientContext robot;
+  testing::ScriptedPlanner::Script five = Grasps(5);
+  five.stale_after = {{1, {0}}, {3, {0}}};
+  s.script->SetScript(1, five);
+  ASSERT_TRUE(s.handler->Handle(Req(daoai::kCaptureAndProcess, 1), robot).has_value());
+  const auto pick = s.handler->Handle(Req(daoai::kPickPose, 1), robot);
+  ASSERT_TRUE(pick.has_value());
+  ASSERT_EQ(pick->status, daoai::kObjectsFound);
+  const json q = GetJson(s.port(), "/api/status")["queue"];
+  EXPECT_EQ(q["total"], 5);
+  EXPECT_EQ(q["remaining"], 2);
+  EXPECT_EQ(q["withdrawn"], 2);
+  std::vector<std::string> states;
+  for (const json& g : q["grasps"]) states.push_back(g["state"]);
+  EXPECT_EQ(states, (std::vector<std::string>{"served", "withdrawn", "next", "withdrawn", "queued"}));
+  EXPECT_EQ(webtest::HttpRequest(s.port(), "/api/image/depth.png").status, 200);
 }
 
 TEST(StatusServer, JsonApiShowsTheQueueRobotsAndStages) {

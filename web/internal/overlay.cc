@@ -59,7 +59,8 @@ cv::Mat DepthColour(const DepthImage& depth) {
 
 std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, OverlayImage image,
                                                      const std::vector<DetectedPart>& parts,
-                                                     const std::vector<Grasp>& grasps, int served) {
+                                                     const std::vector<Grasp>& grasps,
+                                                     const std::vector<GraspState>& states) {
   if (!frame.organized()) return std::nullopt;
   cv::Mat canvas;
   if (image == OverlayImage::kDepth) {
@@ -85,9 +86,11 @@ std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, Overlay
     const Grasp& g = grasps[i];
     const auto p = Project(frame, X_CB, g.X_BT.translation());
     if (!p) continue;
-    const cv::Scalar colour = static_cast<int>(i) < served ? cv::Scalar(128, 128, 128)
-                              : static_cast<int>(i) == served ? cv::Scalar(0, 255, 0)
-                                                              : cv::Scalar(0, 255, 255);
+    const GraspState state = i < states.size() ? states[i] : GraspState::kQueued;
+    const cv::Scalar colour = state == GraspState::kServed    ? cv::Scalar(128, 128, 128)
+                              : state == GraspState::kNext      ? cv::Scalar(0, 255, 0)
+                              : state == GraspState::kWithdrawn ? cv::Scalar(0, 0, 200)
+                                                                : cv::Scalar(0, 255, 255);
     if (const auto pre = Project(frame, X_CB, g.X_BT_pre.translation())) {
       cv::line(canvas, *pre, *p, colour, scale, cv::LINE_AA);
     }

@@ -14,13 +14,17 @@ namespace bp::internal {
 
 enum class OverlayImage { kDepth, kIntensity };
 
+// Where a grasp of the drawn plan stands.
+enum class GraspState { kServed, kNext, kQueued, kWithdrawn };
+
 // Parts: a magenta circle at each part origin, labelled with its class id. Grasps:
 // the queue order number at each tool centre point with the approach line
-// from the pre-grasp; the first `served` grasps (already handed out) in grey,
-// the next one in green, the rest in yellow.
+// from the pre-grasp, by `states` (one per grasp): handed out in grey, the
+// next one in green, the rest in yellow, withdrawn as stale in red.
 // @returns nullopt when the frame is not organized or lacks the image.
 std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, OverlayImage image,
                                                      const std::vector<DetectedPart>& parts,
-                                                     const std::vector<Grasp>& grasps, int served);
+                                                     const std::vector<Grasp>& grasps,
+                                                     const std::vector<GraspState>& states);
 
 }  // namespace bp::internal

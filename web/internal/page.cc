@@ -17,6 +17,7 @@ th, td { border: 1px solid #ccc; padding: 2px 6px; text-align: right; }
 th { background: #eee; }
 td.l, th.l { text-align: left; }
 tr.served { color: #999; }
+tr.withdrawn { color: #b44; text-decoration: line-through; }
 tr.next { background: #dfd; }
 .images img { width: 48%; max-width: 960px; border: 1px solid #ccc; margin-right: 1%; background: #000; }
 .row { display: flex; flex-wrap: wrap; gap: 2em; }
