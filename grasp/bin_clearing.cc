@@ -246,8 +246,12 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     if (cycle->taken.grasps.empty() || report.cycles >= max_cycles) break;
 
     const TaskSpec& used = *cycle->used;
+    if (!options.withdraw_stale) {
+      for (Grasp& g : cycle->taken.grasps) g.stale_after.clear();
+    }
     queue.Replace(cycle->taken);
     for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
+      report.withdrawn += static_cast<int>(popped.withdrawn.size());
       const PickVerdict v = JudgePick(p, used, *popped.grasp, report.cycles, truth_parts, PileTruth(*pile),
                                       options.judge, report);
       ++report.attempts;
@@ -289,6 +293,7 @@ void ClearReport::Add(SceneClearReport scene) {
   picks += scene.picks;
   failed_picks += scene.failed_picks;
   stale_failures += scene.stale_failures;
+  withdrawn += scene.withdrawn;
   for (const auto& [cause, n] : scene.failure_causes) failure_causes[cause] += n;
   fallback_picks += scene.fallback_picks;
   cycles += scene.cycles;

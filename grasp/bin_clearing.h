@@ -48,6 +48,10 @@ struct ClearOptions {
   // seed robot program: pick poses until NO_OBJECT_FOUND); false: one pick
   // per capture.
   bool serve_queue = true;
+  // true: the queue withdraws the grasps a pick makes stale (Grasp::stale_after,
+  // as binpickd's queue does: docs/protocols.md, "Stale grasps"); false: they
+  // are served and judged (to measure what the withdrawal saves).
+  bool withdraw_stale = true;
   GraspJudgeOptions judge;
 };
 
@@ -58,6 +62,7 @@ struct SceneClearReport {
   int picks = 0;                // successful picks: a part left the bin
   int failed_picks = 0;         // grasps that took nothing (the part stays)
   int stale_failures = 0;       // of which failed on a queue made stale by an earlier pick
+  int withdrawn = 0;            // queued grasps withdrawn as stale before they were served
   int fallback_picks = 0;       // successful picks planned by a fallback task
   int cycles = 0;               // captures
   int truth_collisions = 0;     // grasps colliding with the true scene
@@ -81,7 +86,7 @@ struct ClearReport {
   std::vector<SceneClearReport> scenes;
   bool oracle = false;  // detections came from the ground-truth oracle
   // Totals.
-  int parts_placed = 0, attempts = 0, picks = 0, failed_picks = 0, stale_failures = 0, fallback_picks = 0, cycles = 0,
+  int parts_placed = 0, attempts = 0, picks = 0, failed_picks = 0, stale_failures = 0, withdrawn = 0, fallback_picks = 0, cycles = 0,
       truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0;
   std::map<std::string, int> failure_causes;
   // Appends `scene` and adds it to the totals.

@@ -38,6 +38,7 @@ struct ClearCliOptions {
   std::vector<int> fallback_task_ids;
   std::string save_left_dir;
   bool capture_every_pick = false;
+  bool keep_stale = false;
   bool variety = false;
 };
 
@@ -63,6 +64,7 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"picks", s.picks},
                       {"failed_picks", s.failed_picks},
                       {"stale_failures", s.stale_failures},
+                      {"withdrawn", s.withdrawn},
                       {"failure_causes", s.failure_causes},
                       {"fallback_picks", s.fallback_picks},
                       {"cycles", s.cycles},
@@ -87,6 +89,7 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                 {"picks", r.picks},
                 {"failed_picks", r.failed_picks},
                 {"stale_failures", r.stale_failures},
+                {"withdrawn", r.withdrawn},
                 {"failure_causes", r.failure_causes},
                 {"fallback_picks", r.fallback_picks},
                 {"cycles", r.cycles},
@@ -117,6 +120,7 @@ int Run(const ClearCliOptions& opt) {
   options.fallback_task_ids = opt.fallback_task_ids;
   options.save_left_dir = opt.save_left_dir;
   options.serve_queue = !opt.capture_every_pick;
+  options.withdraw_stale = !opt.keep_stale;
   ClearReport report;
   report.oracle = opt.oracle;
   for (int i = 0; i < opt.scenes; ++i) {
@@ -124,10 +128,10 @@ int Run(const ClearCliOptions& opt) {
     auto scene = ClearScene(*cell, seed, perception, options);
     if (!scene.ok()) return Error(scene.status());
     const SceneClearReport& s = *scene;
-    std::printf("scene seed=%llu: %d parts, %d picks (%d by a fallback task), %d failed (%d stale), %d cycles, "
-                "%d truth collisions, %d left, %s%s, %.0f ms planning%s\n",
+    std::printf("scene seed=%llu: %d parts, %d picks (%d by a fallback task), %d failed (%d stale), %d withdrawn, "
+                "%d cycles, %d truth collisions, %d left, %s%s, %.0f ms planning%s\n",
                 static_cast<unsigned long long>(seed), s.parts_placed, s.picks, s.fallback_picks, s.failed_picks,
-                s.stale_failures, s.cycles, s.truth_collisions, s.parts_left, s.said_empty ? "EMPTY" : "NOT_EMPTY",
+                s.stale_failures, s.withdrawn, s.cycles, s.truth_collisions, s.parts_left, s.said_empty ? "EMPTY" : "NOT_EMPTY",
                 s.wrong_empty_answer ? " (WRONG)" : "", s.plan_ms_total, tag);
     for (const std::string& c : s.collisions) std::printf("  collision: %s\n", c.c_str());
     for (const std::string& f : s.failures) std::printf("  failed pick: %s\n", f.c_str());
@@ -141,10 +145,10 @@ int Run(const ClearCliOptions& opt) {
   for (const auto& [cause, n] : report.failure_causes) causes += (causes.empty() ? " (" : ", ") + cause + " " + std::to_string(n);
   if (!causes.empty()) causes += ")";
   std::printf("total: %zu scenes, %d parts, %d successful picks (%d by a fallback task), %d failed picks%s, "
-              "%.2f cycles/pick, %d truth collisions, %d left (%.2f%% cleared by successful picks), "
+              "%d grasps withdrawn as stale, %.2f cycles/pick, %d truth collisions, %d left (%.2f%% cleared by successful picks), "
               "%d wrong empty answers%s\n",
               report.scenes.size(), report.parts_placed, report.picks, report.fallback_picks, report.failed_picks,
-              causes.c_str(), report.CyclesPerPick(), report.truth_collisions, report.parts_left,
+              causes.c_str(), report.withdrawn, report.CyclesPerPick(), report.truth_collisions, report.parts_left,
               100.0 * report.ClearedFraction(), report.wrong_empty_answers, tag);
   if (!opt.json_out.empty()) {
     std::ofstream out(opt.json_out);
@@ -179,6 +183,9 @@ Command ClearCommand() {
                  "source.variety, else the defaults; docs/synthetic.md)");
     sub.add_flag("--capture-every-pick", opt->capture_every_pick,
                  "capture again after every pick instead of serving the whole queue first");
+    sub.add_flag("--keep-stale", opt->keep_stale,
+                 "serve the grasps a pick makes stale instead of withdrawing them as binpickd does (docs/protocols.md, "
+                 "\"Stale grasps\"): measures what the withdrawal saves");
     sub.add_flag("--oracle", opt->oracle,
                  "use ground-truth detections instead of perception (does NOT measure perception)");
     return [opt] { return Run(*opt); };
