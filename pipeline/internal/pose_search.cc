@@ -482,7 +482,10 @@ std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<
   }
   std::stable_sort(looks.begin(), looks.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
   int tries = kAlternativeTriesPerAlternative * opt_.max_alternatives;
-  for (const auto& [X, net] : looks) {
+  for (const auto& look : looks) {
+    // Not a structured binding: clang 14 (the sanitizer builds) cannot
+    // capture one in a lambda.
+    const Pose& X = look.first;
     if (static_cast<int>(out.size()) >= opt_.max_alternatives || tries-- <= 0) break;
     if (std::any_of(out.begin(), out.end(), [&](const Pose& Y) { return !Distinct(X, Y); })) continue;
     // As looked at first: a turn the view cannot tell from c (a hidden
