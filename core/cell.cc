@@ -260,6 +260,7 @@ class Parser {
   // counter-clockwise.
   std::vector<Eigen::Vector2d> Polygon(const YAML::Node& n, const std::string& key) const;
   Flat2DSpec ParseFlat2D(const YAML::Node& n, const std::string& path, const Cell& cell) const;
+  PartPerception ParsePartPerception(const YAML::Node& n, const std::string& path) const;
 
   // ---- paths --------------------------------------------------------------
   std::string Resolve(const std::string& p) const {
@@ -716,7 +717,7 @@ void Parser::ParseParts(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node p = n[i];
     const std::string path = At("parts", i);
-    ExpectMap(p, path, {"class_id", "name", "mesh", "symmetry", "grasps", "flat_2d"});
+    ExpectMap(p, path, {"class_id", "name", "mesh", "symmetry", "grasps", "flat_2d", "optional", "perception"});
     PartSpec part;
     part.class_id = Int(Req(p, path, "class_id"), Join(path, "class_id"));
     Check(part.class_id >= 0, p["class_id"], Join(path, "class_id"), "must be >= 0");
@@ -742,6 +743,10 @@ void Parser::ParseParts(const YAML::Node& n, Cell& cell) const {
       }
     }
     if (const YAML::Node f = p["flat_2d"]; f.IsDefined()) part.flat_2d = ParseFlat2D(f, Join(path, "flat_2d"), cell);
+    part.optional = OptBool(p, path, "optional", false);
+    if (const YAML::Node q = p["perception"]; q.IsDefined()) {
+      part.perception = ParsePartPerception(q, Join(path, "perception"));
+    }
     cell.parts.push_back(std::move(part));
   }
 }
@@ -797,6 +802,42 @@ std::vector<Eigen::Vector2d> Parser::Polygon(const YAML::Node& n, const std::str
   Check(std::abs(area) > 1e-10, n, key, "polygon has no area");
   if (area < 0) std::reverse(poly.begin(), poly.end());
   return poly;
+}
+
+PartPerception Parser::ParsePartPerception(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"ppf_step", "icp_spacing", "verify_spacing", "support_distance", "free_space_distance",
+                      "min_score", "flat_height", "min_view_points"});
+  PartPerception q;
+  // A length in (0, max] metres.
+  const auto length = [&](const char* key, double max, std::optional<double>* out) {
+    const YAML::Node v = n[key];
+    if (!v.IsDefined()) return;
+    const double x = Number(v, Join(path, key));
+    Check(x > 0 && x <= max, v, Join(path, key),
+          "must be in (0, " + FormatNumber(max) + "] m, got " + FormatNumber(x) + " (metres, not millimetres)");
+    *out = x;
+  };
+  length("ppf_step", 0.1, &q.ppf_step);
+  length("icp_spacing", 0.02, &q.icp_spacing);
+  length("verify_spacing", 0.05, &q.verify_spacing);
+  length("support_distance", 0.05, &q.support_distance);
+  length("free_space_distance", 0.1, &q.free_space_distance);
+  length("flat_height", 1.0, &q.flat_height);
+  if (const YAML::Node v = n["min_score"]; v.IsDefined()) {
+    const double x = Number(v, Join(path, "min_score"));
+    Check(x >= 0 && x <= 1, v, Join(path, "min_score"), "must be in [0, 1], got " + FormatNumber(x));
+    q.min_score = x;
+  }
+  if (const YAML::Node v = n["min_view_points"]; v.IsDefined()) {
+    const int x = Int(v, Join(path, "min_view_points"));
+    Check(x >= 10, v, Join(path, "min_view_points"), "must be >= 10 grid points, got " + std::to_string(x));
+    q.min_view_points = x;
+  }
+  if (q.support_distance && q.free_space_distance) {
+    Check(*q.free_space_distance > *q.support_distance, n["free_space_distance"], Join(path, "free_space_distance"),
+          "must be larger than support_distance");
+  }
+  return q;
 }
 
 Flat2DSpec Parser::ParseFlat2D(const YAML::Node& n, const std::string& path, const Cell& cell) const {

@@ -165,6 +165,20 @@ struct Flat2DSpec {
   std::vector<Grasp2DSpec> grasps;
 };
 
+// parts[].perception: overrides of the values perception derives for the
+// part from its mesh and the camera (docs/perception_pipeline.md, "Settings
+// that scale"). Unset = derived. Metres unless named otherwise.
+struct PartPerception {
+  std::optional<double> ppf_step;             // PPF sampling distance, (0, 0.1]
+  std::optional<double> icp_spacing;          // dense model samples, (0, 0.02]
+  std::optional<double> verify_spacing;       // verification samples, (0, 0.05]
+  std::optional<double> support_distance;     // (0, 0.05]
+  std::optional<double> free_space_distance;  // (0, 0.1]
+  std::optional<double> min_score;            // estimator's bar, [0, 1]
+  std::optional<double> flat_height;          // lowest upward face lying flat (floor band), (0, 1]
+  std::optional<int> min_view_points;         // grid points a view of it needs, >= 10
+};
+
 struct PartSpec {
   int class_id = 0;
   std::string name;
@@ -172,6 +186,10 @@ struct PartSpec {
   Symmetry symmetry;
   std::vector<GraspSpec> grasps;
   std::optional<Flat2DSpec> flat_2d;  // parts[].flat_2d: the part in 2D tasks
+  // parts[].optional: binpickd starts without this class when its model
+  // cannot be built (logged); without it, it refuses to start.
+  bool optional = false;
+  PartPerception perception;
 };
 
 // When a grasp needs its contact region shown by the frame's depth

@@ -586,6 +586,56 @@ Result<TriangleMesh> LoadMesh(const std::string& path) {
   return Corrupt(path, "unrecognised mesh format (expected PLY or STL)");
 }
 
+namespace {
+
+// The unit a header text names: whole words, case-insensitive.
+std::string UnitInText(const std::string& text) {
+  std::string word;
+  std::vector<std::string> words;
+  for (const char c : Lower(text) + " ") {
+    if (std::isalpha(static_cast<unsigned char>(c))) {
+      word += c;
+    } else if (!word.empty()) {
+      words.push_back(word);
+      word.clear();
+    }
+  }
+  for (const std::string& w : words) {
+    if (w == "mm" || w == "millimeter" || w == "millimeters" || w == "millimetre" || w == "millimetres") {
+      return "millimetres";
+    }
+    if (w == "cm" || w == "centimeter" || w == "centimeters" || w == "centimetre" || w == "centimetres") {
+      return "centimetres";
+    }
+    if (w == "inch" || w == "inches") return "inches";
+  }
+  for (size_t i = 0; i < words.size(); ++i) {
+    const std::string& w = words[i];
+    if (w == "meter" || w == "meters" || w == "metre" || w == "metres") return "metres";
+    if ((w == "unit" || w == "units") && i + 1 < words.size() && words[i + 1] == "m") return "metres";
+  }
+  return "";
+}
+
+}  // namespace
+
+std::string MeshUnitHint(const std::string& path) {
+  Result<std::string> data = ReadWholeFile(path);
+  if (!data.ok() || data->empty()) return "";
+  const std::string& d = *data;
+  if (d.compare(0, 3, "ply") == 0) {
+    const size_t end = d.find("end_header");
+    std::istringstream header(d.substr(0, end == std::string::npos ? std::min<size_t>(d.size(), 4096) : end));
+    std::string line, text;
+    while (std::getline(header, line)) {
+      if (line.rfind("comment", 0) == 0 || line.rfind("obj_info", 0) == 0) text += line + "\n";
+    }
+    return UnitInText(text);
+  }
+  if (d.compare(0, 5, "solid") == 0) return UnitInText(d.substr(0, std::min(d.find('\n'), size_t{256})));
+  return UnitInText(d.substr(0, std::min<size_t>(d.size(), 80)));  // binary STL header
+}
+
 // ---------------------------------------------------------------------------
 // Writing
 

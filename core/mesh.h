@@ -28,6 +28,12 @@ struct TriangleMesh {
 
 // @returns Corruption / NotFound / InvalidArgument with the file name on error.
 Result<TriangleMesh> LoadMesh(const std::string& path);
+// The length unit a mesh file's header declares, if any: "millimetres",
+// "centimetres", "inches" or "metres" from a PLY comment or obj_info line,
+// a binary STL's 80-byte header or an ASCII STL's solid line (words such as
+// "mm", "millimeter", "units=cm", "inch"); "" when it declares none or the
+// file cannot be read. binpick meshes are in metres.
+std::string MeshUnitHint(const std::string& path);
 // Writes binary little-endian PLY.
 Status SaveMeshPly(const TriangleMesh& mesh, const std::string& path);
 

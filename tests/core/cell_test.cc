@@ -358,6 +358,18 @@ std::vector<BadCase> BadCases() {
        "source.variety.drop_styles[1]", "unknown drop style 'tossed'"},
       {"noise_mixed_pixels_above_one", "random_dropout: 0.0}", "random_dropout: 0.0, mixed_pixels: 2}",
        "camera.configs[0].noise.mixed_pixels", "must be in [0, 1]"},
+      {"part_perception_unknown_key", "    mesh: meshes/tee.ply", "    mesh: meshes/tee.ply\n    perception: {suport_distance: 0.002}",
+       "parts[1].perception.suport_distance", "unknown key"},
+      {"part_perception_in_millimetres", "    mesh: meshes/tee.ply", "    mesh: meshes/tee.ply\n    perception: {support_distance: 2}",
+       "parts[1].perception.support_distance", "not millimetres"},
+      {"part_perception_free_space_below_support", "    mesh: meshes/tee.ply",
+       "    mesh: meshes/tee.ply\n    perception: {support_distance: 0.004, free_space_distance: 0.003}",
+       "parts[1].perception.free_space_distance", "larger than support_distance"},
+      {"part_perception_min_view_points_small", "    mesh: meshes/tee.ply",
+       "    mesh: meshes/tee.ply\n    perception: {min_view_points: 3}", "parts[1].perception.min_view_points",
+       "must be >= 10"},
+      {"part_optional_not_bool", "    mesh: meshes/tee.ply", "    mesh: meshes/tee.ply\n    optional: maybe",
+       "parts[1].optional", "expected true or false"},
       {"yaml_syntax_error", "  kind: synthetic", "  kind: [synthetic", "cell.yaml:", "YAML syntax error", C::kCorruption},
   };
 }
@@ -437,6 +449,27 @@ TEST_F(CellFileTest, SeenContactDefaultsByGripperKindAndIsParsed) {
   EXPECT_DOUBLE_EQ(r.radius, 0.01);
   EXPECT_DOUBLE_EQ(r.pad_width, 0.03);
   EXPECT_DOUBLE_EQ(r.pad_depth, 0.02);
+}
+
+TEST_F(CellFileTest, PartPerceptionOverridesAndOptionalAreParsedAndUnsetByDefault) {
+  Result<Cell> plain = LoadCell(Write(kBaseCell));
+  ASSERT_TRUE(plain.ok()) << plain.status().ToString();
+  EXPECT_FALSE(plain->FindPart(1)->optional);
+  EXPECT_FALSE(plain->FindPart(1)->perception.support_distance.has_value());
+  EXPECT_FALSE(plain->FindPart(1)->perception.min_view_points.has_value());
+  Result<Cell> cell = LoadCell(Write(Mutate(kBaseCell, "    mesh: meshes/tee.ply",
+                                            "    mesh: meshes/tee.ply\n    optional: true\n"
+                                            "    perception: {support_distance: 0.002, min_view_points: 40, "
+                                            "flat_height: 0.003, min_score: 0.5}")));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  const PartSpec& tee = *cell->FindPart(1);
+  EXPECT_TRUE(tee.optional);
+  EXPECT_DOUBLE_EQ(tee.perception.support_distance.value_or(0), 0.002);
+  EXPECT_EQ(tee.perception.min_view_points.value_or(0), 40);
+  EXPECT_DOUBLE_EQ(tee.perception.flat_height.value_or(0), 0.003);
+  EXPECT_DOUBLE_EQ(tee.perception.min_score.value_or(0), 0.5);
+  EXPECT_FALSE(tee.perception.ppf_step.has_value());
+  EXPECT_FALSE(cell->FindPart(0)->optional);
 }
 
 TEST_F(CellFileTest, ErrorMessageStartsWithFileAndLineOfTheOffendingValue) {
