@@ -20,6 +20,7 @@
 #include "pipeline/internal/class_model.h"
 #include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
+#include "pipeline/internal/part_settings.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
 #include "pipeline/internal/view_matching.h"
@@ -83,7 +84,7 @@ StageData& Data() {
     if (!frame.ok()) return data;
     data->frame = std::move(*frame);
     for (const PartSpec& part : data->cell.parts) {
-      auto model = BuildClassModel(part);
+      auto model = BuildClassModel(part, CameraFiguresOf(data->cell, data->options));
       if (!model.ok()) return data;
       data->models.push_back(model->get());
       data->owned.push_back(std::move(*model));

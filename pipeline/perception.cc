@@ -6,6 +6,7 @@
 #include <map>
 #include <utility>
 
+#include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -13,6 +14,7 @@
 #include "pipeline/internal/class_model.h"
 #include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
+#include "pipeline/internal/part_settings.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
 #include "pipeline/internal/view_matching.h"
@@ -61,6 +63,7 @@ internal::SegmentationOptions SegmentationOptionsOf(const PerceptionOptions& o) 
   s.min_segment_points = o.min_segment_points;
   s.match_regions = o.match_regions;
   s.match_fragmented_regions = o.match_fragmented_regions;
+  s.floor_band = static_cast<float>(o.floor_band);
   return s;
 }
 
@@ -92,6 +95,7 @@ class PerceptionImpl final : public Perception {
 
   Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
                                PerceptionEffort effort) const override;
+  const PerceptionOptions& options() const override { return options_; }
 
  private:
   // The models of the requested classes (empty = all) and why the others
@@ -273,6 +277,8 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
+  if (!(options.floor_band > 0.0)) return Status::InvalidArgument("perception: floor_band must be > 0");
+  if (options.min_segment_points < 1) return Status::InvalidArgument("perception: min_segment_points must be >= 1");
   if (!(options.rank_planar_share_weight >= 0.0) || !std::isfinite(options.rank_planar_share_weight)) {
     return Status::InvalidArgument("perception: rank_planar_share_weight must be finite and >= 0");
   }
@@ -281,24 +287,49 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
       return Status::InvalidArgument("perception: view_waves must be positive and strictly decreasing");
     }
   }
+  const internal::CameraFigures camera = internal::CameraFiguresOf(cell, options);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(cell.parts.size());
   for (size_t i = 0; i < cell.parts.size(); ++i) built.emplace_back(Status::Internal("not built"));
   tbb::task_arena arena(options.threads);
   arena.execute([&] {
     tbb::parallel_for(size_t{0}, cell.parts.size(),
-                      [&](size_t i) { built[i] = internal::BuildClassModel(cell.parts[i]); });
+                      [&](size_t i) { built[i] = internal::BuildClassModel(cell.parts[i], camera); });
   });
   std::vector<std::unique_ptr<ClassModel>> models;
   std::map<int, std::string> failures;
+  std::string required_failures;
+  std::vector<internal::ClassFigures> figures;
   for (size_t i = 0; i < built.size(); ++i) {
-    if (built[i].ok()) {
-      models.push_back(std::move(built[i]).value());
-    } else {
-      failures[cell.parts[i].class_id] = built[i].status().message();
+    const PartSpec& part = cell.parts[i];
+    if (!built[i].ok()) {
+      const std::string why = built[i].status().message();
+      spdlog::error("perception: no model for part '{}' (class {}{}): {}", part.name, part.class_id,
+                    part.optional ? ", optional: left out" : "", why);
+      failures[part.class_id] = why;
+      if (!part.optional) required_failures += (required_failures.empty() ? "" : "; ") + why;
+      continue;
     }
+    const ClassModel& m = **built[i];
+    figures.push_back({m.diameter(), part.perception.flat_height.value_or(m.lowest_upward_face()),
+                       part.perception.min_view_points.value_or(0)});
+    const PoseEstimatorOptions& o = m.estimator_options();
+    spdlog::info("perception: part '{}' (class {}), {:.1f} mm across: ppf step {:.2f} mm, icp spacing {:.2f} mm, "
+                 "verify spacing {:.2f} mm, support {:.2f} mm, free space {:.2f} mm, inside depth {:.2f} mm, "
+                 "lowest upward face {:.2f} mm",
+                 part.name, part.class_id, m.diameter() * 1e3, o.ppf_relative_sampling * m.diameter() * 1e3,
+                 o.icp_model_spacing * 1e3, o.verify_model_spacing * 1e3, o.support_distance * 1e3,
+                 o.free_space_distance * 1e3, m.inside_depth() * 1e3, m.lowest_upward_face() * 1e3);
+    models.push_back(std::move(built[i]).value());
   }
-  return std::unique_ptr<Perception>(std::make_unique<PerceptionImpl>(cell, options, std::move(models), std::move(failures)));
+  if (!required_failures.empty()) {
+    return Status::InvalidArgument("perception: " + required_failures +
+                                   " (mark a part `optional: true` in the cell to start without it)");
+  }
+  PerceptionOptions scaled = options;
+  const std::string changed = internal::ScaleToClasses(figures, camera, &scaled);
+  if (!changed.empty()) spdlog::info("perception: scaled to the cell's parts and camera: {}", changed);
+  return std::unique_ptr<Perception>(std::make_unique<PerceptionImpl>(cell, scaled, std::move(models), std::move(failures)));
 }
 
 }  // namespace bp

@@ -71,7 +71,11 @@ struct PerceptionResult {
 };
 
 // Defaults were chosen on the shipped cell (docs/tuning.md has the figure
-// behind each and its command). Distances in metres.
+// behind each and its command) and are the values for its parts and camera:
+// Build scales min_segment_points, floor_band, view_waves and
+// second_look_min_points to the cell's smallest and flattest parts and its
+// camera (docs/perception_pipeline.md, "Settings that scale"). Distances in
+// metres.
 struct PerceptionOptions {
   int threads = 2;  // arena size when the caller has none (Build's model tables); >= 1
   // Depth smoothing (organized frames): a frame whose axial noise at its
@@ -92,6 +96,9 @@ struct PerceptionOptions {
   double segment_convex_tolerance = -1.0;
   // Segments with fewer grid points are not matched alone (>= 1).
   int min_segment_points = 150;
+  // Grid points within this height of the bin floor whose normal is within
+  // 18 deg of up are floor, not parts (> 0); below the shipped parts' 5 mm.
+  double floor_band = 0.004;
   // Detections need this verification score, in [0, 1]; wrong hypotheses
   // that pass the estimator's lower bar score 0.35-0.87, true ones 0.9+.
   double min_detection_score = 0.7;
@@ -158,8 +165,19 @@ enum class PerceptionEffort {
 class Perception {
  public:
   virtual ~Perception() = default;
-  // Builds model tables for every part class of the cell (slow, once).
+  // Builds model tables for every part class of the cell (slow, once), with
+  // the settings scaled to its parts and camera. Every class whose model
+  // cannot be built is logged; InvalidArgument naming each of them unless
+  // the cell marks it optional (then it is left out). A mesh in the wrong
+  // unit is refused naming the likely unit.
   static Result<std::unique_ptr<Perception>> Build(const Cell& cell, const PerceptionOptions& options = {});
+  // The options in use: Build's, scaled to the cell's parts and camera.
+  // Implementations that do not segment (TruthPerception, test doubles)
+  // keep the defaults.
+  virtual const PerceptionOptions& options() const {
+    static const PerceptionOptions defaults;
+    return defaults;
+  }
   // Detects parts of `classes` (empty = all cell parts) in `frame`. Empty ROI,
   // an all-NaN frame or degenerate segments give an OK result with no
   // detections and a reason; never a pose built from NaNs.

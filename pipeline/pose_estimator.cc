@@ -25,6 +25,14 @@ using internal::OrientedPoints;
 using internal::PoseModel;
 
 constexpr uint64_t kSamplingSeed = 0x5eed;
+// PoseModel::lowest_upward_face: faces within 18 deg of up, as the
+// segmentation's floor band (SegmentationOptions::floor_min_normal_z).
+constexpr float kUpwardFaceMinCos = 0.95f;
+// Caps of what one part's model may take: dense samples (24 bytes each) and
+// closest-point field voxels (8 bytes each while it is built). A mesh past them is far
+// larger than a part or in the wrong unit.
+constexpr double kMaxDenseSamples = 2e6;
+constexpr double kMaxFieldVoxels = 32e6;
 
 // PoseModel::id: one per built model, never reused in the process.
 uint64_t NextModelId() {
@@ -36,6 +44,25 @@ uint64_t NextModelId() {
 // and the centroid.
 Status SampleModel(const TriangleMesh& mesh, PoseModel& m) {
   const PoseEstimatorOptions& options = m.options;
+  const double samples = internal::SurfaceArea(mesh) / (options.icp_model_spacing * options.icp_model_spacing);
+  if (!(samples <= kMaxDenseSamples)) {
+    return Status::InvalidArgument("pose estimator: the mesh's surface would take " + std::to_string(samples) +
+                                   " samples at " + std::to_string(options.icp_model_spacing) + " m (at most " +
+                                   std::to_string(static_cast<int64_t>(kMaxDenseSamples)) +
+                                   "): the mesh is far larger than a part, or not in metres");
+  }
+  Eigen::AlignedBox3f box;
+  for (const Eigen::Vector3f& v : mesh.vertices) box.extend(v);
+  const double voxel = std::max(0.001, options.icp_model_spacing);
+  const double band = std::max(options.icp_initial_relative_distance * options.ppf_relative_sampling *
+                                   static_cast<double>(box.diagonal().norm()),
+                               2 * options.icp_final_distance);
+  const Eigen::Vector3d cells = ((box.sizes().cast<double>().array() + 2 * (band + voxel)) / voxel).matrix();
+  if (!(cells.prod() <= kMaxFieldVoxels)) {
+    return Status::InvalidArgument("pose estimator: the closest-point field over the mesh's box would take " +
+                                   std::to_string(cells.prod()) + " voxels (at most " +
+                                   std::to_string(static_cast<int64_t>(kMaxFieldVoxels)) + "): not in metres?");
+  }
   m.dense = internal::SampleSurface(mesh, options.icp_model_spacing, kSamplingSeed);
   if (m.dense.size() < 100) {
     return Status::InvalidArgument("pose estimator: mesh has (almost) no surface area at spacing " +
@@ -60,9 +87,11 @@ void BuildShapeTables(const TriangleMesh& mesh, PoseModel& m) {
   m.verify = internal::VoxelDownsample(m.dense, options.verify_model_spacing, 45.0);
   m.ppf_points = internal::VoxelDownsample(m.dense, m.step, 30.0);
   m.faces = internal::PlanarFaces(mesh, m.dense, static_cast<float>(options.hole_margin), &m.holes);
+  m.thinnest_plate = internal::ThinnestPlate(m.faces);
   m.ppf_extreme = internal::ExtremePoints(m.ppf_points.points);
   m.verify_extreme = internal::ExtremePoints(m.verify.points);
   internal::AnchorRestingPoses(m.ppf_points, m.rests);
+  m.lowest_upward_face = internal::LowestUpwardFace(m.dense, m.rests, kUpwardFaceMinCos);
 }
 
 // Build, step 3: the ICP structures (they index the dense samples in Morton

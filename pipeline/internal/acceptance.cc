@@ -19,10 +19,9 @@ constexpr double kMaxSharedSupport = 0.5;
 // later one's support are the ones it conflicts with.
 constexpr double kSharedOwner = 0.1;
 // Parts of a pile never interpenetrate: a candidate conflicts when more than
-// kMaxInsideFraction of its surface samples lie at least kInsideDepth inside
-// an accepted detection's material, or the other way round
-// (ClassModel::CountInside; kInsideDepth below half the thinnest wall).
-constexpr float kInsideDepth = 0.001f;
+// kMaxInsideFraction of its surface samples lie inside an accepted
+// detection's material (deeper than its ClassModel::inside_depth), or the
+// other way round.
 constexpr double kMaxInsideFraction = 0.03;
 // A view point is explained by a detection within this of its surface.
 constexpr float kExplainedDistance = 0.0025f;
@@ -69,8 +68,9 @@ std::vector<size_t> Acceptance::Interpenetrated(const Candidate& c) const {
     const Accepted& a = accepted_[k];
     const ClassModel* km = ModelOf(detections_[k].class_id);
     const double limit_theirs = kMaxInsideFraction * static_cast<double>(a.surface_B.size());
-    inside[j] = static_cast<double>(km->CountInside(detections_[k].X_BO, mine, kInsideDepth)) > limit_mine ||
-                static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, kInsideDepth)) > limit_theirs;
+    inside[j] =
+        static_cast<double>(km->CountInside(detections_[k].X_BO, mine, km->inside_depth())) > limit_mine ||
+        static_cast<double>(cm->CountInside(c.h.X_BO, a.surface_B, cm->inside_depth())) > limit_theirs;
   });
   for (size_t j = 0; j < near.size(); ++j) {
     if (inside[j]) hit.push_back(near[j]);

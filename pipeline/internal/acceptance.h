@@ -21,7 +21,8 @@ namespace bp::internal {
 // detection whose surface centre is within 0.3 of the larger diameter of its
 // own, that holds a tenth of its support when more than half of that is
 // already claimed, or that it interpenetrates (3% of either's surface
-// samples 1 mm or more inside the other: parts of a pile never do). It is
+// samples inside the other, ClassModel::inside_depth: parts of a pile never
+// do). It is
 // dropped when a detection it conflicts with scores as well, else it
 // replaces them all. Not thread-safe; Accept runs its interpenetration
 // tests in parallel on the caller's oneTBB arena.

@@ -8,11 +8,18 @@
 #include "core/mesh.h"
 
 #include "pipeline/internal/model_sampling.h"
+#include "pipeline/internal/part_settings.h"
+#include "pipeline/internal/pose_model.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp::internal {
 
 namespace {
+
+// CountInside depth for acceptance: this, or this fraction of the thinnest
+// plate when that is less (the field sees the nearer face past half a wall).
+constexpr double kInsideDepth = 0.001;
+constexpr double kInsideWallFraction = 0.4;
 
 SceneView ToScene(const SegmentView& view) {
   SceneView scene;
@@ -33,7 +40,14 @@ class PpfClassModel final : public ClassModel {
  public:
   PpfClassModel(int class_id, std::unique_ptr<PoseEstimator> estimator, std::pair<float, float> planar_share)
       : class_id_(class_id), estimator_(std::move(estimator)),
-        extents_(PrincipalExtents(estimator_->surface_points_O())), planar_share_(planar_share) {}
+        extents_(PrincipalExtents(estimator_->surface_points_O())), planar_share_(planar_share),
+        inside_depth_(static_cast<float>(
+            std::min(kInsideDepth, kInsideWallFraction * PoseEstimatorAccess::Model(*estimator_).thinnest_plate))) {}
+  float inside_depth() const override { return inside_depth_; }
+  double lowest_upward_face() const override { return PoseEstimatorAccess::Model(*estimator_).lowest_upward_face; }
+  const PoseEstimatorOptions& estimator_options() const override {
+    return PoseEstimatorAccess::Model(*estimator_).options;
+  }
   int class_id() const override { return class_id_; }
   double diameter() const override { return estimator_->diameter(); }
   Eigen::Vector3f extents() const override { return extents_; }
@@ -84,6 +98,7 @@ class PpfClassModel final : public ClassModel {
   std::unique_ptr<PoseEstimator> estimator_;
   Eigen::Vector3f extents_;
   std::pair<float, float> planar_share_;
+  float inside_depth_;
 };
 
 // Absolute and relative slack of SegmentFitsClass: depth noise and normal-
@@ -206,14 +221,22 @@ bool SegmentFitsClass(const Eigen::Vector3f& segment_extents, double model_diame
   return segment_extents.x() <= model_diameter * (1.0 + kFitToleranceRel) + kFitToleranceAbs;
 }
 
-Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part) {
+Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part, const CameraFigures& camera,
+                                                    const PoseEstimatorOptions& reference) {
   Result<TriangleMesh> mesh = LoadMesh(part.mesh);
   if (!mesh.ok()) return mesh.status();
-  auto estimator = PoseEstimator::Build(*mesh, part.symmetry);
+  const PartGeometry geometry = MeasureMesh(*mesh);
+  if (Status s = CheckMeshScale(geometry, MeshUnitHint(part.mesh), part.mesh); !s.ok()) {
+    return Status::InvalidArgument("part '" + part.name + "': " + s.message());
+  }
+  const PoseEstimatorOptions options = ScaledEstimatorOptions(geometry, camera, part.perception, reference);
+  auto estimator = PoseEstimator::Build(*mesh, part.symmetry, options);
   if (!estimator.ok()) {
     return Status::InvalidArgument("part '" + part.name + "': " + estimator.status().ToString());
   }
-  const OrientedPoints samples = SampleSurface(*mesh, kPlanarShareSampleSpacing, /*seed=*/1);
+  // The planar share samples: at most as many as the estimator's dense ones.
+  const double spacing = std::max(kPlanarShareSampleSpacing, options.icp_model_spacing);
+  const OrientedPoints samples = SampleSurface(*mesh, spacing, /*seed=*/1);
   const std::pair<float, float> share = ModelPlanarShareRange(samples.normals, kPlanarShareDirections);
   return std::unique_ptr<ClassModel>(
       std::make_unique<PpfClassModel>(part.class_id, std::move(*estimator), share));

@@ -17,6 +17,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/frame.h"
+#include "pipeline/internal/part_settings.h"
 #include "pipeline/internal/pose_search.h"
 #include "pipeline/pose_estimator.h"
 
@@ -70,6 +71,16 @@ class ClassModel {
   virtual size_t CountInside(const Pose& X_BO, std::span<const Eigen::Vector3f> points_B, float min_depth) const = 0;
   // Model surface samples in O (verification spacing).
   virtual std::span<const Eigen::Vector3f> surface_points_O() const = 0;
+  // How deep (metres) a point must lie in the part's material to count as
+  // inside it (CountInside for acceptance): 1 mm, or 0.4 of its thinnest
+  // plate when that is thinner (the closest-point field sees the nearer
+  // face of a wall past half its thickness).
+  virtual float inside_depth() const = 0;
+  // The lowest upward face of the part lying on the floor
+  // (internal::LowestUpwardFace), metres; infinity when none.
+  virtual double lowest_upward_face() const = 0;
+  // The estimator's options in use (scaled to the part and the camera).
+  virtual const PoseEstimatorOptions& estimator_options() const = 0;
 };
 
 // Extents of points along their principal axes (PCA), largest first, metres.
@@ -95,8 +106,13 @@ std::pair<float, float> ModelPlanarShareRange(std::span<const Eigen::Vector3f> n
 // diameter) exceeds the model's diameter plus a tolerance for sensor noise.
 bool SegmentFitsClass(const Eigen::Vector3f& segment_extents, double model_diameter);
 
-// Builds the model of one part class (loads the mesh, builds the tables).
-// @returns the mesh loader's error, or InvalidArgument naming the part.
-Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part);
+// Builds the model of one part class: loads the mesh, refuses one in the
+// wrong unit (CheckMeshScale), scales the estimator's options to the part
+// and the camera (ScaledEstimatorOptions, then the part's overrides) and
+// builds the tables. @returns the mesh loader's error, or InvalidArgument
+// naming the part.
+// camera = {}: the reference camera (the options unscaled for it).
+Result<std::unique_ptr<ClassModel>> BuildClassModel(const PartSpec& part, const CameraFigures& camera = {},
+                                                    const PoseEstimatorOptions& reference = {});
 
 }  // namespace bp::internal

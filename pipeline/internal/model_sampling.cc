@@ -7,6 +7,19 @@
 
 namespace bp::internal {
 
+double SurfaceArea(const TriangleMesh& mesh) {
+  double total = 0;
+  const int nv = static_cast<int>(mesh.vertices.size());
+  for (const Eigen::Vector3i& f : mesh.triangles) {
+    if (f.minCoeff() < 0 || f.maxCoeff() >= nv) continue;
+    const Eigen::Vector3f& a = mesh.vertices[f[0]];
+    const Eigen::Vector3f cross = (mesh.vertices[f[1]] - a).cross(mesh.vertices[f[2]] - a);
+    const double area = 0.5 * cross.norm();
+    if (area > 0 && cross.allFinite()) total += area;
+  }
+  return total;
+}
+
 OrientedPoints SampleSurface(const TriangleMesh& mesh, double spacing, uint64_t seed) {
   OrientedPoints out;
   const size_t nt = mesh.triangles.size();

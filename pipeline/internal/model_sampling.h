@@ -19,6 +19,9 @@ struct OrientedPoints {
   size_t size() const { return points.size(); }
 };
 
+// The mesh's surface area, m^2 (degenerate and out-of-range triangles: 0).
+double SurfaceArea(const TriangleMesh& mesh);
+
 // About area / spacing^2 random points (seeded), each with its face normal.
 // Degenerate (zero-area) triangles are skipped.
 OrientedPoints SampleSurface(const TriangleMesh& mesh, double spacing, uint64_t seed);

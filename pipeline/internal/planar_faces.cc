@@ -94,6 +94,22 @@ std::vector<HolePoint> FaceHoles(const TriangleMesh& mesh, const std::vector<int
 
 }  // namespace
 
+double ThinnestPlate(const std::vector<PlanarFace>& faces) {
+  double thinnest = std::numeric_limits<double>::infinity();
+  for (const PlanarFace& f : faces) {
+    for (const PlanarFace& g : faces) {
+      if (f.n.dot(g.n) > -0.99f) continue;
+      const float t = f.n.dot(f.c - g.c);
+      if (!(t > 0.f)) continue;
+      const Eigen::Vector3f d = g.c - f.c;
+      const Eigen::Vector2f gc(d.dot(f.u), d.dot(f.v));
+      if ((gc.array() < f.lo.array()).any() || (gc.array() > f.hi.array()).any()) continue;
+      thinnest = std::min(thinnest, static_cast<double>(t));
+    }
+  }
+  return thinnest;
+}
+
 std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoints& dense, float hole_margin,
                                     std::vector<HolePoint>* holes) {
   struct Group {

@@ -42,4 +42,9 @@ struct HolePoint {
 std::vector<PlanarFace> PlanarFaces(const TriangleMesh& mesh, const OrientedPoints& dense, float hole_margin,
                                     std::vector<HolePoint>* holes);
 
+// The thinnest plate among the faces: the smallest distance between a face
+// and an antiparallel face behind it whose centre falls inside its box;
+// infinity when there is none. Metres.
+double ThinnestPlate(const std::vector<PlanarFace>& faces);
+
 }  // namespace bp::internal

@@ -46,6 +46,8 @@ struct PoseModel {
   std::vector<HolePoint> holes;
   std::vector<Pose> near_symmetries;  // PoseEstimatorOptions::near_symmetry_min_overlap
   std::vector<TurnAxis> turn_axes;    // PoseEstimatorOptions::turn_step_deg
+  double thinnest_plate = 0;          // ThinnestPlate of the faces; infinity: none
+  double lowest_upward_face = 0;      // LowestUpwardFace of the dense samples (cos 18 deg); infinity: none
 
   // The closest-point field's bounding sphere (ClosestPointField::grid_radius)
   // at X_BO: centre in B, squared radius.

@@ -112,6 +112,19 @@ void AnchorRestingPoses(const OrientedPoints& samples, std::vector<RestingPose>&
   }
 }
 
+double LowestUpwardFace(const OrientedPoints& samples, const std::vector<RestingPose>& rests, float min_up) {
+  double lowest = std::numeric_limits<double>::infinity();
+  for (const RestingPose& rest : rests) {
+    float contact = -std::numeric_limits<float>::infinity();
+    for (const Eigen::Vector3f& p : samples.points) contact = std::max(contact, rest.down.dot(p));
+    for (size_t i = 0; i < samples.size(); ++i) {
+      if (-samples.normals[i].dot(rest.down) < min_up) continue;
+      lowest = std::min(lowest, static_cast<double>(contact - rest.down.dot(samples.points[i])));
+    }
+  }
+  return lowest;
+}
+
 void AppendRestingSeeds(const PoseModel& m, std::span<const Eigen::Vector3f> scene,
                         std::span<const Eigen::Vector3f> sub_p, std::span<const Eigen::Vector3f> sub_n,
                         const Eigen::Vector4d& plane, std::vector<CoarsePose>& coarse) {

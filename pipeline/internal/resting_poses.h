@@ -39,6 +39,12 @@ std::vector<RestingPose> RestingPoses(const TriangleMesh& mesh, std::span<const 
 // Sets each resting pose's seed anchors (top_O, up_O) over `samples`.
 void AnchorRestingPoses(const OrientedPoints& samples, std::vector<RestingPose>& rests);
 
+// The lowest upward face of the part over its resting orientations: the
+// smallest height above the floor of a sample whose normal is within
+// acos(min_up) of up (what a floor band of that height would erase);
+// infinity when no sample faces up. Metres.
+double LowestUpwardFace(const OrientedPoints& samples, const std::vector<RestingPose>& rests, float min_up);
+
 // Appends the part lying on `plane` (n, d: n . x + d = 0, n towards the
 // parts) in each of the model's resting orientations, its top over the view's
 // top: at 10 deg steps of yaw plus the two yaws that align its top-view

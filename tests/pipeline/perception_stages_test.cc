@@ -4,6 +4,8 @@
 // verification and the model tables of a box.
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -210,8 +212,12 @@ class SphereModel final : public ClassModel {
     return n;
   }
   std::span<const Eigen::Vector3f> surface_points_O() const override { return surface_; }
+  float inside_depth() const override { return 0.001f; }
+  double lowest_upward_face() const override { return std::numeric_limits<double>::infinity(); }
+  const PoseEstimatorOptions& estimator_options() const override { return options_; }
 
  private:
+  PoseEstimatorOptions options_;
   int class_id_;
   float r_;
   std::vector<Eigen::Vector3f> surface_;
