@@ -3,9 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <span>
 
-#include "pipeline/internal/class_model.h"
 #include "pipeline/internal/model_sampling.h"
 
 namespace bp::internal {
@@ -48,13 +46,6 @@ CameraFigures CameraFiguresOf(const Cell& cell, const PerceptionOptions& options
 PartGeometry MeasureMesh(const TriangleMesh& mesh) {
   PartGeometry g;
   g.diameter = PointSetDiameter(mesh.vertices);
-  g.extents = PrincipalExtents(mesh.vertices);
-  for (const Eigen::Vector3i& t : mesh.triangles) {
-    const Eigen::Vector3f& a = mesh.vertices[static_cast<size_t>(t[0])];
-    g.area += 0.5 * static_cast<double>((mesh.vertices[static_cast<size_t>(t[1])] - a)
-                                            .cross(mesh.vertices[static_cast<size_t>(t[2])] - a)
-                                            .norm());
-  }
   return g;
 }
 
@@ -100,7 +91,8 @@ PoseEstimatorOptions ScaledEstimatorOptions(const PartGeometry& geometry, const 
   // a step below the views' sample spacing only thins the table's matches.
   const double step = std::max(reference.ppf_relative_sampling * D, camera.view_spacing);
   o.icp_model_spacing = std::max(reference.icp_model_spacing, D / 300.0);
-  o.verify_model_spacing = std::min(reference.verify_model_spacing, std::max(o.icp_model_spacing, D / 15.0));
+  // Verification samples are drawn from the dense ones: never finer.
+  o.verify_model_spacing = std::max(o.icp_model_spacing, std::min(reference.verify_model_spacing, D / 15.0));
   o.support_distance = std::max(reference.support_distance, 3.4 * sigma);
   o.free_space_distance = std::max(reference.free_space_distance, 6.8 * sigma);
   o.icp_final_distance = std::max(reference.icp_final_distance, 4.5 * sigma);
@@ -113,7 +105,8 @@ PoseEstimatorOptions ScaledEstimatorOptions(const PartGeometry& geometry, const 
   if (overrides.min_score) o.min_score = *overrides.min_score;
   // The estimator takes the step relative to its own (sampled) diameter;
   // D here is the vertices' and can differ in the last digits: keep the
-  // reference ratio unless the step moved.
+  // reference ratio unless the step moved. The ratio stays in the range
+  // PoseEstimatorOptions accepts, (0.005, 0.2].
   if (ppf_step != reference.ppf_relative_sampling * D && D > 0) {
     o.ppf_relative_sampling = std::clamp(ppf_step / D, 0.0051, 0.2);
   }

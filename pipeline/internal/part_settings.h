@@ -8,8 +8,7 @@
 #pragma once
 
 #include <string>
-
-#include <Eigen/Core>
+#include <vector>
 
 #include "core/cell.h"
 #include "core/mesh.h"
@@ -31,9 +30,7 @@ CameraFigures CameraFiguresOf(const Cell& cell, const PerceptionOptions& options
 
 // A mesh's size, for the checks and the formulas.
 struct PartGeometry {
-  double diameter = 0.0;                             // largest vertex distance, metres
-  Eigen::Vector3f extents = Eigen::Vector3f::Zero();  // principal extents, largest first
-  double area = 0.0;                                 // surface area, m^2
+  double diameter = 0.0;  // largest vertex distance, metres
 };
 PartGeometry MeasureMesh(const TriangleMesh& mesh);
 
@@ -43,9 +40,9 @@ PartGeometry MeasureMesh(const TriangleMesh& mesh);
 Status CheckMeshScale(const PartGeometry& geometry, const std::string& unit_hint, const std::string& path);
 
 // The estimator's options for one part: `reference` (the defaults) scaled by
-//   ppf step            = max(ppf_relative_sampling D, view_spacing)
+//   ppf step            = max(ppf_relative_sampling D, view_spacing), at most 0.2 D
 //   icp spacing         = max(icp_model_spacing, D / 300)
-//   verify spacing      = min(verify_model_spacing, max(icp spacing, D / 15))
+//   verify spacing      = max(icp spacing, min(verify_model_spacing, D / 15))
 //   support distance    = max(support_distance, 3.4 sigma_floor)
 //   free-space distance = max(free_space_distance, 6.8 sigma_floor)
 //   ICP final gate      = max(icp_final_distance, 4.5 sigma_floor)
