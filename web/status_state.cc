@@ -4,6 +4,8 @@
 #include <spdlog/sinks/base_sink.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <ctime>
@@ -49,6 +51,36 @@ const char* CalibrationModeOf(int32_t status) {
     case daoai::kMode2DAutoCalibration: return "auto_2d";
     default: return nullptr;
   }
+}
+
+// The label of a DaoAI command or status in /metrics: its number when it is
+// one binpick knows (comms/daoai_message.h), "other" for anything else. A
+// robot can send any int32 as a command: labelling it raw would grow
+// /metrics by one series per distinct number (issue 39).
+constexpr std::array<int32_t, 16> kCommandLabels = {
+    daoai::kNoCommand, daoai::kStartManualCalibration, daoai::kStopManualCalibration,
+    daoai::kStartAutoCalibration, daoai::kManualAccumulatePose, daoai::kAutoAccumulatePose,
+    daoai::kGuidanceCalibration, daoai::kStart2DAutoCalibration, daoai::kAutoAccumulate2DPose,
+    daoai::kCaptureAndProcessAsync, daoai::kCaptureAndProcess, daoai::kPickPose,
+    daoai::kSendPose, daoai::kCheckEmptyBox, daoai::kPrecisionCheck, daoai::kSwitchConfig};
+constexpr std::array<int32_t, 21> kStatusLabels = {
+    daoai::kUnknownCommand, daoai::kObjectsFound, daoai::kNoObjectFound,
+    daoai::kNoCollisionFreePose, daoai::kDetection, daoai::kDropOffPose, daoai::kCaptureFail,
+    daoai::kModeCalibration, daoai::kModeAutoCalibration, daoai::kGuidanceGood,
+    daoai::kGuidanceBad, daoai::kMode2DAutoCalibration, daoai::kDoneGuidanceCalibration,
+    daoai::kDoneCalibration, daoai::kDone2DAutoCalibration, daoai::kBoxEmpty,
+    daoai::kBoxNotEmpty, daoai::kPrecisionCheckSuccess, daoai::kPrecisionCheckFail,
+    daoai::kSwitchConfigSuccess, daoai::kSwitchConfigFail};
+
+// Index of `value` in `known`, or known.size() for "other".
+template <size_t N>
+size_t LabelIndex(const std::array<int32_t, N>& known, int32_t value) {
+  return static_cast<size_t>(std::find(known.begin(), known.end(), value) - known.begin());
+}
+
+template <size_t N>
+std::string LabelText(const std::array<int32_t, N>& known, size_t index) {
+  return index < N ? std::to_string(known[index]) : std::string("other");
 }
 
 bool IsCalibrationCommand(int32_t command) {
@@ -198,17 +230,10 @@ class StatusState::Impl {
   void OnAnswer(const AnswerEvent& e) {
     const int32_t command = e.request.command;
     const int32_t status = e.response.status;
-    metrics_
-        .GetCounter("binpick_responses_total", "Responses written to robots by command and status.",
-                    {{"command", std::to_string(command)}, {"status", std::to_string(status)}})
-        .Inc();
-    if (command == daoai::kPickPose) {
-      metrics_
-          .GetCounter("binpick_grasps_served_total",
-                      "Pick pose (command 21) responses by status; status 2 handed out a grasp.",
-                      {{"status", std::to_string(status)}})
-          .Inc();
-    }
+    const size_t c = LabelIndex(kCommandLabels, command);
+    const size_t st = LabelIndex(kStatusLabels, status);
+    ResponseCounter(c, st).Inc();
+    if (command == daoai::kPickPose) ServedCounter(st).Inc();
     const std::string task = std::to_string(e.request.payload_1);
     if (command == daoai::kPrecisionCheck && status == daoai::kPrecisionCheckSuccess) {
       // payload_1 of the response: the target's distance from its reference, mm x MULT.
@@ -268,6 +293,29 @@ class StatusState::Impl {
         c.mode = "none";
       }
     }
+  }
+
+  // binpick_responses_total for a (command, status) label index pair: looked
+  // up in the registry once, then read from the cache without its mutex.
+  Counter& ResponseCounter(size_t command, size_t status) {
+    std::atomic<Counter*>& slot = responses_[command][status];
+    if (Counter* counter = slot.load(std::memory_order_acquire)) return *counter;
+    Counter& counter = metrics_.GetCounter(
+        "binpick_responses_total", "Responses written to robots by command and status.",
+        {{"command", LabelText(kCommandLabels, command)},
+         {"status", LabelText(kStatusLabels, status)}});
+    slot.store(&counter, std::memory_order_release);
+    return counter;
+  }
+  Counter& ServedCounter(size_t status) {
+    std::atomic<Counter*>& slot = served_[status];
+    if (Counter* counter = slot.load(std::memory_order_acquire)) return *counter;
+    Counter& counter = metrics_.GetCounter(
+        "binpick_grasps_served_total",
+        "Pick pose (command 21) responses by status; status 2 handed out a grasp.",
+        {{"status", LabelText(kStatusLabels, status)}});
+    slot.store(&counter, std::memory_order_release);
+    return counter;
   }
 
   std::string StatusJson() const {
@@ -486,6 +534,12 @@ class StatusState::Impl {
   std::vector<std::pair<int, std::string>> tasks_;
   std::map<int, std::string> part_names_;
   std::shared_ptr<ErrorSink> sink_;
+  // Counters by label index (the last index of each is "other"); null until
+  // first used. Written once each, read lock-free.
+  std::array<std::array<std::atomic<Counter*>, kStatusLabels.size() + 1>,
+             kCommandLabels.size() + 1>
+      responses_{};
+  std::array<std::atomic<Counter*>, kStatusLabels.size() + 1> served_{};
 
   // Each grasp's state. With `contents` (the live queue): queued ones are
   // next / queued, withdrawn ones withdrawn, the rest handed out. Without

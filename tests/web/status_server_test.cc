@@ -15,6 +15,7 @@
 #include <cerrno>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <thread>
 
@@ -514,6 +515,40 @@ TEST(StatusState, ExportsThePrecisionErrorAndCountsEmptyBoxFlipsPerTask) {
   EXPECT_EQ(m["binpick_empty_box_flips_total{task=\"0\"}"], 2.0);
   EXPECT_EQ(m["binpick_empty_box_flips_total{task=\"1\"}"], 0.0);
   EXPECT_EQ(m.count("binpick_empty_box_flips_total{task=\"1\"}"), 1u);
+}
+
+// Issue 39: a robot sending distinct unknown command numbers must not grow
+// /metrics (each one used to become a series of binpick_responses_total).
+TEST(StatusServer, MetricsLabelsComeFromClosedSetsSoUnknownCommandsDoNotGrowThem) {
+  Stack s;
+  ClientContext robot;
+  auto send = [&](int32_t command) {
+    const auto r = s.handler->Handle(Req(command, 0), robot);
+    ASSERT_TRUE(r.has_value());
+    EXPECT_EQ(r->status, daoai::kUnknownCommand);
+  };
+  // The series (name and labels) before and after; only counts change.
+  auto series = [&](std::map<std::string, double>* values) {
+    std::map<std::string, double> m;
+    EXPECT_TRUE(webtest::CheckPrometheusText(s.metrics.Render(), &m).empty());
+    std::vector<std::string> keys;
+    for (const auto& [k, v] : m) keys.push_back(k);
+    if (values) *values = m;
+    return keys;
+  };
+  send(1000);
+  const std::vector<std::string> before = series(nullptr);
+  for (int32_t command = 1001; command < 3000; ++command) send(command);
+  send(-7);
+  send(std::numeric_limits<int32_t>::max());
+  std::map<std::string, double> m;
+  EXPECT_EQ(series(&m), before);
+  EXPECT_EQ(m["binpick_responses_total{command=\"other\",status=\"-1\"}"], 2002.0);
+  // Known commands keep their number.
+  EXPECT_EQ(s.handler->Handle(Req(daoai::kSwitchConfig, 2), robot)->status,
+            daoai::kSwitchConfigSuccess);
+  webtest::CheckPrometheusText(s.metrics.Render(), &m);
+  EXPECT_EQ(m["binpick_responses_total{command=\"69\",status=\"66\"}"], 1.0);
 }
 
 }  // namespace
