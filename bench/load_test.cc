@@ -98,6 +98,7 @@ int main(int argc, char** argv) {
     bp::DaoaiServerOptions o;
     o.port = 0;
     o.max_connections = static_cast<size_t>(robots);
+    o.max_connections_per_peer = 0;  // every robot is 127.0.0.1
     o.max_message_rate = max_message_rate;
     o.io_threads = io_threads;
     auto started = bp::DaoaiServer::Start(*handler, o);

@@ -122,6 +122,12 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
     return auto2d_->Accumulate(kind, X_BF);
   }
   const int wanted = spec_.auto_poses;
+  if (samples_.size() >= kMaxCalibrationPoses) {
+    spdlog::warn("calib: {} pose not used: {} poses kept already (the cap)", KindName(kind),
+                 kMaxCalibrationPoses);
+    return Status::OutOfRange("calibration: " + std::to_string(kMaxCalibrationPoses) +
+                              " poses already (the cap); finish or restart the calibration");
+  }
   Result<HandEyeSample> sample = Observe(X_BF);
   CalibrationStep step;
   switch (kind) {

@@ -1,5 +1,7 @@
 #include "comms/calibration_service.h"
 
+#include <string>
+
 namespace bp {
 
 Status CountingCalibrationService::Start(CalibrationKind /*kind*/, const Pose& /*X_BF*/) {
@@ -9,6 +11,10 @@ Status CountingCalibrationService::Start(CalibrationKind /*kind*/, const Pose& /
 
 Result<CalibrationStep> CountingCalibrationService::Accumulate(CalibrationKind kind,
                                                                const Pose& X_BF) {
+  if (poses_.size() >= kMaxCalibrationPoses) {
+    return Status::OutOfRange("calibration: " + std::to_string(kMaxCalibrationPoses) +
+                              " poses already (the cap); finish or restart the calibration");
+  }
   poses_.push_back(X_BF);
   CalibrationStep step;
   step.done = kind != CalibrationKind::kManual &&

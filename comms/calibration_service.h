@@ -23,6 +23,11 @@ enum class CalibrationKind {
   kAuto2D,     // RC 11 / 12: as kAuto, poses in the robot's 2D plane
 };
 
+// Views one calibration session keeps at most (issue 39: a robot looping
+// MANUAL_ACCUMULATE_POSE must not grow the server without bound). Far above
+// what a solve needs (calibration.min_poses, auto_poses: about 10-20).
+inline constexpr size_t kMaxCalibrationPoses = 64;
+
 struct CalibrationStep {
   bool done = false;             // enough poses: the robot ends the calibration
   bool good = true;              // guidance: the pose gave a usable image
@@ -34,7 +39,8 @@ class CalibrationService {
   virtual ~CalibrationService() = default;
   // Starts a calibration of `kind` from robot pose X_BF (discarding any other).
   virtual Status Start(CalibrationKind kind, const Pose& X_BF) = 0;
-  // Captures the target at robot pose X_BF and accumulates it.
+  // Captures the target at robot pose X_BF and accumulates it. OutOfRange
+  // once kMaxCalibrationPoses are kept (the view is not stored).
   virtual Result<CalibrationStep> Accumulate(CalibrationKind kind, const Pose& X_BF) = 0;
   // Ends the calibration (solving it when the service can).
   virtual Status Finish(CalibrationKind kind) = 0;

@@ -100,8 +100,10 @@ class DaoaiServer::Impl {
         listener_("daoai", [&handler, this](SessionArgs args) -> std::shared_ptr<Session> {
           return std::make_shared<Connection>(std::move(args), handler, options_);
         },
-        internal::ConnectionLimits{options_.max_connections, options_.max_message_rate,
-                                   options_.allowlist}) {}
+        internal::ConnectionLimits{options_.max_connections, options_.max_connections_per_peer,
+                                   options_.max_message_rate, options_.allowlist,
+                                   options_.config_allowlist, options_.keepalive_idle,
+                                   options_.keepalive_interval, options_.keepalive_probes}) {}
 
   Status Listen() { return listener_.Listen(options_.bind, {options_.port}, options_.io_threads); }
   void Stop() { listener_.Stop(); }

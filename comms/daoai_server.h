@@ -38,8 +38,18 @@ struct DaoaiServerOptions {
   // connection sending more than max_message_rate requests/s is read no
   // faster (nothing dropped). 0: unlimited.
   size_t max_connections = 64;
+  size_t max_connections_per_peer = 16;
   double max_message_rate = 0;
+  // Addresses or ADDR/PREFIX networks (core/address_list.h).
   std::vector<std::string> allowlist;
+  // Peers that may change the cell (calibration, teach, camera config);
+  // empty: every peer that may connect (ClientContext::may_change_cell).
+  std::vector<std::string> config_allowlist;
+  // TCP keepalive: a vanished robot is noticed after idle + interval *
+  // probes (docs/reliability.md "Liveness"). 0 idle: off.
+  std::chrono::seconds keepalive_idle{10};
+  std::chrono::seconds keepalive_interval{2};
+  int keepalive_probes = 3;
 };
 
 class DaoaiServer {

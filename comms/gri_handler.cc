@@ -118,7 +118,10 @@ JobStatus GriHandler::StatusLocked(const RequestHandler::TaskSnapshot& s, const 
   if (s.in_flight > 0) return JobStatus::kRunning;
   if (s.finished <= job.consumed) return JobStatus::kInactive;
   if (!s.outcome) return JobStatus::kRunning;  // a detection started between the reads
-  if (*s.outcome == PlanResult::Outcome::kCaptureFailed) return JobStatus::kFailed;
+  if (*s.outcome == PlanResult::Outcome::kCaptureFailed ||
+      *s.outcome == PlanResult::Outcome::kPlannerFailed) {
+    return JobStatus::kFailed;
+  }
   return JobStatus::kDone;
 }
 
@@ -142,7 +145,7 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
         return Build(req, Code::kNoPosesFound);
       case JobStatus::kFailed:
         job.consumed = s->finished;
-        spdlog::warn("gri: job {}: the last detection could not capture", req.job_id);
+        spdlog::warn("gri: job {}: the last detection failed (capture or planner)", req.job_id);
         return Build(req, Code::kPipelineNotAvailable);
       case JobStatus::kDone:
         break;
@@ -228,7 +231,7 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
       }
       // Sync: answer with the first pose once the detection finished.
       Reply reply = NextPoseReply(req, /*after_trigger=*/true);
-      (void)tasks_.WhenIdle(req.job_id,
+      (void)tasks_.WhenDetected(req.job_id,
                             [done = std::move(done), reply = std::move(reply)] { done(reply); });
       return;
     }
@@ -265,6 +268,13 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
     case gri::kHecInit:
     case gri::kHecSetPose:
     case gri::kHecCalibrate:
+      if (!client.may_change_cell) {
+        // A calibration rewrites the hand-eye file every robot's picks use.
+        spdlog::warn("gri: {} may not change the cell (not in the config allowlist): HEC action "
+                     "{} refused, answered HEC_CONFIG_ERROR", client.peer, req.action);
+        answer(Code::kHecConfigError);
+        return;
+      }
       HandEye(req, X_BF, std::move(done));
       return;
 
@@ -286,9 +296,14 @@ void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_B
     return;
   }
   constexpr int kMaxSlot = 8;  // 0-7 (documentation) or 1-8 (its reference client)
+  // A refused step (the calibration queue is full: logged and counted by the
+  // request handler) is answered with the action's own error.
+  bool posted = true;
+  Code refused = Code::kHecCalibrateError;
   switch (req.action) {
     case gri::kHecInit:
-      tasks_.RunCalibration([this, req, X_BF, reply](CalibrationService& calib) {
+      refused = Code::kHecInitError;
+      posted = tasks_.RunCalibration([this, req, X_BF, reply](CalibrationService& calib) {
         const Status s = calib.Start(CalibrationKind::kManual, X_BF.value_or(Pose::Identity()));
         {
           std::lock_guard lock(mutex_);
@@ -298,7 +313,7 @@ void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_B
         else spdlog::info("gri: HEC_INIT: hand-eye calibration for pipeline {} started", req.data[0]);
         reply(req, s.ok() ? Code::kOk : Code::kHecInitError);
       });
-      return;
+      break;
     case gri::kHecSetPose: {
       const int slot = req.data[1];
       if (!X_BF || slot < 0 || slot > kMaxSlot) {
@@ -306,7 +321,8 @@ void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_B
         reply(req, Code::kHecSetPoseError);
         return;
       }
-      tasks_.RunCalibration([this, req, slot, X_BF = *X_BF, reply](CalibrationService& calib) {
+      refused = Code::kHecSetPoseError;
+      posted = tasks_.RunCalibration([this, req, slot, X_BF = *X_BF, reply](CalibrationService& calib) {
         bool started;
         {
           std::lock_guard lock(mutex_);
@@ -320,10 +336,10 @@ void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_B
         if (!step.ok()) spdlog::warn("gri: HEC_SET_POSE slot {}: {}", slot, step.status().ToString());
         reply(req, step.ok() ? Code::kOk : Code::kHecSetPoseError);
       });
-      return;
+      break;
     }
     default:  // kHecCalibrate
-      tasks_.RunCalibration([this, req, reply](CalibrationService& calib) {
+      posted = tasks_.RunCalibration([this, req, reply](CalibrationService& calib) {
         bool started;
         {
           std::lock_guard lock(mutex_);
@@ -340,8 +356,9 @@ void GriHandler::HandEye(const gri::Request& req, const std::optional<Pose>& X_B
                    : s.code() == Status::Code::kInvalidArgument ? Code::kHecInsufficientDetection
                                                                 : Code::kHecCalibrateError);
       });
-      return;
+      break;
   }
+  if (!posted) reply(req, refused);
 }
 
 }  // namespace bp

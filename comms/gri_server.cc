@@ -228,8 +228,10 @@ class GriServer::Impl {
           const gri::Format f = FormatOfPort(args.local_port);
           return std::make_shared<Connection>(std::move(args), handler, options_, f);
         },
-        internal::ConnectionLimits{options_.max_connections, options_.max_message_rate,
-                                   options_.allowlist}) {}
+        internal::ConnectionLimits{options_.max_connections, options_.max_connections_per_peer,
+                                   options_.max_message_rate, options_.allowlist,
+                                   options_.config_allowlist, options_.keepalive_idle,
+                                   options_.keepalive_interval, options_.keepalive_probes}) {}
 
   Status Listen() {
     std::vector<int> ports;

@@ -48,8 +48,13 @@ struct GriServerOptions {
   int io_threads = 1;
   // As DaoaiServerOptions (docs/reliability.md "Limits", "Security").
   size_t max_connections = 64;
+  size_t max_connections_per_peer = 16;
   double max_message_rate = 0;
   std::vector<std::string> allowlist;
+  std::vector<std::string> config_allowlist;  // HEC actions
+  std::chrono::seconds keepalive_idle{10};
+  std::chrono::seconds keepalive_interval{2};
+  int keepalive_probes = 3;
 };
 
 class GriServer {

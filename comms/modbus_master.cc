@@ -2,6 +2,7 @@
 
 #include <modbus.h>
 #include <spdlog/spdlog.h>
+#include <sys/socket.h>
 
 #include <algorithm>
 #include <limits>
@@ -9,6 +10,7 @@
 #include <cerrno>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -83,10 +85,15 @@ class ModbusMaster::Impl {
 
   void Start() { thread_ = std::thread([this] { Run(); }); }
 
+  // Wakes the thread wherever it waits: a sleep (the condition variable), a
+  // request in the handler (Handle's abandon check), a libmodbus call (the
+  // socket is shut down under it; it fails at once and the thread, not this
+  // one, closes the descriptor).
   void Stop() {
     {
       std::lock_guard lock(mutex_);
       stopping_ = true;
+      if (socket_ >= 0) ::shutdown(socket_, SHUT_RDWR);
     }
     cv_.notify_all();
     std::lock_guard join(join_mutex_);
@@ -100,6 +107,17 @@ class ModbusMaster::Impl {
   std::string address() const { return o_.host + ":" + std::to_string(o_.port); }
 
  private:
+  using Registers = std::array<uint16_t, daoai::kResponseFields>;
+  // A request taken whose answer is not in the robot's registers yet: the
+  // connection failed after the marker was written (the flag not cleared) or
+  // before the response and its flag were written. After the reconnect it is
+  // finished if the robot still waits for it (docs/protocols.md "Modbus
+  // TCP", half-written exchanges).
+  struct Unfinished {
+    daoai::Request request;
+    std::optional<Registers> response;  // built but not written
+  };
+
   bool stopping() {
     std::lock_guard lock(mutex_);
     return stopping_;
@@ -114,6 +132,12 @@ class ModbusMaster::Impl {
   void Count(F f) {
     std::lock_guard lock(mutex_);
     f(stats_);
+  }
+  // The connection's socket, for Stop() to shut down (-1: none).
+  void PublishSocket(int fd) {
+    std::lock_guard lock(mutex_);
+    socket_ = fd;
+    if (stopping_ && fd >= 0) ::shutdown(fd, SHUT_RDWR);
   }
 
   void Run() {
@@ -139,6 +163,7 @@ class ModbusMaster::Impl {
         backoff = std::min(backoff * 2, o_.backoff_max);
         continue;
       }
+      PublishSocket(modbus_get_socket(ctx));
       spdlog::info("modbus: connected to robot {} (unit {})", address(), o_.unit_id);
       warned = false;
       Count([](ModbusMasterStats& s) { ++s.connects; s.connected = true; });
@@ -147,11 +172,27 @@ class ModbusMaster::Impl {
       // ever more slowly.
       if (Serve(ctx)) backoff = o_.backoff_min;
       Count([](ModbusMasterStats& s) { s.connected = false; });
+      PublishSocket(-1);
       modbus_close(ctx);
       modbus_free(ctx);
-      if (!Sleep(backoff)) return;
+      if (!Sleep(backoff)) break;
       backoff = std::min(backoff * 2, o_.backoff_max);
     }
+    if (unfinished_) DropUnfinished("the master stopped");
+  }
+
+  void Fail(const char* what) {
+    spdlog::warn("modbus: robot {}: {} failed: {}; reconnecting", address(), what,
+                 modbus_strerror(errno));
+  }
+
+  // An unfinished exchange the robot no longer waits for: its answer is lost
+  // (a pick's grasp was handed out to nobody), counted and logged.
+  void DropUnfinished(const char* why) {
+    spdlog::warn("modbus: robot {}: the answer to command {} was never written and is dropped ({})",
+                 address(), unfinished_->request.command, why);
+    if (unfinished_->response) Count([](ModbusMasterStats& s) { ++s.lost; });
+    unfinished_.reset();
   }
 
   // One connection: polls until an error or Stop. @returns whether the
@@ -165,15 +206,15 @@ class ModbusMaster::Impl {
     // pick pose before its grasp leaves the queue (docs/protocols.md "Value
     // range"), and gets back what the robot will read (saturated counts).
     // Called on this thread only, inside handler_.Handle().
-    bool range_refused = false;  // during the request being handled
-    client.wire_range = [&range_refused](const daoai::Response& r) -> Result<daoai::Response> {
+    client.wire_range = [this](const daoai::Response& r) -> Result<daoai::Response> {
       Result<std::array<uint16_t, daoai::kResponseFields>> regs = modbus::EncodeResponse(r);
       if (!regs.ok()) {
-        range_refused = true;
+        range_refused_ = true;
         return regs.status();
       }
       return modbus::DecodeResponse(*regs);
     };
+    client.may_change_cell = o_.may_change_cell;
     // The last request taken had no response: a request flag of 1 with the
     // marker in place is then the robot's own late flag write (see below).
     bool taken_without_response = false;
@@ -181,27 +222,39 @@ class ModbusMaster::Impl {
     const ModbusRegisterMap& m = o_.map;
     const int marker_reg = m.request_base + modbus::kMarkerField;
     auto at = [&](int reg) { return regs[static_cast<size_t>(reg - span_.lo)]; };
-    auto fail = [&](const char* what) {
-      spdlog::warn("modbus: robot {}: {} failed: {}; reconnecting", address(), what,
-                   modbus_strerror(errno));
-    };
-    ModbusRequestTiming timing;
     while (!stopping()) {
-      timing.read_start = Clock::now();
+      timing_ = ModbusRequestTiming{};
+      timing_.read_start = Clock::now();
       if (modbus_read_registers(ctx, span_.lo, span_.count, regs.data()) != span_.count) {
-        fail("reading the registers");
+        Fail("reading the registers");
         return answered;
       }
       answered = true;
       const bool flag = at(m.request_flag) == 1;
       const bool marked = span_.marker && at(marker_reg) == modbus::kMarker;
+      if (unfinished_) {
+        if (StillWaits(*unfinished_, regs, flag, marked)) {
+          // Clear a flag the failed take left, then answer.
+          if (flag && !unfinished_->response && modbus_write_register(ctx, m.request_flag, 0) != 1) {
+            Fail("clearing the request flag of a half-taken request");
+            return answered;
+          }
+          spdlog::info("modbus: robot {}: finishing command {} taken before the reconnect",
+                       address(), unfinished_->request.command);
+          Count([](ModbusMasterStats& s) { ++s.resumed; });
+          const Unfinished u = *unfinished_;
+          if (!Answer(ctx, client, u.request, u.response, taken_without_response)) return answered;
+          continue;
+        }
+        DropUnfinished(flag ? "the robot sent a new request" : "the robot's registers were reset");
+      }
       if (flag && marked && taken_without_response) {
         // The robot wrote its flag (1 over the stale 1 of a version-1
         // response) after this master had already taken the request and
         // cleared it. The robot now waits for 0 before its next request, so
         // clearing cannot erase a new one.
         if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
-          fail("clearing a late request flag");
+          Fail("clearing a late request flag");
           return answered;
         }
         taken_without_response = false;
@@ -211,11 +264,11 @@ class ModbusMaster::Impl {
         if (!Sleep(o_.poll_interval)) return answered;
         continue;
       }
-      timing.seen = Clock::now();
+      timing_.seen = Clock::now();
       std::array<uint16_t, daoai::kRequestFields> fields{};
       for (size_t i = 0; i < fields.size(); ++i) fields[i] = at(m.request_base + static_cast<int>(i));
       const daoai::Request request = modbus::DecodeRequest(fields);
-      timing.command = request.command;
+      timing_.command = request.command;
       // Taken: the marker goes back first, then the flag is cleared. When the
       // request flag is a response register, the flag may have read 1 before
       // the robot wrote it (a version-1 response left 1 there); the robot's
@@ -226,16 +279,22 @@ class ModbusMaster::Impl {
         take.front() = modbus::kMarker;  // and 0 up to the request flag
         if (modbus_write_registers(ctx, marker_reg, static_cast<int>(take.size()), take.data()) !=
             static_cast<int>(take.size())) {
-          fail("taking the request");
+          // Applied or not: marked (finished after the reconnect) or still
+          // flagged and unmarked (taken again).
+          unfinished_ = Unfinished{request, std::nullopt};
+          Fail("taking the request");
           return answered;
         }
       } else {
         if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
-          fail("marking the request taken");
+          unfinished_ = Unfinished{request, std::nullopt};
+          Fail("marking the request taken");
           return answered;
         }
         if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
-          fail("clearing the request flag");
+          // Half-taken: marked but still flagged. Finished after the reconnect.
+          unfinished_ = Unfinished{request, std::nullopt};
+          Fail("clearing the request flag");
           return answered;
         }
       }
@@ -245,82 +304,138 @@ class ModbusMaster::Impl {
                      "dropping that response", address(), request.command);
         Count([](ModbusMasterStats& s) { ++s.unread; });
         if (modbus_write_register(ctx, m.response_flag, 0) != 1) {
-          fail("clearing the unread response flag");
+          unfinished_ = Unfinished{request, std::nullopt};
+          Fail("clearing the unread response flag");
           return answered;
         }
       }
       Count([](ModbusMasterStats& s) { ++s.requests; });
-      timing.taken = Clock::now();
-
-      range_refused = false;
-      const std::optional<daoai::Response> response = handler_.Handle(request, client);
-      timing.handled = Clock::now();
-      if (range_refused) Count([](ModbusMasterStats& s) { ++s.refused; });
-      taken_without_response = !response.has_value();
-      timing.answered = response.has_value();
-      if (!response) {  // no response for this command
-        timing.written = timing.handled;
-        if (o_.on_request) o_.on_request(timing);
-        continue;
-      }
-      Result<std::array<uint16_t, daoai::kResponseFields>> encoded = modbus::EncodeResponse(*response);
-      if (!encoded.ok()) {
-        // Not reached: the handler range-checked the answer (wire_range).
-        spdlog::error("modbus: robot {} command {}: {}; refused: answering UNKNOWN_COMMAND "
-                      "(status -1) with pose and payloads 0", address(), request.command,
-                      encoded.status().message());
-        Count([](ModbusMasterStats& s) { ++s.refused; });
-        encoded = modbus::EncodeResponse(modbus::RefusedResponse(*response));
-      } else if ((response->status == daoai::kObjectsFound || response->status == daoai::kDropOffPose) &&
-                 response->payload[0] == std::numeric_limits<int16_t>::max()) {
-        // wire_range saturated the remaining count (a multiple of MULT otherwise).
-        spdlog::debug("modbus: robot {} command {}: remaining count saturated to 3.2767", address(),
-                      request.command);
-        Count([](ModbusMasterStats& s) { ++s.saturated; });
-      }
-      std::array<uint16_t, daoai::kResponseFields> out = *encoded;
-      bool written = true;
-      if (span_.marker && out[static_cast<size_t>(m.request_flag - m.response_base)] == 1 &&
-          marker_reg >= m.response_base &&
-          marker_reg < m.response_base + static_cast<int>(out.size())) {
-        // The response leaves 1 in the request flag: it also keeps the marker
-        // (seed: in payload_4). A marker outside the response is still there
-        // from the take.
-        out[static_cast<size_t>(marker_reg - m.response_base)] = modbus::kMarker;
-      }
-      if (span_.one_write_answer) {
-        std::array<uint16_t, daoai::kResponseFields + 1> with_flag{};
-        std::copy(out.begin(), out.end(), with_flag.begin());
-        with_flag.back() = 1;
-        written = modbus_write_registers(ctx, m.response_base, static_cast<int>(with_flag.size()),
-                                         with_flag.data()) == static_cast<int>(with_flag.size());
-      } else {
-        written = written && modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()),
-                                                     out.data()) == static_cast<int>(out.size());
-        written = written && modbus_write_register(ctx, m.response_flag, 1) == 1;
-      }
-      if (!written) {
-        spdlog::warn("modbus: robot {}: the response to command {} (status {}) was lost: {}; "
-                     "reconnecting", address(), request.command, response->status,
-                     modbus_strerror(errno));
-        Count([](ModbusMasterStats& s) { ++s.lost; });
-        return answered;
-      }
-      client.last_answer = modbus::DecodeResponse(*encoded);
-      Count([](ModbusMasterStats& s) { ++s.responses; });
-      timing.written = Clock::now();
-      if (o_.on_request) o_.on_request(timing);
+      timing_.taken = Clock::now();
+      if (!Answer(ctx, client, request, std::nullopt, taken_without_response)) return answered;
     }
     return answered;
+  }
+
+  // Whether the robot still waits for the unfinished exchange, from the
+  // registers read after the reconnect. A half-taken request: our marker in
+  // place, no response flag. An answer built but not (completely) written:
+  // no response flag, no new request, and our marker in place or the
+  // response registers holding exactly the answer (the marker can be one of
+  // them). A restarted robot's registers are reset; a new request replaces
+  // the marker.
+  bool StillWaits(const Unfinished& u, const std::vector<uint16_t>& regs, bool flag,
+                  bool marked) const {
+    const ModbusRegisterMap& m = o_.map;
+    const auto at = [&](int reg) { return regs[static_cast<size_t>(reg - span_.lo)]; };
+    if (at(m.response_flag) != 0) return false;
+    if (!u.response) return marked;
+    if (flag && !marked) return false;
+    if (marked) return true;
+    for (size_t i = 0; i < u.response->size(); ++i) {
+      if (at(m.response_base + static_cast<int>(i)) != (*u.response)[i]) return false;
+    }
+    return true;
+  }
+
+  // Handles a taken request (unless `built` holds its answer already) and
+  // writes the answer. @returns false when the connection failed (the
+  // exchange is then unfinished_) or the master is stopping.
+  bool Answer(modbus_t* ctx, ClientContext& client, const daoai::Request& request,
+              std::optional<Registers> built, bool& taken_without_response) {
+    unfinished_ = Unfinished{request, built};
+    if (!built) {
+      range_refused_ = false;
+      const std::optional<daoai::Response> response =
+          handler_.Handle(request, client, [this] { return stopping(); });
+      timing_.handled = Clock::now();
+      if (stopping()) return false;
+      if (range_refused_) Count([](ModbusMasterStats& s) { ++s.refused; });
+      taken_without_response = !response.has_value();
+      timing_.answered = response.has_value();
+      if (!response) {  // no response for this command
+        unfinished_.reset();
+        timing_.written = timing_.handled;
+        if (o_.on_request) o_.on_request(timing_);
+        return true;
+      }
+      built = Encode(request, *response);
+      unfinished_->response = built;
+    }
+    if (!WriteResponse(ctx, *built)) {
+      spdlog::warn("modbus: robot {}: writing the response to command {} failed: {}; it is "
+                   "written after the reconnect if the robot still waits for it",
+                   address(), request.command, modbus_strerror(errno));
+      return false;
+    }
+    unfinished_.reset();
+    client.last_answer = modbus::DecodeResponse(*built);
+    Count([](ModbusMasterStats& s) { ++s.responses; });
+    timing_.written = Clock::now();
+    if (o_.on_request) o_.on_request(timing_);
+    return true;
+  }
+
+  // The response's registers (refused: UNKNOWN_COMMAND with pose and
+  // payloads 0, when a field does not fit 16 bits), with the marker where
+  // the response leaves 1 in the request flag.
+  Registers Encode(const daoai::Request& request, const daoai::Response& response) {
+    const ModbusRegisterMap& m = o_.map;
+    Result<Registers> encoded = modbus::EncodeResponse(response);
+    if (!encoded.ok()) {
+      // Not reached: the handler range-checked the answer (wire_range).
+      spdlog::error("modbus: robot {} command {}: {}; refused: answering UNKNOWN_COMMAND "
+                    "(status -1) with pose and payloads 0", address(), request.command,
+                    encoded.status().message());
+      Count([](ModbusMasterStats& s) { ++s.refused; });
+      encoded = modbus::EncodeResponse(modbus::RefusedResponse(response));
+    } else if ((response.status == daoai::kObjectsFound || response.status == daoai::kDropOffPose) &&
+               response.payload[0] == std::numeric_limits<int16_t>::max()) {
+      // wire_range saturated the remaining count (a multiple of MULT otherwise).
+      spdlog::debug("modbus: robot {} command {}: remaining count saturated to 3.2767", address(),
+                    request.command);
+      Count([](ModbusMasterStats& s) { ++s.saturated; });
+    }
+    Registers out = *encoded;
+    const int marker_reg = m.request_base + modbus::kMarkerField;
+    if (span_.marker && out[static_cast<size_t>(m.request_flag - m.response_base)] == 1 &&
+        marker_reg >= m.response_base &&
+        marker_reg < m.response_base + static_cast<int>(out.size())) {
+      // The response leaves 1 in the request flag: it also keeps the marker
+      // (seed: in payload_4). A marker outside the response is still there
+      // from the take.
+      out[static_cast<size_t>(marker_reg - m.response_base)] = modbus::kMarker;
+    }
+    return out;
+  }
+
+  // The response registers and the response flag = 1: one FC16 when the
+  // flag follows the response block (the slave applies the registers in
+  // address order, so the flag is still set last), else two writes.
+  bool WriteResponse(modbus_t* ctx, const Registers& out) {
+    const ModbusRegisterMap& m = o_.map;
+    if (span_.one_write_answer) {
+      std::array<uint16_t, daoai::kResponseFields + 1> with_flag{};
+      std::copy(out.begin(), out.end(), with_flag.begin());
+      with_flag.back() = 1;
+      return modbus_write_registers(ctx, m.response_base, static_cast<int>(with_flag.size()),
+                                    with_flag.data()) == static_cast<int>(with_flag.size());
+    }
+    return modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()), out.data()) ==
+               static_cast<int>(out.size()) &&
+           modbus_write_register(ctx, m.response_flag, 1) == 1;
   }
 
   RequestHandler& handler_;
   const ModbusMasterOptions o_;
   const Span span_;
-  uint64_t connections_ = 0;  // touched by the thread only
+  uint64_t connections_ = 0;             // touched by the thread only
+  std::optional<Unfinished> unfinished_;  // touched by the thread only
+  bool range_refused_ = false;   // thread only: wire_range refused the request being handled
+  ModbusRequestTiming timing_;    // thread only: the request being handled (on_request)
   mutable std::mutex mutex_;
   std::condition_variable cv_;
   bool stopping_ = false;     // GUARDED_BY(mutex_)
+  int socket_ = -1;           // GUARDED_BY(mutex_): the connection's, for Stop()
   ModbusMasterStats stats_;   // GUARDED_BY(mutex_)
   std::mutex join_mutex_;      // one Stop() joins
   std::thread thread_;

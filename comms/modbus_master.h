@@ -34,10 +34,21 @@
 //   request flag reads 0 again (the seed's script does not wait; the
 //   simulator does).
 //
+// Half-written exchanges (the connection fails between the take and the
+// answer): after the reconnect, a request the robot still waits for (the
+// marker in place, the response flag 0) is finished: a half-taken one (the
+// flag not cleared) is cleared and handled, an answer built but not written
+// is written then. A robot that restarted meanwhile (its registers reset, or
+// a new request) gets its new request served and the old answer is counted
+// lost.
+//
 // Threading: one thread per master; the RequestHandler's Handle() blocks
 // that thread while a request is processed (requests of one robot are
 // sequential). Every libmodbus call stays on that thread. Stop() is safe
-// from any thread, idempotent, and returns once the thread has ended.
+// from any thread, idempotent, and returns once the thread has ended: at
+// once from a wait for the handler (the request is abandoned, nothing
+// popped) and from a libmodbus call (its socket is shut down), so
+// binpickd stops within its 2 s with a robot mid-handshake.
 #pragma once
 
 #include <chrono>
@@ -76,6 +87,9 @@ struct ModbusMasterOptions {
   std::chrono::milliseconds backoff_max{2000};   // doubling up to this
   // Called on the master's thread after each request taken (benches, tests).
   std::function<void(const ModbusRequestTiming&)> on_request;
+  // The robot may change the cell (calibration, teach, camera config):
+  // binpickd sets it from the config allowlist (ClientContext::may_change_cell).
+  bool may_change_cell = true;
 };
 
 // From a cell's robot.modbus section (host, port, unit id, map, poll).
@@ -88,7 +102,9 @@ struct ModbusMasterStats {
   uint64_t refused = 0;        // requests whose answer had a value outside int16: a grasp left
                                // queued, or the answer turned into UNKNOWN_COMMAND
   uint64_t saturated = 0;      // responses with a saturated remaining count
-  uint64_t lost = 0;           // responses whose write failed (robot gone)
+  uint64_t lost = 0;           // responses never written: the robot moved on (restart) before
+                               // the reconnect, or the master stopped
+  uint64_t resumed = 0;        // exchanges finished after a reconnect (half-written)
   uint64_t unread = 0;         // new requests found over an unread response
   bool connected = false;
 };

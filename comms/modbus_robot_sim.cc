@@ -138,6 +138,10 @@ class ModbusRobotSim::Impl {
     std::lock_guard lock(mutex_);
     return stats_;
   }
+  void DropNextWriteTo(int address) {
+    std::lock_guard lock(mutex_);
+    drop_write_to_ = address;
+  }
 
  private:
   // REQUIRES: mutex_ held.
@@ -180,6 +184,16 @@ class ModbusRobotSim::Impl {
       if (unit != o_.unit_id && unit != MODBUS_TCP_SLAVE) continue;  // another unit: no answer
       {
         std::lock_guard lock(mutex_);
+        const int function = query[kTcpUnitIdOffset + 1];
+        const int address = (query[kTcpUnitIdOffset + 2] << 8) | query[kTcpUnitIdOffset + 3];
+        if (drop_write_to_ >= 0 && (function == 0x06 || function == 0x10) &&
+            address == drop_write_to_) {
+          drop_write_to_ = -1;
+          ++stats_.dropped_writes;
+          modbus_close(ctx_);
+          client = -1;
+          continue;
+        }
         const uint16_t before = Reg(o_.map.response_flag);
         modbus_reply(ctx_, query.data(), rc, mapping_);
         if (before == 0 && Reg(o_.map.response_flag) != 0 && !outstanding_) {
@@ -202,6 +216,7 @@ class ModbusRobotSim::Impl {
   bool stopping_ = false;       // GUARDED_BY(mutex_)
   bool outstanding_ = false;    // GUARDED_BY(mutex_): a request waits for its response
   bool awaiting_take_ = false;  // GUARDED_BY(mutex_): a request without response not taken yet
+  int drop_write_to_ = -1;      // GUARDED_BY(mutex_): DropNextWriteTo's address, -1: none
   ModbusRobotSimStats stats_;   // GUARDED_BY(mutex_)
   std::mutex join_mutex_;
   std::thread thread_;
@@ -248,6 +263,7 @@ Result<daoai::Response> ModbusRobotSim::RecvDaoaiData(std::chrono::milliseconds 
 }
 uint16_t ModbusRobotSim::ReadRegister(int address) const { return impl_->ReadRegister(address); }
 void ModbusRobotSim::WriteRegister(int address, uint16_t value) { impl_->WriteRegister(address, value); }
+void ModbusRobotSim::DropNextWriteTo(int address) { impl_->DropNextWriteTo(address); }
 ModbusRobotSimStats ModbusRobotSim::stats() const { return impl_->stats(); }
 std::unique_ptr<RobotTransport> ModbusRobotSim::Transport() {
   return std::make_unique<SimTransport>(*this);

@@ -45,6 +45,7 @@ struct ModbusRobotSimStats {
   uint64_t responses_read = 0;       // responses read and acknowledged
   uint64_t unexpected_responses = 0; // response flag set with no request waiting
   uint64_t masters = 0;              // master connections accepted
+  uint64_t dropped_writes = 0;       // writes dropped by DropNextWriteTo
 };
 
 class ModbusRobotSim {
@@ -68,6 +69,12 @@ class ModbusRobotSim {
                        std::chrono::milliseconds timeout);
   // The seed's modbustcp_recv_daoai_data. Unavailable on timeout / Stop.
   Result<daoai::Response> RecvDaoaiData(std::chrono::milliseconds timeout);
+
+  // Fault injection (tests of half-written exchanges): the master's next
+  // write (function 6 or 16) starting at `address` is not applied; the
+  // slave closes the master's connection instead, as a network cut between
+  // the write and its reply would.
+  void DropNextWriteTo(int address);
 
   // Raw register access (as the robot's own read/write_port_register).
   uint16_t ReadRegister(int address) const;

@@ -59,6 +59,27 @@ bool NeedsTask(int32_t command) {
   }
 }
 
+// Commands that change the cell's state for every robot: calibration steps
+// (a solve rewrites the hand-eye file), teach (appends to the taught-grasp
+// file), camera config. Only peers in the config allowlist may send them.
+bool ChangesTheCell(int32_t command) {
+  switch (command) {
+    case daoai::kStartManualCalibration:
+    case daoai::kStopManualCalibration:
+    case daoai::kStartAutoCalibration:
+    case daoai::kManualAccumulatePose:
+    case daoai::kAutoAccumulatePose:
+    case daoai::kGuidanceCalibration:
+    case daoai::kStart2DAutoCalibration:
+    case daoai::kAutoAccumulate2DPose:
+    case daoai::kSendPose:
+    case daoai::kSwitchConfig:
+      return true;
+    default:
+      return false;
+  }
+}
+
 // How one request is read and answered: the pose encoding (the convention
 // meta_1 names, the cell's position unit), the cell's dialect, and the
 // request's meta_2, which every answer echoes.
@@ -125,18 +146,24 @@ Status EncodePose(const Pose& X, const WireFormat& f, Response& out) {
   return Status::Ok();
 }
 
-// Runs jobs one after another, in submission order, on the arena.
+// Runs jobs one after another, in submission order, on the arena. At most
+// kMaxSerialJobs wait: a robot that floods teach poses (answered at once,
+// stored later) cannot grow the queue without bound.
 class SerialJobs {
  public:
+  static constexpr size_t kMaxSerialJobs = 64;
   explicit SerialJobs(std::function<void(std::function<void()>)> spawn) : spawn_(std::move(spawn)) {}
-  void Post(std::function<void()> job) {
+  // @returns false (job not run) when kMaxSerialJobs are already waiting.
+  [[nodiscard]] bool Post(std::function<void()> job) {
     bool start = false;
     {
       std::lock_guard lock(mutex_);
+      if (jobs_.size() >= kMaxSerialJobs) return false;
       jobs_.push_back(std::move(job));
       if (!running_) running_ = start = true;
     }
     if (start) spawn_([this] { Drain(); });
+    return true;
   }
 
  private:
@@ -165,13 +192,36 @@ class SerialJobs {
 
 class RequestHandler::Impl {
  public:
+  // A detection requested while the task's detection runs: it starts when
+  // that one finishes. Capture requests that arrive meanwhile join it (the
+  // latest robot pose wins), so a flood of captures costs one detection at a
+  // time and every requester is answered from a capture made after its
+  // request.
+  struct PendingDetection {
+    uint64_t seq = 0;  // the task's capture sequence number
+    PlanRequest request;
+    std::vector<std::function<void(bool)>> on_captured;  // RC 20 answers, in order
+  };
+  // Empty-box checks (40) or precision checks (50) of one task: one runs at
+  // a time; requests that arrive meanwhile share the next one.
+  struct CheckLane {
+    bool running = false;
+    std::optional<PlanRequest> pending;  // the latest request's
+    std::vector<Completion> pending_done;
+  };
   struct TaskState {
     TaskSpec spec;
     GraspQueue queue;
     std::mutex mutex;
-    int in_flight = 0;                  // GUARDED_BY(mutex): detections running
-    uint64_t finished = 0;              // GUARDED_BY(mutex): detections finished
-    std::vector<std::function<void()>> waiters;  // GUARDED_BY(mutex): pick poses waiting
+    bool running = false;                     // GUARDED_BY(mutex): a detection is on the arena
+    std::optional<PendingDetection> pending;  // GUARDED_BY(mutex): the one after it
+    uint64_t requested_seq = 0;  // GUARDED_BY(mutex): newest detection requested
+    uint64_t finished_seq = 0;   // GUARDED_BY(mutex): last finished (they finish in order)
+    uint64_t finished = 0;       // GUARDED_BY(mutex): detections finished since start
+    // GUARDED_BY(mutex): pick poses (and GRI triggers) waiting, by the
+    // sequence number of the detection they wait for.
+    std::multimap<uint64_t, std::function<void()>> waiters;
+    CheckLane empty_box, precision;  // GUARDED_BY(mutex)
   };
 
   Impl(Cell cell, std::shared_ptr<GraspPlanner> planner,
@@ -199,8 +249,14 @@ class RequestHandler::Impl {
       pending_cv_.wait(lock, [this] { return pending_ == 0; });
     }
     for (auto& [id, t] : tasks_) {
-      std::lock_guard lock(t->mutex);
-      t->waiters.clear();
+      std::multimap<uint64_t, std::function<void()>> waiters;
+      std::optional<PendingDetection> pending;
+      {
+        std::lock_guard lock(t->mutex);
+        waiters.swap(t->waiters);
+        pending.swap(t->pending);
+      }
+      // Destroyed outside the lock: a dropped completion wakes a blocked Handle().
     }
   }
 
@@ -223,13 +279,24 @@ class RequestHandler::Impl {
   }
   Result<TaskSnapshot> Snapshot(int task_id) const;
   Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
-  Status WhenIdle(int task_id, std::function<void()> ready);
+  Status WhenDetected(int task_id, std::function<void()> ready);
   Result<GraspQueue::Popped> PopGrasp(int task_id);
-  void RunCalibration(std::function<void(CalibrationService&)> job) {
-    serial_.Post([this, job = std::move(job)] {
+  bool RunCalibration(std::function<void(CalibrationService&)> job) {
+    const bool posted = serial_.Post([this, job = std::move(job)] {
       calibration_mode_.reset();
       job(*calibration_);
     });
+    if (!posted) CountRefusedJob("a GRI hand-eye step");
+    return posted;
+  }
+  RequestHandlerStats stats() const {
+    RequestHandlerStats s;
+    s.captures_coalesced = captures_coalesced_.load(std::memory_order_relaxed);
+    s.planner_failures = planner_failures_.load(std::memory_order_relaxed);
+    s.observer_failures = observer_failures_.load(std::memory_order_relaxed);
+    s.jobs_refused = jobs_refused_.load(std::memory_order_relaxed);
+    s.changes_refused = changes_refused_.load(std::memory_order_relaxed);
+    return s;
   }
 
  private:
@@ -260,6 +327,8 @@ class RequestHandler::Impl {
         (*job)();
       } catch (const std::exception& e) {
         spdlog::error("daoai: detection worker failed: {}", e.what());
+      } catch (...) {
+        spdlog::error("daoai: detection worker failed");
       }
       *job = nullptr;  // release captures before Shutdown may return
       std::lock_guard lock(pending_mutex_);
@@ -305,8 +374,45 @@ class RequestHandler::Impl {
     return p;
   }
 
-  void StartDetection(TaskState& t, PlanRequest plan_request, std::function<void(bool)> on_captured);
-  void FinishDetection(TaskState& t);
+  // Starts a detection of `t`, or joins the one pending after the running
+  // one (docs/protocols.md "Capture floods"). @returns the sequence number of
+  // the detection that serves this request.
+  uint64_t RequestDetection(TaskState& t, PlanRequest request, std::function<void(bool)> on_captured);
+  void RunDetection(TaskState& t, const PendingDetection& d);
+  // Releases the picks waiting for detection `seq` and starts the pending one.
+  void FinishDetection(TaskState& t, uint64_t seq);
+  // Keeps `ready` (moved from) until the newest detection of `t` requested
+  // so far has finished; @returns false, `ready` untouched, when it has.
+  bool WaitForDetection(TaskState& t, std::function<void()>& ready);
+  // Runs `check` for a batch of 40s or 50s of one task (CheckLane).
+  using Check = std::function<Response(const PlanRequest&)>;
+  void PostCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request, Completion done,
+                 Check check);
+  void RunCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
+                std::vector<Completion> done, Check check);
+  // A check answers a batch of requests with one response (built with the
+  // cell's protocol version); each requester's completion gives it its own
+  // request's meta_2 back.
+  static Completion EchoMeta2(const WireFormat& f, Completion done) {
+    return [meta_2 = f.meta_2, done = std::move(done)](Reply reply) {
+      if (!reply) {
+        done(std::move(reply));
+        return;
+      }
+      done([meta_2, reply = std::move(reply)]() -> std::optional<Response> {
+        std::optional<Response> r = reply();
+        if (r) r->meta_2 = meta_2;
+        return r;
+      });
+    };
+  }
+  Response EmptyBoxCheck(TaskState& t, const PlanRequest& plan_request);
+  Response PrecisionCheck(const PlanRequest& plan_request);
+  void CountRefusedJob(const char* what) {
+    const uint64_t n = jobs_refused_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::warn("daoai: {} refused: {} calibration and teach jobs are already waiting ({} refused "
+                 "since start)", what, SerialJobs::kMaxSerialJobs, n);
+  }
   Reply PickReply(TaskState& t, WireFormat f);
   // Teach (30): the pick task payload_1 names, unless payload_1 is only what
   // the last answer left in the script's daoai_payload_1 (seed 000's
@@ -331,6 +437,8 @@ class RequestHandler::Impl {
   // kMaxFailedViewsInARow failed views in a row.
   void AutoView(CalibrationKind kind, const Pose& X_BF,
                 const std::function<void(int32_t, const std::optional<Pose>&)>& answer);
+  void RefuseChange(const Request& req, const ClientContext& client, const WireFormat& f,
+                    Completion done);
   void Calibrate(const Request& req, const std::optional<Pose>& X_BF, const WireFormat& f,
                  Completion done);
 
@@ -353,9 +461,38 @@ class RequestHandler::Impl {
   tbb::task_arena arena_;
   SerialJobs serial_;  // calibration steps and teaching, in request order
   std::vector<std::shared_ptr<ServerObserver>> observers_;  // fixed before serving
+  std::atomic<uint64_t> captures_coalesced_{0};
+  std::atomic<uint64_t> planner_failures_{0};
+  mutable std::atomic<uint64_t> observer_failures_{0};
+  std::atomic<uint64_t> jobs_refused_{0};
+  std::atomic<uint64_t> changes_refused_{0};
 
+  // Calls `notify` on every observer. An observer that throws (it must not)
+  // is logged and counted, and the others and the caller carry on: a
+  // detection always finishes, an answer is always written.
+  template <typename F>
+  void Notify(const char* what, F&& notify) const {
+    for (const auto& o : observers_) {
+      std::string error;
+      try {
+        notify(*o);
+        continue;
+      } catch (const std::exception& e) {
+        error = e.what();
+      } catch (...) {
+        error = "an exception that is not a std::exception";
+      }
+      const uint64_t n = observer_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+      // The first, then one in a thousand: an observer that always throws
+      // must not flood the log.
+      if (n == 1 || n % 1000 == 0) {
+        spdlog::error("daoai: an observer's {} threw ({}); ignored ({} observer exceptions since "
+                      "start)", what, error, n);
+      }
+    }
+  }
   void NotifyDetection(const DetectionEvent& e) const {
-    for (const auto& o : observers_) o->OnDetection(e);
+    Notify("OnDetection", [&](ServerObserver& o) { o.OnDetection(e); });
   }
   // Wraps `done` so that observers see the response its Reply builds.
   Completion Observed(const Request& req, const ClientContext& client,
@@ -377,7 +514,7 @@ class RequestHandler::Impl {
           AnswerEvent e = *event;
           e.response = *r;
           e.time = std::chrono::system_clock::now();
-          for (const auto& o : observers_) o->OnAnswer(e);
+          Notify("OnAnswer", [&](ServerObserver& o) { o.OnAnswer(e); });
         }
         return r;
       });
@@ -385,76 +522,122 @@ class RequestHandler::Impl {
   }
 };
 
-void RequestHandler::Impl::StartDetection(TaskState& t, PlanRequest plan_request,
-                                          std::function<void(bool)> on_captured) {
+uint64_t RequestHandler::Impl::RequestDetection(TaskState& t, PlanRequest request,
+                                                std::function<void(bool)> on_captured) {
+  PendingDetection start;
   {
     std::lock_guard lock(t.mutex);
-    ++t.in_flight;
-    t.queue.Reset();  // the old grasps describe a scene that is about to change
+    if (t.running) {
+      if (t.pending) {
+        captures_coalesced_.fetch_add(1, std::memory_order_relaxed);
+      } else {
+        t.pending.emplace();
+        t.pending->seq = ++t.requested_seq;
+      }
+      t.pending->request = std::move(request);  // the latest robot pose wins
+      if (on_captured) t.pending->on_captured.push_back(std::move(on_captured));
+      return t.pending->seq;
+    }
+    t.running = true;
+    start.seq = ++t.requested_seq;
   }
-  Spawn([this, &t, plan_request = std::move(plan_request), on_captured = std::move(on_captured)] {
-    const auto t0 = std::chrono::steady_clock::now();
-    DetectionEvent event;
-    event.task_id = t.spec.id;
-    event.request = plan_request;
-    event.time = std::chrono::system_clock::now();
-    Result<CaptureHandle> scene = Status::Unavailable("not captured");
-    {
-      std::lock_guard lock(capture_mutex_);
-      scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
-    }
-    const auto t1 = std::chrono::steady_clock::now();
-    event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
-    if (!scene.ok() || !*scene) {
-      spdlog::warn("daoai: task {} capture failed: {}", t.spec.id,
-                   scene.ok() ? "planner returned no scene" : scene.status().ToString());
-      event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
-      event.plan_status = event.capture_status;
-      PlanResult failed;
-      failed.outcome = PlanResult::Outcome::kCaptureFailed;
-      t.queue.Replace(std::move(failed));
-      NotifyDetection(event);
-      if (on_captured) on_captured(false);
-      FinishDetection(t);
-      return;
-    }
-    if (on_captured) on_captured(true);
-    Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
-    PlanResult result;
-    if (plan.ok()) {
-      result = std::move(*plan);
-    } else {
-      spdlog::error("daoai: task {} planning failed ({}); reporting no objects", t.spec.id,
-                    plan.status().ToString());
-      result.outcome = PlanResult::Outcome::kNoObjects;
-    }
-    const auto t2 = std::chrono::steady_clock::now();
-    const auto ms = std::chrono::duration<double, std::milli>(t2 - t0);
-    spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
-                 t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
-                 ms.count());
-    if (!observers_.empty()) {
-      event.scene = *scene;
-      event.plan_status = plan.status();
-      if (plan.ok()) event.plan = result;
-      event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
-    }
-    t.queue.Replace(std::move(result));
-    // After the refill (an observer reading the queue sees the new one),
-    // before waiting picks are answered (their answers follow the detection).
-    if (!observers_.empty()) NotifyDetection(event);
-    FinishDetection(t);
-  });
+  start.request = std::move(request);
+  if (on_captured) start.on_captured.push_back(std::move(on_captured));
+  const uint64_t seq = start.seq;
+  Spawn([this, &t, start = std::move(start)] { RunDetection(t, start); });
+  return seq;
 }
 
-void RequestHandler::Impl::FinishDetection(TaskState& t) {
+void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d) {
+  const PlanRequest& plan_request = d.request;
+  auto captured = [&d](bool ok) {
+    for (const auto& answer : d.on_captured) answer(ok);
+  };
+  const auto t0 = std::chrono::steady_clock::now();
+  DetectionEvent event;
+  event.task_id = t.spec.id;
+  event.request = plan_request;
+  event.time = std::chrono::system_clock::now();
+  Result<CaptureHandle> scene = Status::Unavailable("not captured");
+  {
+    std::lock_guard lock(capture_mutex_);
+    scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
+  }
+  const auto t1 = std::chrono::steady_clock::now();
+  event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  if (!scene.ok() || !*scene) {
+    spdlog::warn("daoai: task {} capture failed: {}", t.spec.id,
+                 scene.ok() ? "planner returned no scene" : scene.status().ToString());
+    event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
+    event.plan_status = event.capture_status;
+    PlanResult failed;
+    failed.outcome = PlanResult::Outcome::kCaptureFailed;
+    t.queue.Replace(std::move(failed), d.seq);
+    NotifyDetection(event);
+    captured(false);
+    FinishDetection(t, d.seq);
+    return;
+  }
+  captured(true);
+  Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
+  PlanResult result;
+  if (plan.ok()) {
+    result = std::move(*plan);
+  } else {
+    // Not "no objects": the robot must not conclude the bin is empty. The
+    // observers get the capture with the error (the recorder keeps the
+    // frame for `binpick replay`).
+    planner_failures_.fetch_add(1, std::memory_order_relaxed);
+    spdlog::error("daoai: task {} planning failed ({}); answering its picks UNKNOWN_COMMAND until "
+                  "the next detection; the capture goes to the recorder for replay",
+                  t.spec.id, plan.status().ToString());
+    result.outcome = PlanResult::Outcome::kPlannerFailed;
+  }
+  const auto t2 = std::chrono::steady_clock::now();
+  const auto ms = std::chrono::duration<double, std::milli>(t2 - t0);
+  spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
+               t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
+               ms.count());
+  if (!observers_.empty()) {
+    event.scene = *scene;
+    event.plan_status = plan.status();
+    if (plan.ok()) event.plan = result;
+    event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+  }
+  t.queue.Replace(std::move(result), d.seq);
+  // After the refill (an observer reading the queue sees the new one),
+  // before waiting picks are answered (their answers follow the detection).
+  if (!observers_.empty()) NotifyDetection(event);
+  FinishDetection(t, d.seq);
+}
+
+void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
   std::vector<std::function<void()>> ready;
+  std::optional<PendingDetection> next;
   {
     std::lock_guard lock(t.mutex);
     ++t.finished;
-    if (--t.in_flight == 0) ready.swap(t.waiters);
+    t.finished_seq = seq;
+    const auto end = t.waiters.upper_bound(seq);
+    for (auto it = t.waiters.begin(); it != end; ++it) ready.push_back(std::move(it->second));
+    t.waiters.erase(t.waiters.begin(), end);
+    if (t.pending && !stopping_) {
+      next.swap(t.pending);
+    } else {
+      t.running = false;
+    }
   }
+  // The next detection goes onto the arena before the answers are sent, so
+  // it starts as early as it can.
+  if (next) Spawn([this, &t, next = std::move(*next)] { RunDetection(t, next); });
   for (auto& w : ready) w();
+}
+
+bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready) {
+  std::lock_guard lock(t.mutex);
+  if (t.requested_seq <= t.finished_seq) return false;
+  t.waiters.emplace(t.requested_seq, std::move(ready));
+  return true;
 }
 
 Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
@@ -499,7 +682,12 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
     if (p.refused > 0) return Base(daoai::kUnknownCommand, f);  // every seed program stops on it
     // Nothing to hand out: say why, in the dialect's vocabulary.
     int32_t status = daoai::kNoObjectFound;
-    if (!p.outcome || *p.outcome == PlanResult::Outcome::kCaptureFailed) {
+    if (p.outcome == PlanResult::Outcome::kPlannerFailed) {
+      // An error, not "no objects": payload_1 0 ends seed 000's
+      // daoai_get_picking_pose() (returns False) without the robot taking
+      // the bin for empty.
+      status = daoai::kUnknownCommand;
+    } else if (!p.outcome || *p.outcome == PlanResult::Outcome::kCaptureFailed) {
       status = f.v1() ? daoai::kNoImageCaptured : daoai::kNoObjectFound;
     } else if (*p.outcome == PlanResult::Outcome::kNoCollisionFree) {
       status = f.v1() ? daoai::kNoObjectFound : daoai::kNoCollisionFreePose;
@@ -581,7 +769,9 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
     return;
   }
   const Pose X_BF = pose.value_or(Pose::Identity());
-  serial_.Post([this, command, X_BF, f, done = std::move(done)] {
+  auto shared_done = std::make_shared<Completion>(std::move(done));
+  const bool posted = serial_.Post([this, command, X_BF, f, shared_done] {
+    const Completion& done = *shared_done;
     // A planned pose, or (none given, or it does not fit the link) the
     // robot's own where the robot moves to the answer (Base).
     auto answer = [&](int32_t status, const std::optional<Pose>& planned = std::nullopt) {
@@ -690,6 +880,135 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
         answer(daoai::kUnknownCommand);
     }
   });
+  if (!posted) {
+    CountRefusedJob("a calibration step");
+    (*shared_done)(Respond(Base(daoai::kUnknownCommand, f)));
+  }
+}
+
+Response RequestHandler::Impl::EmptyBoxCheck(TaskState& t, const PlanRequest& plan_request) {
+  const auto t0 = std::chrono::steady_clock::now();
+  DetectionEvent event;
+  event.task_id = t.spec.id;
+  event.request = plan_request;
+  event.time = std::chrono::system_clock::now();
+  event.queued = false;  // the empty-box check leaves the queue alone
+  Result<CaptureHandle> scene = Status::Unavailable("not captured");
+  {
+    std::lock_guard lock(capture_mutex_);
+    scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
+  }
+  const auto t1 = std::chrono::steady_clock::now();
+  event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  if (scene.ok() && *scene) event.scene = *scene;
+  event.capture_status = !scene.ok() ? scene.status()
+                         : *scene    ? Status::Ok()
+                                     : Status::Internal("planner returned no scene");
+  if (!event.capture_status.ok()) {
+    event.plan_status = event.capture_status;
+    NotifyDetection(event);
+  }
+  if (!scene.ok() || !*scene) {
+    // No image, no evidence that the box is empty: say not empty.
+    spdlog::warn("daoai: task {} empty-box check could not capture: {}; answering "
+                 "BOX_NOT_EMPTY", t.spec.id, scene.status().ToString());
+    return Base(daoai::kBoxNotEmpty, cell_.robot.protocol_version);
+  }
+  Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
+  if (!observers_.empty()) {
+    event.plan_status = plan.status();
+    if (plan.ok()) event.plan = *plan;
+    event.plan_ms = std::chrono::duration<double, std::milli>(
+                        std::chrono::steady_clock::now() - t1).count();
+    NotifyDetection(event);
+  }
+  if (!plan.ok()) {
+    spdlog::warn("daoai: task {} empty-box check failed: {}; answering BOX_NOT_EMPTY",
+                 t.spec.id, plan.status().ToString());
+    return Base(daoai::kBoxNotEmpty, cell_.robot.protocol_version);
+  }
+  const EmptyBoxRule& rule = t.spec.empty_box;
+  const int64_t points = EmptyBoxPoints(rule, plan->roi_points, plan->largest_region_points);
+  const bool empty = IsBoxEmpty(rule, *plan);
+  spdlog::info("daoai: task {} empty-box check: {} points (threshold {} at {} pixels), {} "
+               "detections: {}", t.spec.id, points, EffectiveThreshold(rule, plan->image_pixels),
+               plan->image_pixels, plan->detections, empty ? "EMPTY" : "NOT EMPTY");
+  return Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, cell_.robot.protocol_version);
+}
+
+Response RequestHandler::Impl::PrecisionCheck(const PlanRequest& plan_request) {
+  Result<double> error_mm = Status::Unavailable("not run");
+  {
+    std::lock_guard lock(capture_mutex_);
+    error_mm = Guard("precision check", [&] { return planner_->CheckPrecision(plan_request); });
+  }
+  Result<int32_t> fixed = error_mm.ok() ? ToFixed(*error_mm) : Result<int32_t>(error_mm.status());
+  if (!fixed.ok()) {
+    spdlog::warn("daoai: task {} precision check failed: {}", plan_request.task.id,
+                 fixed.status().ToString());
+    return Base(daoai::kPrecisionCheckFail, cell_.robot.protocol_version);
+  }
+  Response r = Base(daoai::kPrecisionCheckSuccess, cell_.robot.protocol_version);
+  r.payload[0] = *fixed;
+  return r;
+}
+
+void RequestHandler::Impl::PostCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
+                                     Completion done, Check check) {
+  {
+    std::lock_guard lock(t.mutex);
+    CheckLane& l = t.*lane;
+    if (l.running) {
+      l.pending = std::move(request);  // the latest robot pose wins
+      l.pending_done.push_back(std::move(done));
+      return;
+    }
+    l.running = true;
+  }
+  std::vector<Completion> batch;
+  batch.push_back(std::move(done));
+  Spawn([this, &t, lane, request = std::move(request), batch = std::move(batch),
+         check = std::move(check)] { RunCheck(t, lane, request, batch, check); });
+}
+
+void RequestHandler::Impl::RunCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
+                                    std::vector<Completion> done, Check check) {
+  const Reply reply = Respond(check(request));
+  std::optional<PlanRequest> next;
+  std::vector<Completion> next_done;  // dropped unanswered when shutting down
+  {
+    std::lock_guard lock(t.mutex);
+    CheckLane& l = t.*lane;
+    next.swap(l.pending);
+    next_done.swap(l.pending_done);
+    if (!next || stopping_) {
+      l.running = false;
+      next.reset();
+    }
+  }
+  if (next) {
+    Spawn([this, &t, lane, request = std::move(*next), batch = std::move(next_done), check] {
+      RunCheck(t, lane, request, batch, check);
+    });
+  }
+  for (const Completion& d : done) d(reply);
+}
+
+void RequestHandler::Impl::RefuseChange(const Request& req, const ClientContext& client,
+                                        const WireFormat& f, Completion done) {
+  changes_refused_.fetch_add(1, std::memory_order_relaxed);
+  // The command's own failure where it has one; no answer where the robot
+  // reads none (a reply it does not read would shift every later one).
+  const bool answered = !(req.command == daoai::kSendPose ||
+                          (!f.v1() && (req.command == daoai::kGuidanceCalibration ||
+                                              req.command == daoai::kStopManualCalibration)));
+  const int32_t status = req.command == daoai::kSwitchConfig        ? daoai::kSwitchConfigFail
+                         : req.command == daoai::kGuidanceCalibration ? daoai::kGuidanceBad
+                                                                      : daoai::kUnknownCommand;
+  spdlog::warn("daoai: {} may not change the cell (not in the config allowlist): command {} "
+               "refused{}", client.peer, req.command,
+               answered ? ", answered " + std::to_string(status) : std::string(", not answered"));
+  done(answered ? Respond(Base(status, f)) : NoResponse());
 }
 
 void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client,
@@ -769,6 +1088,11 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     }
   }
 
+  if (ChangesTheCell(req.command) && !client.may_change_cell) {
+    RefuseChange(req, client, f, std::move(done));
+    return;
+  }
+
   switch (req.command) {
     case daoai::kNoCommand:
       done(NoResponse());
@@ -788,7 +1112,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     case daoai::kCaptureAndProcessAsync:
       // Answer at once; capture and detect in the background.
       done(Respond(Base(daoai::kDetection, f)));
-      StartDetection(*task, MakePlanRequest(*task, X_BF), nullptr);
+      RequestDetection(*task, MakePlanRequest(*task, X_BF), nullptr);
       return;
 
     case daoai::kCaptureAndProcess: {
@@ -796,20 +1120,17 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
       auto on_captured = [this, f, done = std::move(done)](bool ok) {
         done(Respond(Base(ok ? daoai::kDetection : daoai::kCaptureFail, f)));
       };
-      StartDetection(*task, MakePlanRequest(*task, X_BF), std::move(on_captured));
+      RequestDetection(*task, MakePlanRequest(*task, X_BF), std::move(on_captured));
       return;
     }
 
     case daoai::kPickPose: {
-      Reply reply = PickReply(*task, f);
-      {
-        std::unique_lock lock(task->mutex);
-        if (task->in_flight > 0) {
-          task->waiters.push_back([done = std::move(done), reply = std::move(reply)] { done(reply); });
-          return;
-        }
-      }
-      done(std::move(reply));
+      // Answered from the newest detection requested before it (at most the
+      // one running and the one pending after it), never behind a flood.
+      std::function<void()> answer = [done = std::move(done), reply = PickReply(*task, f)] {
+        done(reply);
+      };
+      if (!WaitForDetection(*task, answer)) answer();
       return;
     }
 
@@ -829,7 +1150,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
       }
       TeachRequest teach{taught->spec, *X_BF};
       done(NoResponse());
-      serial_.Post([this, teach] {
+      const bool posted = serial_.Post([this, teach] {
         const Status s = Guard("teach", [&] { return planner_->Teach(teach); });
         if (s.ok()) {
           spdlog::info("daoai: taught a grasp for task {}", teach.task.id);
@@ -837,87 +1158,19 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
           spdlog::warn("daoai: teach for task {} not stored: {}", teach.task.id, s.ToString());
         }
       });
+      if (!posted) CountRefusedJob("a teach pose");
       return;
     }
 
-    case daoai::kCheckEmptyBox: {
-      PlanRequest plan_request = MakePlanRequest(*task, X_BF);
-      Spawn([this, task, f, plan_request = std::move(plan_request), done = std::move(done)] {
-        const auto t0 = std::chrono::steady_clock::now();
-        DetectionEvent event;
-        event.task_id = task->spec.id;
-        event.request = plan_request;
-        event.time = std::chrono::system_clock::now();
-        event.queued = false;  // the empty-box check leaves the queue alone
-        Result<CaptureHandle> scene = Status::Unavailable("not captured");
-        {
-          std::lock_guard lock(capture_mutex_);
-          scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
-        }
-        const auto t1 = std::chrono::steady_clock::now();
-        event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
-        if (scene.ok() && *scene) event.scene = *scene;
-        event.capture_status = !scene.ok() ? scene.status()
-                               : *scene    ? Status::Ok()
-                                           : Status::Internal("planner returned no scene");
-        if (!event.capture_status.ok()) {
-          event.plan_status = event.capture_status;
-          NotifyDetection(event);
-        }
-        if (!scene.ok() || !*scene) {
-          // No image, no evidence that the box is empty: say not empty.
-          spdlog::warn("daoai: task {} empty-box check could not capture: {}; answering "
-                       "BOX_NOT_EMPTY", task->spec.id, scene.status().ToString());
-          done(Respond(Base(daoai::kBoxNotEmpty, f)));
-          return;
-        }
-        Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
-        if (!observers_.empty()) {
-          event.plan_status = plan.status();
-          if (plan.ok()) event.plan = *plan;
-          event.plan_ms = std::chrono::duration<double, std::milli>(
-                              std::chrono::steady_clock::now() - t1).count();
-          NotifyDetection(event);
-        }
-        if (!plan.ok()) {
-          spdlog::warn("daoai: task {} empty-box check failed: {}; answering BOX_NOT_EMPTY",
-                       task->spec.id, plan.status().ToString());
-          done(Respond(Base(daoai::kBoxNotEmpty, f)));
-          return;
-        }
-        const EmptyBoxRule& rule = task->spec.empty_box;
-        const int64_t points = EmptyBoxPoints(rule, plan->roi_points, plan->largest_region_points);
-        const bool empty = IsBoxEmpty(rule, *plan);
-        spdlog::info("daoai: task {} empty-box check: {} points (threshold {} at {} pixels), {} "
-                     "detections: {}", task->spec.id, points,
-                     EffectiveThreshold(rule, plan->image_pixels), plan->image_pixels, plan->detections,
-                     empty ? "EMPTY" : "NOT EMPTY");
-        done(Respond(Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, f)));
-      });
+    case daoai::kCheckEmptyBox:
+      PostCheck(*task, &TaskState::empty_box, MakePlanRequest(*task, X_BF), EchoMeta2(f, std::move(done)),
+                [this, task](const PlanRequest& r) { return EmptyBoxCheck(*task, r); });
       return;
-    }
 
-    case daoai::kPrecisionCheck: {
-      PlanRequest plan_request = MakePlanRequest(*task, X_BF);
-      Spawn([this, f, plan_request = std::move(plan_request), done = std::move(done)] {
-        Result<double> error_mm = Status::Unavailable("not run");
-        {
-          std::lock_guard lock(capture_mutex_);
-          error_mm = Guard("precision check", [&] { return planner_->CheckPrecision(plan_request); });
-        }
-        Result<int32_t> fixed = error_mm.ok() ? ToFixed(*error_mm) : Result<int32_t>(error_mm.status());
-        if (!fixed.ok()) {
-          spdlog::warn("daoai: task {} precision check failed: {}", plan_request.task.id,
-                       fixed.status().ToString());
-          done(Respond(Base(daoai::kPrecisionCheckFail, f)));
-          return;
-        }
-        Response r = Base(daoai::kPrecisionCheckSuccess, f);
-        r.payload[0] = *fixed;
-        done(Respond(r));
-      });
+    case daoai::kPrecisionCheck:
+      PostCheck(*task, &TaskState::precision, MakePlanRequest(*task, X_BF), EchoMeta2(f, std::move(done)),
+                [this](const PlanRequest& r) { return PrecisionCheck(r); });
       return;
-    }
 
     case daoai::kSwitchConfig: {
       if (cell_.camera.FindConfig(req.payload_1) == nullptr) {
@@ -949,7 +1202,7 @@ Result<RequestHandler::TaskSnapshot> RequestHandler::Impl::Snapshot(int task_id)
   TaskSnapshot s;
   {
     std::lock_guard lock(t->mutex);
-    s.in_flight = t->in_flight;
+    s.in_flight = (t->running ? 1 : 0) + (t->pending ? 1 : 0);
     s.finished = t->finished;
   }
   if (std::optional<GraspQueue::Summary> last = t->queue.LastPlan()) s.outcome = last->outcome;
@@ -961,21 +1214,14 @@ Status RequestHandler::Impl::StartDetection(int task_id, const std::optional<Pos
   TaskState* t = FindTask(task_id);
   if (!t) return UnknownTask(task_id);
   if (stopping_) return Status::Unavailable("the request handler is shutting down");
-  StartDetection(*t, MakePlanRequest(*t, X_BF), nullptr);
+  RequestDetection(*t, MakePlanRequest(*t, X_BF), nullptr);
   return Status::Ok();
 }
 
-Status RequestHandler::Impl::WhenIdle(int task_id, std::function<void()> ready) {
+Status RequestHandler::Impl::WhenDetected(int task_id, std::function<void()> ready) {
   TaskState* t = FindTask(task_id);
   if (!t) return UnknownTask(task_id);
-  {
-    std::lock_guard lock(t->mutex);
-    if (t->in_flight > 0) {
-      t->waiters.push_back(std::move(ready));
-      return Status::Ok();
-    }
-  }
-  ready();
+  if (!WaitForDetection(*t, ready)) ready();
   return Status::Ok();
 }
 
@@ -1003,10 +1249,23 @@ void RequestHandler::HandleAsync(const Request& request, ClientContext& client, 
   impl_->HandleAsync(request, client, std::move(done));
 }
 
-std::optional<Response> RequestHandler::Handle(const Request& request, ClientContext& client) {
+std::optional<Response> RequestHandler::Handle(const Request& request, ClientContext& client,
+                                               const std::function<bool()>& abandon) {
+  // The completion owns the promise: called, it sets the Reply; dropped
+  // unanswered (shutdown), its destruction breaks the promise. Either way
+  // the future becomes ready, so this never waits for a completion that no
+  // longer exists.
   auto promise = std::make_shared<std::promise<Reply>>();
   std::future<Reply> future = promise->get_future();
-  impl_->HandleAsync(request, client, [promise](Reply reply) { promise->set_value(std::move(reply)); });
+  impl_->HandleAsync(request, client, [promise = std::move(promise)](Reply reply) {
+    promise->set_value(std::move(reply));
+  });
+  if (abandon) {
+    while (future.wait_for(std::chrono::milliseconds(10)) != std::future_status::ready) {
+      // Given up: the Reply, if it comes, is never run (nothing popped).
+      if (abandon()) return std::nullopt;
+    }
+  }
   try {
     Reply reply = future.get();
     return reply ? reply() : std::nullopt;
@@ -1025,12 +1284,13 @@ Result<RequestHandler::TaskSnapshot> RequestHandler::Snapshot(int task_id) const
 Status RequestHandler::StartDetection(int task_id, const std::optional<Pose>& X_BF) {
   return impl_->StartDetection(task_id, X_BF);
 }
-Status RequestHandler::WhenIdle(int task_id, std::function<void()> ready) {
-  return impl_->WhenIdle(task_id, std::move(ready));
+Status RequestHandler::WhenDetected(int task_id, std::function<void()> ready) {
+  return impl_->WhenDetected(task_id, std::move(ready));
 }
-void RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job) {
-  impl_->RunCalibration(std::move(job));
+bool RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job) {
+  return impl_->RunCalibration(std::move(job));
 }
+RequestHandlerStats RequestHandler::stats() const { return impl_->stats(); }
 
 Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id) { return impl_->PopGrasp(task_id); }
 std::optional<GraspQueue::Contents> RequestHandler::QueueContents(int task_id) const {

@@ -7,8 +7,15 @@
 // (network) thread. Captures, detection, empty-box and precision checks,
 // calibration steps and teaching run on a oneTBB arena (options.detection_threads).
 // Captures are serialized (one camera). Each task has a GraspQueue replaced by
-// each detection; RC_DAOAI_PICK_POSE waits, without blocking, until the
-// task's detections in flight have finished.
+// each detection, in capture order.
+//
+// One detection in flight per task (docs/protocols.md "Capture floods"):
+// capture requests (19, 20, GRI triggers) that arrive while the task's
+// detection runs join the one pending after it (at most one; the latest
+// robot pose wins; every RC 20 is answered from the capture that serves it).
+// RC_DAOAI_PICK_POSE waits, without blocking, for the newest detection
+// requested before it: at most the one running and the one pending. Empty-box
+// (40) and precision checks (50) are batched the same way per task.
 //
 // The pop rule: a grasp leaves its task's queue only when the transport calls
 // the Reply it was given, which it does right before writing the response on
@@ -58,10 +65,24 @@ struct ClientContext {
   // The last answer written on this connection, as the robot read it; set by
   // the transport after writing it, before the next request.
   std::optional<daoai::Response> last_answer;
+  // The peer is allowed to change the cell (calibration, teach, camera
+  // config): set by the transport from its config allowlist
+  // (docs/reliability.md "Threat model"); refused requests get the
+  // protocol's refusal code and a log line.
+  bool may_change_cell = true;
 };
 
 struct RequestHandlerOptions {
   int detection_threads = 2;  // oneTBB arena concurrency
+};
+
+// Totals since start (docs/status_page.md "Metrics"); any thread.
+struct RequestHandlerStats {
+  uint64_t captures_coalesced = 0;  // capture requests that joined a pending detection
+  uint64_t planner_failures = 0;    // plans that threw or returned an error
+  uint64_t observer_failures = 0;   // exceptions an observer let escape (contained)
+  uint64_t jobs_refused = 0;        // calibration steps and teach poses refused: queue full
+  uint64_t changes_refused = 0;     // state-changing requests from peers not allowed to
 };
 
 class RequestHandler {
@@ -89,8 +110,12 @@ class RequestHandler {
 
   void HandleAsync(const daoai::Request& request, ClientContext& client, Completion done);
   // Blocking convenience for transports with their own threads (Modbus) and
-  // tests: HandleAsync, wait, call the Reply.
-  std::optional<daoai::Response> Handle(const daoai::Request& request, ClientContext& client);
+  // tests: HandleAsync, wait, call the Reply. Always returns: with the
+  // response, or nullopt when the command has none, the handler dropped the
+  // request (shutdown) or `abandon` (polled every 10 ms while waiting)
+  // returned true; an abandoned Reply is never run, so nothing is popped.
+  std::optional<daoai::Response> Handle(const daoai::Request& request, ClientContext& client,
+                                        const std::function<bool()>& abandon = nullptr);
 
   // Waits for work in flight; pending completions are dropped. Idempotent.
   void Shutdown();
@@ -106,7 +131,7 @@ class RequestHandler {
   // commands: a grasp popped here is never handed out again by a pick pose.
   // Thread-safe. @returns NotFound for an unknown task.
   struct TaskSnapshot {
-    int in_flight = 0;      // detections running
+    int in_flight = 0;      // detections running or pending (0..2)
     uint64_t finished = 0;  // detections finished since start (failed captures included)
     // Outcome of the last finished detection; nullopt while one runs or before the first.
     std::optional<PlanResult::Outcome> outcome;
@@ -115,16 +140,22 @@ class RequestHandler {
   Result<TaskSnapshot> Snapshot(int task_id) const;
   // Capture and detect in the background (as RC_DAOAI_CAPTURE_AND_PROCESS_ASYNC).
   Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
-  // Runs `ready` once the task has no detection in flight: at once on the
-  // caller's thread when idle, else on the worker finishing the last one
-  // (how a DaoAI pick pose waits). Dropped if the handler shuts down first.
-  Status WhenIdle(int task_id, std::function<void()> ready);
+  // Runs `ready` once every detection of the task requested before this
+  // call has finished (at most the running one and the one pending after
+  // it): at once on the caller's thread when they have, else on the worker
+  // finishing the last of them (how a DaoAI pick pose waits). Dropped if the
+  // handler shuts down first.
+  Status WhenDetected(int task_id, std::function<void()> ready);
   // Pops the next grasp; the planner is told it was handed out.
   Result<GraspQueue::Popped> PopGrasp(int task_id);
   // Runs `job` with the calibration service after every calibration step
   // already posted, on the same sequence (the GRI's HEC actions). It ends any
   // DaoAI calibration mode (one calibration at a time). Dropped at shutdown.
-  void RunCalibration(std::function<void(CalibrationService&)> job);
+  // @returns false (job not run, logged, counted) when 64 calibration and
+  // teach jobs are already waiting.
+  [[nodiscard]] bool RunCalibration(std::function<void(CalibrationService&)> job);
+
+  RequestHandlerStats stats() const;
 
  private:
   class Impl;

@@ -8,8 +8,6 @@
 
 #include "core/cell.h"
 
-#include <arpa/inet.h>
-
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -23,6 +21,9 @@
 #include <sstream>
 #include <string_view>
 #include <utility>
+
+#include "core/address_list.h"
+#include "core/atomic_file.h"
 
 namespace bp {
 namespace internal {
@@ -57,6 +58,18 @@ std::string Join(const std::string& path, std::string_view key) {
 }
 
 std::string At(const std::string& path, size_t i) { return path + "[" + std::to_string(i) + "]"; }
+
+// What a user can do about a corrupt calibration result file: restore the
+// backup the last rewrite kept, when there is one.
+std::string BackupHint(const std::string& file) {
+  const std::string bak = AtomicBackupPath(file);
+  std::error_code ec;
+  if (fs::is_regular_file(bak, ec)) {
+    return "; the previous calibration is kept in '" + bak + "': restore it with `cp '" + bak +
+           "' '" + file + "'`, or remove the file to use camera.pose";
+  }
+  return "; there is no backup ('" + bak + "'): remove the file to use camera.pose, or calibrate again";
+}
 
 std::string FormatNumber(double v) {
   std::ostringstream os;
@@ -491,14 +504,17 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
       std::stringstream text;
       text << in.rdbuf();
       if (!in) Fail(h, "camera.hand_eye_file", "cannot read '" + cam.hand_eye_file + "'", Code::kNotFound);
+      // A calibration rewrite keeps the previous file as <file>.bak
+      // (core/atomic_file.h): name it, so the user knows what to restore.
+      const std::string of = " (camera.hand_eye_file of " + file_ + ")" + BackupHint(cam.hand_eye_file);
       try {
         Parser calib(cam.hand_eye_file, fs::path(cam.hand_eye_file).parent_path());
         pose = calib.ParseHandEye(YAML::Load(text.str()));
       } catch (const CellError& e) {
-        throw CellError{MakeStatus(e.status.code(), e.status.message() + " (camera.hand_eye_file of " + file_ + ")")};
+        throw CellError{MakeStatus(e.status.code(), e.status.message() + of)};
       } catch (const YAML::ParserException& e) {
         throw CellError{Status::Corruption(cam.hand_eye_file + ":" + std::to_string(e.mark.line + 1) +
-                                           ": YAML syntax error: " + e.msg + " (camera.hand_eye_file of " + file_ + ")")};
+                                           ": YAML syntax error: " + e.msg + of)};
       }
     }
   }
@@ -1013,7 +1029,8 @@ void Parser::ParseRobot(const YAML::Node& n, Cell& cell) const {
 
 void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
   ExpectMap(n, "endpoints", {"bind", "daoai_port", "gri_port", "gri_official_port", "http_port",
-                             "max_connections", "max_message_rate", "allowlist", "http_allowlist",
+                             "max_connections", "max_connections_per_peer", "max_message_rate",
+                             "allowlist", "config_allowlist", "http_allowlist",
                              "http_max_connections"});
   Endpoints& e = cell.endpoints;
   e.bind = OptString(n, "endpoints", "bind", e.bind);
@@ -1033,10 +1050,15 @@ void Parser::ParseEndpoints(const YAML::Node& n, Cell& cell) const {
   e.max_connections = OptInt(n, "endpoints", "max_connections", e.max_connections);
   Check(e.max_connections >= 0, n["max_connections"], "endpoints.max_connections",
         "must be >= 0 (0: unlimited)");
+  e.max_connections_per_peer =
+      OptInt(n, "endpoints", "max_connections_per_peer", e.max_connections_per_peer);
+  Check(e.max_connections_per_peer >= 0, n["max_connections_per_peer"],
+        "endpoints.max_connections_per_peer", "must be >= 0 (0: unlimited)");
   e.max_message_rate = OptNumber(n, "endpoints", "max_message_rate", e.max_message_rate);
   Check(std::isfinite(e.max_message_rate) && e.max_message_rate >= 0, n["max_message_rate"],
         "endpoints.max_message_rate", "must be >= 0 requests/s (0: unlimited)");
   e.allowlist = IpList(n, "allowlist");
+  e.config_allowlist = IpList(n, "config_allowlist");
   e.http_allowlist = IpList(n, "http_allowlist");
   e.http_max_connections = OptInt(n, "endpoints", "http_max_connections", e.http_max_connections);
   Check(e.http_max_connections >= 0, n["http_max_connections"], "endpoints.http_max_connections",
@@ -1052,9 +1074,8 @@ std::vector<std::string> Parser::IpList(const YAML::Node& n, const char* name) c
   for (size_t i = 0; i < a.size(); ++i) {
     const std::string key = path + "[" + std::to_string(i) + "]";
     const std::string ip = String(a[i], key);
-    in6_addr buf{};
-    Check(inet_pton(AF_INET, ip.c_str(), &buf) == 1 || inet_pton(AF_INET6, ip.c_str(), &buf) == 1,
-          a[i], key, "'" + ip + "' is not an IP address");
+    const Status valid = AddressList::CheckEntry(ip);
+    Check(valid.ok(), a[i], key, valid.message());
     list.push_back(ip);
   }
   return list;

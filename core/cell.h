@@ -327,8 +327,15 @@ struct Endpoints {
   // Limits and allowlist of the robot listeners (DaoAI, GRI), docs/cell.md
   // "endpoints" and docs/reliability.md. 0: unlimited; empty: any peer.
   int max_connections = 64;
+  // Connections one peer address may hold at once per listener, so one host
+  // cannot take every slot (issue 39). 0: unlimited.
+  int max_connections_per_peer = 16;
   double max_message_rate = 0;        // requests per second per connection
-  std::vector<std::string> allowlist;  // robot IP addresses
+  // Addresses or ADDR/PREFIX networks (core/address_list.h).
+  std::vector<std::string> allowlist;  // robots that may connect
+  // Robots that may change the cell: calibration (DaoAI 1-12, GRI HEC),
+  // teach (30), camera config (69). Empty: every robot that may connect.
+  std::vector<std::string> config_allowlist;
   // The status page / metrics HTTP listener (web/status_server.h): its own
   // allowlist (operator PCs, the metrics scraper; not the robots') and
   // connection limit. Empty: any peer; 0: unlimited.

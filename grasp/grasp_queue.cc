@@ -8,7 +8,7 @@
 
 namespace bp {
 
-void GraspQueue::Replace(PlanResult result) {
+bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq) {
   Summary s;
   s.outcome = result.outcome;
   s.total_grasps = static_cast<int>(result.grasps.size());
@@ -20,11 +20,21 @@ void GraspQueue::Replace(PlanResult result) {
   const bool stale_listed =
       std::any_of(grasps.begin(), grasps.end(), [](const Grasp& g) { return !g.stale_after.empty(); });
   std::lock_guard lock(mutex_);
+  if (capture_seq != 0 && capture_seq < capture_seq_) return false;
+  if (capture_seq != 0) capture_seq_ = capture_seq;
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
   withdrawn_ids_.clear();
   summary_ = s;
   ++generation_;
+  return true;
+}
+
+bool GraspQueue::Restore(Grasp grasp, uint64_t generation) {
+  std::lock_guard lock(mutex_);
+  if (generation != generation_) return false;
+  grasps_.push_front(std::move(grasp));
+  return true;
 }
 
 void GraspQueue::Reset() {

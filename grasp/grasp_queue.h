@@ -58,8 +58,17 @@ class GraspQueue {
     int withdrawn = 0;  // grasps withdrawn as stale since the plan was queued
   };
 
-  // Discards what is left and queues result.grasps in order.
-  void Replace(PlanResult result);
+  // Discards what is left and queues result.grasps in order, unless the
+  // queue already holds the plan of a later capture: `capture_seq` numbers
+  // the task's captures (increasing; 0: unnumbered, always replaces), so a
+  // detection that finishes late never overwrites a newer scene.
+  // @returns whether the queue was replaced.
+  bool Replace(PlanResult result, uint64_t capture_seq = 0);
+  // Puts a grasp taken by Pop() back at the front, as if never popped, when
+  // the queue still holds the plan it came from (`generation`); @returns
+  // false (and drops it) when a later plan replaced that one, whose grasps
+  // describe the scene as it is now.
+  bool Restore(Grasp grasp, uint64_t generation);
   // Discards everything; Pop reports no outcome until the next Replace.
   void Reset();
   // Hands out the first grasp and withdraws the queued grasps it makes stale.
@@ -82,6 +91,7 @@ class GraspQueue {
   std::deque<Grasp> grasps_;        // GUARDED_BY(mutex_)
   std::optional<Summary> summary_;  // GUARDED_BY(mutex_)
   uint64_t generation_ = 0;         // GUARDED_BY(mutex_)
+  uint64_t capture_seq_ = 0;        // GUARDED_BY(mutex_): of the plan queued
   bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
   std::vector<int> withdrawn_ids_;  // GUARDED_BY(mutex_): since the last Replace / Reset
 

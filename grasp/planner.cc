@@ -16,6 +16,7 @@ std::string_view ToString(PlanResult::Outcome outcome) {
     case PlanResult::Outcome::kNoObjects: return "no_objects";
     case PlanResult::Outcome::kNoCollisionFree: return "no_collision_free";
     case PlanResult::Outcome::kCaptureFailed: return "capture_failed";
+    case PlanResult::Outcome::kPlannerFailed: return "planner_failed";
   }
   return "?";
 }

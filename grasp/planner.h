@@ -64,6 +64,7 @@ struct PlanResult {
     kNoObjects,         // nothing detected
     kNoCollisionFree,   // parts detected but no collision-free grasp
     kCaptureFailed,     // no image (set by the server when Capture fails)
+    kPlannerFailed,     // the planner returned an error or threw (set by the server)
   };
   Outcome outcome = Outcome::kNoObjects;
   std::vector<Grasp> grasps;          // queue order: the first is handed out first

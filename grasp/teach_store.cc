@@ -2,6 +2,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -12,7 +13,8 @@
 
 namespace bp {
 
-TeachStore::TeachStore(std::string path) : path_(std::move(path)) {}
+TeachStore::TeachStore(std::string path, size_t max_per_class)
+    : path_(std::move(path)), max_per_class_(max_per_class) {}
 
 Status TeachStore::Load() {
   if (path_.empty() || !std::filesystem::exists(path_)) return Status::Ok();
@@ -47,6 +49,16 @@ Status TeachStore::Load() {
 
 Status TeachStore::Add(TaughtGrasp grasp) {
   std::lock_guard lock(mutex_);
+  const size_t same = static_cast<size_t>(std::count_if(
+      grasps_.begin(), grasps_.end(), [&](const TaughtGrasp& g) {
+        return g.class_id == grasp.class_id && g.gripper == grasp.gripper;
+      }));
+  if (same >= max_per_class_) {
+    return Status::OutOfRange("class " + std::to_string(grasp.class_id) + " with gripper '" +
+                              grasp.gripper + "' has " + std::to_string(same) +
+                              " taught grasps already (the cap): not stored; remove some from '" +
+                              (path_.empty() ? std::string("memory") : path_) + "' to teach more");
+  }
   if (grasp.name.empty()) grasp.name = "taught_" + std::to_string(grasps_.size() + 1);
   grasps_.push_back(std::move(grasp));
   return WriteLocked();

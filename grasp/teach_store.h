@@ -21,14 +21,20 @@ namespace bp {
 
 class TeachStore {
  public:
+  // Taught grasps kept per part class and gripper (issue 39: each one adds
+  // candidates to every plan, and a robot looping RC 30 must not grow the
+  // file and the plans without bound).
+  static constexpr size_t kDefaultMaxPerClass = 32;
+
   // An empty path keeps grasps in memory only.
-  explicit TeachStore(std::string path = {});
+  explicit TeachStore(std::string path = {}, size_t max_per_class = kDefaultMaxPerClass);
   // Loads the file if it exists (a missing file is an empty store).
   // @returns Corruption naming the file for unreadable YAML or bad entries.
   Status Load();
   // Stores `grasp` (named taught_<n> when its name is empty) and persists.
-  // @returns Internal naming the file when it cannot be written; the grasp
-  // stays in memory either way.
+  // @returns OutOfRange (not stored) when its class and gripper already have
+  // max_per_class grasps; Internal naming the file when it cannot be
+  // written (the grasp stays in memory).
   Status Add(TaughtGrasp grasp);
   std::vector<TaughtGrasp> All() const;
   const std::string& path() const { return path_; }
@@ -36,6 +42,7 @@ class TeachStore {
  private:
   Status WriteLocked() const;  // REQUIRES: mutex_ held
   const std::string path_;
+  const size_t max_per_class_;
   mutable std::mutex mutex_;
   std::vector<TaughtGrasp> grasps_;  // GUARDED_BY(mutex_)
 };

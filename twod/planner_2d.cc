@@ -198,7 +198,7 @@ Result<Plane2DSetup> MakePlane2DSetup(const Cell& cell) {
                    loaded->points, loaded->residual_rms_mm);
       setup.store->Set(std::move(*loaded));
     } else if (loaded.status().code() == Status::Code::kNotFound) {
-      spdlog::warn("2D calibration {} does not exist yet: pick_2d tasks find no objects until RC 11/12 ran",
+      spdlog::warn("2D calibration {} does not exist yet: pick_2d picks are answered -1 until RC 11/12 ran",
                    cell.camera.plane_calibration_file);
     } else {
       return loaded.status();

@@ -15,6 +15,46 @@ void AddTransportMetrics(MetricsRegistry& metrics, const std::string& server,
       [read] { return static_cast<double>(read().protocol_errors); });
   metrics.AddCounterCallback("binpick_read_timeouts_total", "Robot connections closed for silence.",
                              labels, [read] { return static_cast<double>(read().read_timeouts); });
+  const char* refused_help =
+      "Robot connections closed at accept: not in the allowlist, over max_connections, or over "
+      "max_connections_per_peer.";
+  metrics.AddCounterCallback("binpick_refused_connections_total", refused_help,
+                             {{"server", server}, {"reason", "allowlist"}},
+                             [read] { return static_cast<double>(read().refused_allowlist); });
+  metrics.AddCounterCallback("binpick_refused_connections_total", refused_help,
+                             {{"server", server}, {"reason", "max_connections"}},
+                             [read] { return static_cast<double>(read().refused_max_connections); });
+  metrics.AddCounterCallback("binpick_refused_connections_total", refused_help,
+                             {{"server", server}, {"reason", "per_peer"}},
+                             [read] { return static_cast<double>(read().refused_per_peer); });
+  metrics.AddCounterCallback(
+      "binpick_accept_errors_total",
+      "Failed accepts (out of descriptors or memory: retried after a pause up to 1 s).", labels,
+      [read] { return static_cast<double>(read().accept_errors); });
+}
+
+void AddHandlerMetrics(MetricsRegistry& metrics, const RequestHandler& handler) {
+  const RequestHandler* h = &handler;
+  metrics.AddCounterCallback(
+      "binpick_captures_coalesced_total",
+      "Capture requests that joined the detection pending after the running one (one detection "
+      "in flight per task).",
+      {}, [h] { return static_cast<double>(h->stats().captures_coalesced); });
+  metrics.AddCounterCallback("binpick_planner_failures_total",
+                             "Plans that threw or returned an error (answered as errors).", {},
+                             [h] { return static_cast<double>(h->stats().planner_failures); });
+  metrics.AddCounterCallback("binpick_observer_failures_total",
+                             "Exceptions an observer (recorder, status page) let escape; contained.",
+                             {}, [h] { return static_cast<double>(h->stats().observer_failures); });
+  const char* refused_help =
+      "Requests refused: calibration or teach jobs over the queue bound (queue_full), or "
+      "state-changing requests from peers not in the config allowlist (not_allowed).";
+  metrics.AddCounterCallback("binpick_requests_refused_total", refused_help,
+                             {{"reason", "queue_full"}},
+                             [h] { return static_cast<double>(h->stats().jobs_refused); });
+  metrics.AddCounterCallback("binpick_requests_refused_total", refused_help,
+                             {{"reason", "not_allowed"}},
+                             [h] { return static_cast<double>(h->stats().changes_refused); });
 }
 
 void AddModbusMetrics(MetricsRegistry& metrics, const ModbusMaster& master) {

@@ -15,11 +15,16 @@
 namespace bp {
 
 // binpick_connections, binpick_connections_accepted_total,
-// binpick_protocol_errors_total, binpick_read_timeouts_total {server=...}.
+// binpick_protocol_errors_total, binpick_read_timeouts_total,
+// binpick_accept_errors_total {server=...};
+// binpick_refused_connections_total {server, reason}.
 void AddTransportMetrics(MetricsRegistry& metrics, const std::string& server,
                          std::function<TransportStats()> read);
 // binpick_modbus_* {robot="host:port"}.
 void AddModbusMetrics(MetricsRegistry& metrics, const ModbusMaster& master);
+// binpick_captures_coalesced_total, binpick_planner_failures_total,
+// binpick_observer_failures_total, binpick_requests_refused_total {reason}.
+void AddHandlerMetrics(MetricsRegistry& metrics, const RequestHandler& handler);
 // binpick_queue_grasps {task=...} for each of the cell's tasks.
 void AddQueueMetrics(MetricsRegistry& metrics, const RequestHandler& handler);
 

@@ -17,6 +17,7 @@
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
 
+#include "core/address_list.h"
 #include "web/internal/page.h"
 
 namespace bp {
@@ -53,11 +54,11 @@ class StatusServer::Impl {
     if (options_.port < 0 || options_.port > 65535) {
       return Status::InvalidArgument("http: bad port " + std::to_string(options_.port));
     }
-    for (const std::string& peer : options_.allowlist) {
-      asio::ip::address a = asio::ip::make_address(peer, ec);
-      if (ec) return Status::InvalidArgument("http: bad allowlist address '" + peer + "'");
-      allowed_.push_back(Unmapped(a));
+    Result<AddressList> allowed = AddressList::Parse(options_.allowlist);
+    if (!allowed.ok()) {
+      return Status::InvalidArgument("http: bad allowlist entry: " + allowed.status().message());
     }
+    allowed_ = *allowed;
     // Both reasons appear in /metrics from the start, at 0.
     refused_allowlist_ = &RefusedCounter("allowlist");
     refused_limit_ = &RefusedCounter("max_connections");
@@ -239,9 +240,7 @@ class StatusServer::Impl {
     if (allowed_.empty()) return true;
     boost::system::error_code ec;
     const tcp::endpoint peer = socket.remote_endpoint(ec);
-    if (!ec && std::find(allowed_.begin(), allowed_.end(), Unmapped(peer.address())) != allowed_.end()) {
-      return true;
-    }
+    if (!ec && allowed_.Contains(Unmapped(peer.address()).to_string())) return true;
     refused_allowlist_->Inc();
     spdlog::warn("http: refused a connection from {}: {}",
                  ec ? std::string("?") : peer.address().to_string() + ":" + std::to_string(peer.port()),
@@ -288,7 +287,7 @@ class StatusServer::Impl {
   std::thread thread_;
   std::atomic<bool> stopped_{false};
   int port_ = 0;
-  std::vector<asio::ip::address> allowed_;  // parsed options_.allowlist
+  AddressList allowed_;  // parsed options_.allowlist
   Counter* refused_allowlist_ = nullptr;
   Counter* refused_limit_ = nullptr;
   uint64_t next_id_ = 0;                                                // io thread

@@ -10,7 +10,9 @@
 //            [--source synthetic|files:DIR|replay:DIR]  (default: the cell's source)
 //            [--no-record] [--record-dir DIR] [--record-max-mb N]  (default: the cell's recording)
 //            [--taught-grasps FILE]  (default: <cell file>.taught.yaml)
-//            [--max-connections N] [--max-message-rate R] [--allow IP]...
+//            [--max-connections N] [--max-connections-per-peer N] [--max-message-rate R]
+//            [--allow ADDR[/PREFIX]]... [--allow-config ADDR[/PREFIX]]...
+//            [--http-allow ADDR[/PREFIX]]...   (docs/reliability.md "Threat model")
 //
 // Prints exactly one line on stdout when ready to accept robots (logs go to
 // stderr):
@@ -41,6 +43,7 @@
 #include "comms/modbus_master.h"
 #include "comms/plane_calibration_service.h"
 #include "comms/request_handler.h"
+#include "core/address_list.h"
 #include "core/cell.h"
 #include "core/service_notify.h"
 #include "grasp/planner_factory.h"
@@ -72,9 +75,12 @@ int main(int argc, char** argv) {
   std::string record_dir;
   std::optional<int64_t> record_max_mb;
   std::optional<int> max_connections;
+  std::optional<int> max_connections_per_peer;
   std::optional<double> max_message_rate;
   std::vector<std::string> allow;
   std::string taught_grasps;
+  std::vector<std::string> allow_config;
+  std::vector<std::string> http_allow;
   app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
   app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
   app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
@@ -93,9 +99,19 @@ int main(int argc, char** argv) {
   app.add_option("--max-message-rate", max_message_rate,
                  "requests/s per connection, faster robots are read no faster; 0 unlimited "
                  "(default: the cell's endpoints.max_message_rate)");
+  app.add_option("--max-connections-per-peer", max_connections_per_peer,
+                 "robot connections one address may hold per listener, more are closed at "
+                 "accept; 0 unlimited (default: the cell's endpoints.max_connections_per_peer)");
   app.add_option("--allow", allow,
-                 "robot IP allowed to connect, repeatable; others are closed at accept "
-                 "(default: the cell's endpoints.allowlist; none: any)");
+                 "robot address or ADDR/PREFIX network allowed to connect, repeatable; others are "
+                 "closed at accept (default: the cell's endpoints.allowlist; none: any)");
+  app.add_option("--allow-config", allow_config,
+                 "address or ADDR/PREFIX network allowed to change the cell (calibration, GRI "
+                 "HEC, teach, camera config), repeatable; others get the protocol's refusal "
+                 "(default: the cell's endpoints.config_allowlist; none: any robot)");
+  app.add_option("--http-allow", http_allow,
+                 "address or ADDR/PREFIX network allowed on the status page / metrics port, "
+                 "repeatable (default: the cell's endpoints.http_allowlist; none: any)");
   app.add_option("--modbus-robot", modbus_robots,
                  "HOST:PORT of a robot Modbus slave to serve as master (repeatable; default: the "
                  "cell's robot.modbus)");
@@ -264,12 +280,49 @@ int main(int argc, char** argv) {
   daoai.read_timeout = std::chrono::milliseconds(static_cast<int64_t>(read_timeout_s * 1000));
   daoai.max_connections = static_cast<size_t>(
       std::max(0, max_connections.value_or(cell->endpoints.max_connections)));
+  daoai.max_connections_per_peer = static_cast<size_t>(std::max(
+      0, max_connections_per_peer.value_or(cell->endpoints.max_connections_per_peer)));
   daoai.max_message_rate = std::max(0.0, max_message_rate.value_or(cell->endpoints.max_message_rate));
   daoai.allowlist = allow.empty() ? cell->endpoints.allowlist : allow;
-  if (!daoai.allowlist.empty()) {
-    std::string list;
-    for (const std::string& ip : daoai.allowlist) list += (list.empty() ? "" : ", ") + ip;
-    spdlog::info("binpickd: robots allowed to connect: {}", list);
+  daoai.config_allowlist = allow_config.empty() ? cell->endpoints.config_allowlist : allow_config;
+  const std::vector<std::string> http_allowlist =
+      http_allow.empty() ? cell->endpoints.http_allowlist : http_allow;
+  bp::AddressList config_allowed;
+  {
+    // Checked here so that a bad entry stops the start with one message.
+    bp::Result<bp::AddressList> robots = bp::AddressList::Parse(daoai.allowlist);
+    bp::Result<bp::AddressList> config = bp::AddressList::Parse(daoai.config_allowlist);
+    bp::Result<bp::AddressList> browsers = bp::AddressList::Parse(http_allowlist);
+    for (const auto& [flag, list] : {std::pair{"--allow / endpoints.allowlist", &robots},
+                                     std::pair{"--allow-config / endpoints.config_allowlist", &config},
+                                     std::pair{"--http-allow / endpoints.http_allowlist", &browsers}}) {
+      if (!list->ok()) {
+        std::cerr << "binpickd: " << flag << ": " << list->status().message() << "\n";
+        return 2;
+      }
+    }
+    config_allowed = *config;
+    if (!robots->empty()) spdlog::info("binpickd: robots allowed to connect: {}", robots->Describe());
+    if (!config->empty()) spdlog::info("binpickd: peers allowed to change the cell: {}", config->Describe());
+    // Industrial protocols carry no authentication: beyond loopback, the
+    // allowlists are the control (docs/reliability.md "Threat model").
+    if (!bp::IsLoopbackAddress(daoai.bind)) {
+      if (robots->empty()) {
+        spdlog::warn("binpickd: the robot ports listen on {} with no allowlist: any host that "
+                     "reaches them can take grasps and, with no config allowlist, recalibrate "
+                     "the camera; give --allow ADDR[/PREFIX] (endpoints.allowlist) and "
+                     "--allow-config (docs/reliability.md \"Threat model\")", daoai.bind);
+      } else if (config->empty()) {
+        spdlog::warn("binpickd: every allowed robot may change the cell (calibration, teach, "
+                     "camera config); give --allow-config ADDR[/PREFIX] "
+                     "(endpoints.config_allowlist) to restrict it");
+      }
+    }
+    if (http_port != 0 && !bp::IsLoopbackAddress(http_bind) && browsers->empty()) {
+      spdlog::warn("binpickd: the status page listens on {} with no allowlist: any host that "
+                   "reaches it can read the cell's state; give --http-allow ADDR[/PREFIX] "
+                   "(endpoints.http_allowlist)", http_bind);
+    }
   }
   std::unique_ptr<bp::DaoaiServer> server;
   std::string ready = "binpickd ready: daoai ";
@@ -312,6 +365,12 @@ int main(int argc, char** argv) {
     if (modbus_robots.empty() && !cell->robot.modbus_host.empty()) robots.push_back(base);
     for (bp::ModbusMasterOptions& o : robots) {
       if (modbus_poll_ms) o.poll_interval = std::chrono::milliseconds(*modbus_poll_ms);
+      // The robot's address as configured (a host name is never listed).
+      o.may_change_cell = config_allowed.Contains(o.host);
+      if (!o.may_change_cell) {
+        spdlog::info("binpickd: Modbus robot {}:{} is not in the config allowlist: its "
+                     "calibration, teach and camera config requests are refused", o.host, o.port);
+      }
       auto started = bp::ModbusMaster::Start(handler, o);
       if (!started.ok()) {
         std::cerr << "binpickd: " << started.status().ToString() << "\n";
@@ -328,8 +387,10 @@ int main(int argc, char** argv) {
   gri.official_port = gri_official_port.value_or(cell->endpoints.gri_official_port);
   gri.read_timeout = daoai.read_timeout;
   gri.max_connections = daoai.max_connections;
+  gri.max_connections_per_peer = daoai.max_connections_per_peer;
   gri.max_message_rate = daoai.max_message_rate;
   gri.allowlist = daoai.allowlist;
+  gri.config_allowlist = daoai.config_allowlist;
   gri.processing_timeout = std::chrono::milliseconds(static_cast<int64_t>(gri_timeout_s * 1000));
   std::unique_ptr<bp::GriServer> gri_server;
   ready += "; gri ";
@@ -353,12 +414,13 @@ int main(int argc, char** argv) {
     }
     for (const auto& master : masters) bp::AddModbusMetrics(metrics, *master);
     bp::AddQueueMetrics(metrics, handler);
+    bp::AddHandlerMetrics(metrics, handler);
     if (recorder) bp::AddRecorderMetrics(metrics, *recorder);
     bp::StatusServerOptions http_options;
     http_options.bind = http_bind;
     http_options.port = http_port < 0 ? 0 : http_port;
     http_options.max_connections = static_cast<size_t>(cell->endpoints.http_max_connections);
-    http_options.allowlist = cell->endpoints.http_allowlist;
+    http_options.allowlist = http_allowlist;
     auto started = bp::StatusServer::Start(*status, metrics, http_options);
     if (!started.ok()) {
       std::cerr << "binpickd: " << started.status().ToString() << "\n";

@@ -6,6 +6,8 @@
 #include <sys/socket.h>
 
 #include <algorithm>
+#include <cerrno>
+#include <cstring>
 
 namespace bp::internal {
 
@@ -21,10 +23,30 @@ Session::Session(SessionArgs args, const char* log_name, std::chrono::millisecon
       counters_(args.counters ? std::move(args.counters) : std::make_shared<TransportCounters>()),
       read_timeout_(read_timeout) {
   client_.id = args.id;
+  client_.may_change_cell = args.may_change_cell;
+  if (args.limits) SetKeepAlive(*args.limits);
   tokens_ = std::max(1.0, max_message_rate_);
   boost::system::error_code ec;
   const tcp::endpoint peer = socket_.remote_endpoint(ec);
   client_.peer = ec ? "?" : peer.address().to_string() + ":" + std::to_string(peer.port());
+}
+
+void Session::SetKeepAlive(const ConnectionLimits& limits) {
+  if (limits.keepalive_idle.count() <= 0) return;
+  const int fd = socket_.native_handle();
+  const int on = 1;
+  const int idle = static_cast<int>(limits.keepalive_idle.count());
+  const int interval = static_cast<int>(std::max<int64_t>(1, limits.keepalive_interval.count()));
+  const int probes = std::max(1, limits.keepalive_probes);
+  // Unacknowledged data gets the same bound as an idle connection.
+  const unsigned user_timeout_ms = static_cast<unsigned>((idle + interval * probes) * 1000);
+  if (::setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &on, sizeof(on)) != 0 ||
+      ::setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof(idle)) != 0 ||
+      ::setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &interval, sizeof(interval)) != 0 ||
+      ::setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &probes, sizeof(probes)) != 0 ||
+      ::setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &user_timeout_ms, sizeof(user_timeout_ms)) != 0) {
+    spdlog::warn("{}: {}: cannot set TCP keepalive: {}", log_name_, client_.peer, std::strerror(errno));
+  }
 }
 
 void Session::Start() {
@@ -164,16 +186,18 @@ Status Listener::Listen(const std::string& bind, const std::vector<int>& ports, 
   const asio::ip::address address = asio::ip::make_address(bind, ec);
   if (ec)
     return Status::InvalidArgument(std::string(log_name_) + ": bad bind address '" + bind + "'");
-  for (const std::string& peer : limits_.allowlist) {
-    const asio::ip::address a = asio::ip::make_address(peer, ec);
-    if (ec) {
-      return Status::InvalidArgument(std::string(log_name_) + ": bad allowlist address '" + peer +
-                                     "' (an IP address)");
-    }
-    allowed_.push_back(a.is_v6() && a.to_v6().is_v4_mapped()
-                           ? asio::ip::address(asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6()))
-                           : a);
+  Result<AddressList> allowed = AddressList::Parse(limits_.allowlist);
+  if (!allowed.ok()) {
+    return Status::InvalidArgument(std::string(log_name_) + ": bad allowlist entry: " +
+                                   allowed.status().message());
   }
+  allowed_ = *allowed;
+  Result<AddressList> config_allowed = AddressList::Parse(limits_.config_allowlist);
+  if (!config_allowed.ok()) {
+    return Status::InvalidArgument(std::string(log_name_) + ": bad config allowlist entry: " +
+                                   config_allowed.status().message());
+  }
+  config_allowed_ = *config_allowed;
   for (int port : ports) {
     if (port < 0 || port > 65535) {
       return Status::InvalidArgument(std::string(log_name_) + ": bad port " + std::to_string(port));
@@ -190,8 +214,11 @@ Status Listener::Listen(const std::string& bind, const std::vector<int>& ports, 
     }
     ports_.push_back(acceptor->local_endpoint(ec).port());
     acceptors_.push_back(std::move(acceptor));
+    accept_strands_.push_back(asio::make_strand(io_));
+    accept_timers_.push_back(std::make_unique<asio::steady_timer>(accept_strands_.back()));
+    accept_backoff_.push_back(std::chrono::milliseconds(0));
   }
-  for (size_t i = 0; i < acceptors_.size(); ++i) Accept(*acceptors_[i], ports_[i]);
+  for (size_t i = 0; i < acceptors_.size(); ++i) Accept(i);
   for (int i = 0; i < std::max(1, io_threads); ++i) {
     threads_.emplace_back([this] { io_.run(); });
   }
@@ -203,11 +230,12 @@ void Listener::Stop() {
   asio::post(io_, [this] {
     boost::system::error_code ec;
     for (auto& acceptor : acceptors_) acceptor->close(ec);
+    for (auto& timer : accept_timers_) timer->cancel();
     std::vector<std::shared_ptr<Session>> open;
     {
       std::lock_guard lock(mutex_);
-      for (auto& [id, weak] : connections_) {
-        if (auto c = weak.lock()) open.push_back(std::move(c));
+      for (auto& [id, c] : connections_) {
+        if (auto session = c.session.lock()) open.push_back(std::move(session));
       }
     }
     for (auto& c : open) c->Close("server stopping");  // may call back into connections_
@@ -223,28 +251,39 @@ size_t Listener::connection_count() const {
   return connections_.size();
 }
 
+uint64_t Listener::refused_count() const {
+  return counters_->refused_allowlist.load() + counters_->refused_max_connections.load() +
+         counters_->refused_per_peer.load();
+}
+
 TransportStats Listener::stats() const {
   TransportStats s;
   s.accepted = counters_->accepted.load(std::memory_order_relaxed);
   s.open = connection_count();
   s.read_timeouts = counters_->read_timeouts.load(std::memory_order_relaxed);
   s.protocol_errors = counters_->protocol_errors.load(std::memory_order_relaxed);
+  s.refused_allowlist = counters_->refused_allowlist.load(std::memory_order_relaxed);
+  s.refused_max_connections = counters_->refused_max_connections.load(std::memory_order_relaxed);
+  s.refused_per_peer = counters_->refused_per_peer.load(std::memory_order_relaxed);
+  s.accept_errors = counters_->accept_errors.load(std::memory_order_relaxed);
   return s;
 }
 
-void Listener::Accept(tcp::acceptor& acceptor, int port) {
+void Listener::Accept(size_t index) {
+  tcp::acceptor& acceptor = *acceptors_[index];
   Strand strand = asio::make_strand(io_);
   acceptor.async_accept(
-      strand, [this, &acceptor, port, strand](boost::system::error_code ec, tcp::socket socket) {
+      strand, asio::bind_executor(accept_strands_[index], [this, index, strand](
+                                                              boost::system::error_code ec,
+                                                              tcp::socket socket) mutable {
         if (ec) {
-          if (ec != asio::error::operation_aborted) {
-            spdlog::warn("{}: accept failed: {}", log_name_, ec.message());
-            Accept(acceptor, port);
-          }
+          if (ec != asio::error::operation_aborted && !stopped_) OnAcceptError(index, ec);
           return;
         }
-        if (!Admit(socket)) {
-          Accept(acceptor, port);
+        accept_backoff_[index] = std::chrono::milliseconds(0);
+        std::optional<std::string> peer = Admit(socket);
+        if (!peer) {
+          Accept(index);
           return;
         }
         uint64_t id = 0;
@@ -252,50 +291,96 @@ void Listener::Accept(tcp::acceptor& acceptor, int port) {
           std::lock_guard lock(mutex_);
           id = ++next_id_;
         }
-        std::shared_ptr<Session> session = factory_(
-            SessionArgs{std::move(socket), strand, gate_, id, port, limits_.max_message_rate,
-                        [this](uint64_t closed_id) {
-                          std::lock_guard lock(mutex_);
-                          connections_.erase(closed_id);
-                        }, counters_});
+        SessionArgs args{std::move(socket), strand, gate_, id, ports_[index],
+                         limits_.max_message_rate,
+                         [this](uint64_t closed_id) {
+                           std::lock_guard lock(mutex_);
+                           auto it = connections_.find(closed_id);
+                           if (it == connections_.end()) return;
+                           auto peer_it = per_peer_.find(it->second.peer);
+                           if (peer_it != per_peer_.end() && --peer_it->second == 0) {
+                             per_peer_.erase(peer_it);
+                           }
+                           connections_.erase(it);
+                         },
+                         counters_, config_allowed_.Contains(*peer), &limits_};
+        std::shared_ptr<Session> session = factory_(std::move(args));
         counters_->accepted.fetch_add(1, std::memory_order_relaxed);
         {
           std::lock_guard lock(mutex_);
-          connections_[id] = session;
+          connections_[id] = Connection{session, *peer};
+          ++per_peer_[*peer];
         }
         session->Start();
-        Accept(acceptor, port);
-      });
+        Accept(index);
+      }));
 }
 
-bool Listener::Admit(tcp::socket& socket) {
+void Listener::OnAcceptError(size_t index, boost::system::error_code ec) {
+  const uint64_t n = counters_->accept_errors.fetch_add(1, std::memory_order_relaxed) + 1;
+  const bool resources = ec == asio::error::no_descriptors ||
+                         ec.value() == ENFILE || ec == asio::error::no_buffer_space ||
+                         ec == asio::error::no_memory;
+  std::chrono::milliseconds& backoff = accept_backoff_[index];
+  if (!resources) {
+    // Not a shortage (e.g. the peer reset before the accept): go on at once.
+    spdlog::warn("{}: accept failed: {}", log_name_, ec.message());
+    Accept(index);
+    return;
+  }
+  if (backoff.count() == 0) {
+    spdlog::error("{}: accept failed: {} ({} accept errors since start); retrying with a pause "
+                  "doubling up to 1 s until it succeeds",
+                  log_name_, ec.message(), n);
+  }
+  backoff = std::min(std::chrono::milliseconds(1000),
+                     std::max(std::chrono::milliseconds(10), backoff * 2));
+  asio::steady_timer& timer = *accept_timers_[index];
+  timer.expires_after(backoff);
+  timer.async_wait([this, index](boost::system::error_code wait_ec) {
+    if (wait_ec || stopped_) return;
+    Accept(index);
+  });
+}
+
+std::optional<std::string> Listener::Admit(tcp::socket& socket) {
   boost::system::error_code ec;
   const tcp::endpoint peer = socket.remote_endpoint(ec);
   std::string why;
+  std::atomic<uint64_t>* counter = &counters_->refused_allowlist;
+  asio::ip::address a;
+  if (!ec) {
+    a = peer.address();
+    if (a.is_v6() && a.to_v6().is_v4_mapped()) a = asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6());
+  }
+  const std::string address = ec ? std::string() : a.to_string();
   if (ec) {
     why = "peer address unknown: " + ec.message();
-  } else if (!allowed_.empty()) {
-    asio::ip::address a = peer.address();
-    if (a.is_v6() && a.to_v6().is_v4_mapped()) a = asio::ip::make_address_v4(asio::ip::v4_mapped, a.to_v6());
-    if (std::find(allowed_.begin(), allowed_.end(), a) == allowed_.end()) {
-      why = "not in the allowlist";
-    }
+  } else if (!allowed_.Contains(address)) {
+    why = "not in the allowlist";
   }
-  if (why.empty() && limits_.max_connections > 0) {
+  if (why.empty()) {
     std::lock_guard lock(mutex_);
-    if (connections_.size() >= limits_.max_connections) {
+    if (limits_.max_connections > 0 && connections_.size() >= limits_.max_connections) {
       why = std::to_string(connections_.size()) + " connections open (max_connections " +
             std::to_string(limits_.max_connections) + ")";
+      counter = &counters_->refused_max_connections;
+    } else if (limits_.max_connections_per_peer > 0) {
+      auto it = per_peer_.find(address);
+      if (it != per_peer_.end() && it->second >= limits_.max_connections_per_peer) {
+        why = std::to_string(it->second) + " connections open from " + address +
+              " (max_connections_per_peer " + std::to_string(limits_.max_connections_per_peer) + ")";
+        counter = &counters_->refused_per_peer;
+      }
     }
   }
-  if (why.empty()) return true;
-  ++refused_;
+  if (why.empty()) return address;
+  counter->fetch_add(1, std::memory_order_relaxed);
   spdlog::warn("{}: refused a connection from {}: {}", log_name_,
-               ec ? std::string("?") : peer.address().to_string() + ":" + std::to_string(peer.port()),
-               why);
+               ec ? std::string("?") : address + ":" + std::to_string(peer.port()), why);
   socket.shutdown(tcp::socket::shutdown_both, ec);
   socket.close(ec);
-  return false;
+  return std::nullopt;
 }
 
 }  // namespace bp::internal

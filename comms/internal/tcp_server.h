@@ -11,6 +11,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -22,6 +23,7 @@
 
 #include "comms/request_handler.h"
 #include "comms/transport_stats.h"
+#include "core/address_list.h"
 #include "core/status.h"
 
 namespace bp::internal {
@@ -42,17 +44,36 @@ struct TransportCounters {
   std::atomic<uint64_t> accepted{0};
   std::atomic<uint64_t> read_timeouts{0};
   std::atomic<uint64_t> protocol_errors{0};
+  std::atomic<uint64_t> refused_allowlist{0};
+  std::atomic<uint64_t> refused_max_connections{0};
+  std::atomic<uint64_t> refused_per_peer{0};
+  std::atomic<uint64_t> accept_errors{0};
 };
 
 // Limits of one listener (docs/reliability.md "Limits"). Zero: unlimited.
 struct ConnectionLimits {
   // Connections open at once; one more is closed at accept, with a log line.
   size_t max_connections = 0;
+  // Connections one peer address may hold at once (same handling).
+  size_t max_connections_per_peer = 0;
   // Complete requests per second per connection; above it the connection is
   // not read until the rate allows (TCP back-pressure), nothing is dropped.
   double max_message_rate = 0;
-  // Peer addresses allowed to connect (exact IPs); empty: any peer.
+  // Peers allowed to connect (addresses or ADDR/PREFIX, core/address_list.h);
+  // empty: any peer.
   std::vector<std::string> allowlist;
+  // Peers allowed to change the cell (ClientContext::may_change_cell);
+  // empty: every peer allowed to connect.
+  std::vector<std::string> config_allowlist;
+  // TCP keepalive on every connection: a robot that vanished without FIN or
+  // RST (power cut, cable pulled) is noticed after idle + interval * probes
+  // (16 s by default) and its connection closed, so an answer is not
+  // written, and its grasp not popped, into a dead connection's buffer. The
+  // same bound applies to data the robot does not acknowledge
+  // (TCP_USER_TIMEOUT). 0 idle: off.
+  std::chrono::seconds keepalive_idle{10};
+  std::chrono::seconds keepalive_interval{2};
+  int keepalive_probes = 3;
 };
 
 struct SessionArgs {
@@ -64,6 +85,8 @@ struct SessionArgs {
   double max_message_rate = 0;  // ConnectionLimits::max_message_rate
   std::function<void(uint64_t)> on_closed;
   std::shared_ptr<TransportCounters> counters;
+  bool may_change_cell = true;  // the peer is in the config allowlist
+  const ConnectionLimits* limits = nullptr;  // the listener's (outlives the session)
 };
 
 // One robot connection. Everything below runs on the strand unless noted.
@@ -182,6 +205,9 @@ class Session : public std::enable_shared_from_this<Session> {
  private:
   void ArmTimer();
 
+  // Sets TCP keepalive and TCP_USER_TIMEOUT (ConnectionLimits).
+  void SetKeepAlive(const ConnectionLimits& limits);
+
   asio::steady_timer timer_;
   asio::steady_timer throttle_timer_;
   const double max_message_rate_;
@@ -217,31 +243,45 @@ class Listener {
   const std::vector<int>& ports() const { return ports_; }  // bound, in Listen's order
   size_t connection_count() const;
   TransportStats stats() const;
-  // Connections closed at accept (allowlist or max_connections).
-  uint64_t refused_count() const { return refused_.load(); }
+  // Connections closed at accept (allowlist, max_connections, per peer).
+  uint64_t refused_count() const;
   // Stops accepting, closes every connection and joins the threads. Idempotent.
   void Stop();
 
  private:
-  void Accept(tcp::acceptor& acceptor, int port);
-  // Applies the allowlist and max_connections; closes a refused socket.
-  bool Admit(tcp::socket& socket);
+  void Accept(size_t index);
+  // An accept failed: out of descriptors (EMFILE, ENFILE) or memory is
+  // retried after a pause that doubles up to 1 s, not at once (the pending
+  // connection would fail again and spin a core); logged once per burst.
+  void OnAcceptError(size_t index, boost::system::error_code ec);
+  // Applies the allowlist, max_connections and the per-peer limit; closes a
+  // refused socket. @returns the peer address (text) of an admitted one.
+  std::optional<std::string> Admit(tcp::socket& socket);
+
+  struct Connection {
+    std::weak_ptr<Session> session;
+    std::string peer;  // address, for the per-peer count
+  };
 
   const char* log_name_;
   Factory factory_;
   const ConnectionLimits limits_;
-  std::vector<asio::ip::address> allowed_;  // parsed limits_.allowlist
-  std::atomic<uint64_t> refused_{0};
+  AddressList allowed_;         // parsed limits_.allowlist
+  AddressList config_allowed_;  // parsed limits_.config_allowlist
   std::shared_ptr<PostGate> gate_ = std::make_shared<PostGate>();
   std::shared_ptr<TransportCounters> counters_ = std::make_shared<TransportCounters>();
   asio::io_context io_;
   std::vector<std::unique_ptr<tcp::acceptor>> acceptors_;
+  std::vector<std::unique_ptr<asio::steady_timer>> accept_timers_;  // one per acceptor
+  std::vector<std::chrono::milliseconds> accept_backoff_;  // per acceptor, its strand only
+  std::vector<Strand> accept_strands_;                     // one per acceptor
   std::vector<int> ports_;
   std::vector<std::thread> threads_;
   std::atomic<bool> stopped_{false};
   uint64_t next_id_ = 0;  // io threads, under mutex_
   mutable std::mutex mutex_;
-  std::unordered_map<uint64_t, std::weak_ptr<Session>> connections_;  // GUARDED_BY(mutex_)
+  std::unordered_map<uint64_t, Connection> connections_;     // GUARDED_BY(mutex_)
+  std::unordered_map<std::string, size_t> per_peer_;         // GUARDED_BY(mutex_)
 };
 
 }  // namespace bp::internal

@@ -70,7 +70,7 @@ struct Rig {
   // Waits for calibration work already posted (a no-op job on the same sequence).
   void Drain() {
     std::promise<void> p;
-    handler->RunCalibration([&p](CalibrationService&) { p.set_value(); });
+    EXPECT_TRUE(handler->RunCalibration([&p](CalibrationService&) { p.set_value(); }));
     p.get_future().wait();
   }
 

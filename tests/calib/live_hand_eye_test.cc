@@ -160,7 +160,7 @@ TEST_F(LiveHandEye, NextPickAfterAnAutoCalibrationUsesTheNewCameraPose) {
   ASSERT_TRUE(flow.ok()) << flow.status().ToString();
   ASSERT_TRUE(flow->ok) << out.str();
   std::promise<void> drained;  // the solve ran (calibration work is sequenced)
-  handler_->RunCalibration([&drained](CalibrationService&) { drained.set_value(); });
+  ASSERT_TRUE(handler_->RunCalibration([&drained](CalibrationService&) { drained.set_value(); }));
   drained.get_future().wait();
   const HandEyeSnapshot calibrated = state_->Snapshot();
   ASSERT_TRUE(calibrated.last_result.has_value()) << out.str();

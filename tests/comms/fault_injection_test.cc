@@ -385,9 +385,12 @@ TEST_F(FaultTest, FailingCaptureAndThrowingDetectionAreAnsweredAndRecovered) {
   // The capture succeeded, so it is answered CAPTURE_SUCCESS; the pick then
   // must not wait forever for a detection that threw.
   EXPECT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  // Answered as an error, not NO_OBJECT_FOUND (issue 39: the robot must not
+  // take a failed detection for an empty bin).
   Result<RobotReply> pick = c->Call(daoai::kPickPose, 0);
   ASSERT_TRUE(pick.ok()) << pick.status().ToString();
-  EXPECT_EQ(pick->status, daoai::kNoObjectFound);
+  EXPECT_EQ(pick->status, daoai::kUnknownCommand);
+  EXPECT_EQ(pick->payload[0], 0);
   // The empty-box check with a throwing detection: not empty (no evidence).
   Result<RobotReply> empty = c->Call(daoai::kCheckEmptyBox, 0);
   ASSERT_TRUE(empty.ok()) << empty.status().ToString();

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstdlib>
+#include <future>
 #include <iostream>
 #include <random>
 #include <sstream>
@@ -415,6 +416,77 @@ TEST(ModbusMaster, RobotRestartingMidRequestIsServedAfterReconnect) {
   EXPECT_EQ(m.connects, 2u);
   EXPECT_EQ(m.lost, 1u);  // the answer to the capture before the restart
   EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+}
+
+// Issue 39: the connection fails after the master marked a request taken
+// and before it cleared the flag. After the reconnect the marker made the
+// request look stale and it was never served; now it is finished.
+TEST(ModbusMaster, AHalfTakenRequestIsServedAfterTheReconnect) {
+  ModbusRig rig;
+  rig.sim_->DropNextWriteTo(ModbusRegisterMap{}.request_flag);  // the take's flag clear
+  Result<RobotReply> capture = rig.robot_->Call(daoai::kCaptureAndProcess, 0);
+  ASSERT_TRUE(capture.ok()) << capture.status().ToString();
+  EXPECT_EQ(capture->status, daoai::kDetection);
+  EXPECT_EQ(rig.sim_->stats().dropped_writes, 1u);
+  const ModbusMasterStats m = rig.master_->stats();
+  EXPECT_EQ(m.connects, 2u);
+  EXPECT_EQ(m.resumed, 1u);
+  EXPECT_EQ(m.lost, 0u);
+  EXPECT_EQ(rig.planner_->captures(), 1);
+  Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  EXPECT_EQ(pick->status, daoai::kObjectsFound);
+}
+
+// Issue 39: the connection fails after the response registers and before
+// their flag: the answer (here a pick, its grasp already taken) is written
+// after the reconnect, not handled twice and not lost.
+TEST(ModbusMaster, AnAnswerNotWrittenBeforeTheReconnectIsWrittenAfterIt) {
+  for (const int version : {1, 2}) {
+    RigOptions o;
+    o.version = version;
+    ModbusRig rig(o);
+    ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+    rig.sim_->DropNextWriteTo(ModbusRegisterMap{}.response_flag);
+    Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(pick.ok()) << "v" << version << ": " << pick.status().ToString();
+    EXPECT_EQ(pick->status, daoai::kObjectsFound);
+    EXPECT_NEAR(pick->payload[0], 3.0, 1e-9);  // the first of 3: handed out once
+    EXPECT_EQ(rig.planner_->handed_out().size(), 1u);
+    const ModbusMasterStats m = rig.master_->stats();
+    EXPECT_EQ(m.resumed, 1u) << "v" << version;
+    EXPECT_EQ(m.lost, 0u);
+    Result<RobotReply> next = rig.robot_->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(next.ok());
+    EXPECT_NEAR(next->payload[0], 2.0, 1e-9);
+    EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+  }
+}
+
+// Issue 39: Stop() returns while a request waits in the handler (a pick
+// behind a detection that does not end): the request is abandoned and pops
+// nothing. Before, Stop joined a thread blocked in Handle() until the
+// detection ended, so SIGTERM could hang with a Modbus robot.
+TEST(ModbusMaster, StopReturnsAtOnceWhileARequestWaitsForItsDetection) {
+  ModbusRig rig;
+  rig.planner_->HoldPlans(true);
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcessAsync, 0)->status, daoai::kDetection);
+  ASSERT_TRUE(rig.sim_->SendRobotData(rig.robot_->MakeRequest(daoai::kPickPose, 0), true, 1s).ok());
+  ASSERT_TRUE(testing::WaitUntil([&] { return rig.master_->stats().requests == 2; }));
+  std::promise<void> stopped;
+  std::thread stopper([&] {
+    rig.master_->Stop();
+    stopped.set_value();
+  });
+  // A liveness bound, not a speed figure: without the abandon, Stop waits
+  // for the held detection, i.e. forever.
+  const bool returned = stopped.get_future().wait_for(10s) == std::future_status::ready;
+  rig.planner_->HoldPlans(false);
+  stopper.join();
+  EXPECT_TRUE(returned) << "ModbusMaster::Stop() blocked behind the detection";
+  ASSERT_TRUE(testing::WaitUntil([&] { return rig.handler_->Snapshot(0)->in_flight == 0; }));
+  EXPECT_TRUE(rig.planner_->handed_out().empty());
+  EXPECT_EQ(rig.handler_->QueueSize(0), 3);
 }
 
 // Fault injection (docs/reliability.md): the robot's Modbus slave vanishes

@@ -2,7 +2,13 @@
 // with the scripted test-double planner.
 #include "comms/request_handler.h"
 
+#include <atomic>
+#include <functional>
+#include <future>
 #include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -220,6 +226,319 @@ TEST(RequestHandlerObserver, SeesEveryDetectionAndEveryResponseButNoSilentComman
   ASSERT_TRUE(observer->answers[1].X_BF);
   EXPECT_NEAR(observer->answers[1].X_BF->translation().x(), 0.5, 1e-9);
   EXPECT_EQ(observer->answers[2].response.status, daoai::kCaptureFail);
+}
+
+}  // namespace
+}  // namespace bp
+
+namespace bp {
+namespace {
+
+using namespace std::chrono_literals;
+
+// A completion that keeps the Reply for the test to run (as a transport does
+// right before writing).
+struct Pending {
+  std::mutex mutex;
+  std::optional<RequestHandler::Reply> reply;
+  RequestHandler::Completion Completion() {
+    return [this](RequestHandler::Reply r) {
+      std::lock_guard lock(mutex);
+      reply = std::move(r);
+    };
+  }
+  bool answered() {
+    std::lock_guard lock(mutex);
+    return reply.has_value();
+  }
+  std::optional<daoai::Response> Run() {
+    std::lock_guard lock(mutex);
+    return (*reply)();
+  }
+};
+
+bool Eventually(const std::function<bool()>& done, std::chrono::milliseconds timeout = 5000ms) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!done()) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(1ms);
+  }
+  return true;
+}
+
+daoai::Request At(int32_t command, int32_t task, int32_t x) {
+  daoai::Request r = Req(command, task);
+  r.position[0] = x;
+  return r;
+}
+
+// Issue 39: 50 captures on one task while its detection runs cost one more
+// detection, not 50; that one uses the pose of the last request.
+TEST(RequestHandlerCoalescing, ACaptureFloodRunsOneDetectionAtATimeAndTheLatestPoseWins) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  auto observer = std::make_shared<CollectingObserver>();
+  handler.AddObserver(observer);
+  ClientContext client;
+  planner->HoldPlans(true);
+  for (int i = 0; i < 50; ++i) {
+    ASSERT_EQ(handler.Handle(At(daoai::kCaptureAndProcessAsync, 0, 1000 * i), client)->status,
+              daoai::kDetection);
+  }
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 2);  // one running, one pending
+  planner->HoldPlans(false);
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  EXPECT_EQ(planner->captures(), 2);
+  EXPECT_EQ(planner->plans(), 2);
+  EXPECT_EQ(handler.stats().captures_coalesced, 48u);
+  handler.Shutdown();
+  std::lock_guard lock(observer->mutex_);
+  ASSERT_EQ(observer->detections.size(), 2u);
+  EXPECT_NEAR(observer->detections[0].request.X_BF->translation().x(), 0.0, 1e-9);
+  EXPECT_NEAR(observer->detections[1].request.X_BF->translation().x(), 4.9, 1e-9);  // 49000 / MULT
+}
+
+// Every RC 20 that joined a pending detection is answered when that
+// detection's capture is done, not before, and with its result.
+TEST(RequestHandlerCoalescing, SyncCapturesThatJoinAPendingDetectionAreAnsweredByItsCapture) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  std::vector<std::unique_ptr<Pending>> waiting;
+  for (int i = 0; i < 3; ++i) {
+    waiting.push_back(std::make_unique<Pending>());
+    handler.HandleAsync(Req(daoai::kCaptureAndProcess, 0), client, waiting.back()->Completion());
+  }
+  std::this_thread::sleep_for(50ms);
+  for (auto& w : waiting) EXPECT_FALSE(w->answered());
+  EXPECT_EQ(planner->captures(), 1);
+  ScriptedPlanner::Script broken;
+  broken.capture_fails = true;
+  planner->SetScript(0, broken);  // the shared capture fails: all three hear it
+  planner->HoldPlans(false);
+  for (auto& w : waiting) {
+    ASSERT_TRUE(Eventually([&] { return w->answered(); }));
+    EXPECT_EQ(w->Run()->status, daoai::kCaptureFail);
+  }
+  EXPECT_EQ(planner->captures(), 2);
+}
+
+// A pick waits for the newest detection requested before it (here the
+// pending one), and a pick that arrived before that request is answered as
+// soon as the detection it waits for is done.
+TEST(RequestHandlerCoalescing, APickWaitsForTheNewestDetectionRequestedBeforeItAndNoLater) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  ASSERT_TRUE(Eventually([&] { return planner->captures() == 1; }));
+  Pending first, second;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), client, first.Completion());
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  handler.HandleAsync(Req(daoai::kPickPose, 0), client, second.Completion());
+  planner->ReleasePlans(1);  // the first detection ends; the pending one starts and is held
+  ASSERT_TRUE(Eventually([&] { return first.answered(); }));
+  ASSERT_TRUE(Eventually([&] { return planner->captures() == 2; }));
+  EXPECT_FALSE(second.answered());
+  EXPECT_EQ(planner->plans(), 1);
+  const auto a = first.Run();
+  EXPECT_EQ(a->status, daoai::kObjectsFound);
+  EXPECT_EQ(a->payload[0], 30000);  // 3 grasps left, this one included
+  planner->HoldPlans(false);
+  ASSERT_TRUE(Eventually([&] { return second.answered(); }));
+  const auto b = second.Run();
+  EXPECT_EQ(b->status, daoai::kObjectsFound);
+  EXPECT_EQ(b->payload[0], 30000);  // from the new detection's queue
+}
+
+// Issue 39 (re-capture race): a pick released by its detection is answered
+// from it even when a new capture starts before the pick's reply is built.
+TEST(RequestHandlerCoalescing, ARecaptureBeforeAReleasedPickIsAnsweredDoesNotEmptyItsQueue) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  Pending pick;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), client, pick.Completion());
+  planner->ReleasePlans(1);
+  ASSERT_TRUE(Eventually([&] { return pick.answered(); }));
+  // Another robot re-captures before the transport builds the pick's answer.
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  ASSERT_TRUE(Eventually([&] { return planner->captures() == 2; }));
+  const auto r = pick.Run();
+  EXPECT_EQ(r->status, daoai::kObjectsFound);
+  EXPECT_EQ(r->payload[0], 30000);
+  planner->HoldPlans(false);
+}
+
+// Empty-box checks of one task share one capture while one runs.
+TEST(RequestHandlerCoalescing, EmptyBoxChecksThatArriveWhileOneRunsShareTheNextCapture) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  std::vector<std::unique_ptr<Pending>> checks;
+  for (int i = 0; i < 10; ++i) {
+    checks.push_back(std::make_unique<Pending>());
+    handler.HandleAsync(Req(daoai::kCheckEmptyBox, 3), client, checks.back()->Completion());
+  }
+  planner->HoldPlans(false);
+  for (auto& c : checks) {
+    ASSERT_TRUE(Eventually([&] { return c->answered(); }));
+    EXPECT_EQ(c->Run()->status, daoai::kBoxNotEmpty);
+  }
+  EXPECT_EQ(planner->captures(), 2);
+}
+
+// Issue 39: an observer that throws neither leaves the task in flight nor
+// keeps the robot from its answer; it is counted.
+class ThrowingObserver final : public ServerObserver {
+ public:
+  void OnDetection(const DetectionEvent&) override { throw std::runtime_error("observer bug"); }
+  void OnAnswer(const AnswerEvent&) override { throw 42; }
+};
+
+TEST(RequestHandler, AnObserverThatThrowsIsContainedAndCounted) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  handler.AddObserver(std::make_shared<ThrowingObserver>());
+  auto collecting = std::make_shared<CollectingObserver>();
+  handler.AddObserver(collecting);
+  ClientContext client;
+  for (int round = 0; round < 2; ++round) {
+    ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+    const auto pick = handler.Handle(Req(daoai::kPickPose, 0), client);
+    ASSERT_TRUE(pick);
+    EXPECT_EQ(pick->status, daoai::kObjectsFound);
+  }
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 0);
+  EXPECT_EQ(handler.stats().observer_failures, 6u);  // 2 detections, 4 answers
+  handler.Shutdown();
+  std::lock_guard lock(collecting->mutex_);
+  EXPECT_EQ(collecting->detections.size(), 2u);  // the next observer still hears everything
+  EXPECT_EQ(collecting->answers.size(), 4u);
+}
+
+// Issue 39: a planner error is an error to the robot, not "no objects"
+// (which a seed program takes as a reason to check for an empty bin), and
+// the capture goes to the observers (the recorder keeps it for replay).
+TEST(RequestHandler, APlannerErrorIsAnsweredAsAnErrorAndTheCaptureIsObserved) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  auto observer = std::make_shared<CollectingObserver>();
+  handler.AddObserver(observer);
+  ClientContext client;
+  ScriptedPlanner::Script throws;
+  throws.plan_throws = true;
+  planner->SetScript(0, throws);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0), client);
+  EXPECT_EQ(pick->status, daoai::kUnknownCommand);
+  EXPECT_EQ(pick->payload[0], 0);
+  EXPECT_EQ(handler.stats().planner_failures, 1u);
+  EXPECT_EQ(handler.Snapshot(0)->outcome, PlanResult::Outcome::kPlannerFailed);
+  planner->SetScript(0, ScriptedPlanner::Script{});
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  EXPECT_EQ(handler.Handle(Req(daoai::kPickPose, 0), client)->status, daoai::kObjectsFound);
+  handler.Shutdown();
+  std::lock_guard lock(observer->mutex_);
+  ASSERT_FALSE(observer->detections.empty());
+  const DetectionEvent& failed = observer->detections[0];
+  EXPECT_TRUE(failed.scene);  // the frame, for the recorder
+  EXPECT_FALSE(failed.plan);
+  EXPECT_NE(failed.plan_status.message().find("scripted detection exception"), std::string::npos)
+      << failed.plan_status.ToString();
+}
+
+// Issue 39: Handle() always returns: when its caller gives up (the Modbus
+// master stopping) and when the handler drops the request (shutdown). A
+// given-up pick pops nothing.
+TEST(RequestHandler, HandleReturnsWhenAbandonedOrDroppedAndPopsNothing) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  planner->HoldPlans(true);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::atomic<bool> stop{false};
+  std::thread stopper([&] {
+    std::this_thread::sleep_for(100ms);
+    stop = true;
+  });
+  EXPECT_FALSE(handler.Handle(Req(daoai::kPickPose, 0), client, [&] { return stop.load(); }));
+  stopper.join();
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, 3s);
+  planner->ReleasePlans(1);
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  EXPECT_EQ(handler.QueueSize(0), 3);  // the abandoned pick took nothing
+  EXPECT_TRUE(planner->handed_out().empty());
+
+  // A pick waiting for a detection that never starts (pending at shutdown).
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), client)->status, daoai::kDetection);
+  std::optional<daoai::Response> dropped = daoai::Response{};
+  std::thread picker([&] { dropped = handler.Handle(Req(daoai::kPickPose, 0), client); });
+  std::this_thread::sleep_for(50ms);
+  std::thread shutdown([&] { handler.Shutdown(); });
+  std::this_thread::sleep_for(50ms);
+  planner->HoldPlans(false);  // the running detection ends; the pending one is dropped
+  shutdown.join();
+  picker.join();
+  EXPECT_FALSE(dropped.has_value());
+  EXPECT_EQ(planner->captures(), 2);
+}
+
+// Issue 39: a calibration session keeps at most kMaxCalibrationPoses views;
+// a robot looping MANUAL_ACCUMULATE_POSE gets -1 (the seed's "restart the
+// handshake") beyond them instead of growing the server.
+TEST(RequestHandler, ACalibrationKeepsAtMostItsCapOfPoses) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kStartManualCalibration), client)->status,
+            daoai::kModeCalibration);
+  for (size_t i = 0; i < kMaxCalibrationPoses; ++i) {
+    ASSERT_EQ(handler.Handle(Req(daoai::kManualAccumulatePose), client)->status,
+              daoai::kModeCalibration) << i;
+  }
+  EXPECT_EQ(handler.Handle(Req(daoai::kManualAccumulatePose), client)->status,
+            daoai::kUnknownCommand);
+  // A new session starts from zero.
+  ASSERT_EQ(handler.Handle(Req(daoai::kStartManualCalibration), client)->status,
+            daoai::kModeCalibration);
+  EXPECT_EQ(handler.Handle(Req(daoai::kManualAccumulatePose), client)->status,
+            daoai::kModeCalibration);
+}
+
+// Issue 39: calibration steps and teach poses wait in one bounded queue; a
+// flood beyond it is refused, logged and counted, and answered.
+TEST(RequestHandler, CalibrationAndTeachJobsBeyondTheQueueBoundAreRefusedAndCounted) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  std::promise<void> release;
+  std::shared_future<void> gate = release.get_future().share();
+  std::atomic<bool> blocking{false};
+  ASSERT_TRUE(handler.RunCalibration([&](CalibrationService&) {
+    blocking = true;
+    gate.wait();
+  }));
+  ASSERT_TRUE(Eventually([&] { return blocking.load(); }));
+  int posted = 0;
+  while (handler.RunCalibration([](CalibrationService&) {})) ++posted;
+  EXPECT_EQ(posted, 64);
+  EXPECT_EQ(handler.stats().jobs_refused, 1u);
+  EXPECT_FALSE(handler.Handle(Req(daoai::kSendPose, 0), client).has_value());  // teach: refused
+  EXPECT_EQ(handler.Handle(Req(daoai::kStartManualCalibration, 0), client)->status,
+            daoai::kUnknownCommand);
+  EXPECT_EQ(handler.stats().jobs_refused, 3u);
+  release.set_value();
+  handler.Shutdown();
+  EXPECT_TRUE(planner->taught().empty());
 }
 
 }  // namespace

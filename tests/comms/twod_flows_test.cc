@@ -135,11 +135,16 @@ TEST_F(TwoDFlowTest, EveryFootprintOverlappingANeighbourAnswersNoCollisionFreePo
   EXPECT_EQ(camera_->parts().size(), 2u);  // nothing was handed out
 }
 
-TEST_F(TwoDFlowTest, PickBeforeCalibrationFindsNoObject) {
+// Without a 2D calibration nothing can be located: the planner fails, and
+// the pick is answered as an error (-1, payload_1 0), not NO_OBJECT_FOUND,
+// which would send the robot to check for an empty bin (issue 39).
+TEST_F(TwoDFlowTest, PickBeforeCalibrationIsAnsweredAsAnError) {
   Start(testing::LoadTwodCell());
   ASSERT_TRUE(camera_->Scatter(3, 1).ok());
   ASSERT_EQ(robot_->Call(daoai::kCaptureAndProcess, 0).value().status, daoai::kDetection);
-  EXPECT_EQ(robot_->Call(daoai::kPickPose, 0).value().status, daoai::kNoObjectFound);
+  const RobotReply pick = robot_->Call(daoai::kPickPose, 0).value();
+  EXPECT_EQ(pick.status, daoai::kUnknownCommand);
+  EXPECT_EQ(pick.payload[0], 0.0);
 }
 
 // The same 2D flows with the robot as a Modbus TCP slave (seed 000's UR

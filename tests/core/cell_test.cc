@@ -616,6 +616,28 @@ TEST_F(CellFileTest, MalformedHandEyeFileIsRejectedNamingIt) {
   EXPECT_THAT(cell.status().message(), HasSubstr("hand_eye.yaml:1: pose.xyz: expected a list of 3 numbers"));
 }
 
+// Issue 39: a corrupt hand-eye result at start-up names the backup the last
+// calibration kept, so the user knows what to restore.
+TEST_F(CellFileTest, CorruptHandEyeFileNamesTheBackupToRestore) {
+  const std::string cell = Mutate(kBaseCell, "  default_config: 1", "  default_config: 1\n  hand_eye_file: calib/hand_eye.yaml");
+  WriteText(tmp_ / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2, 0.9], rpy_deg: [180, 0\n");  // cut off mid-write
+  Result<Cell> no_backup = Load(cell);
+  ASSERT_FALSE(no_backup.ok());
+  EXPECT_THAT(no_backup.status().message(), HasSubstr("YAML syntax error"));
+  EXPECT_THAT(no_backup.status().message(), HasSubstr("there is no backup ('"));
+  WriteText(tmp_ / "calib/hand_eye.yaml.bak", "pose: {xyz: [0.1, 0.2, 0.9], rpy_deg: [180, 0, 90]}\n");
+  Result<Cell> with_backup = Load(cell);
+  ASSERT_FALSE(with_backup.ok());
+  const std::string bak = (fs::absolute(tmp_).lexically_normal() / "calib/hand_eye.yaml.bak").string();
+  EXPECT_THAT(with_backup.status().message(), HasSubstr("the previous calibration is kept in '" + bak + "'"));
+  EXPECT_THAT(with_backup.status().message(), HasSubstr("cp '" + bak + "'"));
+  // A well-formed file with a bad value names it too.
+  WriteText(tmp_ / "calib/hand_eye.yaml", "pose: {xyz: [0.1, 0.2], rpy_deg: [180, 0, 90]}\n");
+  Result<Cell> bad_value = Load(cell);
+  ASSERT_FALSE(bad_value.ok());
+  EXPECT_THAT(bad_value.status().message(), HasSubstr("restore it with"));
+}
+
 TEST_F(CellFileTest, ModbusSectionReadsTheRegisterMapAndPollInterval) {
   const std::string path = Write(Mutate(kBaseCell, "  protocol_version: 2",
                                         "  protocol_version: 2\n  modbus: {host: 10.0.0.5, port: 1502, "
@@ -660,13 +682,17 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
     return Mutate(kBaseCell, "  gri_port: 10000", "  gri_port: 10000\n" + lines);
   };
   Result<Cell> cell = ParseCell(with("  max_connections: 4\n  max_message_rate: 50\n"
-                                     "  allowlist: [192.168.10.21, \"fd00::7\"]\n"
+                                     "  allowlist: [192.168.10.21, \"fd00::7\", 10.1.0.0/16]\n"
+                                     "  config_allowlist: [192.168.10.21]\n  max_connections_per_peer: 2\n"
                                      "  http_allowlist: [10.1.2.3]\n  http_max_connections: 3"),
                                 (tmp_ / "c.yaml").string());
   ASSERT_TRUE(cell.ok()) << cell.status().ToString();
   EXPECT_EQ(cell->endpoints.max_connections, 4);
   EXPECT_EQ(cell->endpoints.max_message_rate, 50);
-  EXPECT_EQ(cell->endpoints.allowlist, (std::vector<std::string>{"192.168.10.21", "fd00::7"}));
+  EXPECT_EQ(cell->endpoints.allowlist,
+            (std::vector<std::string>{"192.168.10.21", "fd00::7", "10.1.0.0/16"}));
+  EXPECT_EQ(cell->endpoints.config_allowlist, (std::vector<std::string>{"192.168.10.21"}));
+  EXPECT_EQ(cell->endpoints.max_connections_per_peer, 2);
   EXPECT_EQ(cell->endpoints.http_allowlist, (std::vector<std::string>{"10.1.2.3"}));
   EXPECT_EQ(cell->endpoints.http_max_connections, 3);
   Result<Cell> defaults = ParseCell(kBaseCell, (tmp_ / "d.yaml").string());
@@ -674,10 +700,15 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
   EXPECT_EQ(defaults->endpoints.max_connections, 64);
   EXPECT_EQ(defaults->endpoints.max_message_rate, 0);
   EXPECT_TRUE(defaults->endpoints.allowlist.empty());
+  EXPECT_TRUE(defaults->endpoints.config_allowlist.empty());
+  EXPECT_EQ(defaults->endpoints.max_connections_per_peer, 16);
   EXPECT_TRUE(defaults->endpoints.http_allowlist.empty());
   EXPECT_EQ(defaults->endpoints.http_max_connections, 16);
   for (const auto& [yaml, error] : std::vector<std::pair<std::string, std::string>>{
            {"  allowlist: [robot-1]", "endpoints.allowlist[0]: 'robot-1' is not an IP address"},
+           {"  allowlist: [10.0.0.0/40]", "endpoints.allowlist[0]: '10.0.0.0/40': the prefix length must be 0..32"},
+           {"  config_allowlist: [x]", "endpoints.config_allowlist[0]: 'x' is not an IP address"},
+           {"  max_connections_per_peer: -2", "endpoints.max_connections_per_peer: must be >= 0"},
            {"  allowlist: 10.0.0.1", "endpoints.allowlist: expected a list"},
            {"  max_connections: -1", "endpoints.max_connections: must be >= 0"},
            {"  max_message_rate: -5", "endpoints.max_message_rate: must be >= 0"},

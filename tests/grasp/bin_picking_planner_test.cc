@@ -286,6 +286,34 @@ TEST(TeachStore, ReportsACorruptFileByName) {
   std::filesystem::remove(file);
 }
 
+// Issue 39: taught grasps are capped per class and gripper; beyond the cap a
+// teach is refused, nothing is written, and other classes still learn.
+TEST(TeachStore, RefusesGraspsBeyondTheCapPerClassAndGripper) {
+  const std::string file = TempPath("capped.yaml");
+  std::filesystem::remove(file);
+  TeachStore store(file, /*max_per_class=*/3);
+  auto grasp = [](int class_id, const std::string& gripper) {
+    TaughtGrasp g;
+    g.class_id = class_id;
+    g.gripper = gripper;
+    return g;
+  };
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(store.Add(grasp(0, "suction")).ok());
+  const std::string before = testing::ReadBytes(file);
+  const Status refused = store.Add(grasp(0, "suction"));
+  EXPECT_EQ(refused.code(), Status::Code::kOutOfRange);
+  EXPECT_NE(refused.message().find("has 3 taught grasps already"), std::string::npos)
+      << refused.message();
+  EXPECT_EQ(testing::ReadBytes(file), before);
+  EXPECT_TRUE(store.Add(grasp(0, "jaw")).ok());
+  EXPECT_TRUE(store.Add(grasp(1, "suction")).ok());
+  EXPECT_EQ(store.All().size(), 5u);
+  TeachStore reloaded(file, 3);
+  ASSERT_TRUE(reloaded.Load().ok());
+  EXPECT_EQ(reloaded.Add(grasp(0, "suction")).code(), Status::Code::kOutOfRange);
+  std::filesystem::remove(file);
+}
+
 TEST(BinPickingPlanner, InHandAndPlaceTasksReportPosesRelativeToFlangeAndReference) {
   Cell cell = SyntheticCell(1, 3);
   auto planner = MakeOraclePlanner(cell);

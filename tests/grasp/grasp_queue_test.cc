@@ -279,3 +279,38 @@ TEST(GraspQueue, PopsConcurrentWithReplaceSeeOnePlanEach) {
 
 }  // namespace
 }  // namespace bp
+
+namespace bp {
+namespace {
+
+// Issue 39: of two detections of one task, the one of the later capture
+// fills the queue, whichever finishes last.
+TEST(GraspQueue, APlanOfAnOlderCaptureNeverReplacesANewerOne) {
+  GraspQueue q;
+  EXPECT_TRUE(q.Replace(MakePlan(2, /*first_instance=*/200), /*capture_seq=*/2));
+  EXPECT_FALSE(q.Replace(MakePlan(5, /*first_instance=*/100), /*capture_seq=*/1));
+  EXPECT_EQ(q.size(), 2);
+  EXPECT_EQ(q.Pop().grasp->instance_id, 200);
+  EXPECT_TRUE(q.Replace(MakePlan(3, /*first_instance=*/300), /*capture_seq=*/3));
+  EXPECT_EQ(q.Pop().grasp->instance_id, 300);
+}
+
+// A grasp put back goes to the front with its remaining count, unless a
+// later plan replaced the one it came from.
+TEST(GraspQueue, ARestoredGraspIsHandedOutNextUnlessTheQueueWasReplaced) {
+  GraspQueue q;
+  q.Replace(MakePlan(3));
+  GraspQueue::Popped first = q.Pop();
+  ASSERT_TRUE(first.grasp);
+  EXPECT_TRUE(q.Restore(*first.grasp, first.generation));
+  const GraspQueue::Popped again = q.Pop();
+  EXPECT_EQ(again.grasp->instance_id, first.grasp->instance_id);
+  EXPECT_EQ(again.remaining, 3);
+  q.Replace(MakePlan(4, /*first_instance=*/10));
+  EXPECT_FALSE(q.Restore(*again.grasp, again.generation));
+  EXPECT_EQ(q.size(), 4);
+  EXPECT_EQ(q.Pop().grasp->instance_id, 10);
+}
+
+}  // namespace
+}  // namespace bp

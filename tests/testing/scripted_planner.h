@@ -56,6 +56,14 @@ class ScriptedPlanner final : public GraspPlanner {
     }
     cv_.notify_all();
   }
+  // While held, lets `n` more plans through (in the order they arrive).
+  void ReleasePlans(int n) {
+    {
+      std::lock_guard lock(mutex_);
+      permits_ += n;
+    }
+    cv_.notify_all();
+  }
 
   static Pose GraspPose(int task_id, int i) {
     return MakePose(Mat3(Eigen::AngleAxisd(M_PI / 2, Vec3::UnitZ())),
@@ -80,7 +88,8 @@ class ScriptedPlanner final : public GraspPlanner {
     const Script s = ScriptFor(request.task.id);
     {
       std::unique_lock lock(mutex_);
-      cv_.wait(lock, [this] { return !hold_; });
+      cv_.wait(lock, [this] { return !hold_ || permits_ > 0; });
+      if (hold_) --permits_;
     }
     std::this_thread::sleep_for(s.plan_delay);
     if (s.plan_throws) throw std::runtime_error("scripted detection exception");
@@ -160,6 +169,7 @@ class ScriptedPlanner final : public GraspPlanner {
   std::condition_variable cv_;
   std::map<int, Script> scripts_;
   bool hold_ = false;
+  int permits_ = 0;  // plans let through while held
   int captures_ = 0, plans_ = 0, last_config_ = 0;
   std::optional<Pose> last_X_BF_;
   std::vector<std::pair<int, int>> handed_out_;
