@@ -12,7 +12,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
+#include <optional>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace bp::testing {
@@ -74,6 +77,21 @@ class BinpickdProcess {
       line += c;
     }
     return line;
+  }
+  // SIGTERM, then the exit code once the process ended within `limit`
+  // (-1 if it did not exit normally); nullopt past `limit` (the destructor
+  // kills it).
+  std::optional<int> StopWithin(std::chrono::milliseconds limit) {
+    if (pid_ <= 0) return -1;
+    kill(pid_, SIGTERM);
+    const auto deadline = std::chrono::steady_clock::now() + limit;
+    int status = 0;
+    while (waitpid(pid_, &status, WNOHANG) == 0) {
+      if (std::chrono::steady_clock::now() > deadline) return std::nullopt;
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   }
   // SIGTERM, then the exit code (-1 if it did not exit normally).
   int Stop() {

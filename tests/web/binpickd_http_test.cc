@@ -8,15 +8,21 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <regex>
 #include <thread>
 
+#include "comms/gri_message.h"
+#include "comms/modbus_robot_sim.h"
+#include "comms/robot_client.h"
 #include "core/cell.h"
 #include "tests/testing/binpickd.h"
 #include "tests/testing/files.h"
+#include "tests/testing/process_stats.h"
 #include "tests/testing/run_command.h"
 #include "tests/web/web_test_util.h"
 
@@ -216,6 +222,112 @@ TEST(BinpickdHttp, CalibrationRowsFollowTheLiveHandEyeState) {
   EXPECT_LT((shown - cell.calibration->true_pose.translation() * 1000).norm(), 0.5) << r["hand-eye X_BC in use"];
   EXPECT_GT((shown - cell.camera.X_BC.translation() * 1000).norm(), 2.0);
   EXPECT_EQ(daemon.Stop(), 0);
+}
+
+}  // namespace
+}  // namespace bp
+
+namespace bp {
+namespace {
+
+// A raw TCP connection from the test: the busy GRI and HTTP peers.
+// A loopback TCP connection to `port`; -1 on failure.
+int ConnectTo(int port) {
+  Result<int> fd = ConnectTcp("127.0.0.1", port);
+  return fd.ok() ? *fd : -1;
+}
+
+// Issue 39 item 4: SIGTERM with every transport busy: DaoAI robots capturing
+// and picking in a loop, a GRI robot triggering jobs, a Modbus robot
+// mid-handshake (binpickd is its master), and a half-sent HTTP request.
+// binpickd must exit 0, promptly. The bound asserted is a liveness bound
+// (before issue 39 a Modbus master stuck in Handle() kept the process
+// alive); the time itself is printed as a figure.
+TEST(BinpickdShutdown, SigtermWithEveryTransportBusyExitsCleanly) {
+  const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+  const std::string dir = testing::FreshDir("binpickd_sigterm");
+  auto modbus_robot = ModbusRobotSim::Start({});
+  ASSERT_TRUE(modbus_robot.ok()) << modbus_robot.status().ToString();
+  ModbusRobotSim& slave = **modbus_robot;
+  const int daoai_port = testing::FreeLoopbackTcpPort();
+  const int gri_port = testing::FreeLoopbackTcpPort();
+  testing::BinpickdProcess daemon({bin + "binpickd", "--daoai-port", std::to_string(daoai_port), "--gri-port",
+                 std::to_string(gri_port), "--gri-official-port", "0", "--http-port", "-1",
+                 "--no-record", "--modbus-robot", "127.0.0.1:" + std::to_string(slave.port()),
+                 "--modbus-poll-ms", "1"},
+                dir + "/binpickd.log");
+  const int http = HttpPortOnceReady(daemon, dir + "/binpickd.log");
+  ASSERT_GT(http, 0);
+  ASSERT_TRUE(slave.WaitForMaster(std::chrono::seconds(30)));
+
+  std::atomic<bool> stop{false};
+  std::atomic<int> answered{0};
+  std::vector<std::thread> robots;
+  for (int r = 0; r < 2; ++r) {
+    robots.emplace_back([&, r] {
+      RobotClientOptions o;
+      o.port = daoai_port;
+      o.timeout = std::chrono::milliseconds(3000);
+      auto c = RobotClient::Connect(o);
+      if (!c.ok()) return;
+      while (!stop) {
+        const int32_t capture = r == 0 ? daoai::kCaptureAndProcessAsync : daoai::kCaptureAndProcess;
+        if (!(*c)->Call(capture, 0).ok() || !(*c)->Call(daoai::kPickPose, 0).ok()) return;
+        ++answered;
+      }
+    });
+  }
+  robots.emplace_back([&] {  // the Modbus robot: the seed's register handshake
+    RobotClientOptions o;
+    o.timeout = std::chrono::milliseconds(3000);
+    auto c = RobotClient::Over(slave.Transport(), o);
+    while (!stop) {
+      if (!c->Call(daoai::kCaptureAndProcess, 0).ok() || !c->Call(daoai::kPickPose, 0).ok()) return;
+      ++answered;
+    }
+  });
+  robots.emplace_back([&] {  // GRI: TRIGGER_JOB_SYNC in a loop
+    const int fd = ConnectTo(gri_port);
+    if (fd < 0) return;
+    gri::Request req;
+    req.format = gri::Format::kV2;
+    req.pose_format = 1;
+    req.action = gri::kTriggerJobSync;
+    req.pose = {0.4, 0.0, 0.5, 0, 0, 0, 1};
+    const std::vector<uint8_t> bytes = gri::EncodeRequest(req).value();
+    std::vector<uint8_t> in(gri::kV2ResponseSize);
+    while (!stop) {
+      if (::send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL) != static_cast<ssize_t>(bytes.size())) break;
+      size_t got = 0;
+      while (got < in.size()) {
+        const ssize_t n = ::recv(fd, in.data() + got, in.size() - got, 0);
+        if (n <= 0) break;
+        got += static_cast<size_t>(n);
+      }
+      if (got < in.size()) break;
+      ++answered;
+    }
+    ::close(fd);
+  });
+  // HTTP: half a request, never finished.
+  const int browser = ConnectTo(http);
+  ASSERT_GE(browser, 0);
+  const std::string half = "GET /metrics HTTP/1.1\r\nHost: x\r\n";
+  ASSERT_EQ(::send(browser, half.data(), half.size(), MSG_NOSIGNAL), static_cast<ssize_t>(half.size()));
+  ASSERT_TRUE(testing::WaitUntil([&] { return answered >= 10; }, std::chrono::milliseconds(120000)))
+      << answered << " answers\n" << testing::ReadBytes(dir + "/binpickd.log");
+
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::optional<int> code = daemon.StopWithin(std::chrono::seconds(30));
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  stop = true;
+  for (auto& t : robots) t.join();
+  ::close(browser);
+  slave.Stop();
+  ASSERT_TRUE(code.has_value()) << "binpickd still running 30 s after SIGTERM\n"
+                                << testing::ReadBytes(dir + "/binpickd.log");
+  EXPECT_EQ(*code, 0) << testing::ReadBytes(dir + "/binpickd.log");
+  std::cout << "binpickd: SIGTERM to exit with every transport busy: " << seconds << " s\n";
 }
 
 }  // namespace
