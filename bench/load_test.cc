@@ -167,9 +167,11 @@ int main(int argc, char** argv) {
     });
   }
   for (auto& t : threads) t.join();
-  int64_t handed_out = planner ? static_cast<int64_t>(planner->handed_out().size()) : picks.load();
+  // After Stop: a grasp counts as handed out once its answer's write
+  // completed, which can lag the robot's read of it.
   if (server) server->Stop();
   if (handler) handler->Shutdown();
+  int64_t handed_out = planner ? static_cast<int64_t>(planner->handed_out().size()) : picks.load();
 
   const size_t requests = capture_ms.size() + pick_ms.size();
   std::vector<double> all = capture_ms;

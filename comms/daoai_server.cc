@@ -67,14 +67,16 @@ class Connection final : public Session {
 
   void OnReply(const RequestHandler::Reply& reply) {
     std::optional<daoai::Response> response = reply ? reply() : std::nullopt;
+    std::function<void(bool)> settle = TakeSettle();
     if (!response) {
+      if (settle) settle(false);  // nothing is written: the grasp goes back
       AckNow();  // no answer to carry the ACK: the robot's next request must not wait for it
       Done();
       return;
     }
     client_.last_answer = *response;
     const auto bytes = daoai::EncodeResponse(*response);
-    Write(std::vector<uint8_t>(bytes.begin(), bytes.end()));
+    Write(std::vector<uint8_t>(bytes.begin(), bytes.end()), nullptr, std::move(settle));
   }
 
   void Done() override {
@@ -103,7 +105,8 @@ class DaoaiServer::Impl {
         internal::ConnectionLimits{options_.max_connections, options_.max_connections_per_peer,
                                    options_.max_message_rate, options_.allowlist,
                                    options_.config_allowlist, options_.keepalive_idle,
-                                   options_.keepalive_interval, options_.keepalive_probes}) {}
+                                   options_.keepalive_interval, options_.keepalive_probes,
+                                   options_.send_buffer_bytes}) {}
 
   Status Listen() { return listener_.Listen(options_.bind, {options_.port}, options_.io_threads); }
   void Stop() { listener_.Stop(); }

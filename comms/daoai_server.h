@@ -50,6 +50,7 @@ struct DaoaiServerOptions {
   std::chrono::seconds keepalive_idle{10};
   std::chrono::seconds keepalive_interval{2};
   int keepalive_probes = 3;
+  int send_buffer_bytes = 0;  // SO_SNDBUF per connection; 0: the kernel's (tests only)
 };
 
 class DaoaiServer {

@@ -94,8 +94,9 @@ gri::Response GriHandler::ErrorResponse(const gri::Request& request, gri::Code c
   return r;
 }
 
-std::vector<uint8_t> GriHandler::Serialize(const gri::Response& response) {
+std::vector<uint8_t> GriHandler::Serialize(const gri::Response& response, bool* replaced) {
   Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(response);
+  if (replaced) *replaced = !bytes.ok();
   if (bytes.ok()) return std::move(*bytes);
   spdlog::error(
       "gri: {} response to action {} job {} does not fit its format ({}); answering "
@@ -132,8 +133,9 @@ std::optional<JobStatus> GriHandler::JobStatusOf(int job_id) const {
   return StatusLocked(*s, jobs_.at(job_id));
 }
 
-GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_trigger) {
-  return [this, req, after_trigger]() -> gri::Response {
+GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_trigger,
+                                            ClientContext* client) {
+  return [this, req, after_trigger, client]() -> gri::Response {
     std::lock_guard lock(mutex_);
     const Result<RequestHandler::TaskSnapshot> s = tasks_.Snapshot(req.job_id);
     if (!s.ok()) return Build(req, Code::kJobDoesNotExist);
@@ -150,7 +152,7 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
       case JobStatus::kDone:
         break;
     }
-    const Result<GraspQueue::Popped> p = tasks_.PopGrasp(req.job_id);
+    const Result<GraspQueue::Popped> p = tasks_.PopGrasp(req.job_id, client);
     if (!p.ok() || !p->grasp) {
       job.consumed = s->finished;
       job.related.clear();
@@ -166,8 +168,10 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
     if (left == 0) job.consumed = s->finished;  // all taken: back to INACTIVE
     Result<std::array<double, 7>> wire = ToWire(g.X_BT, req.format, req.pose_format);
     if (!wire.ok()) {
-      spdlog::error("gri: job {}: grasp pose cannot be encoded: {}", req.job_id,
-                    wire.status().ToString());
+      spdlog::error("gri: job {}: grasp pose cannot be encoded: {}; the grasp stays queued",
+                    req.job_id, wire.status().ToString());
+      // Not sent: back to the front of the queue (issue 39), not lost.
+      if (client && client->settle) std::exchange(client->settle, nullptr)(false);
       return Build(req, Code::kInternalError);
     }
     return Build(req, Code::kOk, *wire, left, static_cast<int32_t>(job.related.size()));
@@ -230,7 +234,7 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
         return;
       }
       // Sync: answer with the first pose once the detection finished.
-      Reply reply = NextPoseReply(req, /*after_trigger=*/true);
+      Reply reply = NextPoseReply(req, /*after_trigger=*/true, &client);
       (void)tasks_.WhenDetected(req.job_id,
                             [done = std::move(done), reply = std::move(reply)] { done(reply); });
       return;
@@ -243,7 +247,7 @@ void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Com
     }
 
     case gri::kGetNextPose:
-      done(NextPoseReply(req, /*after_trigger=*/false));
+      done(NextPoseReply(req, /*after_trigger=*/false, &client));
       return;
 
     case gri::kGetRelatedPose:

@@ -53,8 +53,8 @@ class GriHandler {
   static gri::Response ErrorResponse(const gri::Request& request, gri::Code code);
   // The response's bytes; a response that does not fit its format (e.g. an
   // official pose beyond +-2147 mm) is logged and sent as INTERNAL_ERROR
-  // without a pose.
-  static std::vector<uint8_t> Serialize(const gri::Response& response);
+  // without a pose (`*replaced` set: a pose it carried was not sent).
+  static std::vector<uint8_t> Serialize(const gri::Response& response, bool* replaced = nullptr);
 
  private:
   struct Job {
@@ -63,7 +63,9 @@ class GriHandler {
     size_t next_related = 0;
   };
   gri::JobStatus StatusLocked(const RequestHandler::TaskSnapshot& s, const Job& job) const;
-  Reply NextPoseReply(const gri::Request& request, bool after_trigger);
+  // `client` (the connection's, alive while its Reply can run) holds the
+  // popped grasp until the transport settles it (ClientContext::settle).
+  Reply NextPoseReply(const gri::Request& request, bool after_trigger, ClientContext* client);
   void HandEye(const gri::Request& request, const std::optional<Pose>& X_BF, Completion done);
 
   RequestHandler& tasks_;

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <deque>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "comms/gri_message.h"
@@ -175,7 +176,13 @@ class Connection final : public Session {
     if (seq != seq_ || answered_) return;  // timed out: its result is dropped, nothing popped
     answered_ = true;
     processing_timer_.cancel();
-    Write(GriHandler::Serialize(reply()));
+    bool replaced = false;
+    std::vector<uint8_t> bytes = GriHandler::Serialize(reply(), &replaced);
+    std::function<void(bool)> settle = TakeSettle();
+    // A pose that did not fit was replaced by INTERNAL_ERROR: its grasp was
+    // not sent and goes back to its queue.
+    if (replaced && settle) std::exchange(settle, nullptr)(false);
+    Write(std::move(bytes), nullptr, std::move(settle));
   }
 
   void ArmProcessingTimer(uint64_t seq) {

@@ -9,9 +9,11 @@
 #include <atomic>
 #include <cerrno>
 #include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "comms/modbus_codec.h"
@@ -116,6 +118,9 @@ class ModbusMaster::Impl {
   struct Unfinished {
     daoai::Request request;
     std::optional<Registers> response;  // built but not written
+    // A pick's grasp, reserved until the registers are written
+    // (ClientContext::settle): handed out then, put back if never.
+    std::function<void(bool)> settle;
   };
 
   bool stopping() {
@@ -186,12 +191,20 @@ class ModbusMaster::Impl {
                  modbus_strerror(errno));
   }
 
-  // An unfinished exchange the robot no longer waits for: its answer is lost
-  // (a pick's grasp was handed out to nobody), counted and logged.
+  // An unfinished exchange the robot no longer waits for. An answer built
+  // and not written is lost, counted and logged, and a pick's grasp goes back
+  // to its queue (settle(false)); a request taken but not answered is only
+  // logged (a robot whose flag is still set has it taken again).
   void DropUnfinished(const char* why) {
-    spdlog::warn("modbus: robot {}: the answer to command {} was never written and is dropped ({})",
-                 address(), unfinished_->request.command, why);
-    if (unfinished_->response) Count([](ModbusMasterStats& s) { ++s.lost; });
+    if (unfinished_->response) {
+      spdlog::warn("modbus: robot {}: the answer to command {} was never written and is dropped "
+                   "({})", address(), unfinished_->request.command, why);
+      Count([](ModbusMasterStats& s) { ++s.lost; });
+    } else {
+      spdlog::info("modbus: robot {}: command {} taken before the reconnect is not answered ({})",
+                   address(), unfinished_->request.command, why);
+    }
+    if (unfinished_->settle) unfinished_->settle(false);  // its grasp goes back to the queue
     unfinished_.reset();
   }
 
@@ -215,6 +228,8 @@ class ModbusMaster::Impl {
       return modbus::DecodeResponse(*regs);
     };
     client.may_change_cell = o_.may_change_cell;
+    // A pick's grasp is handed out when its registers are written.
+    client.settle_after_write = true;
     // The last request taken had no response: a request flag of 1 with the
     // marker in place is then the robot's own late flag write (see below).
     bool taken_without_response = false;
@@ -242,8 +257,10 @@ class ModbusMaster::Impl {
           spdlog::info("modbus: robot {}: finishing command {} taken before the reconnect",
                        address(), unfinished_->request.command);
           Count([](ModbusMasterStats& s) { ++s.resumed; });
-          const Unfinished u = *unfinished_;
-          if (!Answer(ctx, client, u.request, u.response, taken_without_response)) return answered;
+          if (!Answer(ctx, client, unfinished_->request, unfinished_->response,
+                      taken_without_response)) {
+            return answered;
+          }
           continue;
         }
         DropUnfinished(flag ? "the robot sent a new request" : "the robot's registers were reset");
@@ -281,19 +298,19 @@ class ModbusMaster::Impl {
             static_cast<int>(take.size())) {
           // Applied or not: marked (finished after the reconnect) or still
           // flagged and unmarked (taken again).
-          unfinished_ = Unfinished{request, std::nullopt};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr};
           Fail("taking the request");
           return answered;
         }
       } else {
         if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
-          unfinished_ = Unfinished{request, std::nullopt};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr};
           Fail("marking the request taken");
           return answered;
         }
         if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
           // Half-taken: marked but still flagged. Finished after the reconnect.
-          unfinished_ = Unfinished{request, std::nullopt};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr};
           Fail("clearing the request flag");
           return answered;
         }
@@ -304,7 +321,7 @@ class ModbusMaster::Impl {
                      "dropping that response", address(), request.command);
         Count([](ModbusMasterStats& s) { ++s.unread; });
         if (modbus_write_register(ctx, m.response_flag, 0) != 1) {
-          unfinished_ = Unfinished{request, std::nullopt};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr};
           Fail("clearing the unread response flag");
           return answered;
         }
@@ -340,25 +357,31 @@ class ModbusMaster::Impl {
   // Handles a taken request (unless `built` holds its answer already) and
   // writes the answer. @returns false when the connection failed (the
   // exchange is then unfinished_) or the master is stopping.
-  bool Answer(modbus_t* ctx, ClientContext& client, const daoai::Request& request,
+  bool Answer(modbus_t* ctx, ClientContext& client, daoai::Request request,
               std::optional<Registers> built, bool& taken_without_response) {
-    unfinished_ = Unfinished{request, built};
+    if (!unfinished_) unfinished_ = Unfinished{request, built, nullptr};
     if (!built) {
       range_refused_ = false;
       const std::optional<daoai::Response> response =
           handler_.Handle(request, client, [this] { return stopping(); });
       timing_.handled = Clock::now();
+      unfinished_->settle = std::exchange(client.settle, nullptr);
       if (stopping()) return false;
       if (range_refused_) Count([](ModbusMasterStats& s) { ++s.refused; });
       taken_without_response = !response.has_value();
       timing_.answered = response.has_value();
       if (!response) {  // no response for this command
+        if (unfinished_->settle) unfinished_->settle(false);
         unfinished_.reset();
         timing_.written = timing_.handled;
         if (o_.on_request) o_.on_request(timing_);
         return true;
       }
-      built = Encode(request, *response);
+      bool refused = false;
+      built = Encode(request, *response, &refused);
+      // A refused answer (a field beyond 16 bits) carries no grasp: it stays
+      // queued (docs/protocols.md "Value range").
+      if (refused && unfinished_->settle) std::exchange(unfinished_->settle, nullptr)(false);
       unfinished_->response = built;
     }
     if (!WriteResponse(ctx, *built)) {
@@ -367,6 +390,7 @@ class ModbusMaster::Impl {
                    address(), request.command, modbus_strerror(errno));
       return false;
     }
+    if (unfinished_->settle) unfinished_->settle(true);
     unfinished_.reset();
     client.last_answer = modbus::DecodeResponse(*built);
     Count([](ModbusMasterStats& s) { ++s.responses; });
@@ -378,9 +402,10 @@ class ModbusMaster::Impl {
   // The response's registers (refused: UNKNOWN_COMMAND with pose and
   // payloads 0, when a field does not fit 16 bits), with the marker where
   // the response leaves 1 in the request flag.
-  Registers Encode(const daoai::Request& request, const daoai::Response& response) {
+  Registers Encode(const daoai::Request& request, const daoai::Response& response, bool* refused) {
     const ModbusRegisterMap& m = o_.map;
     Result<Registers> encoded = modbus::EncodeResponse(response);
+    *refused = !encoded.ok();
     if (!encoded.ok()) {
       // Not reached: the handler range-checked the answer (wire_range).
       spdlog::error("modbus: robot {} command {}: {}; refused: answering UNKNOWN_COMMAND "

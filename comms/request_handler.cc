@@ -280,7 +280,7 @@ class RequestHandler::Impl {
   Result<TaskSnapshot> Snapshot(int task_id) const;
   Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
   Status WhenDetected(int task_id, std::function<void()> ready);
-  Result<GraspQueue::Popped> PopGrasp(int task_id);
+  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client);
   bool RunCalibration(std::function<void(CalibrationService&)> job) {
     const bool posted = serial_.Post([this, job = std::move(job)] {
       calibration_mode_.reset();
@@ -296,6 +296,9 @@ class RequestHandler::Impl {
     s.observer_failures = observer_failures_.load(std::memory_order_relaxed);
     s.jobs_refused = jobs_refused_.load(std::memory_order_relaxed);
     s.changes_refused = changes_refused_.load(std::memory_order_relaxed);
+    s.grasps_requeued = grasps_requeued_.load(std::memory_order_relaxed);
+    s.grasps_superseded = grasps_superseded_.load(std::memory_order_relaxed);
+    s.grasps_discarded = grasps_discarded_.load(std::memory_order_relaxed);
     return s;
   }
 
@@ -413,7 +416,13 @@ class RequestHandler::Impl {
     spdlog::warn("daoai: {} refused: {} calibration and teach jobs are already waiting ({} refused "
                  "since start)", what, SerialJobs::kMaxSerialJobs, n);
   }
-  Reply PickReply(TaskState& t, WireFormat f);
+  Reply PickReply(TaskState& t, WireFormat f, ClientContext* client);
+  // A popped grasp: handed out now, or reserved on `client` until its
+  // transport settles it (ClientContext::settle).
+  void HandOut(TaskState& t, const GraspQueue::Popped& p, ClientContext* client);
+  // A reserved grasp's answer was written (handed out) or not (put back
+  // with the grasps withdrawn with it: GraspQueue::Restore).
+  void Settle(TaskState& t, const GraspQueue::Popped& p, bool written);
   // Teach (30): the pick task payload_1 names, unless payload_1 is only what
   // the last answer left in the script's daoai_payload_1 (seed 000's
   // daoai_teach_pose never sets it: often a remaining count) and the
@@ -466,6 +475,9 @@ class RequestHandler::Impl {
   mutable std::atomic<uint64_t> observer_failures_{0};
   std::atomic<uint64_t> jobs_refused_{0};
   std::atomic<uint64_t> changes_refused_{0};
+  std::atomic<uint64_t> grasps_requeued_{0};
+  std::atomic<uint64_t> grasps_superseded_{0};
+  std::atomic<uint64_t> grasps_discarded_{0};
 
   // Calls `notify` on every observer. An observer that throws (it must not)
   // is logged and counted, and the others and the caller carry on: a
@@ -604,7 +616,15 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
     if (plan.ok()) event.plan = result;
     event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
   }
-  t.queue.Replace(std::move(result), d.seq);
+  int discarded = 0;
+  t.queue.Replace(std::move(result), d.seq, &discarded);
+  if (discarded > 0) {
+    // The robots asked for a new capture with grasps left: by design, but
+    // counted (binpick_grasps_discarded_total).
+    grasps_discarded_.fetch_add(static_cast<uint64_t>(discarded), std::memory_order_relaxed);
+    spdlog::debug("daoai: task {}: {} grasps of the previous detection were never handed out",
+                  t.spec.id, discarded);
+  }
   // After the refill (an observer reading the queue sees the new one),
   // before waiting picks are answered (their answers follow the detection).
   if (!observers_.empty()) NotifyDetection(event);
@@ -640,8 +660,38 @@ bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>&
   return true;
 }
 
-Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
-  return [this, &t, f]() -> std::optional<Response> {
+void RequestHandler::Impl::HandOut(TaskState& t, const GraspQueue::Popped& p,
+                                   ClientContext* client) {
+  if (client == nullptr || !client->settle_after_write) {
+    planner_->NotifyHandedOut(t.spec, *p.grasp);
+    return;
+  }
+  if (client->settle) std::exchange(client->settle, nullptr)(true);  // left unsettled
+  client->settle = [this, &t, p](bool written) { Settle(t, p, written); };
+}
+
+void RequestHandler::Impl::Settle(TaskState& t, const GraspQueue::Popped& p, bool written) {
+  if (written) {
+    planner_->NotifyHandedOut(t.spec, *p.grasp);
+    return;
+  }
+  const int instance = p.grasp->instance_id;
+  const size_t withdrawn = p.withdrawn.size();
+  if (t.queue.Restore(p)) {
+    const uint64_t n = grasps_requeued_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::warn("daoai: task {}: the answer carrying the grasp on instance {} was not written; "
+                 "the grasp (and the {} withdrawn with it) is back in the queue where it was ({} "
+                 "since start)", t.spec.id, instance, withdrawn, n);
+  } else {
+    const uint64_t n = grasps_superseded_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::warn("daoai: task {}: the answer carrying the grasp on instance {} was not written "
+                 "and a later detection replaced the queue: dropped ({} since start)",
+                 t.spec.id, instance, n);
+  }
+}
+
+Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f, ClientContext* client) {
+  return [this, &t, f, client]() -> std::optional<Response> {
     // The answer for a grasp, as the robot will read it; OutOfRange when a
     // field does not fit the wire (int32, or the transport's range).
     const int32_t found =
@@ -676,7 +726,7 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f) {
                     t.spec.id, p.refused, refusal.ToString());
     }
     if (p.grasp) {
-      planner_->NotifyHandedOut(t.spec, *p.grasp);
+      HandOut(t, p, client);
       return answer;
     }
     if (p.refused > 0) return Base(daoai::kUnknownCommand, f);  // every seed program stops on it
@@ -1014,6 +1064,9 @@ void RequestHandler::Impl::RefuseChange(const Request& req, const ClientContext&
 void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client,
                                        Completion done) {
   ++client.requests;
+  // A reservation the transport never settled: the robot asks again, so it
+  // had its answer (the rule before settle_after_write existed).
+  if (client.settle) std::exchange(client.settle, nullptr)(true);
   if (stopping_) return;  // shutting down: completions are dropped
   std::shared_ptr<AnswerEvent> answer_event;
   done = Observed(req, client, answer_event, std::move(done));
@@ -1127,7 +1180,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     case daoai::kPickPose: {
       // Answered from the newest detection requested before it (at most the
       // one running and the one pending after it), never behind a flood.
-      std::function<void()> answer = [done = std::move(done), reply = PickReply(*task, f)] {
+      std::function<void()> answer = [done = std::move(done), reply = PickReply(*task, f, &client)] {
         done(reply);
       };
       if (!WaitForDetection(*task, answer)) answer();
@@ -1225,11 +1278,11 @@ Status RequestHandler::Impl::WhenDetected(int task_id, std::function<void()> rea
   return Status::Ok();
 }
 
-Result<GraspQueue::Popped> RequestHandler::Impl::PopGrasp(int task_id) {
+Result<GraspQueue::Popped> RequestHandler::Impl::PopGrasp(int task_id, ClientContext* client) {
   TaskState* t = FindTask(task_id);
   if (!t) return UnknownTask(task_id);
   GraspQueue::Popped p = t->queue.Pop();
-  if (p.grasp) planner_->NotifyHandedOut(t->spec, *p.grasp);
+  if (p.grasp) HandOut(*t, p, client);
   return p;
 }
 
@@ -1292,7 +1345,9 @@ bool RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job
 }
 RequestHandlerStats RequestHandler::stats() const { return impl_->stats(); }
 
-Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id) { return impl_->PopGrasp(task_id); }
+Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id, ClientContext* client) {
+  return impl_->PopGrasp(task_id, client);
+}
 std::optional<GraspQueue::Contents> RequestHandler::QueueContents(int task_id) const {
   const Impl::TaskState* t = impl_->FindTask(task_id);
   if (t == nullptr) return std::nullopt;

@@ -70,6 +70,16 @@ struct ClientContext {
   // (docs/reliability.md "Threat model"); refused requests get the
   // protocol's refusal code and a log line.
   bool may_change_cell = true;
+  // The pop rule, completed (issue 39): a pick pose's Reply takes its grasp
+  // off the queue. A transport that writes the response after the Reply ran
+  // sets settle_after_write; the grasp then stays reserved here until the
+  // transport calls settle(written): true hands it out
+  // (GraspPlanner::NotifyHandedOut), false puts it back at the front of its
+  // queue (unless a later detection replaced the queue). Without
+  // settle_after_write, or when a transport leaves it unsettled until the
+  // client's next request, the grasp counts as handed out.
+  bool settle_after_write = false;
+  std::function<void(bool written)> settle;
 };
 
 struct RequestHandlerOptions {
@@ -83,6 +93,9 @@ struct RequestHandlerStats {
   uint64_t observer_failures = 0;   // exceptions an observer let escape (contained)
   uint64_t jobs_refused = 0;        // calibration steps and teach poses refused: queue full
   uint64_t changes_refused = 0;     // state-changing requests from peers not allowed to
+  uint64_t grasps_requeued = 0;     // popped, their answer not written: back in the queue
+  uint64_t grasps_superseded = 0;   // popped, not written, the queue replaced meanwhile: dropped
+  uint64_t grasps_discarded = 0;    // left in a queue a later detection replaced (never popped)
 };
 
 class RequestHandler {
@@ -146,8 +159,10 @@ class RequestHandler {
   // finishing the last of them (how a DaoAI pick pose waits). Dropped if the
   // handler shuts down first.
   Status WhenDetected(int task_id, std::function<void()> ready);
-  // Pops the next grasp; the planner is told it was handed out.
-  Result<GraspQueue::Popped> PopGrasp(int task_id);
+  // Pops the next grasp. The planner is told it was handed out at once, or,
+  // with `client` and client->settle_after_write, when the transport settles
+  // it (ClientContext::settle).
+  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client = nullptr);
   // Runs `job` with the calibration service after every calibration step
   // already posted, on the same sequence (the GRI's HEC actions). It ends any
   // DaoAI calibration mode (one calibration at a time). Dropped at shutdown.

@@ -3,12 +3,14 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cstddef>
 #include <string>
 #include <utility>
 
 namespace bp {
 
-bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq) {
+bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded) {
+  if (discarded) *discarded = 0;
   Summary s;
   s.outcome = result.outcome;
   s.total_grasps = static_cast<int>(result.grasps.size());
@@ -22,6 +24,7 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq) {
   std::lock_guard lock(mutex_);
   if (capture_seq != 0 && capture_seq < capture_seq_) return false;
   if (capture_seq != 0) capture_seq_ = capture_seq;
+  if (discarded) *discarded = static_cast<int>(grasps_.size());
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
   withdrawn_ids_.clear();
@@ -30,10 +33,27 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq) {
   return true;
 }
 
-bool GraspQueue::Restore(Grasp grasp, uint64_t generation) {
+bool GraspQueue::Restore(Popped p) {
+  if (!p.grasp) return false;
   std::lock_guard lock(mutex_);
-  if (generation != generation_) return false;
-  grasps_.push_front(std::move(grasp));
+  if (p.generation != generation_) return false;
+  // Back where each was, in the order they were queued: inserting in
+  // ascending original index rebuilds that order around the grasps still
+  // queued (clamped when fewer are queued now).
+  std::vector<std::pair<int, Grasp>> back;
+  back.emplace_back(p.position, std::move(*p.grasp));
+  for (size_t i = 0; i < p.withdrawn.size() && i < p.withdrawn_positions.size(); ++i) {
+    back.emplace_back(p.withdrawn_positions[i], std::move(p.withdrawn[i]));
+    // No longer withdrawn: the hand-out that made it stale did not happen.
+    const auto id = std::find(withdrawn_ids_.begin(), withdrawn_ids_.end(), back.back().second.instance_id);
+    if (id != withdrawn_ids_.end()) withdrawn_ids_.erase(id);
+    if (summary_ && summary_->withdrawn > 0) --summary_->withdrawn;
+  }
+  std::sort(back.begin(), back.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  for (auto& [position, grasp] : back) {
+    const size_t at = std::min(static_cast<size_t>(std::max(position, 0)), grasps_.size());
+    grasps_.insert(grasps_.begin() + static_cast<std::ptrdiff_t>(at), std::move(grasp));
+  }
   return true;
 }
 
@@ -70,18 +90,22 @@ int GraspQueue::StaleCount(int picked) const {
 }
 
 void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
+  p.position = static_cast<int>(it - grasps_.begin());
   p.grasp = std::move(*it);
   grasps_.erase(it);
   const int picked = p.grasp->instance_id;
   if (StaleCount(picked) > 0) {
     std::deque<Grasp> kept;
+    int index = 0;  // in the queue after the erase
     for (Grasp& g : grasps_) {
       if (StaleAfter(g, picked)) {
         withdrawn_ids_.push_back(g.instance_id);
+        p.withdrawn_positions.push_back(index < p.position ? index : index + 1);
         p.withdrawn.push_back(std::move(g));
       } else {
         kept.push_back(std::move(g));
       }
+      ++index;
     }
     grasps_.swap(kept);
     if (summary_) summary_->withdrawn += static_cast<int>(p.withdrawn.size());

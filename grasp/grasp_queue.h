@@ -32,6 +32,10 @@ class GraspQueue {
     int remaining = 0;
     // Queued grasps withdrawn with this one (stale: Grasp::stale_after).
     std::vector<Grasp> withdrawn;
+    // Where `grasp` and each of `withdrawn` were in the queue when taken
+    // (indices before the take; Restore puts them back there).
+    int position = 0;
+    std::vector<int> withdrawn_positions;
     // Outcome of the plan that filled the queue; empty when no plan has
     // completed since construction or the last Reset().
     std::optional<PlanResult::Outcome> outcome;
@@ -62,13 +66,16 @@ class GraspQueue {
   // queue already holds the plan of a later capture: `capture_seq` numbers
   // the task's captures (increasing; 0: unnumbered, always replaces), so a
   // detection that finishes late never overwrites a newer scene.
-  // @returns whether the queue was replaced.
-  bool Replace(PlanResult result, uint64_t capture_seq = 0);
-  // Puts a grasp taken by Pop() back at the front, as if never popped, when
-  // the queue still holds the plan it came from (`generation`); @returns
-  // false (and drops it) when a later plan replaced that one, whose grasps
-  // describe the scene as it is now.
-  bool Restore(Grasp grasp, uint64_t generation);
+  // @returns whether the queue was replaced; `*discarded` (optional): the
+  // grasps of the replaced plan never handed out.
+  bool Replace(PlanResult result, uint64_t capture_seq = 0, int* discarded = nullptr);
+  // Puts a grasp taken by Pop() / PopFirst() whose answer was not written
+  // back where it was, as if never popped, with the grasps withdrawn with it
+  // (the hand-out that made them stale did not happen), when the queue still
+  // holds the plan they came from (p.generation). @returns false (and drops
+  // them) when a later plan replaced that one, whose grasps describe the
+  // scene as it is now.
+  bool Restore(Popped p);
   // Discards everything; Pop reports no outcome until the next Replace.
   void Reset();
   // Hands out the first grasp and withdraws the queued grasps it makes stale.

@@ -55,6 +55,18 @@ void AddHandlerMetrics(MetricsRegistry& metrics, const RequestHandler& handler) 
   metrics.AddCounterCallback("binpick_requests_refused_total", refused_help,
                              {{"reason", "not_allowed"}},
                              [h] { return static_cast<double>(h->stats().changes_refused); });
+  const char* unsent_help =
+      "Grasps popped whose answer was not written (write failed, connection closed first): put "
+      "back at the front of the queue (requeued), or dropped because a later detection had "
+      "replaced the queue (superseded).";
+  metrics.AddCounterCallback("binpick_grasps_unsent_total", unsent_help, {{"result", "requeued"}},
+                             [h] { return static_cast<double>(h->stats().grasps_requeued); });
+  metrics.AddCounterCallback("binpick_grasps_unsent_total", unsent_help, {{"result", "superseded"}},
+                             [h] { return static_cast<double>(h->stats().grasps_superseded); });
+  metrics.AddCounterCallback(
+      "binpick_grasps_discarded_total",
+      "Grasps never handed out because a later detection of their task replaced the queue.", {},
+      [h] { return static_cast<double>(h->stats().grasps_discarded); });
 }
 
 void AddModbusMetrics(MetricsRegistry& metrics, const ModbusMaster& master) {

@@ -24,6 +24,9 @@ Session::Session(SessionArgs args, const char* log_name, std::chrono::millisecon
       read_timeout_(read_timeout) {
   client_.id = args.id;
   client_.may_change_cell = args.may_change_cell;
+  // Answers are written after their Reply runs: a pick's grasp is handed out
+  // when the write completes, and put back when it fails.
+  client_.settle_after_write = true;
   if (args.limits) SetKeepAlive(*args.limits);
   tokens_ = std::max(1.0, max_message_rate_);
   boost::system::error_code ec;
@@ -32,8 +35,11 @@ Session::Session(SessionArgs args, const char* log_name, std::chrono::millisecon
 }
 
 void Session::SetKeepAlive(const ConnectionLimits& limits) {
-  if (limits.keepalive_idle.count() <= 0) return;
   const int fd = socket_.native_handle();
+  if (limits.send_buffer_bytes > 0) {
+    ::setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &limits.send_buffer_bytes, sizeof(limits.send_buffer_bytes));
+  }
+  if (limits.keepalive_idle.count() <= 0) return;
   const int on = 1;
   const int idle = static_cast<int>(limits.keepalive_idle.count());
   const int interval = static_cast<int>(std::max<int64_t>(1, limits.keepalive_interval.count()));
@@ -106,14 +112,17 @@ void Session::ReadNextRequest() {
   });
 }
 
-void Session::Write(std::vector<uint8_t> bytes, const char* close_reason) {
+void Session::Write(std::vector<uint8_t> bytes, const char* close_reason,
+                    std::function<void(bool)> on_written) {
   write_buf_ = std::move(bytes);
   writing_ = true;
   write_start_ = std::chrono::steady_clock::now();
   asio::async_write(socket_, asio::buffer(write_buf_),
-                    asio::bind_executor(strand_, [self = shared_from_this(), close_reason](
+                    asio::bind_executor(strand_, [self = shared_from_this(), close_reason,
+                                                  on_written = std::move(on_written)](
                                                      boost::system::error_code ec, size_t) {
                       self->writing_ = false;
+                      if (on_written) on_written(!ec);
                       if (ec) {
                         self->DoClose("write failed");
                       } else if (close_reason) {

@@ -74,6 +74,9 @@ struct ConnectionLimits {
   std::chrono::seconds keepalive_idle{10};
   std::chrono::seconds keepalive_interval{2};
   int keepalive_probes = 3;
+  // SO_SNDBUF of each connection, bytes (the kernel doubles it); 0: the
+  // kernel's autotuned default. Tests make a write block after a few answers.
+  int send_buffer_bytes = 0;
 };
 
 struct SessionArgs {
@@ -152,8 +155,14 @@ class Session : public std::enable_shared_from_this<Session> {
   void ReadNextRequest();
   // Writes `bytes`; then Done(), or closes with `close_reason` when given.
   // A write that does not complete within read_timeout (a robot that does not
-  // read its answers) closes the connection.
-  void Write(std::vector<uint8_t> bytes, const char* close_reason = nullptr);
+  // read its answers) closes the connection. `on_written` (optional) hears
+  // whether every byte went out (false: a write error, or the connection
+  // closed first): how a popped grasp is settled (ClientContext::settle).
+  void Write(std::vector<uint8_t> bytes, const char* close_reason = nullptr,
+             std::function<void(bool written)> on_written = nullptr);
+  // Takes the settlement the handler left on the client while building the
+  // answer (ClientContext::settle), for Write's on_written.
+  std::function<void(bool)> TakeSettle() { return std::exchange(client_.settle, nullptr); }
   void DoClose(const char* why);
   // The robot broke the protocol (counted in TransportStats::protocol_errors).
   void CountProtocolError() { counters_->protocol_errors.fetch_add(1, std::memory_order_relaxed); }

@@ -586,6 +586,7 @@ TEST_F(DaoaiServerTest, RobotDisconnectingMidRequestLosesNoGrasp) {
   ASSERT_TRUE(b);
   EXPECT_RESPONSE(*b, Req(daoai::kPickPose, 0), kPick0_3);
   EXPECT_RESPONSE(*b, Req(daoai::kPickPose, 0), kPick0_2);
+  EXPECT_TRUE(planner_->WaitForHandedOut(2));
   EXPECT_EQ(planner_->handed_out().size(), 2u);
 }
 

@@ -216,6 +216,8 @@ TEST_F(FaultTest, RobotDisconnectingMidMessageLosesNothing) {
   ASSERT_TRUE(next.ok());
   EXPECT_EQ(next->status, daoai::kObjectsFound);
   EXPECT_EQ(next->payload[0], 5);
+  EXPECT_TRUE(planner_->WaitForHandedOut(2));
+
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0, 1}));
   ExpectBystanderServed();
   a.reset();
@@ -244,6 +246,8 @@ TEST_F(FaultTest, RobotDisconnectingMidDetectionLosesNothing) {
   Result<RobotReply> first = b->Call(daoai::kPickPose, 0);
   ASSERT_TRUE(first.ok());
   EXPECT_EQ(first->payload[0], 6);  // the detection's first grasp, still queued
+  EXPECT_TRUE(planner_->WaitForHandedOut(1));
+
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0}));
   ExpectBystanderServed();
   b.reset();
@@ -269,6 +273,8 @@ TEST_F(FaultTest, RobotDisconnectingRightAfterAPopCountsThatGraspAsHandedOut) {
   ASSERT_TRUE(next.ok());
   EXPECT_EQ(next->payload[0], 5);
   EXPECT_NEAR(next->X_BT->translation().x(), 0.51, 1e-4);  // grasp 1
+  EXPECT_TRUE(planner_->WaitForHandedOut(2));
+
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0, 1}));
   ExpectBystanderServed();
   a.reset();
@@ -309,6 +315,8 @@ TEST_F(FaultTest, GarbageThenAValidMessageOnTheSameConnection) {
   ASSERT_TRUE(pick.ok());
   EXPECT_EQ(pick->status, daoai::kObjectsFound);
   EXPECT_EQ(pick->payload[0], 6);
+  EXPECT_TRUE(planner_->WaitForHandedOut(1));
+
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0}));
   ExpectBystanderServed();
   c.reset();
@@ -366,6 +374,63 @@ TEST_F(FaultTest, RobotThatNeverReadsIsClosedWithoutBlockingOthers) {
   ExpectBaseline();
 }
 
+// Issue 39, the pop rule completed: a robot pipelines picks and never reads.
+// Its answers fill the (small) socket buffers, a write blocks, and the
+// connection is closed with that answer unwritten (queue overflow or write
+// timeout). The grasp in that answer goes back to the front of the queue:
+// the next robot gets it, and no grasp is handed out that was not written.
+TEST_F(FaultTest, AnAnswerCutShortByTheConnectionClosingPutsItsGraspBack) {
+  DaoaiServerOptions o;
+  o.send_buffer_bytes = 4096;  // the write blocks after a few hundred answers
+  Start(o);
+  constexpr int kGrasps = 5000;
+  ScriptedPlanner::Script many;
+  many.grasps = kGrasps;
+  planner_->SetScript(0, many);
+  auto a = Connect();
+  ASSERT_TRUE(a);
+  ASSERT_EQ(a->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  ASSERT_TRUE(WaitUntil([&] { return handler_->Snapshot(0)->in_flight == 0; }));
+  RawSocket hog(server_->port(), /*rcvbuf=*/4096);
+  ASSERT_TRUE(hog.connected());
+  ASSERT_TRUE(WaitUntil([&] { return server_->connection_count() == 3; }));
+  std::atomic<bool> stop{false};
+  // Picks in batches of 8, every 5 ms: answered as they come while the
+  // buffers have room (fewer than 16 queued at once), then, once a write
+  // blocks, queued until the 17th closes the connection with that write
+  // pending (or the write timeout does).
+  std::thread writer([&] {
+    const auto pick = daoai::EncodeRequest(Req(daoai::kPickPose, 0));
+    while (!stop) {
+      for (int i = 0; i < 8 && !stop; ++i) {
+        if (!hog.TrySend(pick.data(), pick.size())) stop = true;
+      }
+      std::this_thread::sleep_for(5ms);
+    }
+  });
+  EXPECT_TRUE(WaitWhileBystanderTalks([&] { return server_->connection_count() == 2; }, 30000ms))
+      << "the hog is still connected";
+  stop = true;
+  writer.join();
+  hog.Close();
+  const std::vector<int> handed = Task0HandedOut();
+  ASSERT_GT(handed.size(), 10u);
+  ASSERT_LT(handed.size(), static_cast<size_t>(kGrasps)) << "the test needs grasps left";
+  EXPECT_EQ(handler_->stats().grasps_requeued, 1u);
+  EXPECT_EQ(static_cast<int>(handed.size()) + handler_->QueueSize(0), kGrasps);
+  for (size_t i = 0; i < handed.size(); ++i) ASSERT_EQ(handed[i], static_cast<int>(i));
+  // The grasp of the unwritten answer is the next one handed out.
+  Result<RobotReply> next = a->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(next.ok());
+  EXPECT_EQ(next->status, daoai::kObjectsFound);
+  EXPECT_EQ(next->payload[0], kGrasps - static_cast<int>(handed.size()));
+  ASSERT_TRUE(planner_->WaitForHandedOut(handed.size() + 1));
+  EXPECT_EQ(Task0HandedOut().back(), static_cast<int>(handed.size()));
+  ExpectBystanderServed();
+  a.reset();
+  ExpectBaseline();
+}
+
 TEST_F(FaultTest, FailingCaptureAndThrowingDetectionAreAnsweredAndRecovered) {
   Start();
   auto c = Connect();
@@ -402,6 +467,8 @@ TEST_F(FaultTest, FailingCaptureAndThrowingDetectionAreAnsweredAndRecovered) {
   ASSERT_TRUE(ok.ok());
   EXPECT_EQ(ok->status, daoai::kObjectsFound);
   EXPECT_EQ(ok->payload[0], 6);
+  EXPECT_TRUE(planner_->WaitForHandedOut(1));
+
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0}));
   ExpectBystanderServed();
   c.reset();

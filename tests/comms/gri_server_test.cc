@@ -223,6 +223,7 @@ TEST_P(GriServerTest, SyncTriggerReturnsTheFirstPoseThenTheRestUntilExhaustedAnd
   // All results taken: back to INACTIVE, and nothing more.
   EXPECT_EQ(JobStatus(Ask(*robot, gri::kGetJobStatus, 0)), kInactive);
   EXPECT_EQ(Ask(*robot, gri::kGetNextPose, 0).error_code, Code(gri::Code::kNoPosesFound));
+  EXPECT_TRUE(scripted_->WaitForHandedOut(3));
   EXPECT_EQ(scripted_->handed_out().size(), 3u);
 }
 
@@ -441,6 +442,7 @@ TEST_P(GriServerTest, DaoaiAndGriRobotsOnOneTaskShareItsQueue) {
   EXPECT_EQ(Ask(*gri_robot, gri::kGetNextPose, 0).error_code, Code(gri::Code::kNoPosesFound));
 
   for (size_t i = 0; i < xs.size(); ++i) EXPECT_NEAR(xs[i], 0.5 + 0.01 * i, 1e-6);
+  EXPECT_TRUE(scripted_->WaitForHandedOut(4));
   std::set<int> instances;
   for (const auto& [task, instance] : scripted_->handed_out()) instances.insert(instance);
   EXPECT_EQ(instances, (std::set<int>{0, 1, 2, 3}));

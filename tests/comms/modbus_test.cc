@@ -227,6 +227,7 @@ TEST_P(ModbusVersionTest, PickCycleClearsTheBinThenFindsItEmpty) {
   EXPECT_EQ(s.picks, 7) << rig.out_.str();
   EXPECT_TRUE(s.ok) << rig.out_.str();
   EXPECT_EQ(s.last_status, daoai::kBoxEmpty);
+  EXPECT_TRUE(rig.planner_->WaitForHandedOut(7));
   EXPECT_EQ(rig.planner_->handed_out().size(), 7u);
   EXPECT_NE(rig.out_.str().find("remaining 3 class 0"), std::string::npos) << rig.out_.str();
   // The robot moved to the grasp the planner made (0.1 mm wire resolution).
@@ -452,6 +453,7 @@ TEST(ModbusMaster, AnAnswerNotWrittenBeforeTheReconnectIsWrittenAfterIt) {
     ASSERT_TRUE(pick.ok()) << "v" << version << ": " << pick.status().ToString();
     EXPECT_EQ(pick->status, daoai::kObjectsFound);
     EXPECT_NEAR(pick->payload[0], 3.0, 1e-9);  // the first of 3: handed out once
+    EXPECT_TRUE(rig.planner_->WaitForHandedOut(1));
     EXPECT_EQ(rig.planner_->handed_out().size(), 1u);
     const ModbusMasterStats m = rig.master_->stats();
     EXPECT_EQ(m.resumed, 1u) << "v" << version;
@@ -501,6 +503,7 @@ TEST(ModbusMaster, SlaveVanishingBetweenCyclesLosesNothingAndLeaksNoDescriptor) 
   const int port = rig.sim_->port();
   ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
   ASSERT_EQ(rig.robot_->Call(daoai::kPickPose, 0)->status, daoai::kObjectsFound);
+  ASSERT_TRUE(rig.planner_->WaitForHandedOut(1));
   ASSERT_EQ(rig.planner_->handed_out().size(), 1u);
   const int fds = testing::OpenFdCount();  // slave listening + both ends connected
   rig.robot_.reset();
@@ -515,6 +518,7 @@ TEST(ModbusMaster, SlaveVanishingBetweenCyclesLosesNothingAndLeaksNoDescriptor) 
   const FlowSummary s = rig.Run(f);
   EXPECT_TRUE(s.ok) << rig.out_.str();
   EXPECT_EQ(s.picks, 3);
+  EXPECT_TRUE(rig.planner_->WaitForHandedOut(4));
   EXPECT_EQ(rig.planner_->handed_out().size(), 4u) << "every part of the pile picked once";
   EXPECT_EQ(rig.master_->stats().connects, 2u);
   EXPECT_EQ(testing::OpenFdCount(), fds);
@@ -611,6 +615,7 @@ TEST(ModbusMaster, PoseThatDoesNotFitStaysQueuedAndTheRobotKeepsItsPose) {
   EXPECT_EQ(rig.master_->stats().refused, 1u);
   EXPECT_EQ(rig.handler_->QueueSize(0), 3);  // nothing popped
   EXPECT_TRUE(rig.planner_->handed_out().empty());
+  EXPECT_EQ(rig.handler_->stats().grasps_requeued, 0u);  // never taken, never put back
   // A socket robot (int32 fields) on the same task gets the grasp.
   ClientContext socket_robot;
   daoai::Request request = rig.robot_->MakeRequest(daoai::kPickPose, 0);

@@ -9,6 +9,7 @@
 #include <optional>
 #include <stdexcept>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -490,6 +491,80 @@ TEST(RequestHandler, HandleReturnsWhenAbandonedOrDroppedAndPopsNothing) {
   picker.join();
   EXPECT_FALSE(dropped.has_value());
   EXPECT_EQ(planner->captures(), 2);
+}
+
+// Issue 39, the pop rule completed: with settle_after_write (every socket
+// and Modbus transport) a popped grasp is handed out when its answer is
+// written; an answer that was not written puts it back at the front, with
+// its remaining count, unless a later detection replaced the queue.
+TEST(RequestHandler, AReservedGraspGoesBackToTheFrontWhenItsAnswerIsNotWritten) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  client.settle_after_write = true;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  const auto first = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_EQ(first->status, daoai::kObjectsFound);
+  ASSERT_TRUE(client.settle);
+  EXPECT_TRUE(planner->handed_out().empty());  // reserved, not handed out yet
+  std::exchange(client.settle, nullptr)(false);  // the write failed
+  EXPECT_EQ(handler.QueueSize(0), 3);
+  const auto again = handler.Handle(Req(daoai::kPickPose, 0), client);
+  EXPECT_EQ(again->position, first->position);
+  EXPECT_EQ(again->payload[0], 30000);
+  std::exchange(client.settle, nullptr)(true);  // written
+  EXPECT_EQ(planner->handed_out(), (std::vector<std::pair<int, int>>{{0, 0}}));
+  // Not written, and a new detection replaced the queue meanwhile: dropped.
+  ASSERT_TRUE(handler.Handle(Req(daoai::kPickPose, 0), client).has_value());
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  EXPECT_FALSE(client.settle) << "a new request settles a leftover as written";
+  EXPECT_EQ(planner->handed_out().size(), 2u);
+  ASSERT_TRUE(handler.Handle(Req(daoai::kPickPose, 0), client).has_value());
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  ClientContext other;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), other)->status, daoai::kDetection);
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  std::exchange(client.settle, nullptr)(false);
+  EXPECT_EQ(handler.QueueSize(0), 3);  // the new plan, untouched
+  const RequestHandlerStats stats = handler.stats();
+  EXPECT_EQ(stats.grasps_requeued, 1u);
+  EXPECT_EQ(stats.grasps_superseded, 1u);
+}
+
+// The one pop rule (issues 38 and 39): a grasp whose answer does not fit the
+// link is never taken; the one handed to the robot instead is reserved until
+// its answer is written, and when it is not it goes back where it was, behind
+// the grasp that did not fit, so every robot still sees the queue's order and
+// no grasp is handed out twice.
+TEST(RequestHandler, AnUnwrittenGraspGoesBackBehindTheGraspsThatDoNotFitTheLink) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext narrow;  // a link that cannot carry grasp 0 (x = 0.5 m: 5000)
+  narrow.settle_after_write = true;
+  narrow.wire_range = [](const daoai::Response& r) -> Result<daoai::Response> {
+    if (r.status == daoai::kObjectsFound && r.position[0] == 5000) {
+      return Status::OutOfRange("position x 5000");
+    }
+    return r;
+  };
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), narrow)->status, daoai::kDetection);
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0), narrow);
+  ASSERT_EQ(pick->status, daoai::kObjectsFound);
+  EXPECT_EQ(pick->position[0], 5100);  // grasp 1; grasp 0 stays queued
+  EXPECT_EQ(pick->payload[0], 30000);
+  EXPECT_EQ(handler.QueueSize(0), 2);
+  ASSERT_TRUE(narrow.settle);
+  std::exchange(narrow.settle, nullptr)(false);  // not written
+  EXPECT_EQ(handler.QueueSize(0), 3);
+  EXPECT_TRUE(planner->handed_out().empty());
+  ClientContext wide;  // int32 fields: every grasp fits, handed out at once
+  for (const int32_t x : {5000, 5100, 5200}) {
+    const auto r = handler.Handle(Req(daoai::kPickPose, 0), wide);
+    ASSERT_EQ(r->status, daoai::kObjectsFound);
+    EXPECT_EQ(r->position[0], x);
+  }
+  EXPECT_EQ(planner->handed_out(), (std::vector<std::pair<int, int>>{{0, 0}, {0, 1}, {0, 2}}));
+  EXPECT_EQ(handler.stats().grasps_requeued, 1u);
 }
 
 // Issue 39: a calibration session keeps at most kMaxCalibrationPoses views;

@@ -291,7 +291,9 @@ TEST(GraspQueue, APlanOfAnOlderCaptureNeverReplacesANewerOne) {
   EXPECT_FALSE(q.Replace(MakePlan(5, /*first_instance=*/100), /*capture_seq=*/1));
   EXPECT_EQ(q.size(), 2);
   EXPECT_EQ(q.Pop().grasp->instance_id, 200);
-  EXPECT_TRUE(q.Replace(MakePlan(3, /*first_instance=*/300), /*capture_seq=*/3));
+  int discarded = -1;
+  EXPECT_TRUE(q.Replace(MakePlan(3, /*first_instance=*/300), /*capture_seq=*/3, &discarded));
+  EXPECT_EQ(discarded, 1);  // the plan of capture 2 had one grasp left
   EXPECT_EQ(q.Pop().grasp->instance_id, 300);
 }
 
@@ -302,14 +304,42 @@ TEST(GraspQueue, ARestoredGraspIsHandedOutNextUnlessTheQueueWasReplaced) {
   q.Replace(MakePlan(3));
   GraspQueue::Popped first = q.Pop();
   ASSERT_TRUE(first.grasp);
-  EXPECT_TRUE(q.Restore(*first.grasp, first.generation));
+  EXPECT_TRUE(q.Restore(first));
   const GraspQueue::Popped again = q.Pop();
   EXPECT_EQ(again.grasp->instance_id, first.grasp->instance_id);
   EXPECT_EQ(again.remaining, 3);
   q.Replace(MakePlan(4, /*first_instance=*/10));
-  EXPECT_FALSE(q.Restore(*again.grasp, again.generation));
+  EXPECT_FALSE(q.Restore(again));
   EXPECT_EQ(q.size(), 4);
   EXPECT_EQ(q.Pop().grasp->instance_id, 10);
+}
+
+// A grasp whose answer was not written comes back with the grasps its
+// hand-out withdrew as stale (it never happened), each where it was, and is
+// no longer counted withdrawn; a grasp taken past refused ones (PopFirst)
+// goes back behind them.
+TEST(GraspQueue, ARestoredGraspBringsBackTheGraspsWithdrawnWithItInTheirPlaces) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(5);
+  plan.grasps[2].stale_after = {1};
+  plan.grasps[4].stale_after = {1};
+  q.Replace(plan);
+  // Grasp 0 does not fit this link: 1 is taken, 2 and 4 withdrawn.
+  GraspQueue::Popped p = q.PopFirst([](const Grasp& g, int) { return g.instance_id != 0; });
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 1);
+  EXPECT_EQ(p.remaining, 3);  // 0, 1, 3
+  ASSERT_EQ(p.withdrawn.size(), 2u);
+  EXPECT_EQ(q.contents().withdrawn, (std::vector<int>{2, 4}));
+  EXPECT_TRUE(q.Restore(p));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 1, 2, 3, 4}));
+  EXPECT_TRUE(q.contents().withdrawn.empty());
+  EXPECT_EQ(q.LastPlan()->withdrawn, 0);
+  // Handed out for good this time: the same withdrawal, counted once.
+  const GraspQueue::Popped again = q.PopFirst([](const Grasp& g, int) { return g.instance_id != 0; });
+  EXPECT_EQ(again.grasp->instance_id, 1);
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 3}));
+  EXPECT_EQ(q.LastPlan()->withdrawn, 2);
 }
 
 }  // namespace

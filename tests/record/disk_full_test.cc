@@ -201,6 +201,8 @@ TEST(DiskFull, RecordingPausesOnENOSPCTheServerLosesNoGraspAndRecordingResumesWh
   EXPECT_EQ(m["binpick_recording_captures_total{result=\"recorded\"}"], static_cast<double>(s.captures_recorded));
 
   // Every grasp handed out exactly once: 6 per cycle, in order, none twice.
+  // Handed out once written: the last write's completion may lag the read.
+  EXPECT_TRUE(script->WaitForHandedOut(static_cast<size_t>(cycles * kGraspsPerDetection)));
   const std::vector<std::pair<int, int>> handed_out = script->handed_out();
   ASSERT_EQ(handed_out.size(), static_cast<size_t>(cycles * kGraspsPerDetection));
   for (size_t k = 0; k < handed_out.size(); ++k) {

@@ -125,8 +125,19 @@ class ScriptedPlanner final : public GraspPlanner {
   }
 
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override {
-    std::lock_guard lock(mutex_);
-    handed_out_.emplace_back(task.id, grasp.instance_id);
+    {
+      std::lock_guard lock(mutex_);
+      handed_out_.emplace_back(task.id, grasp.instance_id);
+    }
+    cv_.notify_all();
+  }
+  // A grasp counts as handed out once its answer is written, which a
+  // transport learns a moment after the robot may have read it (the pop
+  // rule, docs/protocols.md): tests wait for the count before comparing.
+  // @returns whether at least `n` were handed out within `timeout`.
+  bool WaitForHandedOut(size_t n, std::chrono::milliseconds timeout = std::chrono::seconds(5)) const {
+    std::unique_lock lock(mutex_);
+    return cv_.wait_for(lock, timeout, [&] { return handed_out_.size() >= n; });
   }
 
   Status Teach(const TeachRequest& request) override {
@@ -166,7 +177,7 @@ class ScriptedPlanner final : public GraspPlanner {
   }
 
   mutable std::mutex mutex_;
-  std::condition_variable cv_;
+  mutable std::condition_variable cv_;
   std::map<int, Script> scripts_;
   bool hold_ = false;
   int permits_ = 0;  // plans let through while held
