@@ -382,6 +382,10 @@ TEST_F(FaultTest, RobotThatNeverReadsIsClosedWithoutBlockingOthers) {
 TEST_F(FaultTest, AnAnswerCutShortByTheConnectionClosingPutsItsGraspBack) {
   DaoaiServerOptions o;
   o.send_buffer_bytes = 4096;  // the write blocks after a few hundred answers
+  // The hog is closed by the queue bound; robot `a` and the bystander stay
+  // idle meanwhile and must not be closed as idle on a loaded machine (the
+  // fixture's 300 ms closed them when scheduling stalled the test).
+  o.read_timeout = 10s;
   Start(o);
   constexpr int kGrasps = 5000;
   ScriptedPlanner::Script many;
