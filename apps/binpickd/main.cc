@@ -55,6 +55,54 @@
 #include "record/recorder.h"
 #include "record/recorder_metrics.h"
 
+namespace {
+
+// Parses the three allowlists so that a bad entry stops the start with one
+// message (nullopt, printed), logs the lists, and warns when a listener binds
+// beyond loopback without one: industrial protocols carry no authentication,
+// so the allowlists are the control (docs/reliability.md "Threat model").
+// `http_bind` is loopback when the status page is off.
+// @returns the config allowlist (empty: every robot may change the cell).
+std::optional<bp::AddressList> CheckAllowlists(const std::vector<std::string>& robot_list,
+                                               const std::vector<std::string>& config_list,
+                                               const std::vector<std::string>& http_list,
+                                               const std::string& robot_bind,
+                                               const std::string& http_bind) {
+  bp::Result<bp::AddressList> robots = bp::AddressList::Parse(robot_list);
+  bp::Result<bp::AddressList> config = bp::AddressList::Parse(config_list);
+  bp::Result<bp::AddressList> browsers = bp::AddressList::Parse(http_list);
+  for (const auto& [flag, list] : {std::pair{"--allow / endpoints.allowlist", &robots},
+                                   std::pair{"--allow-config / endpoints.config_allowlist", &config},
+                                   std::pair{"--http-allow / endpoints.http_allowlist", &browsers}}) {
+    if (!list->ok()) {
+      std::cerr << "binpickd: " << flag << ": " << list->status().message() << "\n";
+      return std::nullopt;
+    }
+  }
+  if (!robots->empty()) spdlog::info("binpickd: robots allowed to connect: {}", robots->Describe());
+  if (!config->empty()) spdlog::info("binpickd: peers allowed to change the cell: {}", config->Describe());
+  if (!bp::IsLoopbackAddress(robot_bind)) {
+    if (robots->empty()) {
+      spdlog::warn("binpickd: the robot ports listen on {} with no allowlist: any host that "
+                   "reaches them can take grasps and, with no config allowlist, recalibrate "
+                   "the camera; give --allow ADDR[/PREFIX] (endpoints.allowlist) and "
+                   "--allow-config (docs/reliability.md \"Threat model\")", robot_bind);
+    } else if (config->empty()) {
+      spdlog::warn("binpickd: every allowed robot may change the cell (calibration, teach, "
+                   "camera config); give --allow-config ADDR[/PREFIX] "
+                   "(endpoints.config_allowlist) to restrict it");
+    }
+  }
+  if (!bp::IsLoopbackAddress(http_bind) && browsers->empty()) {
+    spdlog::warn("binpickd: the status page listens on {} with no allowlist: any host that "
+                 "reaches it can read the cell's state; give --http-allow ADDR[/PREFIX] "
+                 "(endpoints.http_allowlist)", http_bind);
+  }
+  return std::move(config).value();
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   CLI::App app{"binpick picking server"};
   std::string cell_path;
@@ -287,43 +335,10 @@ int main(int argc, char** argv) {
   daoai.config_allowlist = allow_config.empty() ? cell->endpoints.config_allowlist : allow_config;
   const std::vector<std::string> http_allowlist =
       http_allow.empty() ? cell->endpoints.http_allowlist : http_allow;
-  bp::AddressList config_allowed;
-  {
-    // Checked here so that a bad entry stops the start with one message.
-    bp::Result<bp::AddressList> robots = bp::AddressList::Parse(daoai.allowlist);
-    bp::Result<bp::AddressList> config = bp::AddressList::Parse(daoai.config_allowlist);
-    bp::Result<bp::AddressList> browsers = bp::AddressList::Parse(http_allowlist);
-    for (const auto& [flag, list] : {std::pair{"--allow / endpoints.allowlist", &robots},
-                                     std::pair{"--allow-config / endpoints.config_allowlist", &config},
-                                     std::pair{"--http-allow / endpoints.http_allowlist", &browsers}}) {
-      if (!list->ok()) {
-        std::cerr << "binpickd: " << flag << ": " << list->status().message() << "\n";
-        return 2;
-      }
-    }
-    config_allowed = *config;
-    if (!robots->empty()) spdlog::info("binpickd: robots allowed to connect: {}", robots->Describe());
-    if (!config->empty()) spdlog::info("binpickd: peers allowed to change the cell: {}", config->Describe());
-    // Industrial protocols carry no authentication: beyond loopback, the
-    // allowlists are the control (docs/reliability.md "Threat model").
-    if (!bp::IsLoopbackAddress(daoai.bind)) {
-      if (robots->empty()) {
-        spdlog::warn("binpickd: the robot ports listen on {} with no allowlist: any host that "
-                     "reaches them can take grasps and, with no config allowlist, recalibrate "
-                     "the camera; give --allow ADDR[/PREFIX] (endpoints.allowlist) and "
-                     "--allow-config (docs/reliability.md \"Threat model\")", daoai.bind);
-      } else if (config->empty()) {
-        spdlog::warn("binpickd: every allowed robot may change the cell (calibration, teach, "
-                     "camera config); give --allow-config ADDR[/PREFIX] "
-                     "(endpoints.config_allowlist) to restrict it");
-      }
-    }
-    if (http_port != 0 && !bp::IsLoopbackAddress(http_bind) && browsers->empty()) {
-      spdlog::warn("binpickd: the status page listens on {} with no allowlist: any host that "
-                   "reaches it can read the cell's state; give --http-allow ADDR[/PREFIX] "
-                   "(endpoints.http_allowlist)", http_bind);
-    }
-  }
+  std::optional<bp::AddressList> config_allowed =
+      CheckAllowlists(daoai.allowlist, daoai.config_allowlist, http_allowlist, daoai.bind,
+                      http_port != 0 ? http_bind : std::string("127.0.0.1"));
+  if (!config_allowed) return 2;
   std::unique_ptr<bp::DaoaiServer> server;
   std::string ready = "binpickd ready: daoai ";
   if (daoai.port != 0) {
@@ -366,7 +381,7 @@ int main(int argc, char** argv) {
     for (bp::ModbusMasterOptions& o : robots) {
       if (modbus_poll_ms) o.poll_interval = std::chrono::milliseconds(*modbus_poll_ms);
       // The robot's address as configured (a host name is never listed).
-      o.may_change_cell = config_allowed.Contains(o.host);
+      o.may_change_cell = config_allowed->Contains(o.host);
       if (!o.may_change_cell) {
         spdlog::info("binpickd: Modbus robot {}:{} is not in the config allowlist: its "
                      "calibration, teach and camera config requests are refused", o.host, o.port);
