@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "core/conventions.h"
+#include "core/sanitizers.h"
 #include "grasp/empty_box.h"
 #include "grasp/grasp_queue.h"
 
@@ -338,7 +339,7 @@ class RequestHandler::Impl {
       --pending_;
       pending_cv_.notify_all();
     };
-#if defined(__SANITIZE_THREAD__)
+#if BP_UNDER_TSAN
     // The system's libtbb is not instrumented, so ThreadSanitizer cannot see
     // the hand-off through the arena and reports every task as a race. Under
     // TSan, run each job on its own thread instead (same ordering guarantees:

@@ -95,8 +95,8 @@ stage_tests() {
 }
 
 stage_asan() {
-  # The preset's compiler is clang-14 since 2026-12-03; a tree configured
-  # with GCC before is configured again.
+  # clang-14 since 2026-12-03; a tree configured with GCC before is
+  # configured again.
   if [ -f build-asan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-asan/CMakeCache.txt; then
     rm -rf build-asan
   fi
@@ -111,6 +111,11 @@ stage_asan() {
 }
 
 stage_tsan() {
+  # clang-14 like the asan stage since 2026-12-05; a tree configured with GCC
+  # before is configured again.
+  if [ -f build-tsan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-tsan/CMakeCache.txt; then
+    rm -rf build-tsan
+  fi
   if [ ! -f build-tsan/CMakeCache.txt ]; then cmake --preset tsan >/dev/null; fi
   cmake --build build-tsan --parallel "$JOBS" --target bp_comms_tests bp_grasp_tests
   # Both at once: the stage ran them one after the other (49 + 65 s).

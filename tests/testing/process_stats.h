@@ -12,19 +12,7 @@
 #include <functional>
 #include <thread>
 
-// 1 when this file is compiled with AddressSanitizer (GCC defines
-// __SANITIZE_ADDRESS__, clang 14 only answers __has_feature): its quarantine
-// keeps freed memory resident, so RSS baselines do not hold there.
-#if defined(__SANITIZE_ADDRESS__)
-#define BP_UNDER_ASAN 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define BP_UNDER_ASAN 1
-#endif
-#endif
-#ifndef BP_UNDER_ASAN
-#define BP_UNDER_ASAN 0
-#endif
+#include "core/sanitizers.h"  // BP_UNDER_ASAN, for the tests that use these
 
 namespace bp::testing {
 

@@ -3,9 +3,11 @@
 // Debian's libtbb is not instrumented, so the hand-over between its worker
 // threads and the caller is invisible to TSan and every parallel_for would be
 // reported as a race. The stage checks the server and the queues, which run
-// on Asio and plain threads (request_handler.cc, __SANITIZE_THREAD__); the
+// on Asio and plain threads (request_handler.cc, BP_UNDER_TSAN); the
 // parallel loops themselves are not checked by it. No effect in other builds.
-#if defined(__SANITIZE_THREAD__)
+#include "core/sanitizers.h"
+
+#if BP_UNDER_TSAN
 #include <tbb/global_control.h>
 
 namespace {
