@@ -189,20 +189,24 @@ class SerialJobs {
   bool running_ = false;                    // GUARDED_BY(mutex_)
 };
 
+// A detection requested while the task's detection runs: it starts when
+// that one finishes. Capture requests that arrive meanwhile join it (the
+// latest robot pose wins), so a flood of captures costs one detection at a
+// time and every requester is answered from a capture made after its
+// request.
+// (At namespace scope: clang 14 does not see a nested struct with member
+// initializers as default-constructible inside its enclosing class, and
+// TaskState holds an optional of it.)
+struct PendingDetection {
+  uint64_t seq = 0;  // the task's capture sequence number
+  PlanRequest request;
+  std::vector<std::function<void(bool)>> on_captured;  // RC 20 answers, in order
+};
+
 }  // namespace
 
 class RequestHandler::Impl {
  public:
-  // A detection requested while the task's detection runs: it starts when
-  // that one finishes. Capture requests that arrive meanwhile join it (the
-  // latest robot pose wins), so a flood of captures costs one detection at a
-  // time and every requester is answered from a capture made after its
-  // request.
-  struct PendingDetection {
-    uint64_t seq = 0;  // the task's capture sequence number
-    PlanRequest request;
-    std::vector<std::function<void(bool)>> on_captured;  // RC 20 answers, in order
-  };
   // Empty-box checks (40) or precision checks (50) of one task: one runs at
   // a time; requests that arrive meanwhile share the next one.
   struct CheckLane {
