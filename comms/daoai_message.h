@@ -77,6 +77,24 @@ enum Command : int32_t {
   kSwitchConfig = 69,
 };
 
+// The commands of a calibration (manual, auto, guided, 2D): each belongs to
+// a calibration session, whose solve rewrites the hand-eye file.
+constexpr bool IsCalibrationCommand(int32_t command) {
+  switch (command) {
+    case kStartManualCalibration:
+    case kStopManualCalibration:
+    case kStartAutoCalibration:
+    case kManualAccumulatePose:
+    case kAutoAccumulatePose:
+    case kGuidanceCalibration:
+    case kStart2DAutoCalibration:
+    case kAutoAccumulate2DPose:
+      return true;
+    default:
+      return false;
+  }
+}
+
 // Response statuses. Version-dependent values are noted; see docs/protocols.md.
 enum Status : int32_t {
   kUnknownCommand = -1,

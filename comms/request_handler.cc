@@ -64,21 +64,8 @@ bool NeedsTask(int32_t command) {
 // (a solve rewrites the hand-eye file), teach (appends to the taught-grasp
 // file), camera config. Only peers in the config allowlist may send them.
 bool ChangesTheCell(int32_t command) {
-  switch (command) {
-    case daoai::kStartManualCalibration:
-    case daoai::kStopManualCalibration:
-    case daoai::kStartAutoCalibration:
-    case daoai::kManualAccumulatePose:
-    case daoai::kAutoAccumulatePose:
-    case daoai::kGuidanceCalibration:
-    case daoai::kStart2DAutoCalibration:
-    case daoai::kAutoAccumulate2DPose:
-    case daoai::kSendPose:
-    case daoai::kSwitchConfig:
-      return true;
-    default:
-      return false;
-  }
+  return daoai::IsCalibrationCommand(command) || command == daoai::kSendPose ||
+         command == daoai::kSwitchConfig;
 }
 
 // How one request is read and answered: the pose encoding (the convention

@@ -83,20 +83,6 @@ std::string LabelText(const std::array<int32_t, N>& known, size_t index) {
   return index < N ? std::to_string(known[index]) : std::string("other");
 }
 
-bool IsCalibrationCommand(int32_t command) {
-  switch (command) {
-    case daoai::kStartManualCalibration:
-    case daoai::kStopManualCalibration:
-    case daoai::kStartAutoCalibration:
-    case daoai::kManualAccumulatePose:
-    case daoai::kAutoAccumulatePose:
-    case daoai::kGuidanceCalibration:
-    case daoai::kStart2DAutoCalibration:
-    case daoai::kAutoAccumulate2DPose: return true;
-    default: return false;
-  }
-}
-
 struct LogEntry {
   Clock::time_point time;
   std::string level;
@@ -273,7 +259,7 @@ class StatusState::Impl {
       }
       robots_.erase(oldest);
     }
-    if (IsCalibrationCommand(command)) {
+    if (daoai::IsCalibrationCommand(command)) {
       Calibration& c = calibration_;
       c.last_command = command;
       c.last_status = status;
