@@ -101,10 +101,8 @@ std::optional<bp::AddressList> CheckAllowlists(const std::vector<std::string>& r
   return std::move(config).value();
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  CLI::App app{"binpick picking server"};
+// The command line. An unset optional (or empty list) takes the cell's value.
+struct Flags {
   std::string cell_path;
   std::optional<std::string> bind;
   std::optional<int> daoai_port;
@@ -114,11 +112,12 @@ int main(int argc, char** argv) {
   double read_timeout_s = 30.0;
   int detection_threads = 2;
   std::string log_level = "info";
-  std::vector<std::string> modbus_robots;
+  std::vector<std::string> modbus_robots;  // HOST:PORT each
   std::optional<int> modbus_poll_ms;
-  int http_port = 0;
+  int http_port = 0;  // 0 off, -1 ephemeral
   std::string http_bind = "127.0.0.1";
-  std::string source;
+  std::string source;  // synthetic | files:DIR | replay:DIR
+  std::string dialect;
   bool no_record = false;
   std::string record_dir;
   std::optional<int64_t> record_max_mb;
@@ -129,66 +128,340 @@ int main(int argc, char** argv) {
   std::string taught_grasps;
   std::vector<std::string> allow_config;
   std::vector<std::string> http_allow;
-  app.add_option("--cell", cell_path, "cell file (default: the embedded default cell)");
-  app.add_option("--bind", bind, "listen address (default: the cell's endpoints.bind)");
-  app.add_option("--daoai-port", daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
-  app.add_option("--gri-port", gri_port, "GRI protocol v2 port, 0 disables (default: the cell's)");
-  app.add_option("--gri-official-port", gri_official_port,
+};
+
+void AddFlags(CLI::App& app, Flags& f) {
+  app.add_option("--cell", f.cell_path, "cell file (default: the embedded default cell)");
+  app.add_option("--bind", f.bind, "listen address (default: the cell's endpoints.bind)");
+  app.add_option("--daoai-port", f.daoai_port, "DaoAI socket port, 0 disables (default: the cell's)");
+  app.add_option("--gri-port", f.gri_port, "GRI protocol v2 port, 0 disables (default: the cell's)");
+  app.add_option("--gri-official-port", f.gri_official_port,
                  "GRI official-format port, 0 disables (default: the cell's)");
-  app.add_option("--gri-timeout", gri_timeout_s,
+  app.add_option("--gri-timeout", f.gri_timeout_s,
                  "seconds a GRI request may wait for its result before PROCESSING_TIMEOUT");
-  app.add_option("--read-timeout", read_timeout_s,
+  app.add_option("--read-timeout", f.read_timeout_s,
                  "seconds without a complete request before an idle robot is disconnected");
-  app.add_option("--detection-threads", detection_threads, "oneTBB arena size for detection");
-  app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off");
-  app.add_option("--max-connections", max_connections,
+  app.add_option("--detection-threads", f.detection_threads, "oneTBB arena size for detection");
+  app.add_option("--log-level", f.log_level, "trace|debug|info|warn|error|off");
+  app.add_option("--max-connections", f.max_connections,
                  "robot connections per listener, more are closed at accept; 0 unlimited "
                  "(default: the cell's endpoints.max_connections)");
-  app.add_option("--max-message-rate", max_message_rate,
+  app.add_option("--max-message-rate", f.max_message_rate,
                  "requests/s per connection, faster robots are read no faster; 0 unlimited "
                  "(default: the cell's endpoints.max_message_rate)");
-  app.add_option("--max-connections-per-peer", max_connections_per_peer,
+  app.add_option("--max-connections-per-peer", f.max_connections_per_peer,
                  "robot connections one address may hold per listener, more are closed at "
                  "accept; 0 unlimited (default: the cell's endpoints.max_connections_per_peer)");
-  app.add_option("--allow", allow,
+  app.add_option("--allow", f.allow,
                  "robot address or ADDR/PREFIX network allowed to connect, repeatable; others are "
                  "closed at accept (default: the cell's endpoints.allowlist; none: any)");
-  app.add_option("--allow-config", allow_config,
+  app.add_option("--allow-config", f.allow_config,
                  "address or ADDR/PREFIX network allowed to change the cell (calibration, GRI "
                  "HEC, teach, camera config), repeatable; others get the protocol's refusal "
                  "(default: the cell's endpoints.config_allowlist; none: any robot)");
-  app.add_option("--http-allow", http_allow,
+  app.add_option("--http-allow", f.http_allow,
                  "address or ADDR/PREFIX network allowed on the status page / metrics port, "
                  "repeatable (default: the cell's endpoints.http_allowlist; none: any)");
-  app.add_option("--modbus-robot", modbus_robots,
+  app.add_option("--modbus-robot", f.modbus_robots,
                  "HOST:PORT of a robot Modbus slave to serve as master (repeatable; default: the "
                  "cell's robot.modbus)");
-  app.add_option("--modbus-poll-ms", modbus_poll_ms,
+  app.add_option("--modbus-poll-ms", f.modbus_poll_ms,
                  "Modbus request flag poll interval (default: the cell's robot.modbus.poll_ms)");
-  app.add_option("--http-port", http_port,
+  app.add_option("--http-port", f.http_port,
                  "status page, JSON API and /metrics port; 0 disables (default), -1 ephemeral");
-  app.add_option("--http-bind", http_bind, "status page listen address");
-  app.add_option("--source", source,
+  app.add_option("--http-bind", f.http_bind, "status page listen address");
+  app.add_option("--source", f.source,
                  "capture source: synthetic, files:DIR or replay:DIR (a recorded session or a directory of "
                  "frames; default: the cell's source)");
-  app.add_option("--taught-grasps", taught_grasps,
+  app.add_option("--taught-grasps", f.taught_grasps,
                  "file of the grasps taught with command 30 (default: <cell file>.taught.yaml; the package's "
                  "service keeps it in /var/lib/binpick)");
-  std::string dialect;
-  app.add_option("--dialect", dialect,
+  app.add_option("--dialect", f.dialect,
                  "DaoAI rules the robot program follows: vision_pilot (seed 000/003) or socket_v1 "
                  "(seed 004) (default: the cell's robot.dialect)");
-  app.add_flag("--no-record", no_record, "do not record captures and answers (default: the cell's recording)");
-  app.add_option("--record-dir", record_dir, "directory of the recording sessions (default: the cell's)");
-  app.add_option("--record-max-mb", record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
+  app.add_flag("--no-record", f.no_record, "do not record captures and answers (default: the cell's recording)");
+  app.add_option("--record-dir", f.record_dir, "directory of the recording sessions (default: the cell's)");
+  app.add_option("--record-max-mb", f.record_max_mb, "disk cap of the recordings in MiB (default: the cell's)")
       ->check(CLI::PositiveNumber);
+}
+
+// Exit codes: 2 for a bad flag, cell or listener, 3 when the planning side
+// (planner, 2D setup, precision references) cannot be built.
+constexpr int kBadConfig = 2;
+constexpr int kCannotPlan = 3;
+
+// Prints "binpickd: <message>" and returns `code`, for `return Fail(...)`.
+int Fail(int code, const std::string& message) {
+  std::cerr << "binpickd: " << message << "\n";
+  return code;
+}
+
+// Applies --dialect and --source to the loaded cell. @returns 0 or kBadConfig.
+int ApplyCellFlags(const Flags& f, bp::Cell& cell) {
+  if (!f.dialect.empty()) {
+    const std::optional<bp::DaoaiDialect> d = bp::ParseDaoaiDialect(f.dialect);
+    if (!d) return Fail(kBadConfig, "--dialect '" + f.dialect + "' is not vision_pilot or socket_v1");
+    cell.robot.dialect = *d;
+  }
+  if (f.source.empty()) return 0;
+  const size_t colon = f.source.find(':');
+  const std::string kind = f.source.substr(0, colon);
+  const std::string dir = colon == std::string::npos ? "" : f.source.substr(colon + 1);
+  if (kind == "synthetic" && dir.empty()) {
+    cell.source.kind = bp::SourceSpec::Kind::kSynthetic;
+  } else if ((kind == "files" || kind == "replay") && !dir.empty()) {
+    cell.source.kind = kind == "files" ? bp::SourceSpec::Kind::kFiles : bp::SourceSpec::Kind::kReplay;
+    cell.source.dir = dir;
+  } else {
+    return Fail(kBadConfig, "--source '" + f.source + "' is not synthetic, files:DIR or replay:DIR");
+  }
+  return 0;
+}
+
+// What the request handler plans and calibrates with.
+struct Planning {
+  // The hand-eye transform in use when the cell has a calibration section
+  // (camera.pose, or camera.hand_eye_file loaded by the cell loader): written
+  // by the calibration service, read by every capture of the pick camera, the
+  // precision check and the status page (docs/architecture.md "Hand-eye
+  // state"). Null without a calibration section.
+  std::shared_ptr<bp::HandEyeState> hand_eye;
+  // The grasp planner (null for a cell of pick_2d tasks only), wrapped by the
+  // precision check (RC 50) when there is a hand-eye state.
+  std::shared_ptr<bp::GraspPlanner> planner;
+  // Hand-eye calibration, wrapping the 2D plane calibration (RC 11/12) if any.
+  std::unique_ptr<bp::CalibrationService> calibration;
+};
+
+// Builds the planners and calibration services of `cell`; gives the status
+// page (if any) its calibration rows. @returns 0 or kCannotPlan.
+int BuildPlanning(const bp::Cell& cell, const Flags& f, bp::StatusState* status, Planning& out) {
+  bp::HandEyeProvider hand_eye_provider;
+  if (cell.calibration) {
+    std::error_code ec;
+    const bool from_file =
+        !cell.camera.hand_eye_file.empty() && std::filesystem::exists(cell.camera.hand_eye_file, ec);
+    out.hand_eye = std::make_shared<bp::HandEyeState>(cell.camera.eye_in_hand ? cell.camera.X_FC : cell.camera.X_BC,
+                                                      from_file ? cell.camera.hand_eye_file : "camera.pose");
+    hand_eye_provider = [hand_eye = out.hand_eye] { return hand_eye->Get(); };
+  }
+  // A cell of pick_2d tasks only needs no 3D planner.
+  bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
+      bp::OnlyPick2DTasks(cell) ? std::unique_ptr<bp::GraspPlanner>()
+                                : bp::MakePlanner(cell, hand_eye_provider, f.taught_grasps);
+  if (!planner.ok()) return Fail(kCannotPlan, "cannot start: " + planner.status().ToString());
+  // 2D tasks (twod/): their planner by task kind, RC 11/12 on the plane calibration.
+  if (bp::HasPick2DTask(cell)) {
+    bp::Result<bp::Plane2DSetup> two_d = bp::MakePlane2DSetup(cell);
+    if (!two_d.ok()) return Fail(kCannotPlan, "cannot start: " + two_d.status().ToString());
+    planner = bp::WithPlane2DPlanner(cell, std::move(*planner), *two_d);
+    bp::PlaneCalibrationOptions plane_options;
+    plane_options.file = cell.camera.plane_calibration_file;
+    out.calibration = std::make_unique<bp::PlaneCalibrationService>(two_d->camera, two_d->store, plane_options);
+  }
+  out.planner = std::move(*planner);
+  if (!out.hand_eye) return 0;
+  // Hand-eye calibration and the precision check (RC 50): the simulated
+  // calibration camera and the hand-eye state above.
+  auto camera = std::make_shared<bp::SimulatedCalibrationCamera>(cell.camera, *cell.calibration);
+  bp::HandEyeServiceOptions calib_options;
+  calib_options.result_file = cell.camera.hand_eye_file;
+  out.calibration = std::make_unique<bp::HandEyeCalibrationService>(cell, camera, out.hand_eye,
+                                                                    std::move(out.calibration), calib_options);
+  if (out.planner) {
+    bp::PrecisionCheckOptions check_options;
+    check_options.reference_file = bp::PrecisionReferenceFile(cell);
+    auto check = std::make_shared<bp::PrecisionCheckPlanner>(out.planner, cell, camera, out.hand_eye, check_options);
+    if (bp::Status s = check->LoadReferences(); !s.ok()) return Fail(kCannotPlan, "cannot start: " + s.ToString());
+    out.planner = std::move(check);
+  }
+  if (status) {
+    status->SetCalibrationProbe([hand_eye = out.hand_eye, eih = cell.camera.eye_in_hand] {
+      return bp::HandEyeStatusRows(hand_eye->Snapshot(), eih);
+    });
+  }
+  return 0;
+}
+
+// The recorder observes every detection and answer; it owns its writer
+// thread and the session directory (docs/architecture.md "Recording").
+// @returns null when recording is off or cannot start (logged: serving goes on).
+std::shared_ptr<bp::Recorder> StartRecorder(const bp::Cell& cell, const Flags& f) {
+  if (!cell.recording.enabled || f.no_record) return nullptr;
+  bp::RecorderOptions options = bp::RecorderOptionsFromCell(cell);
+  if (!f.record_dir.empty()) options.directory = f.record_dir;
+  if (f.record_max_mb) options.max_disk_bytes = *f.record_max_mb << 20;
+  auto started = bp::Recorder::Start(cell, options);
+  if (!started.ok()) {
+    spdlog::error("binpickd: recording disabled: {}", started.status().ToString());
+    return nullptr;
+  }
+  return *started;
+}
+
+bp::DaoaiServerOptions DaoaiOptions(const bp::Cell& cell, const Flags& f) {
+  bp::DaoaiServerOptions o;
+  o.bind = f.bind.value_or(cell.endpoints.bind);
+  o.port = f.daoai_port.value_or(cell.endpoints.daoai_port);
+  o.read_timeout = std::chrono::milliseconds(static_cast<int64_t>(f.read_timeout_s * 1000));
+  o.max_connections = static_cast<size_t>(std::max(0, f.max_connections.value_or(cell.endpoints.max_connections)));
+  o.max_connections_per_peer = static_cast<size_t>(
+      std::max(0, f.max_connections_per_peer.value_or(cell.endpoints.max_connections_per_peer)));
+  o.max_message_rate = std::max(0.0, f.max_message_rate.value_or(cell.endpoints.max_message_rate));
+  o.allowlist = f.allow.empty() ? cell.endpoints.allowlist : f.allow;
+  o.config_allowlist = f.allow_config.empty() ? cell.endpoints.config_allowlist : f.allow_config;
+  return o;
+}
+
+// The GRI listeners share the DaoAI listener's address, limits and allowlists.
+bp::GriServerOptions GriOptions(const bp::Cell& cell, const Flags& f, const bp::DaoaiServerOptions& daoai) {
+  bp::GriServerOptions o;
+  o.bind = daoai.bind;
+  o.v2_port = f.gri_port.value_or(cell.endpoints.gri_port);
+  o.official_port = f.gri_official_port.value_or(cell.endpoints.gri_official_port);
+  o.read_timeout = daoai.read_timeout;
+  o.max_connections = daoai.max_connections;
+  o.max_connections_per_peer = daoai.max_connections_per_peer;
+  o.max_message_rate = daoai.max_message_rate;
+  o.allowlist = daoai.allowlist;
+  o.config_allowlist = daoai.config_allowlist;
+  o.processing_timeout = std::chrono::milliseconds(static_cast<int64_t>(f.gri_timeout_s * 1000));
+  return o;
+}
+
+// One Modbus master per robot slave: the --modbus-robot HOST:PORT list
+// ([::1]:502 for IPv6), else the cell's robot.modbus if it names a host.
+// @returns nullopt on a malformed entry (printed).
+std::optional<std::vector<bp::ModbusMasterOptions>> ModbusRobots(const bp::Cell& cell, const Flags& f,
+                                                                 const bp::AddressList& config_allowed) {
+  std::vector<bp::ModbusMasterOptions> robots;
+  const bp::ModbusMasterOptions base = bp::ModbusMasterOptionsFromCell(cell.robot);
+  for (const std::string& hp : f.modbus_robots) {
+    bp::ModbusMasterOptions o = base;
+    const size_t colon = hp.rfind(':');
+    o.host = hp.substr(0, colon);
+    if (o.host.size() > 2 && o.host.front() == '[' && o.host.back() == ']') {
+      o.host = o.host.substr(1, o.host.size() - 2);
+    }
+    o.port = 0;
+    if (colon != std::string::npos) {
+      try {
+        o.port = std::stoi(hp.substr(colon + 1));
+      } catch (const std::exception&) {
+      }
+    }
+    if (colon == std::string::npos || o.host.empty() || o.port <= 0) {
+      Fail(kBadConfig, "--modbus-robot '" + hp + "' is not HOST:PORT");
+      return std::nullopt;
+    }
+    robots.push_back(o);
+  }
+  if (f.modbus_robots.empty() && !cell.robot.modbus_host.empty()) robots.push_back(base);
+  for (bp::ModbusMasterOptions& o : robots) {
+    if (f.modbus_poll_ms) o.poll_interval = std::chrono::milliseconds(*f.modbus_poll_ms);
+    // The robot's address as configured (a host name is never listed).
+    o.may_change_cell = config_allowed.Contains(o.host);
+    if (!o.may_change_cell) {
+      spdlog::info("binpickd: Modbus robot {}:{} is not in the config allowlist: its "
+                   "calibration, teach and camera config requests are refused", o.host, o.port);
+    }
+  }
+  return robots;
+}
+
+// Every transport serving the one request handler, and the status page.
+// Stop() stops them in the order that lets each finish what it started: the
+// status page first (it reads the others), then the robot links.
+struct Transports {
+  std::unique_ptr<bp::DaoaiServer> daoai;
+  std::vector<std::unique_ptr<bp::ModbusMaster>> modbus;
+  std::unique_ptr<bp::GriServer> gri;
+  std::unique_ptr<bp::StatusServer> http;
+
+  void Stop() {
+    if (http) http->Stop();
+    if (daoai) daoai->Stop();
+    for (auto& master : modbus) master->Stop();
+    if (gri) gri->Stop();
+  }
+};
+
+// Starts the robot transports of `cell` on `handler`. Appends each listener's
+// address to `ready`. @returns 0 or kBadConfig (printed).
+int StartRobotLinks(const bp::Cell& cell, const Flags& f, const bp::DaoaiServerOptions& daoai,
+                    const bp::AddressList& config_allowed, bp::RequestHandler& handler,
+                    bp::GriHandler& gri_handler, Transports& out, std::string& ready) {
+  ready += "daoai ";
+  if (daoai.port != 0) {
+    auto started = bp::DaoaiServer::Start(handler, daoai);
+    if (!started.ok()) return Fail(kBadConfig, started.status().ToString());
+    out.daoai = std::move(*started);
+    ready += out.daoai->address();
+  } else {
+    ready += "disabled";
+  }
+  std::optional<std::vector<bp::ModbusMasterOptions>> robots = ModbusRobots(cell, f, config_allowed);
+  if (!robots) return kBadConfig;
+  for (const bp::ModbusMasterOptions& o : *robots) {
+    auto started = bp::ModbusMaster::Start(handler, o);
+    if (!started.ok()) return Fail(kBadConfig, started.status().ToString());
+    spdlog::info("binpickd: Modbus master for robot {}", (*started)->address());
+    out.modbus.push_back(std::move(*started));
+  }
+  const bp::GriServerOptions gri = GriOptions(cell, f, daoai);
+  ready += "; gri ";
+  if (gri.v2_port != 0 || gri.official_port != 0) {
+    auto started = bp::GriServer::Start(gri_handler, gri);
+    if (!started.ok()) return Fail(kBadConfig, started.status().ToString());
+    out.gri = std::move(*started);
+    ready += out.gri->Describe();
+  } else {
+    ready += "disabled";
+  }
+  return 0;
+}
+
+// Starts the status page, JSON API and /metrics; the metrics read the
+// transports, handler and recorder at scrape time (the HTTP server stops
+// first). Appends "; http ADDR" to `ready`. @returns 0 or kBadConfig (printed).
+int StartStatusPage(const bp::Cell& cell, const Flags& f, const std::vector<std::string>& http_allowlist,
+                    bp::StatusState& status, bp::MetricsRegistry& metrics, const bp::RequestHandler& handler,
+                    const bp::Recorder* recorder, Transports& transports, std::string& ready) {
+  if (transports.daoai) {
+    bp::AddTransportMetrics(metrics, "daoai", [server = transports.daoai.get()] { return server->stats(); });
+  }
+  if (transports.gri) {
+    bp::AddTransportMetrics(metrics, "gri", [server = transports.gri.get()] { return server->stats(); });
+  }
+  for (const auto& master : transports.modbus) bp::AddModbusMetrics(metrics, *master);
+  bp::AddQueueMetrics(metrics, handler);
+  bp::AddHandlerMetrics(metrics, handler);
+  if (recorder) bp::AddRecorderMetrics(metrics, *recorder);
+  bp::StatusServerOptions http_options;
+  http_options.bind = f.http_bind;
+  http_options.port = f.http_port < 0 ? 0 : f.http_port;
+  http_options.max_connections = static_cast<size_t>(cell.endpoints.http_max_connections);
+  http_options.allowlist = http_allowlist;
+  auto started = bp::StatusServer::Start(status, metrics, http_options);
+  if (!started.ok()) return Fail(kBadConfig, started.status().ToString());
+  transports.http = std::move(*started);
+  ready += "; http " + transports.http->address();
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"binpick picking server"};
+  Flags flags;
+  AddFlags(app, flags);
   CLI11_PARSE(app, argc, argv);
   // stdout carries only the ready line; logs go to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("binpickd"));
   // Status page state and metrics exist before anything logs or serves.
   bp::MetricsRegistry metrics;
   std::shared_ptr<bp::StatusState> status;
-  spdlog::set_level(spdlog::level::from_str(log_level));
+  spdlog::set_level(spdlog::level::from_str(flags.log_level));
 
   // Block the stop signals before any thread starts; main waits for them.
   sigset_t stop_signals;
@@ -197,252 +470,54 @@ int main(int argc, char** argv) {
   sigaddset(&stop_signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
 
-  bp::Result<bp::Cell> cell = bp::LoadCellOrDefault(cell_path);
-  if (!cell.ok()) {
-    std::cerr << "binpickd: " << cell.status().ToString() << "\n";
-    return 2;
-  }
-  if (!dialect.empty()) {
-    const std::optional<bp::DaoaiDialect> d = bp::ParseDaoaiDialect(dialect);
-    if (!d) {
-      std::cerr << "binpickd: --dialect '" << dialect << "' is not vision_pilot or socket_v1\n";
-      return 2;
-    }
-    cell->robot.dialect = *d;
-  }
-  if (http_port != 0) {
+  bp::Result<bp::Cell> cell = bp::LoadCellOrDefault(flags.cell_path);
+  if (!cell.ok()) return Fail(kBadConfig, cell.status().ToString());
+  if (int code = ApplyCellFlags(flags, *cell); code != 0) return code;
+  if (flags.http_port != 0) {
     status = std::make_shared<bp::StatusState>(*cell, metrics);
     spdlog::default_logger()->sinks().push_back(status->LogSink());
   }
-  if (!source.empty()) {
-    const size_t colon = source.find(':');
-    const std::string kind = source.substr(0, colon);
-    const std::string dir = colon == std::string::npos ? "" : source.substr(colon + 1);
-    if (kind == "synthetic" && dir.empty()) {
-      cell->source.kind = bp::SourceSpec::Kind::kSynthetic;
-    } else if ((kind == "files" || kind == "replay") && !dir.empty()) {
-      cell->source.kind = kind == "files" ? bp::SourceSpec::Kind::kFiles : bp::SourceSpec::Kind::kReplay;
-      cell->source.dir = dir;
-    } else {
-      std::cerr << "binpickd: --source '" << source << "' is not synthetic, files:DIR or replay:DIR\n";
-      return 2;
-    }
-  }
-  // The hand-eye transform in use when the cell has a calibration section
-  // (camera.pose, or camera.hand_eye_file loaded by the cell loader): written
-  // by the calibration service, read by every capture of the pick camera, the
-  // precision check and the status page (docs/architecture.md "Hand-eye state").
-  std::shared_ptr<bp::HandEyeState> hand_eye;
-  bp::HandEyeProvider hand_eye_provider;
-  if (cell->calibration) {
-    std::error_code ec;
-    const bool from_file =
-        !cell->camera.hand_eye_file.empty() && std::filesystem::exists(cell->camera.hand_eye_file, ec);
-    hand_eye = std::make_shared<bp::HandEyeState>(cell->camera.eye_in_hand ? cell->camera.X_FC : cell->camera.X_BC,
-                                                  from_file ? cell->camera.hand_eye_file : "camera.pose");
-    hand_eye_provider = [hand_eye] { return hand_eye->Get(); };
-  }
-  // A cell of pick_2d tasks only needs no 3D planner.
-  bp::Result<std::unique_ptr<bp::GraspPlanner>> planner =
-      bp::OnlyPick2DTasks(*cell) ? std::unique_ptr<bp::GraspPlanner>()
-                                 : bp::MakePlanner(*cell, hand_eye_provider, taught_grasps);
-  if (!planner.ok()) {
-    std::cerr << "binpickd: cannot start: " << planner.status().ToString() << "\n";
-    return 3;
-  }
-  // 2D tasks (twod/): their planner by task kind, RC 11/12 on the plane calibration.
-  std::unique_ptr<bp::CalibrationService> calibration;
-  if (bp::HasPick2DTask(*cell)) {
-    bp::Result<bp::Plane2DSetup> two_d = bp::MakePlane2DSetup(*cell);
-    if (!two_d.ok()) {
-      std::cerr << "binpickd: cannot start: " << two_d.status().ToString() << "\n";
-      return 3;
-    }
-    planner = bp::WithPlane2DPlanner(*cell, std::move(*planner), *two_d);
-    bp::PlaneCalibrationOptions plane_options;
-    plane_options.file = cell->camera.plane_calibration_file;
-    calibration = std::make_unique<bp::PlaneCalibrationService>(two_d->camera, two_d->store, plane_options);
-  }
+  Planning planning;
+  if (int code = BuildPlanning(*cell, flags, status.get(), planning); code != 0) return code;
 
   // oneTBB caps its workers at cores - 1; the detection arena asks for
   // detection_threads workers of its own, so allow them (plus this thread).
   const size_t parallelism = std::max<size_t>(
       tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism),
-      static_cast<size_t>(detection_threads) + 1);
+      static_cast<size_t>(flags.detection_threads) + 1);
   tbb::global_control allow_workers(tbb::global_control::max_allowed_parallelism, parallelism);
 
   bp::RequestHandlerOptions handler_options;
-  handler_options.detection_threads = detection_threads;
-  // Hand-eye calibration and the precision check (RC 50) when the cell has a
-  // calibration section: the simulated calibration camera and the hand-eye
-  // state above. The 2D plane calibration, if any, serves RC 11/12 through it.
-  std::shared_ptr<bp::GraspPlanner> grasp_planner(std::move(*planner));
-  if (hand_eye) {
-    auto camera = std::make_shared<bp::SimulatedCalibrationCamera>(cell->camera, *cell->calibration);
-    bp::HandEyeServiceOptions calib_options;
-    calib_options.result_file = cell->camera.hand_eye_file;
-    calibration = std::make_unique<bp::HandEyeCalibrationService>(*cell, camera, hand_eye, std::move(calibration),
-                                                                  calib_options);
-    if (grasp_planner) {
-      bp::PrecisionCheckOptions check_options;
-      check_options.reference_file = bp::PrecisionReferenceFile(*cell);
-      auto check = std::make_shared<bp::PrecisionCheckPlanner>(grasp_planner, *cell, camera, hand_eye, check_options);
-      if (bp::Status s = check->LoadReferences(); !s.ok()) {
-        std::cerr << "binpickd: cannot start: " << s.ToString() << "\n";
-        return 3;
-      }
-      grasp_planner = std::move(check);
-    }
-    if (status) {
-      status->SetCalibrationProbe([hand_eye, eih = cell->camera.eye_in_hand] {
-        return bp::HandEyeStatusRows(hand_eye->Snapshot(), eih);
-      });
-    }
-  }
-  bp::RequestHandler handler(*cell, grasp_planner, std::move(calibration), handler_options);
+  handler_options.detection_threads = flags.detection_threads;
+  bp::RequestHandler handler(*cell, planning.planner, std::move(planning.calibration), handler_options);
   if (status) {
     status->SetQueueProbe([&handler](int task_id) { return handler.QueueSize(task_id); });
     status->SetQueueContentsProbe([&handler](int task_id) { return handler.QueueContents(task_id); });
     handler.AddObserver(status);
   }
+  std::shared_ptr<bp::Recorder> recorder = StartRecorder(*cell, flags);
+  if (recorder) handler.AddObserver(recorder);
 
-  // The recorder observes every detection and answer; it owns its writer
-  // thread and the session directory (docs/architecture.md "Recording").
-  std::shared_ptr<bp::Recorder> recorder;
-  if (cell->recording.enabled && !no_record) {
-    bp::RecorderOptions options = bp::RecorderOptionsFromCell(*cell);
-    if (!record_dir.empty()) options.directory = record_dir;
-    if (record_max_mb) options.max_disk_bytes = *record_max_mb << 20;
-    auto started = bp::Recorder::Start(*cell, options);
-    if (started.ok()) {
-      recorder = *started;
-      handler.AddObserver(recorder);
-    } else {
-      spdlog::error("binpickd: recording disabled: {}", started.status().ToString());
-    }
-  }
-
-  bp::DaoaiServerOptions daoai;
-  daoai.bind = bind.value_or(cell->endpoints.bind);
-  daoai.port = daoai_port.value_or(cell->endpoints.daoai_port);
-  daoai.read_timeout = std::chrono::milliseconds(static_cast<int64_t>(read_timeout_s * 1000));
-  daoai.max_connections = static_cast<size_t>(
-      std::max(0, max_connections.value_or(cell->endpoints.max_connections)));
-  daoai.max_connections_per_peer = static_cast<size_t>(std::max(
-      0, max_connections_per_peer.value_or(cell->endpoints.max_connections_per_peer)));
-  daoai.max_message_rate = std::max(0.0, max_message_rate.value_or(cell->endpoints.max_message_rate));
-  daoai.allowlist = allow.empty() ? cell->endpoints.allowlist : allow;
-  daoai.config_allowlist = allow_config.empty() ? cell->endpoints.config_allowlist : allow_config;
+  const bp::DaoaiServerOptions daoai = DaoaiOptions(*cell, flags);
   const std::vector<std::string> http_allowlist =
-      http_allow.empty() ? cell->endpoints.http_allowlist : http_allow;
+      flags.http_allow.empty() ? cell->endpoints.http_allowlist : flags.http_allow;
   std::optional<bp::AddressList> config_allowed =
       CheckAllowlists(daoai.allowlist, daoai.config_allowlist, http_allowlist, daoai.bind,
-                      http_port != 0 ? http_bind : std::string("127.0.0.1"));
-  if (!config_allowed) return 2;
-  std::unique_ptr<bp::DaoaiServer> server;
-  std::string ready = "binpickd ready: daoai ";
-  if (daoai.port != 0) {
-    auto started = bp::DaoaiServer::Start(handler, daoai);
-    if (!started.ok()) {
-      std::cerr << "binpickd: " << started.status().ToString() << "\n";
-      return 2;
-    }
-    server = std::move(*started);
-    ready += server->address();
-  } else {
-    ready += "disabled";
-  }
-  // One Modbus master per robot slave, sharing the handler.
-  std::vector<std::unique_ptr<bp::ModbusMaster>> masters;
-  {
-    std::vector<bp::ModbusMasterOptions> robots;
-    const bp::ModbusMasterOptions base = bp::ModbusMasterOptionsFromCell(cell->robot);
-    for (const std::string& hp : modbus_robots) {
-      bp::ModbusMasterOptions o = base;
-      const size_t colon = hp.rfind(':');
-      o.host = hp.substr(0, colon);
-      if (o.host.size() > 2 && o.host.front() == '[' && o.host.back() == ']') {
-        o.host = o.host.substr(1, o.host.size() - 2);  // [::1]:502
-      }
-      o.port = 0;
-      if (colon != std::string::npos) {
-        try {
-          o.port = std::stoi(hp.substr(colon + 1));
-        } catch (const std::exception&) {
-        }
-      }
-      if (colon == std::string::npos || o.host.empty() || o.port <= 0) {
-        std::cerr << "binpickd: --modbus-robot '" << hp << "' is not HOST:PORT\n";
-        return 2;
-      }
-      robots.push_back(o);
-    }
-    if (modbus_robots.empty() && !cell->robot.modbus_host.empty()) robots.push_back(base);
-    for (bp::ModbusMasterOptions& o : robots) {
-      if (modbus_poll_ms) o.poll_interval = std::chrono::milliseconds(*modbus_poll_ms);
-      // The robot's address as configured (a host name is never listed).
-      o.may_change_cell = config_allowed->Contains(o.host);
-      if (!o.may_change_cell) {
-        spdlog::info("binpickd: Modbus robot {}:{} is not in the config allowlist: its "
-                     "calibration, teach and camera config requests are refused", o.host, o.port);
-      }
-      auto started = bp::ModbusMaster::Start(handler, o);
-      if (!started.ok()) {
-        std::cerr << "binpickd: " << started.status().ToString() << "\n";
-        return 2;
-      }
-      spdlog::info("binpickd: Modbus master for robot {}", (*started)->address());
-      masters.push_back(std::move(*started));
-    }
-  }
+                      flags.http_port != 0 ? flags.http_bind : std::string("127.0.0.1"));
+  if (!config_allowed) return kBadConfig;
   bp::GriHandler gri_handler(handler);
-  bp::GriServerOptions gri;
-  gri.bind = daoai.bind;
-  gri.v2_port = gri_port.value_or(cell->endpoints.gri_port);
-  gri.official_port = gri_official_port.value_or(cell->endpoints.gri_official_port);
-  gri.read_timeout = daoai.read_timeout;
-  gri.max_connections = daoai.max_connections;
-  gri.max_connections_per_peer = daoai.max_connections_per_peer;
-  gri.max_message_rate = daoai.max_message_rate;
-  gri.allowlist = daoai.allowlist;
-  gri.config_allowlist = daoai.config_allowlist;
-  gri.processing_timeout = std::chrono::milliseconds(static_cast<int64_t>(gri_timeout_s * 1000));
-  std::unique_ptr<bp::GriServer> gri_server;
-  ready += "; gri ";
-  if (gri.v2_port != 0 || gri.official_port != 0) {
-    auto started = bp::GriServer::Start(gri_handler, gri);
-    if (!started.ok()) {
-      std::cerr << "binpickd: " << started.status().ToString() << "\n";
-      return 2;
-    }
-    gri_server = std::move(*started);
-    ready += gri_server->Describe();
-  } else {
-    ready += "disabled";
+  Transports transports;
+  std::string ready = "binpickd ready: ";
+  if (int code = StartRobotLinks(*cell, flags, daoai, *config_allowed, handler, gri_handler, transports, ready);
+      code != 0) {
+    return code;
   }
-  std::unique_ptr<bp::StatusServer> http;
   if (status) {
-    // Read from the servers at scrape time; the HTTP server stops first.
-    if (server) bp::AddTransportMetrics(metrics, "daoai", [&server] { return server->stats(); });
-    if (gri_server) {
-      bp::AddTransportMetrics(metrics, "gri", [&gri_server] { return gri_server->stats(); });
+    if (int code = StartStatusPage(*cell, flags, http_allowlist, *status, metrics, handler, recorder.get(),
+                                   transports, ready);
+        code != 0) {
+      return code;
     }
-    for (const auto& master : masters) bp::AddModbusMetrics(metrics, *master);
-    bp::AddQueueMetrics(metrics, handler);
-    bp::AddHandlerMetrics(metrics, handler);
-    if (recorder) bp::AddRecorderMetrics(metrics, *recorder);
-    bp::StatusServerOptions http_options;
-    http_options.bind = http_bind;
-    http_options.port = http_port < 0 ? 0 : http_port;
-    http_options.max_connections = static_cast<size_t>(cell->endpoints.http_max_connections);
-    http_options.allowlist = http_allowlist;
-    auto started = bp::StatusServer::Start(*status, metrics, http_options);
-    if (!started.ok()) {
-      std::cerr << "binpickd: " << started.status().ToString() << "\n";
-      return 2;
-    }
-    http = std::move(*started);
-    ready += "; http " + http->address();
   }
   spdlog::info("binpickd: cell '{}' from {}", cell->name, cell->path);
   std::cout << ready << std::endl;
@@ -455,13 +530,10 @@ int main(int argc, char** argv) {
   sigwait(&stop_signals, &signal);
   spdlog::info("binpickd: {} received, stopping", signal == SIGINT ? "SIGINT" : "SIGTERM");
   (void)bp::NotifyServiceManager("STOPPING=1");
-  if (http) http->Stop();
-  if (server) server->Stop();
-  for (auto& master : masters) master->Stop();
-  if (gri_server) gri_server->Stop();
+  transports.Stop();
   handler.Shutdown();
   if (recorder) recorder->Stop();  // writes what is queued
-  server.reset();
-  gri_server.reset();
+  transports.daoai.reset();
+  transports.gri.reset();
   return 0;
 }
