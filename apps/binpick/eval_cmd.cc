@@ -257,6 +257,156 @@ void PrintTable(const EvalReport& report, const SegmentationFigures& seg, const 
   }
 }
 
+// The perception settings: the cell's, with the tuning flags that were given.
+PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
+  PerceptionOptions popt;
+  popt.threads = opt.threads;
+  if (opt.normal_angle_deg >= 0) popt.segment_normal_angle_deg = opt.normal_angle_deg;
+  if (opt.max_jump > 0) popt.segment_max_jump = opt.max_jump;
+  if (opt.context >= 0) popt.context_relative_radius = opt.context;
+  if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
+  if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
+  if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
+  if (opt.regions) popt.match_regions = true;
+  popt.second_look_below = opt.second_look;
+  popt.max_fit_rms_sigmas = opt.fit_rms;
+  popt.smoothing_target_sigma = opt.smooth;
+  popt.second_look_skip_tried = opt.second_look_skip_tried;
+  return popt;
+}
+
+// Frame i of the run: scene seed + i of the synthetic source, or files[i]
+// (which must carry its ground truth).
+Result<Frame> EvalFrame(const Cell& cell, const EvalCliOptions& opt, const std::vector<std::string>& files, int i) {
+  if (files.empty()) {
+    Cell scene_cell = cell;
+    scene_cell.source.kind = SourceSpec::Kind::kSynthetic;
+    scene_cell.source.seed = opt.seed + static_cast<uint64_t>(i);
+    auto source = MakeSyntheticSource(scene_cell);
+    if (!source.ok()) return source.status();
+    CaptureRequest request;
+    request.config_id = opt.config_id;
+    return (*source)->Capture(request);
+  }
+  const std::string& file = files[static_cast<size_t>(i)];
+  std::string assumption;
+  Result<Frame> frame = LoadFrameForPerception(file, cell, cell.camera.X_BC, &assumption);
+  if (!assumption.empty()) spdlog::warn("{}", assumption);
+  if (frame.ok() && !frame->truth) return Status::NotFound(file + ": no ground-truth JSON beside it");
+  return frame;
+}
+
+// --log-level debug: each visible part no detection matched, and how a
+// same-class detection near it is off and how the truth and it score on its
+// support.
+void LogMissedParts(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
+                    const FrameEvaluation& fe,
+                    std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+  std::vector<int> matched;
+  for (const DetectionOutcome& d : fe.detections) matched.push_back(d.truth_instance);
+  for (const PartTruth& p : frame.truth->parts) {
+    if (p.visible_fraction < EvalOptions{}.min_visible_fraction) continue;
+    if (std::find(matched.begin(), matched.end(), p.instance_id) != matched.end()) continue;
+    const Eigen::Vector3d z = p.X_BO.rotation().col(2);
+    spdlog::debug("frame {} missed inst {} class {} vis {:.2f} at ({:.0f}, {:.0f}, {:.0f}) mm, z axis ({:.2f}, {:.2f}, "
+                  "{:.2f})",
+                  i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
+                  p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
+    // A detection of the same class near it: how it is off, in the part's
+    // frame, and how the truth and it verify against its support.
+    for (const Detection& d : result.detections) {
+      if (d.class_id != p.class_id || (d.X_BO.translation() - p.X_BO.translation()).norm() > 0.1) continue;
+      const Pose X_TD = p.X_BO.inverse() * d.X_BO;
+      const Eigen::AngleAxisd aa(X_TD.rotation());
+      spdlog::debug("frame {} missed inst {}: detection score {:.2f} is off by {:.0f} deg about ({:.2f}, {:.2f}, "
+                    "{:.2f}) and ({:.1f}, {:.1f}, {:.1f}) mm in the part frame",
+                    i, p.instance_id, d.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(),
+                    aa.axis().z(), X_TD.translation().x() * 1000, X_TD.translation().y() * 1000,
+                    X_TD.translation().z() * 1000);
+      const PoseEstimator* est = DiagnosticEstimator(cell, p.class_id, diagnostic_estimators);
+      if (est == nullptr) continue;
+      std::vector<Eigen::Vector3f> support;
+      for (int32_t k : d.support) support.push_back(result.roi_points_B[static_cast<size_t>(k)]);
+      SceneView view;
+      view.points_B = support;
+      view.X_BC = frame.X_BC;
+      if (frame.organized()) {
+        view.depth = &frame.depth;
+        view.intrinsics = frame.intrinsics;
+      }
+      for (const auto& [what, X] : {std::pair{"truth", p.X_BO}, std::pair{"detection", d.X_BO}}) {
+        const Result<PoseHypothesis> h = est->Score(view, X);
+        if (!h.ok()) continue;
+        spdlog::debug("frame {} missed inst {}: {} on the detection's support: score {:.3f}, visible {}, "
+                      "occluded {}, supported {}, free space {}",
+                      i, p.instance_id, what, h->score, h->visible_points, h->occluded_points,
+                      h->supported_points, h->free_space_points);
+      }
+    }
+  }
+}
+
+// --log-level debug: each detection with its verdict, its nearest true part
+// and the detection it shares most support with.
+void LogDetections(int i, const Frame& frame, const PerceptionResult& result, const FrameEvaluation& fe) {
+  std::vector<bool> true_detection(result.detections.size(), false);
+  for (const DetectionOutcome& o : fe.detections) true_detection[o.detection] = o.truth_instance >= 0;
+  for (size_t di = 0; di < result.detections.size(); ++di) {
+    const Detection& d = result.detections[di];
+    double best = 1e9;
+    const PartTruth* near = nullptr;
+    for (const PartTruth& p : frame.truth->parts) {
+      const double dist = (p.X_BO.translation() - d.X_BO.translation()).norm();
+      if (dist < best) {
+        best = dist;
+        near = &p;
+      }
+    }
+    // The other detection sharing most of its support, and how much.
+    std::string shares;
+    if (!d.support.empty()) {
+      std::set<int32_t> mine(d.support.begin(), d.support.end());
+      size_t best_shared = 0, best_k = 0;
+      for (size_t k = 0; k < result.detections.size(); ++k) {
+        if (k == di) continue;
+        size_t n = 0;
+        for (int32_t s : result.detections[k].support) n += mine.count(s);
+        if (n > best_shared) {
+          best_shared = n;
+          best_k = k;
+        }
+      }
+      if (best_shared > 0) {
+        shares = fmt::format(", shares {:.0f}% of its support with class {} score {:.2f}",
+                             100.0 * static_cast<double>(best_shared) / static_cast<double>(d.support.size()),
+                             result.detections[best_k].class_id, result.detections[best_k].score);
+      }
+    }
+    if (near != nullptr) {
+      spdlog::debug("frame {} det class {} score {:.2f} rms {:.3f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
+                    "nearest inst {} class {} vis {:.2f} at {:.1f} mm{}",
+                    i, d.class_id, d.score, d.rms_residual * 1000, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
+                    1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(),
+                    true_detection[di] ? "true" : "false positive", near->instance_id,
+                    near->class_id, near->visible_fraction, best * 1000, shares);
+    }
+  }
+}
+
+// --log-level debug: the frame's pipeline counts, its missed parts and its
+// detections.
+void LogFrameDiagnostics(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
+                         const FrameEvaluation& fe,
+                         std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+  spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
+                "looks ({} coarse poses skipped), depth noise {:.3f} mm at {:.3f} m",
+                i, result.views, result.views_explained, result.estimator_calls, result.coarse_refined,
+                result.second_looks, result.coarse_skipped,
+                result.depth_noise_sigma * 1000, result.depth_noise_at);
+  LogMissedParts(cell, i, frame, result, fe, diagnostic_estimators);
+  LogDetections(i, frame, result, fe);
+}
+
 int Run(const EvalCliOptions& opt) {
   const std::string cmd = "eval";
   Result<Cell> cell = LoadCellOrDefault(opt.cell_path);
@@ -277,20 +427,7 @@ int Run(const EvalCliOptions& opt) {
     return Fail(cmd, Status::InvalidArgument("--scenes must be >= 1"));
   }
 
-  PerceptionOptions popt;
-  popt.threads = opt.threads;
-  if (opt.normal_angle_deg >= 0) popt.segment_normal_angle_deg = opt.normal_angle_deg;
-  if (opt.max_jump > 0) popt.segment_max_jump = opt.max_jump;
-  if (opt.context >= 0) popt.context_relative_radius = opt.context;
-  if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
-  if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
-  if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
-  if (opt.regions) popt.match_regions = true;
-  popt.second_look_below = opt.second_look;
-  popt.max_fit_rms_sigmas = opt.fit_rms;
-  popt.smoothing_target_sigma = opt.smooth;
-  popt.second_look_skip_tried = opt.second_look_skip_tried;
-  auto perception = Perception::Build(*cell, popt);
+  auto perception = Perception::Build(*cell, PerceptionOptionsFrom(opt));
   if (!perception.ok()) return Fail(cmd, perception.status());
   auto models = LoadEvalModels(*cell);
   if (!models.ok()) return Fail(cmd, models.status());
@@ -322,24 +459,7 @@ int Run(const EvalCliOptions& opt) {
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
   Progress(0, total, 0.0);
   for (int i = 0; i < total; ++i) {
-    Result<Frame> frame = Status::Internal("no frame");
-    if (files.empty()) {
-      Cell scene_cell = *cell;
-      scene_cell.source.kind = SourceSpec::Kind::kSynthetic;
-      scene_cell.source.seed = opt.seed + static_cast<uint64_t>(i);
-      auto source = MakeSyntheticSource(scene_cell);
-      if (!source.ok()) return Fail(cmd, source.status());
-      CaptureRequest request;
-      request.config_id = opt.config_id;
-      frame = (*source)->Capture(request);
-    } else {
-      std::string assumption;
-      frame = LoadFrameForPerception(files[static_cast<size_t>(i)], *cell, cell->camera.X_BC, &assumption);
-      if (!assumption.empty()) spdlog::warn("{}", assumption);
-      if (frame.ok() && !frame->truth) {
-        return Fail(cmd, Status::NotFound(files[static_cast<size_t>(i)] + ": no ground-truth JSON beside it"));
-      }
-    }
+    Result<Frame> frame = EvalFrame(*cell, opt, files, i);
     if (!frame.ok()) return Fail(cmd, frame.status());
     Result<PerceptionResult> result = Status::Internal("not run");
     const PerceptionEffort effort = opt.thorough ? PerceptionEffort::kThorough : PerceptionEffort::kNormal;
@@ -367,95 +487,7 @@ int Run(const EvalCliOptions& opt) {
     }
     if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
-      spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
-                    "looks ({} coarse poses skipped), depth noise {:.3f} mm at {:.3f} m",
-                    i, result->views, result->views_explained, result->estimator_calls, result->coarse_refined,
-                    result->second_looks, result->coarse_skipped,
-                    result->depth_noise_sigma * 1000, result->depth_noise_at);
-      std::vector<int> matched;
-      for (const DetectionOutcome& d : evaluations.back().detections) matched.push_back(d.truth_instance);
-      for (const PartTruth& p : frame->truth->parts) {
-        if (p.visible_fraction < EvalOptions{}.min_visible_fraction) continue;
-        if (std::find(matched.begin(), matched.end(), p.instance_id) != matched.end()) continue;
-        const Eigen::Vector3d z = p.X_BO.rotation().col(2);
-        spdlog::debug("frame {} missed inst {} class {} vis {:.2f} at ({:.0f}, {:.0f}, {:.0f}) mm, z axis ({:.2f}, {:.2f}, "
-                      "{:.2f})",
-                      i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
-                      p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
-        // A detection of the same class near it: how it is off, in the part's
-        // frame, and how the truth and it verify against its support.
-        for (const Detection& d : result->detections) {
-          if (d.class_id != p.class_id || (d.X_BO.translation() - p.X_BO.translation()).norm() > 0.1) continue;
-          const Pose X_TD = p.X_BO.inverse() * d.X_BO;
-          const Eigen::AngleAxisd aa(X_TD.rotation());
-          spdlog::debug("frame {} missed inst {}: detection score {:.2f} is off by {:.0f} deg about ({:.2f}, {:.2f}, "
-                        "{:.2f}) and ({:.1f}, {:.1f}, {:.1f}) mm in the part frame",
-                        i, p.instance_id, d.score, aa.angle() * 180 / M_PI, aa.axis().x(), aa.axis().y(),
-                        aa.axis().z(), X_TD.translation().x() * 1000, X_TD.translation().y() * 1000,
-                        X_TD.translation().z() * 1000);
-          const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id, diagnostic_estimators);
-          if (est == nullptr) continue;
-          std::vector<Eigen::Vector3f> support;
-          for (int32_t k : d.support) support.push_back(result->roi_points_B[static_cast<size_t>(k)]);
-          SceneView view;
-          view.points_B = support;
-          view.X_BC = frame->X_BC;
-          if (frame->organized()) {
-            view.depth = &frame->depth;
-            view.intrinsics = frame->intrinsics;
-          }
-          for (const auto& [what, X] : {std::pair{"truth", p.X_BO}, std::pair{"detection", d.X_BO}}) {
-            const Result<PoseHypothesis> h = est->Score(view, X);
-            if (!h.ok()) continue;
-            spdlog::debug("frame {} missed inst {}: {} on the detection's support: score {:.3f}, visible {}, "
-                          "occluded {}, supported {}, free space {}",
-                          i, p.instance_id, what, h->score, h->visible_points, h->occluded_points,
-                          h->supported_points, h->free_space_points);
-          }
-        }
-      }
-      std::vector<bool> true_detection(result->detections.size(), false);
-      for (const DetectionOutcome& o : evaluations.back().detections) true_detection[o.detection] = o.truth_instance >= 0;
-      for (size_t di = 0; di < result->detections.size(); ++di) {
-        const Detection& d = result->detections[di];
-        double best = 1e9;
-        const PartTruth* near = nullptr;
-        for (const PartTruth& p : frame->truth->parts) {
-          const double dist = (p.X_BO.translation() - d.X_BO.translation()).norm();
-          if (dist < best) {
-            best = dist;
-            near = &p;
-          }
-        }
-        // The other detection sharing most of its support, and how much.
-        std::string shares;
-        if (!d.support.empty()) {
-          std::set<int32_t> mine(d.support.begin(), d.support.end());
-          size_t best_shared = 0, best_k = 0;
-          for (size_t k = 0; k < result->detections.size(); ++k) {
-            if (k == di) continue;
-            size_t n = 0;
-            for (int32_t s : result->detections[k].support) n += mine.count(s);
-            if (n > best_shared) {
-              best_shared = n;
-              best_k = k;
-            }
-          }
-          if (best_shared > 0) {
-            shares = fmt::format(", shares {:.0f}% of its support with class {} score {:.2f}",
-                                 100.0 * static_cast<double>(best_shared) / static_cast<double>(d.support.size()),
-                                 result->detections[best_k].class_id, result->detections[best_k].score);
-          }
-        }
-        if (near != nullptr) {
-          spdlog::debug("frame {} det class {} score {:.2f} rms {:.3f} vis {:.2f} support {} at ({:.1f}, {:.1f}, {:.1f}) mm ({}) -> "
-                        "nearest inst {} class {} vis {:.2f} at {:.1f} mm{}",
-                        i, d.class_id, d.score, d.rms_residual * 1000, d.visible_fraction, d.support.size(), 1000 * d.X_BO.translation().x(),
-                        1000 * d.X_BO.translation().y(), 1000 * d.X_BO.translation().z(),
-                        true_detection[di] ? "true" : "false positive", near->instance_id,
-                        near->class_id, near->visible_fraction, best * 1000, shares);
-        }
-      }
+      LogFrameDiagnostics(*cell, i, *frame, *result, evaluations.back(), diagnostic_estimators);
     }
     const SegmentationFigures seg = EvaluateSegmentation(*frame, *result, *cell);
     seg_total.parts += seg.parts;
