@@ -279,21 +279,28 @@ class PlyBody {
   size_t pos_ = 0;
 };
 
-Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) {
-  // --- header
+// A PLY file's header: its encoding, its elements in file order and where
+// the body starts (the byte after "end_header"'s newline).
+struct PlyHeader {
+  PlyFormat format = PlyFormat::kAscii;
+  std::vector<PlyElement> elements;
+  size_t body_start = 0;
+};
+
+Result<PlyHeader> ParsePlyHeader(const std::string& data, const std::string& path) {
   const size_t header_end = data.find("end_header");
   if (header_end == std::string::npos) return Corrupt(path, "PLY header has no end_header");
   size_t body_start = data.find('\n', header_end);
   if (body_start == std::string::npos) return Corrupt(path, "PLY header not terminated by a newline");
   ++body_start;
 
-  std::istringstream header(data.substr(0, header_end));
+  std::istringstream lines(data.substr(0, header_end));
   std::string line;
   std::vector<PlyElement> elements;
   bool have_format = false;
   PlyFormat format = PlyFormat::kAscii;
   int line_no = 0;
-  while (std::getline(header, line)) {
+  while (std::getline(lines, line)) {
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
@@ -344,10 +351,17 @@ Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) 
     }
   }
   if (!have_format) return Corrupt(path, "PLY header has no format line");
+  return PlyHeader{format, std::move(elements), body_start};
+}
 
+
+Result<TriangleMesh> ParsePly(const std::string& data, const std::string& path) {
+  Result<PlyHeader> header = ParsePlyHeader(data, path);
+  if (!header.ok()) return header.status();
+  const std::vector<PlyElement>& elements = header->elements;
   // --- body
   TriangleMesh mesh;
-  PlyBody body(std::string_view(data).substr(body_start), format);
+  PlyBody body(std::string_view(data).substr(header->body_start), header->format);
   bool have_vertices = false;
   for (const PlyElement& e : elements) {
     const bool is_vertex = e.name == "vertex";
