@@ -78,6 +78,19 @@ gri::Response Build(const gri::Request& req, Code code,
   return r;
 }
 
+// The answer handing out `g` with `remaining` grasps left including it, or
+// the reason it cannot be written in the request's format (every field
+// checked: gri::EncodeResponse).
+Result<gri::Response> PoseAnswer(const gri::Request& req, const Grasp& g, int remaining) {
+  Result<std::array<double, 7>> wire = ToWire(g.X_BT, req.format, req.pose_format);
+  if (!wire.ok()) return wire.status();
+  // The related poses: the part's other grasps, then the part (NextPoseReply).
+  const gri::Response r = Build(req, Code::kOk, *wire, remaining - 1,
+                                static_cast<int32_t>(g.related_X_B.size() + 1));
+  if (Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(r); !bytes.ok()) return bytes.status();
+  return r;
+}
+
 }  // namespace
 
 GriHandler::GriHandler(RequestHandler& tasks) : tasks_(tasks) {
@@ -152,8 +165,29 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
       case JobStatus::kDone:
         break;
     }
-    const Result<GraspQueue::Popped> p = tasks_.PopGrasp(req.job_id, client);
+    // Encoded and range-checked before the grasp leaves the queue (the pop
+    // rule, as DaoAI and Modbus): a grasp whose answer does not fit this
+    // request's format (an official pose beyond +-2147 mm) stays queued for
+    // a robot or a later plan that can take it; the next one that fits is
+    // handed out, and only once the transport wrote it (ClientContext::settle).
+    std::optional<gri::Response> answer;
+    Status refusal;
+    const Result<GraspQueue::Popped> p =
+        tasks_.PopGrasp(req.job_id, client, [&](const Grasp& g, int remaining) {
+          Result<gri::Response> r = PoseAnswer(req, g, remaining);
+          if (!r.ok()) {
+            if (refusal.ok()) refusal = r.status();
+            return false;
+          }
+          answer = std::move(*r);
+          return true;
+        });
+    if (p.ok() && p->refused > 0) {
+      spdlog::error("gri: job {}: {} grasp(s) cannot be sent in this request's format ({}); they "
+                    "stay queued", req.job_id, p->refused, refusal.ToString());
+    }
     if (!p.ok() || !p->grasp) {
+      if (p.ok() && p->refused > 0) return Build(req, Code::kInternalError);
       job.consumed = s->finished;
       job.related.clear();
       job.next_related = 0;
@@ -164,17 +198,8 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
     job.related = g.related_X_B;
     job.related.push_back(g.X_BO);
     job.next_related = 0;
-    const int left = p->remaining - 1;
-    if (left == 0) job.consumed = s->finished;  // all taken: back to INACTIVE
-    Result<std::array<double, 7>> wire = ToWire(g.X_BT, req.format, req.pose_format);
-    if (!wire.ok()) {
-      spdlog::error("gri: job {}: grasp pose cannot be encoded: {}; the grasp stays queued",
-                    req.job_id, wire.status().ToString());
-      // Not sent: back to the front of the queue (issue 39), not lost.
-      if (client && client->settle) std::exchange(client->settle, nullptr)(false);
-      return Build(req, Code::kInternalError);
-    }
-    return Build(req, Code::kOk, *wire, left, static_cast<int32_t>(job.related.size()));
+    if (p->remaining == 1) job.consumed = s->finished;  // all taken: back to INACTIVE
+    return *answer;
   };
 }
 

@@ -179,8 +179,10 @@ class Connection final : public Session {
     bool replaced = false;
     std::vector<uint8_t> bytes = GriHandler::Serialize(reply(), &replaced);
     std::function<void(bool)> settle = TakeSettle();
-    // A pose that did not fit was replaced by INTERNAL_ERROR: its grasp was
-    // not sent and goes back to its queue.
+    // A response that did not fit was replaced by INTERNAL_ERROR: a grasp it
+    // carried was not sent and goes back to its queue. Not reached for pose
+    // answers: their grasp is popped only when the answer encodes
+    // (GriHandler::NextPoseReply).
     if (replaced && settle) std::exchange(settle, nullptr)(false);
     Write(std::move(bytes), nullptr, std::move(settle));
   }

@@ -272,7 +272,8 @@ class RequestHandler::Impl {
   Result<TaskSnapshot> Snapshot(int task_id) const;
   Status StartDetection(int task_id, const std::optional<Pose>& X_BF);
   Status WhenDetected(int task_id, std::function<void()> ready);
-  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client);
+  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client,
+                                      const RequestHandler::Sendable& sendable);
   bool RunCalibration(std::function<void(CalibrationService&)> job) {
     const bool posted = serial_.Post([this, job = std::move(job)] {
       calibration_mode_.reset();
@@ -1270,10 +1271,11 @@ Status RequestHandler::Impl::WhenDetected(int task_id, std::function<void()> rea
   return Status::Ok();
 }
 
-Result<GraspQueue::Popped> RequestHandler::Impl::PopGrasp(int task_id, ClientContext* client) {
+Result<GraspQueue::Popped> RequestHandler::Impl::PopGrasp(int task_id, ClientContext* client,
+                                                          const RequestHandler::Sendable& sendable) {
   TaskState* t = FindTask(task_id);
   if (!t) return UnknownTask(task_id);
-  GraspQueue::Popped p = t->queue.Pop();
+  GraspQueue::Popped p = sendable ? t->queue.PopFirst(sendable) : t->queue.Pop();
   if (p.grasp) HandOut(*t, p, client);
   return p;
 }
@@ -1337,8 +1339,9 @@ bool RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job
 }
 RequestHandlerStats RequestHandler::stats() const { return impl_->stats(); }
 
-Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id, ClientContext* client) {
-  return impl_->PopGrasp(task_id, client);
+Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id, ClientContext* client,
+                                                    const Sendable& sendable) {
+  return impl_->PopGrasp(task_id, client, sendable);
 }
 std::optional<GraspQueue::Contents> RequestHandler::QueueContents(int task_id) const {
   const Impl::TaskState* t = impl_->FindTask(task_id);

@@ -159,10 +159,15 @@ class RequestHandler {
   // finishing the last of them (how a DaoAI pick pose waits). Dropped if the
   // handler shuts down first.
   Status WhenDetected(int task_id, std::function<void()> ready);
-  // Pops the next grasp. The planner is told it was handed out at once, or,
-  // with `client` and client->settle_after_write, when the transport settles
-  // it (ClientContext::settle).
-  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client = nullptr);
+  // Pops the next grasp, or with `sendable` the first one it accepts
+  // (GraspQueue::PopFirst: the transport encodes and range-checks the answer
+  // before the grasp leaves the queue; refused grasps stay queued). The
+  // planner is told it was handed out at once, or, with `client` and
+  // client->settle_after_write, when the transport settles it
+  // (ClientContext::settle).
+  using Sendable = std::function<bool(const Grasp&, int remaining)>;
+  Result<GraspQueue::Popped> PopGrasp(int task_id, ClientContext* client = nullptr,
+                                      const Sendable& sendable = nullptr);
   // Runs `job` with the calibration service after every calibration step
   // already posted, on the same sequence (the GRI's HEC actions). It ends any
   // DaoAI calibration mode (one calibration at a time). Dropped at shutdown.

@@ -28,8 +28,9 @@ using namespace std::chrono_literals;
 using testing::FromHex;
 
 // ScriptedPlanner plus what the GRI needs and it does not do: `related`
-// poses per grasp (1, 2, ... cm above the grasp) and the robot pose of the
-// last capture.
+// poses per grasp (1, 2, ... cm above the grasp), grasps moved 2 m further
+// along x (`far`: beyond the official format's +-2147 mm) and the robot pose
+// of the last capture.
 class RelatedPlanner final : public GraspPlanner {
  public:
   explicit RelatedPlanner(std::shared_ptr<ScriptedPlanner> inner) : inner_(std::move(inner)) {}
@@ -43,6 +44,11 @@ class RelatedPlanner final : public GraspPlanner {
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override {
     Result<PlanResult> plan = inner_->Plan(request, scene);
     if (plan.ok()) {
+      for (int i : far) {
+        if (i < static_cast<int>(plan->grasps.size())) {
+          plan->grasps[static_cast<size_t>(i)].X_BT.translation().x() += 2.0;
+        }
+      }
       for (Grasp& g : plan->grasps) {
         for (int k = 1; k <= related; ++k) {
           g.related_X_B.push_back(g.X_BT * MakePose(Mat3::Identity(), Vec3(0, 0, 0.01 * k)));
@@ -59,6 +65,7 @@ class RelatedPlanner final : public GraspPlanner {
     return last_X_BF_;
   }
   int related = 0;
+  std::set<int> far;  // indices in the plan; set before the detection
 
  private:
   std::shared_ptr<ScriptedPlanner> inner_;
@@ -477,6 +484,40 @@ TEST_P(GriServerTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndTheRema
   EXPECT_EQ(JobStatus(Ask(*robot, gri::kGetJobStatus, 0)), kInactive);
   EXPECT_EQ(Ask(*robot, gri::kGetNextPose, 0).error_code, Code(gri::Code::kNoPosesFound));
   EXPECT_EQ(scripted_->handed_out().size(), 3u);
+}
+
+// The pop rule (issue 39): an answer is encoded and range-checked before its
+// grasp leaves the queue. Grasp 0 lies 2.5 m out, beyond the official
+// format's +-2147 mm: an official robot gets grasps 1 and 2, then
+// INTERNAL_ERROR while only grasp 0 is left, and grasp 0 stays queued (never
+// taken and put back) for a v2 robot (float positions) on the same port.
+TEST_P(GriServerTest, APoseThatDoesNotFitTheFormatStaysQueuedAndTheNextOneThatFitsIsSent) {
+  if (v2()) GTEST_SKIP() << "v2 positions are float32: every finite pose fits";
+  planner_->far = {0};
+  auto robot = Connect();
+  gri::Response r = Ask(*robot, gri::kTriggerJobSync, 0);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 510.0, 1e-3);  // grasp 1
+  EXPECT_EQ(Primary(r), 2);  // grasps 0 and 2 still queued
+  r = Ask(*robot, gri::kGetNextPose, 0);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 520.0, 1e-3);  // grasp 2
+  r = Ask(*robot, gri::kGetNextPose, 0);
+  EXPECT_EQ(r.error_code, Code(gri::Code::kInternalError));
+  EXPECT_EQ(handler_->QueueSize(0), 1);
+  EXPECT_EQ(handler_->stats().grasps_requeued, 0u);  // never taken, never put back
+
+  gri::Request v2_next = Make(gri::kGetNextPose, 0);
+  v2_next.format = Format::kV2;
+  r = Ask(*robot, v2_next);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 2500.0, 1e-2);  // grasp 0 (pose format 2: millimetres)
+  EXPECT_EQ(r.data[0], 0);            // v2 data_1: none left
+  EXPECT_EQ(handler_->QueueSize(0), 0);
+  ASSERT_TRUE(scripted_->WaitForHandedOut(3));
+  std::multiset<int> instances;
+  for (const auto& [task, instance] : scripted_->handed_out()) instances.insert(instance);
+  EXPECT_EQ(instances, (std::multiset<int>{0, 1, 2}));  // each once
 }
 
 INSTANTIATE_TEST_SUITE_P(Formats, GriServerTest, ::testing::Values(Format::kV2, Format::kOfficial),
