@@ -121,6 +121,11 @@ class ModbusMaster::Impl {
     // A pick's grasp, reserved until the registers are written
     // (ClientContext::settle): handed out then, put back if never.
     std::function<void(bool)> settle;
+    // The response registers as the take left them, before any answer write:
+    // what they hold if that write never reached the robot (Delivered).
+    std::optional<Registers> before;
+    // Two-write maps: the registers were written and the flag write failed.
+    bool flag_write_failed;
   };
 
   bool stopping() {
@@ -247,6 +252,19 @@ class ModbusMaster::Impl {
       answered = true;
       const bool flag = at(m.request_flag) == 1;
       const bool marked = span_.marker && at(marker_reg) == modbus::kMarker;
+      if (unfinished_ && Delivered(*unfinished_, regs, flag, marked)) {
+        // The answer's write reached the robot and only its reply was lost:
+        // the robot has (or will read) it. Not written again (the robot would
+        // read it twice), its grasp handed out once.
+        spdlog::info("modbus: robot {}: the answer to command {} reached the robot before the "
+                     "connection failed; not written again", address(),
+                     unfinished_->request.command);
+        if (unfinished_->settle) unfinished_->settle(true);
+        client.last_answer = modbus::DecodeResponse(*unfinished_->response);
+        unfinished_.reset();
+        Count([](ModbusMasterStats& s) { ++s.delivered; ++s.responses; });
+        continue;
+      }
       if (unfinished_) {
         if (StillWaits(*unfinished_, regs, flag, marked)) {
           // Clear a flag the failed take left, then answer.
@@ -257,8 +275,9 @@ class ModbusMaster::Impl {
           spdlog::info("modbus: robot {}: finishing command {} taken before the reconnect",
                        address(), unfinished_->request.command);
           Count([](ModbusMasterStats& s) { ++s.resumed; });
+          if (flag && !unfinished_->response) regs[static_cast<size_t>(m.request_flag - span_.lo)] = 0;
           if (!Answer(ctx, client, unfinished_->request, unfinished_->response,
-                      taken_without_response)) {
+                      ResponseRegisters(regs), taken_without_response)) {
             return answered;
           }
           continue;
@@ -298,22 +317,30 @@ class ModbusMaster::Impl {
             static_cast<int>(take.size())) {
           // Applied or not: marked (finished after the reconnect) or still
           // flagged and unmarked (taken again).
-          unfinished_ = Unfinished{request, std::nullopt, nullptr};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr, std::nullopt, false};
           Fail("taking the request");
           return answered;
         }
       } else {
         if (span_.marker && modbus_write_register(ctx, marker_reg, modbus::kMarker) != 1) {
-          unfinished_ = Unfinished{request, std::nullopt, nullptr};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr, std::nullopt, false};
           Fail("marking the request taken");
           return answered;
         }
         if (modbus_write_register(ctx, m.request_flag, 0) != 1) {
           // Half-taken: marked but still flagged. Finished after the reconnect.
-          unfinished_ = Unfinished{request, std::nullopt, nullptr};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr, std::nullopt, false};
           Fail("clearing the request flag");
           return answered;
         }
+      }
+      // The registers as the take left them (Unfinished::before).
+      auto set = [&](int reg, uint16_t v) { regs[static_cast<size_t>(reg - span_.lo)] = v; };
+      if (span_.one_write_take) {
+        for (int r = marker_reg; r <= m.request_flag; ++r) set(r, r == marker_reg ? modbus::kMarker : 0);
+      } else {
+        if (span_.marker) set(marker_reg, modbus::kMarker);
+        set(m.request_flag, 0);
       }
       if (at(m.response_flag) != 0) {
         // The robot did not read the last response (its program restarted).
@@ -321,14 +348,18 @@ class ModbusMaster::Impl {
                      "dropping that response", address(), request.command);
         Count([](ModbusMasterStats& s) { ++s.unread; });
         if (modbus_write_register(ctx, m.response_flag, 0) != 1) {
-          unfinished_ = Unfinished{request, std::nullopt, nullptr};
+          unfinished_ = Unfinished{request, std::nullopt, nullptr, std::nullopt, false};
           Fail("clearing the unread response flag");
           return answered;
         }
+        set(m.response_flag, 0);
       }
       Count([](ModbusMasterStats& s) { ++s.requests; });
       timing_.taken = Clock::now();
-      if (!Answer(ctx, client, request, std::nullopt, taken_without_response)) return answered;
+      if (!Answer(ctx, client, request, std::nullopt, ResponseRegisters(regs),
+                  taken_without_response)) {
+        return answered;
+      }
     }
     return answered;
   }
@@ -354,12 +385,55 @@ class ModbusMaster::Impl {
     return true;
   }
 
+  Registers ResponseRegisters(const std::vector<uint16_t>& regs) const {
+    Registers out{};
+    for (size_t i = 0; i < out.size(); ++i) {
+      out[i] = regs[static_cast<size_t>(o_.map.response_base - span_.lo) + i];
+    }
+    return out;
+  }
+
+  // Whether the answer's write, whose reply was lost (the connection failed),
+  // reached the robot, from the registers read after the reconnect. Only the
+  // response registers the robot never writes are compared (not its request
+  // block, which a new request rewrites, nor the flags). One-write answers
+  // (registers and flag in one FC16, applied at once or not at all): they
+  // hold the answer and either the response flag is still set (unread) or
+  // they held something else before (read, the flag cleared by the robot).
+  // Two-write answers whose flag write failed: they hold the answer and the
+  // flag is set, or the robot sent a new request (it read the answer). Not
+  // decidable, and left to StillWaits (written again): an answer equal to
+  // the registers before it whose flag the robot already cleared, and a
+  // two-write flag write whose reply was lost, read and cleared before the
+  // reconnect (docs/protocols.md, "Modbus TCP").
+  bool Delivered(const Unfinished& u, const std::vector<uint16_t>& regs, bool flag,
+                 bool marked) const {
+    if (!u.response || !u.before) return false;
+    const ModbusRegisterMap& m = o_.map;
+    const int req = static_cast<int>(daoai::kRequestFields);
+    bool differs = false;
+    for (size_t i = 0; i < u.response->size(); ++i) {
+      const int reg = m.response_base + static_cast<int>(i);
+      const bool robot_writes = (reg >= m.request_base && reg < m.request_base + req) ||
+                                reg == m.request_flag || reg == m.response_flag;
+      if (robot_writes) continue;
+      if (regs[static_cast<size_t>(reg - span_.lo)] != (*u.response)[i]) return false;
+      differs = differs || (*u.before)[i] != (*u.response)[i];
+    }
+    const bool unread = regs[static_cast<size_t>(m.response_flag - span_.lo)] != 0;
+    if (span_.one_write_answer) return unread || differs;
+    return u.flag_write_failed && (unread || (flag && !marked));
+  }
+
   // Handles a taken request (unless `built` holds its answer already) and
-  // writes the answer. @returns false when the connection failed (the
-  // exchange is then unfinished_) or the master is stopping.
+  // writes the answer. `before`: the response registers before the answer
+  // is written (Unfinished::before). @returns false when the connection
+  // failed (the exchange is then unfinished_) or the master is stopping.
   bool Answer(modbus_t* ctx, ClientContext& client, daoai::Request request,
-              std::optional<Registers> built, bool& taken_without_response) {
-    if (!unfinished_) unfinished_ = Unfinished{request, built, nullptr};
+              std::optional<Registers> built, const Registers& before,
+              bool& taken_without_response) {
+    if (!unfinished_) unfinished_ = Unfinished{request, built, nullptr, std::nullopt, false};
+    if (!unfinished_->before) unfinished_->before = before;
     if (!built) {
       range_refused_ = false;
       const std::optional<daoai::Response> response =
@@ -384,7 +458,7 @@ class ModbusMaster::Impl {
       if (refused && unfinished_->settle) std::exchange(unfinished_->settle, nullptr)(false);
       unfinished_->response = built;
     }
-    if (!WriteResponse(ctx, *built)) {
+    if (!WriteResponse(ctx, *built, &unfinished_->flag_write_failed)) {
       spdlog::warn("modbus: robot {}: writing the response to command {} failed: {}; it is "
                    "written after the reconnect if the robot still waits for it",
                    address(), request.command, modbus_strerror(errno));
@@ -436,8 +510,9 @@ class ModbusMaster::Impl {
   // The response registers and the response flag = 1: one FC16 when the
   // flag follows the response block (the slave applies the registers in
   // address order, so the flag is still set last), else two writes.
-  bool WriteResponse(modbus_t* ctx, const Registers& out) {
+  bool WriteResponse(modbus_t* ctx, const Registers& out, bool* flag_write_failed) {
     const ModbusRegisterMap& m = o_.map;
+    *flag_write_failed = false;
     if (span_.one_write_answer) {
       std::array<uint16_t, daoai::kResponseFields + 1> with_flag{};
       std::copy(out.begin(), out.end(), with_flag.begin());
@@ -445,9 +520,12 @@ class ModbusMaster::Impl {
       return modbus_write_registers(ctx, m.response_base, static_cast<int>(with_flag.size()),
                                     with_flag.data()) == static_cast<int>(with_flag.size());
     }
-    return modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()), out.data()) ==
-               static_cast<int>(out.size()) &&
-           modbus_write_register(ctx, m.response_flag, 1) == 1;
+    if (modbus_write_registers(ctx, m.response_base, static_cast<int>(out.size()), out.data()) !=
+        static_cast<int>(out.size())) {
+      return false;
+    }
+    *flag_write_failed = modbus_write_register(ctx, m.response_flag, 1) != 1;
+    return !*flag_write_failed;
   }
 
   RequestHandler& handler_;

@@ -38,9 +38,11 @@
 // answer): after the reconnect, a request the robot still waits for (the
 // marker in place, the response flag 0) is finished: a half-taken one (the
 // flag not cleared) is cleared and handled, an answer built but not written
-// is written then. A robot that restarted meanwhile (its registers reset, or
-// a new request) gets its new request served and the old answer is counted
-// lost.
+// is written then, unless the registers show that the write reached the
+// robot and only its reply was lost (Delivered in modbus_master.cc): then it
+// is not written again and a pick's grasp counts as handed out. A robot
+// that restarted meanwhile (its registers reset, or a new request) gets its
+// new request served and the old answer is counted lost.
 //
 // Threading: one thread per master; the RequestHandler's Handle() blocks
 // that thread while a request is processed (requests of one robot are
@@ -105,6 +107,8 @@ struct ModbusMasterStats {
   uint64_t lost = 0;           // responses never written: the robot moved on (restart) before
                                // the reconnect, or the master stopped
   uint64_t resumed = 0;        // exchanges finished after a reconnect (half-written)
+  uint64_t delivered = 0;      // answers whose write reached the robot though its reply was
+                               // lost: found in the registers after the reconnect, not rewritten
   uint64_t unread = 0;         // new requests found over an unread response
   bool connected = false;
 };

@@ -142,11 +142,29 @@ class ModbusRobotSim::Impl {
     std::lock_guard lock(mutex_);
     drop_write_to_ = address;
   }
+  void LoseReplyToNextWrite(int address) {
+    std::lock_guard lock(mutex_);
+    lose_reply_to_ = address;
+  }
 
  private:
   // REQUIRES: mutex_ held.
   uint16_t Reg(int address) const { return mapping_ ? mapping_->tab_registers[address & 0xFFFF] : 0; }
   void SetReg(int address, uint16_t v) { mapping_->tab_registers[address & 0xFFFF] = v; }
+  // Applies a write request (function 6 or 16, TCP framing: the unit id at
+  // byte 6) to the registers as modbus_reply would, without replying.
+  // REQUIRES: mutex_ held.
+  void ApplyWrite(const uint8_t* q, int length) {
+    const int at = kTcpUnitIdOffset;
+    const auto u16 = [q](int i) { return static_cast<uint16_t>((q[i] << 8) | q[i + 1]); };
+    const int address = u16(at + 2);
+    if (q[at + 1] == 0x06) {
+      SetReg(address, u16(at + 4));
+      return;
+    }
+    const int count = u16(at + 4);
+    for (int i = 0; i < count && at + 8 + 2 * i < length; ++i) SetReg(address + i, u16(at + 7 + 2 * i));
+  }
 
   bool stopping() {
     std::lock_guard lock(mutex_);
@@ -195,9 +213,21 @@ class ModbusRobotSim::Impl {
           continue;
         }
         const uint16_t before = Reg(o_.map.response_flag);
-        modbus_reply(ctx_, query.data(), rc, mapping_);
+        const bool lose_reply = lose_reply_to_ >= 0 && (function == 0x06 || function == 0x10) &&
+                                address == lose_reply_to_;
+        if (lose_reply) {
+          lose_reply_to_ = -1;
+          ++stats_.lost_replies;
+          ApplyWrite(query.data(), rc);
+        } else {
+          modbus_reply(ctx_, query.data(), rc, mapping_);
+        }
         if (before == 0 && Reg(o_.map.response_flag) != 0 && !outstanding_) {
           ++stats_.unexpected_responses;
+        }
+        if (lose_reply) {
+          modbus_close(ctx_);
+          client = -1;
         }
       }
       cv_.notify_all();
@@ -217,6 +247,7 @@ class ModbusRobotSim::Impl {
   bool outstanding_ = false;    // GUARDED_BY(mutex_): a request waits for its response
   bool awaiting_take_ = false;  // GUARDED_BY(mutex_): a request without response not taken yet
   int drop_write_to_ = -1;      // GUARDED_BY(mutex_): DropNextWriteTo's address, -1: none
+  int lose_reply_to_ = -1;      // GUARDED_BY(mutex_): LoseReplyToNextWrite's address, -1: none
   ModbusRobotSimStats stats_;   // GUARDED_BY(mutex_)
   std::mutex join_mutex_;
   std::thread thread_;
@@ -264,6 +295,7 @@ Result<daoai::Response> ModbusRobotSim::RecvDaoaiData(std::chrono::milliseconds 
 uint16_t ModbusRobotSim::ReadRegister(int address) const { return impl_->ReadRegister(address); }
 void ModbusRobotSim::WriteRegister(int address, uint16_t value) { impl_->WriteRegister(address, value); }
 void ModbusRobotSim::DropNextWriteTo(int address) { impl_->DropNextWriteTo(address); }
+void ModbusRobotSim::LoseReplyToNextWrite(int address) { impl_->LoseReplyToNextWrite(address); }
 ModbusRobotSimStats ModbusRobotSim::stats() const { return impl_->stats(); }
 std::unique_ptr<RobotTransport> ModbusRobotSim::Transport() {
   return std::make_unique<SimTransport>(*this);

@@ -46,6 +46,7 @@ struct ModbusRobotSimStats {
   uint64_t unexpected_responses = 0; // response flag set with no request waiting
   uint64_t masters = 0;              // master connections accepted
   uint64_t dropped_writes = 0;       // writes dropped by DropNextWriteTo
+  uint64_t lost_replies = 0;         // writes applied without a reply (LoseReplyToNextWrite)
 };
 
 class ModbusRobotSim {
@@ -75,6 +76,10 @@ class ModbusRobotSim {
   // slave closes the master's connection instead, as a network cut between
   // the write and its reply would.
   void DropNextWriteTo(int address);
+  // The master's next write starting at `address` is applied, then the
+  // connection is closed before the reply: a network cut between the write
+  // and its reply, seen by the master as a failed write that took effect.
+  void LoseReplyToNextWrite(int address);
 
   // Raw register access (as the robot's own read/write_port_register).
   uint16_t ReadRegister(int address) const;

@@ -151,6 +151,7 @@ struct RigOptions {
   std::chrono::milliseconds poll{1};
   double position_scale = 1.0;
   std::chrono::microseconds write_interval{0};  // the robot's, between registers
+  std::chrono::milliseconds backoff{10};         // the master's first reconnect delay
 };
 
 class ModbusRig {
@@ -167,8 +168,8 @@ class ModbusRig {
     mo.map = o.map;
     mo.poll_interval = o.poll;
     mo.timeout = 500ms;
-    mo.backoff_min = 10ms;
-    mo.backoff_max = 50ms;
+    mo.backoff_min = o.backoff;
+    mo.backoff_max = std::max(o.backoff, std::chrono::milliseconds(50));
     master_ = std::move(ModbusMaster::Start(*handler_, mo).value());
     EXPECT_TRUE(sim_->WaitForMaster(5s));
   }
@@ -465,6 +466,77 @@ TEST(ModbusMaster, AnAnswerNotWrittenBeforeTheReconnectIsWrittenAfterIt) {
     ASSERT_TRUE(next.ok());
     EXPECT_NEAR(next->payload[0], 2.0, 1e-9);
     EXPECT_EQ(rig.sim_->stats().unexpected_responses, 0u);
+  }
+}
+
+// Issue 39: the connection fails after the pick answer's write (the 16
+// response registers and the flag, one FC16) was applied and before its
+// reply: the robot has the answer and its grasp, the master saw a failed
+// write. Whether the master reconnects before the robot reads the answer,
+// after it read it, or after its next request, the answer is not written
+// again (the robot would read it twice, or as the answer to its next
+// request) and its grasp is not put back: handed out exactly once, and the
+// next pick gets the next grasp.
+TEST(ModbusMaster, AnAnswerThatReachedTheRobotBeforeItsReplyWasLostIsHandedOutOnce) {
+  enum Order { kReadAfterTheReconnect, kReadBeforeTheReconnect, kAskedAgainBeforeTheReconnect };
+  for (const int version : {1, 2}) {
+    for (const Order order : {kReadAfterTheReconnect, kReadBeforeTheReconnect,
+                              kAskedAgainBeforeTheReconnect}) {
+      SCOPED_TRACE("version " + std::to_string(version) + ", order " + std::to_string(order));
+      RigOptions o;
+      o.version = version;
+      // The robot's reads take well under a millisecond: a 300 ms first
+      // reconnect delay puts them before the reconnect.
+      if (order != kReadAfterTheReconnect) o.backoff = 300ms;
+      ModbusRig rig(o);
+      ModbusRobotSim& robot = *rig.sim_;
+      ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+      robot.LoseReplyToNextWrite(ModbusRegisterMap{}.response_base);
+      const daoai::Request pick = rig.robot_->MakeRequest(daoai::kPickPose, 0);
+      ASSERT_TRUE(robot.SendRobotData(pick, true, 1s).ok());
+      ASSERT_TRUE(testing::WaitUntil([&] { return robot.stats().lost_replies == 1; }));
+      // The master reconnected and settled the exchange: found it delivered,
+      // wrote it again, or dropped it.
+      auto settled = [&] {
+        const ModbusMasterStats m = rig.master_->stats();
+        return m.delivered + m.resumed + m.lost == 1;
+      };
+      if (order == kReadAfterTheReconnect) {
+        ASSERT_TRUE(testing::WaitUntil(settled));
+      }
+      Result<daoai::Response> first = robot.RecvDaoaiData(1s);
+      ASSERT_TRUE(first.ok()) << first.status().ToString();
+      if (order == kAskedAgainBeforeTheReconnect) {
+        ASSERT_TRUE(robot.SendRobotData(pick, true, 1s).ok());
+      }
+      if (order == kReadBeforeTheReconnect) {
+        EXPECT_EQ(rig.master_->stats().connects, 1u) << "reconnected before the robot read";
+      }
+      ASSERT_TRUE(testing::WaitUntil(settled));
+      if (order != kAskedAgainBeforeTheReconnect) {
+        ASSERT_TRUE(robot.SendRobotData(pick, true, 1s).ok());
+      }
+      Result<daoai::Response> second = robot.RecvDaoaiData(2s);
+      ASSERT_TRUE(second.ok()) << second.status().ToString();
+
+      EXPECT_EQ(first->status, daoai::kObjectsFound);
+      EXPECT_EQ(first->payload[0], 30000);  // the first of 3
+      EXPECT_EQ(first->position[0], 5000);  // grasp 0 at x = 0.5 m
+      EXPECT_EQ(second->status, daoai::kObjectsFound);
+      EXPECT_EQ(second->payload[0], 20000);  // not the same grasp again
+      EXPECT_EQ(second->position[0], 5100);
+      ASSERT_TRUE(rig.planner_->WaitForHandedOut(2));
+      EXPECT_EQ(rig.planner_->handed_out(),
+                (std::vector<std::pair<int, int>>{{0, 0}, {0, 1}}));
+      EXPECT_EQ(rig.handler_->QueueSize(0), 1);
+      EXPECT_EQ(rig.handler_->stats().grasps_requeued, 0u);
+      const ModbusMasterStats m = rig.master_->stats();
+      EXPECT_EQ(m.connects, 2u);
+      EXPECT_EQ(m.lost, 0u);
+      EXPECT_EQ(m.resumed, 0u);  // not written again
+      EXPECT_EQ(m.delivered, 1u);
+      EXPECT_EQ(robot.stats().unexpected_responses, 0u);
+    }
   }
 }
 
