@@ -93,6 +93,20 @@ class BinpickdProcess {
     pid_ = -1;
     return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   }
+  // The exit code once the process ended by itself within `limit` (-1 if it
+  // did not exit normally); nullopt while it still runs (the destructor
+  // kills it).
+  std::optional<int> ExitedWithin(std::chrono::milliseconds limit) {
+    if (pid_ <= 0) return -1;
+    const auto deadline = std::chrono::steady_clock::now() + limit;
+    int status = 0;
+    while (waitpid(pid_, &status, WNOHANG) == 0) {
+      if (std::chrono::steady_clock::now() > deadline) return std::nullopt;
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    pid_ = -1;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  }
   // SIGTERM, then the exit code (-1 if it did not exit normally).
   int Stop() {
     if (pid_ <= 0) return -1;

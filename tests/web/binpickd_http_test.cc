@@ -152,6 +152,60 @@ TEST(BinpickdHttp, CellHttpAllowlistRefusesOtherPeersAndMetricsShowTheRecorder) 
             std::string::npos);
 }
 
+// Issue 39: a hand-eye file cut off mid-write (here by hand; a crash of
+// anything but WriteFileAtomic) must not leave binpickd running on
+// camera.pose as if calibrated. It refuses to start (exit 2, no ready line)
+// and its error names the file, what is wrong, and the .bak to restore with
+// the command; without a .bak it says there is none and what to do instead.
+TEST(BinpickdStart, ACorruptHandEyeFileIsRefusedNamingTheFileAndTheBackupToRestore) {
+  const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
+  const std::string dir = testing::FreshDir("binpickd_corrupt_hand_eye");
+  std::string cell = testing::ReadBytes(std::string(BINPICK_SOURCE_DIR) + "/assets/cells/default.yaml");
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets/";
+  for (size_t at = cell.find("../"); at != std::string::npos; at = cell.find("../", at)) cell.replace(at, 3, assets);
+  const std::string hint = "  # hand_eye_file: calib/hand_eye.yaml";
+  const size_t at = cell.find(hint);
+  ASSERT_NE(at, std::string::npos);
+  cell.replace(at, hint.size(), "  hand_eye_file: hand_eye.yaml");
+  testing::WriteText(dir + "/cell.yaml", cell);
+  const std::string file = dir + "/hand_eye.yaml";
+  testing::WriteText(file, "pose: {xyz: [0.70, 0.00, 1.05], rpy_deg: [180, 0\n");  // cut off
+  auto start = [&](const std::string& log) {
+    testing::BinpickdProcess daemon({bin + "binpickd", "--cell", dir + "/cell.yaml", "--daoai-port",
+                                     std::to_string(testing::FreeLoopbackTcpPort()), "--gri-port", "0",
+                                     "--gri-official-port", "0", "--http-port", "0", "--no-record"},
+                                    log);
+    EXPECT_EQ(daemon.ReadyLine(60000), "") << "binpickd started on a corrupt hand-eye file";
+    return daemon.ExitedWithin(std::chrono::seconds(60));
+  };
+
+  const std::optional<int> no_backup = start(dir + "/no_backup.log");
+  ASSERT_TRUE(no_backup.has_value()) << "binpickd still running";
+  EXPECT_EQ(*no_backup, 2);
+  const std::string log = testing::ReadBytes(dir + "/no_backup.log");
+  EXPECT_NE(log.find(file + ":"), std::string::npos) << log;
+  EXPECT_NE(log.find("YAML syntax error"), std::string::npos) << log;
+  EXPECT_NE(log.find("there is no backup ('" + file + ".bak')"), std::string::npos) << log;
+
+  testing::WriteText(file + ".bak", "pose: {xyz: [0.7032, -0.0021, 1.0487], rpy_deg: [179.6, 0.3, 0.45]}\n");
+  const std::optional<int> with_backup = start(dir + "/with_backup.log");
+  ASSERT_TRUE(with_backup.has_value()) << "binpickd still running";
+  EXPECT_EQ(*with_backup, 2);
+  const std::string named = testing::ReadBytes(dir + "/with_backup.log");
+  EXPECT_NE(named.find(file + ":"), std::string::npos) << named;
+  EXPECT_NE(named.find("YAML syntax error"), std::string::npos) << named;
+  EXPECT_NE(named.find("restore it with `cp '" + file + ".bak' '" + file + "'`"), std::string::npos) << named;
+  // Restored as the message says, binpickd starts on the calibration it names.
+  std::filesystem::copy_file(file + ".bak", file, std::filesystem::copy_options::overwrite_existing);
+  testing::BinpickdProcess daemon({bin + "binpickd", "--cell", dir + "/cell.yaml", "--daoai-port",
+                                   std::to_string(testing::FreeLoopbackTcpPort()), "--gri-port", "0",
+                                   "--gri-official-port", "0", "--http-port", "0", "--no-record"},
+                                  dir + "/restored.log");
+  EXPECT_NE(daemon.ReadyLine(180000).find("binpickd ready"), std::string::npos)
+      << testing::ReadBytes(dir + "/restored.log");
+  EXPECT_EQ(daemon.Stop(), 0);
+}
+
 // The "Calibration" rows show the live hand-eye state: the transform in use
 // and where it came from, then a bad guidance pose's reason (13), then an
 // auto calibration's result (the new X_BC, its time and residuals), all in
