@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
       {"grippers/suction_cup.ply", bp::MakeSuctionGripper()},
       {"grippers/parallel_jaw.ply", bp::MakeParallelJawGripper()},
       {"bin/default_bin.ply", bp::MakeBinMesh(bin)},
+      {"fixtures/place_nest.ply", bp::MakePlaceNest()},
   };
   for (const auto& [name, mesh] : assets) {
     const std::filesystem::path path = std::filesystem::path(out) / name;

@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -20,6 +21,7 @@
 #include <set>
 #include <sstream>
 #include <string_view>
+#include <tuple>
 #include <utility>
 
 #include "core/address_list.h"
@@ -303,7 +305,15 @@ class Parser {
   SeenContactRule ParseSeenContact(const YAML::Node& n, const std::string& path, GripperSpec::Kind kind) const;
   void ParseParts(const YAML::Node& n, Cell& cell) const;
   Symmetry ParseSymmetry(const YAML::Node& n, const std::string& path) const;
+  void ParseFixtures(const YAML::Node& n, Cell& cell) const;
   void ParseTasks(const YAML::Node& n, Cell& cell) const;
+  // tasks[i]: fixture and roi of the kinds that look elsewhere than the bin.
+  void ParseTaskRegion(const YAML::Node& t, const std::string& path, const Cell& cell, TaskSpec& task) const;
+  // A {min, max} box (max > min on every axis).
+  Eigen::AlignedBox3d ParseBox(const YAML::Node& n, const std::string& path) const;
+  // {translation (m), rotation_deg} with both >= 0.
+  std::pair<double, double> ParseOffsetRange(const YAML::Node& n, const std::string& path,
+                                             std::pair<double, double> fallback) const;
   void ParseRobot(const YAML::Node& n, Cell& cell) const;
   void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
   // endpoints.<name>: a list of IPv4 / IPv6 addresses (absent: empty).
@@ -588,7 +598,8 @@ Pose Parser::ParseHandEye(const YAML::Node& root) {
 
 void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
   const std::string path = "source";
-  ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes", "variety"});
+  ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes", "variety", "in_hand_slip",
+                      "fixture_offset"});
   SourceSpec& s = cell.source;
   if (const YAML::Node k = n["kind"]; k.IsDefined()) {
     s.kind = Enum<SourceSpec::Kind>(k, "source.kind", "source kind",
@@ -613,6 +624,32 @@ void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
     }
   }
   if (const YAML::Node v = n["variety"]; v.IsDefined()) s.variety = ParseVariety(v, "source.variety");
+  if (const YAML::Node v = n["in_hand_slip"]; v.IsDefined()) {
+    std::tie(s.slip_translation, s.slip_rotation_deg) =
+        ParseOffsetRange(v, "source.in_hand_slip", {s.slip_translation, s.slip_rotation_deg});
+  }
+  if (const YAML::Node v = n["fixture_offset"]; v.IsDefined()) {
+    std::tie(s.fixture_offset_translation, s.fixture_offset_rotation_deg) = ParseOffsetRange(
+        v, "source.fixture_offset", {s.fixture_offset_translation, s.fixture_offset_rotation_deg});
+  }
+}
+
+std::pair<double, double> Parser::ParseOffsetRange(const YAML::Node& n, const std::string& path,
+                                                   std::pair<double, double> fallback) const {
+  ExpectMap(n, path, {"translation", "rotation_deg"});
+  const double t = OptNumber(n, path, "translation", fallback.first);
+  const double r = OptNumber(n, path, "rotation_deg", fallback.second);
+  Check(t >= 0 && t <= 0.1, n["translation"], Join(path, "translation"), "must be in [0, 0.1] m");
+  Check(r >= 0 && r <= 45, n["rotation_deg"], Join(path, "rotation_deg"), "must be in [0, 45] deg");
+  return {t, r};
+}
+
+Eigen::AlignedBox3d Parser::ParseBox(const YAML::Node& n, const std::string& path) const {
+  ExpectMap(n, path, {"min", "max"});
+  const Vec3 lo = Vector3(Req(n, path, "min"), Join(path, "min"));
+  const Vec3 hi = Vector3(Req(n, path, "max"), Join(path, "max"));
+  Check((lo.array() < hi.array()).all(), n["max"], Join(path, "max"), "must be > min on every axis");
+  return Eigen::AlignedBox3d(lo, hi);
 }
 
 void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {
@@ -890,8 +927,8 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
   for (size_t i = 0; i < n.size(); ++i) {
     const YAML::Node t = n[i];
     const std::string path = At("tasks", i);
-    ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "place_reference",
-                        "ranking"});
+    ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "ranking", "fixture",
+                        "roi"});
     TaskSpec task;
     task.id = Int(Req(t, path, "id"), Join(path, "id"));
     Check(task.id >= 0, t["id"], Join(path, "id"), "must be >= 0");
@@ -902,6 +939,7 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
                                        {{"pick", TaskSpec::Kind::kPick},
                                         {"place", TaskSpec::Kind::kPlace},
                                         {"in_hand", TaskSpec::Kind::kInHand},
+                                        {"place_area", TaskSpec::Kind::kPlaceArea},
                                         {"precision", TaskSpec::Kind::kPrecision},
                                         {"pick_2d", TaskSpec::Kind::kPick2D}});
     }
@@ -938,9 +976,7 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
     task.max_tilt_deg = OptNumber(t, path, "max_tilt_deg", task.max_tilt_deg);
     Check(task.max_tilt_deg >= 0 && task.max_tilt_deg <= 180, t["max_tilt_deg"], Join(path, "max_tilt_deg"),
           "must be in [0, 180]");
-    if (const YAML::Node r = t["place_reference"]; r.IsDefined()) {
-      task.place_reference = ParsePose(r, Join(path, "place_reference"));
-    }
+    ParseTaskRegion(t, path, cell, task);
     if (const YAML::Node r = t["ranking"]; r.IsDefined()) {
       const std::string rkey = Join(path, "ranking");
       ExpectMap(r, rkey, {"height", "detection", "tilt"});
@@ -971,6 +1007,57 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
       Check(any, t, path, "a pick_2d task needs a part with a flat_2d grasp for gripper '" + task.gripper + "'");
     }
     cell.tasks.push_back(std::move(task));
+  }
+}
+
+void Parser::ParseTaskRegion(const YAML::Node& t, const std::string& path, const Cell& cell,
+                             TaskSpec& task) const {
+  const bool fixture = LooksAtFixture(task);
+  const bool region = fixture || task.kind == TaskSpec::Kind::kInHand;
+  if (const YAML::Node f = t["fixture"]; f.IsDefined()) {
+    Check(fixture, f, Join(path, "fixture"), "only place and place_area tasks look for a fixture");
+    task.fixture = Name(f, Join(path, "fixture"));
+    Check(cell.FindFixture(task.fixture) != nullptr, f, Join(path, "fixture"),
+          "unknown fixture '" + task.fixture + "' (not in fixtures)");
+  } else {
+    Check(!fixture, t, Join(path, "fixture"), "missing required key (a place or place_area task looks for a fixture)");
+  }
+  if (const YAML::Node r = t["roi"]; r.IsDefined()) {
+    Check(region, r, Join(path, "roi"),
+          "only in_hand, place and place_area tasks have their own roi (the others look into the bin's)");
+    task.roi = ParseBox(r, Join(path, "roi"));
+  } else {
+    Check(!region, t, Join(path, "roi"),
+          "missing required key (an in_hand, place or place_area task looks into its own box)");
+  }
+  if (fixture) {
+    Check(!t["parts"].IsDefined(), t["parts"], Join(path, "parts"), "a fixture task looks for its fixture, not parts");
+  }
+  if (task.kind == TaskSpec::Kind::kInHand) {
+    Check(!cell.camera.eye_in_hand, t["kind"], Join(path, "kind"),
+          "an in_hand task needs an eye_to_hand camera (a camera on the flange cannot see the gripper's part)");
+  }
+}
+
+void Parser::ParseFixtures(const YAML::Node& n, Cell& cell) const {
+  ExpectSeq(n, "fixtures");
+  for (size_t i = 0; i < n.size(); ++i) {
+    const YAML::Node f = n[i];
+    const std::string path = At("fixtures", i);
+    ExpectMap(f, path, {"class_id", "name", "mesh", "taught_pose", "part_pose"});
+    FixtureSpec fixture;
+    fixture.class_id = Int(Req(f, path, "class_id"), Join(path, "class_id"));
+    Check(fixture.class_id >= 0, f["class_id"], Join(path, "class_id"), "must be >= 0");
+    Check(cell.FindPart(fixture.class_id) == nullptr && cell.FindFixture(fixture.class_id) == nullptr,
+          f["class_id"], Join(path, "class_id"),
+          "class id " + std::to_string(fixture.class_id) + " is already a part's or a fixture's");
+    fixture.name = Name(Req(f, path, "name"), Join(path, "name"));
+    Check(cell.FindFixture(fixture.name) == nullptr, f["name"], Join(path, "name"),
+          "duplicate fixture name '" + fixture.name + "'");
+    fixture.mesh = MeshPath(Req(f, path, "mesh"), Join(path, "mesh"));
+    fixture.X_BP_taught = ParsePose(Req(f, path, "taught_pose"), Join(path, "taught_pose"));
+    if (const YAML::Node p = f["part_pose"]; p.IsDefined()) fixture.X_PO = ParsePose(p, Join(path, "part_pose"));
+    cell.fixtures.push_back(std::move(fixture));
   }
 }
 
@@ -1099,8 +1186,8 @@ Cell Parser::ParseCell(const YAML::Node& root) {
   if (!root.IsDefined() || root.IsNull()) Fail(root, "", "the cell file is empty");
   if (!root.IsMap()) Fail(root, "", "expected a map of sections at the top level, got " + What(root));
   ExpectMap(root, "",
-            {"name", "camera", "source", "bin", "roi", "parts", "grippers", "tasks", "robot", "endpoints",
-             "calibration", "recording"});
+            {"name", "camera", "source", "bin", "roi", "parts", "grippers", "fixtures", "tasks", "robot",
+             "endpoints", "calibration", "recording"});
   Cell cell;
   cell.path = file_;
   cell.base_dir = base_dir_.string();
@@ -1116,6 +1203,7 @@ Cell Parser::ParseCell(const YAML::Node& root) {
   if (const YAML::Node b = root["bin"]; b.IsDefined()) ParseBin(b, cell);
   if (const YAML::Node r = root["roi"]; r.IsDefined()) ParseRoi(r, cell);
   else ParseRoi(YAML::Node(YAML::NodeType::Map), cell);  // still checked against the bin
+  if (const YAML::Node f = root["fixtures"]; f.IsDefined()) ParseFixtures(f, cell);
   ParseTasks(Req(root, "", "tasks"), cell);
   ParseRobot(Req(root, "", "robot"), cell);
   if (const YAML::Node e = root["endpoints"]; e.IsDefined()) ParseEndpoints(e, cell);
@@ -1170,6 +1258,39 @@ const TaskSpec* Cell::FindTask(int id) const {
     if (t.id == id) return &t;
   }
   return nullptr;
+}
+
+const FixtureSpec* Cell::FindFixture(const std::string& fixture_name) const {
+  for (const FixtureSpec& f : fixtures) {
+    if (f.name == fixture_name) return &f;
+  }
+  return nullptr;
+}
+
+const FixtureSpec* Cell::FindFixture(int class_id) const {
+  for (const FixtureSpec& f : fixtures) {
+    if (f.class_id == class_id) return &f;
+  }
+  return nullptr;
+}
+
+Status CheckWorkspace(const RobotSpec& robot, const Pose& X_BF) {
+  const Vec3 p = X_BF.translation();
+  const Eigen::AlignedBox3d& box = robot.workspace;
+  static constexpr const char* kAxis[] = {"x", "y", "z"};
+  char where[96];
+  std::snprintf(where, sizeof(where), "flange at (%.3f, %.3f, %.3f) m", p.x(), p.y(), p.z());
+  if (!p.allFinite()) return Status::OutOfRange(std::string(where) + " is not a position");
+  for (int i = 0; i < 3; ++i) {
+    char why[96] = "";
+    if (p[i] < box.min()[i]) {
+      std::snprintf(why, sizeof(why), "%s %.3f < min %.3f", kAxis[i], p[i], box.min()[i]);
+    } else if (p[i] > box.max()[i]) {
+      std::snprintf(why, sizeof(why), "%s %.3f > max %.3f", kAxis[i], p[i], box.max()[i]);
+    }
+    if (why[0] != '\0') return Status::OutOfRange(std::string(where) + " is outside robot.workspace: " + why);
+  }
+  return Status::Ok();
 }
 
 std::string AssetsDir() {
@@ -1294,6 +1415,11 @@ std::string Describe(const Cell& cell) {
   os << "\n  grippers:";
   for (const GripperSpec& g : cell.grippers) {
     os << " " << g.name << " (" << (g.kind == GripperSpec::Kind::kSuction ? "suction" : "parallel_jaw") << ")";
+  }
+  if (!cell.fixtures.empty()) os << "\n  fixtures:";
+  for (const FixtureSpec& f : cell.fixtures) {
+    const Vec3 t = f.X_BP_taught.translation();
+    os << " " << f.class_id << "=" << f.name << " taught at [" << t.x() << ", " << t.y() << ", " << t.z() << "]";
   }
   os << "\n  tasks:";
   for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;

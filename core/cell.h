@@ -4,7 +4,7 @@
 //
 // Frames: B robot base, W bin (origin at the centre of the inner floor
 // surface, z up, x along the bin's length), C camera (OpenCV: z forward,
-// x right, y down), F flange, T tool centre point, O part.
+// x right, y down), F flange, T tool centre point, O part, P fixture.
 #pragma once
 
 #include <array>
@@ -114,6 +114,18 @@ struct SourceSpec {
   bool simulate_picks = false;  // synthetic: a handed-out grasp removes its part
   std::vector<int> part_classes;  // synthetic: classes to draw from (empty = all)
   std::optional<VarietySpec> variety;  // synthetic: scene variety (none = the cell's camera and noise)
+  // Synthetic, with simulate_picks: a picked part sits in the gripper where
+  // the grasp really met it (X_TO = X_BT^-1 * X_BO, true X_BO) and then
+  // slips by up to these (source.in_hand_slip; docs/synthetic.md "In hand"):
+  // a translation across the tool's z, a turn about a random axis through
+  // the tool centre point. 0 = no slip.
+  double slip_translation = 0.0;   // m
+  double slip_rotation_deg = 0.0;  // deg
+  // Synthetic: every fixture stands at its taught pose moved by up to these,
+  // drawn anew for each part placed (source.fixture_offset): a translation
+  // in the xy plane of P and a turn about P's z.
+  double fixture_offset_translation = 0.01;  // m
+  double fixture_offset_rotation_deg = 5.0;  // deg
 };
 
 struct BinSpec {
@@ -218,6 +230,17 @@ struct SeenContactRule {
   double pad_depth = 0.015;
 };
 
+// A fixture parts are placed on (fixtures[i]): found by place and
+// place_area tasks with the same pose estimation as the parts. Frame P: the
+// mesh's frame, z = 0 on the surface it stands on, z up.
+struct FixtureSpec {
+  int class_id = 0;  // perception class, distinct from every part's
+  std::string name;
+  std::string mesh;  // resolved to an absolute path by the loader
+  Pose X_BP_taught = Pose::Identity();  // where it stood when the place was taught (taught_pose)
+  Pose X_PO = Pose::Identity();         // a placed part in P (part_pose)
+};
+
 struct GripperSpec {
   enum class Kind { kSuction, kParallelJaw };
   std::string name;
@@ -261,8 +284,15 @@ struct GraspRanking {
   double tilt = 0.2;
 };
 
+// Task kinds (docs/protocols.md "Task kinds"):
+//   pick       the bin's grasps (seed 000 "抓取通信示例");
+//   place      seed 000 "抓取并请求放置": the drop-off tool pose binpick
+//              computes from the fixture it finds (answered DROP_OFF_POSE, 6);
+//   in_hand    seed 003 stage 2: the part held by the gripper, in the tool frame;
+//   place_area seed 003 stage 3: the fixture's offset from its taught pose;
+//   precision  the precision check's target; pick_2d  2D picks.
 struct TaskSpec {
-  enum class Kind { kPick, kPlace, kInHand, kPrecision, kPick2D };
+  enum class Kind { kPick, kPlace, kInHand, kPlaceArea, kPrecision, kPick2D };
   int id = 0;
   Kind kind = Kind::kPick;
   std::string name;
@@ -270,9 +300,20 @@ struct TaskSpec {
   std::string gripper;
   EmptyBoxRule empty_box;
   double max_tilt_deg = 45.0;
-  Pose place_reference = Pose::Identity();  // kPlace: taught reference
   GraspRanking ranking;
+  // place, place_area: the fixture looked for (fixtures[].name).
+  std::string fixture;
+  // in_hand, place, place_area: where perception looks instead of the bin,
+  // a box in the task's frame: in_hand the tool frame T at the robot's pose,
+  // place and place_area the fixture's taught frame P. Its z = 0 plane is
+  // the surface the object rests on (the suction cup's lip, the table).
+  // Empty for the other kinds (they look into the bin's roi).
+  Eigen::AlignedBox3d roi;
 };
+// True for the kinds that look at a fixture / at the gripper.
+inline bool LooksAtFixture(const TaskSpec& t) {
+  return t.kind == TaskSpec::Kind::kPlace || t.kind == TaskSpec::Kind::kPlaceArea;
+}
 
 // Where the DaoAI fields live in a robot's Modbus holding registers
 // (docs/protocols.md "Modbus TCP"). Default: seed 000's UR map.
@@ -313,10 +354,15 @@ struct RobotSpec {
   int modbus_unit_id = 1;
   ModbusRegisterMap modbus_map;
   int modbus_poll_ms = 2;           // request flag poll interval
-  // Box in base the flange must stay inside at the grasp and pre-grasp poses
-  // (robot.workspace; default: unbounded).
+  // Box in base the flange must stay inside at every pose binpick sends the
+  // robot to (robot.workspace; default: unbounded).
   Eigen::AlignedBox3d workspace{Vec3::Constant(-1e9), Vec3::Constant(1e9)};
 };
+
+// OK when the flange at X_BF lies inside robot.workspace; else
+// OutOfRange naming the flange position and the first limit it breaks, e.g.
+// "flange at (0.120, -0.060, -0.300) m is outside robot.workspace: z -0.300 < min -0.200".
+Status CheckWorkspace(const RobotSpec& robot, const Pose& X_BF);
 
 struct Endpoints {
   std::string bind = "127.0.0.1";
@@ -391,6 +437,7 @@ struct Cell {
   std::vector<PartSpec> parts;
   std::vector<GripperSpec> grippers;
   std::vector<TaskSpec> tasks;
+  std::vector<FixtureSpec> fixtures;
   RobotSpec robot;
   Endpoints endpoints;
   // Present with a `calibration` section; then camera.hand_eye_file defaults
@@ -403,6 +450,8 @@ struct Cell {
   const PartSpec* FindPart(int class_id) const;
   const GripperSpec* FindGripper(const std::string& name) const;
   const TaskSpec* FindTask(int id) const;
+  const FixtureSpec* FindFixture(const std::string& name) const;
+  const FixtureSpec* FindFixture(int class_id) const;
 };
 
 // Loads and validates a cell file. Every error names the file, the line, the

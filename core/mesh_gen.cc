@@ -1,6 +1,7 @@
 #include "core/mesh_gen.h"
 
 #include <algorithm>
+#include <array>
 #include <cassert>
 #include <cmath>
 #include <cstdint>
@@ -405,6 +406,37 @@ TriangleMesh MakeBinMesh(const BinSpec& bin) {
     B.Quad(at(outer[i], -t), at(outer[j], -t), at(outer[j], Z), at(outer[i], Z), away);
     B.Quad(at(inner[i], 0), at(inner[j], 0), at(inner[j], Z), at(inner[i], Z), -V3(mid_i.x(), mid_i.y(), 0));
     B.Quad(at(outer[i], Z), at(outer[j], Z), at(inner[j], Z), at(inner[i], Z), V3::UnitZ());
+  }
+  return B.Finish();
+}
+
+TriangleMesh MakePlaceNest(const PlaceNestParams& p) {
+  const V2 half = p.plate_size / 2;
+  Require((p.plate_size.array() > 0).all() && p.plate_thickness > 0 && p.pyramid_height > 0, "bad place nest sizes");
+  Require((p.base_min.array() > -half.array()).all() && (p.base_max.array() < half.array()).all() &&
+              (p.base_min.array() < p.top_min.array()).all() && (p.top_min.array() < p.top_max.array()).all() &&
+              (p.top_max.array() < p.base_max.array()).all(),
+          "the pyramid's top must lie inside its base, and its base inside the plate");
+  const double z0 = 0, z1 = p.plate_thickness, z2 = p.plate_thickness + p.pyramid_height;
+  // Corners counter-clockwise seen from +z.
+  auto rect = [](const V2& lo, const V2& hi, double z) {
+    return std::array<V3, 4>{V3(lo.x(), lo.y(), z), V3(hi.x(), lo.y(), z), V3(hi.x(), hi.y(), z), V3(lo.x(), hi.y(), z)};
+  };
+  const auto bottom = rect(-half, half, z0), plate_top = rect(-half, half, z1);
+  const auto base = rect(p.base_min, p.base_max, z1), top = rect(p.top_min, p.top_max, z2);
+  Builder B;
+  B.Quad(bottom[0], bottom[1], bottom[2], bottom[3], -V3::UnitZ());
+  B.Quad(top[0], top[1], top[2], top[3], V3::UnitZ());
+  for (int i = 0; i < 4; ++i) {
+    const int j = (i + 1) % 4;
+    const V3 mid = (bottom[i] + bottom[j]) / 2;
+    const V3 side(mid.x(), mid.y(), 0);  // outward from the plate's centre
+    B.Quad(bottom[i], bottom[j], plate_top[j], plate_top[i], side);
+    B.Quad(plate_top[i], plate_top[j], base[j], base[i], V3::UnitZ());  // the plate's top around the pyramid
+    const V3 edge = base[j] - base[i];
+    const V3 slope_out = edge.cross(top[i] - base[i]);  // faces away from the pyramid's inside
+    const V3 centre(((p.base_min + p.base_max) / 2).x(), ((p.base_min + p.base_max) / 2).y(), z1);
+    B.Quad(base[i], base[j], top[j], top[i], slope_out.dot(base[i] - centre) >= 0 ? slope_out : V3(-slope_out));
   }
   return B.Finish();
 }

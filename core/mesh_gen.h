@@ -57,6 +57,22 @@ struct PipeTeeParams {
 };
 TriangleMesh MakePipeTee(const PipeTeeParams& p = {});
 
+// A locating block parts are placed on (the default cell's fixture): a
+// plate and on it a truncated pyramid whose base and top are off the plate's
+// centre and off each other, one closed solid. Its four sloped faces (44 to
+// 54 deg) show a camera looking down x, y and the turn about z; no two of
+// its faces map onto each other, so it has no symmetry. Frame P: origin at
+// the centre of the plate's bottom face, z up.
+struct PlaceNestParams {
+  Eigen::Vector2d plate_size = Eigen::Vector2d(0.110, 0.090);  // x, y
+  double plate_thickness = 0.010;
+  // Pyramid base (on the plate's top face) and top rectangles, x-y corners.
+  Eigen::Vector2d base_min = Eigen::Vector2d(-0.040, -0.032), base_max = Eigen::Vector2d(0.030, 0.026);
+  Eigen::Vector2d top_min = Eigen::Vector2d(-0.014, -0.010), top_max = Eigen::Vector2d(0.010, 0.008);
+  double pyramid_height = 0.025;  // above the plate's top face
+};
+TriangleMesh MakePlaceNest(const PlaceNestParams& p = {});
+
 // Open box in the bin frame W (origin at the centre of the inner floor
 // surface, z up): inner size bin.inner_size, walls and floor
 // bin.wall_thickness thick; the floor spans z in [-wall_thickness, 0].

@@ -9,147 +9,12 @@
 #include <utility>
 
 namespace bp {
+namespace {
 
-std::string DefaultTeachFile(const Cell& cell) {
-  if (cell.path.empty() || cell.path.front() == '<') return {};
-  std::filesystem::path p(cell.path);
-  p.replace_extension(".taught.yaml");
-  return p.string();
-}
-
-Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell& cell,
-                                                                     std::shared_ptr<const Perception> perception,
-                                                                     std::unique_ptr<CaptureSource> source,
-                                                                     BinPickingPlannerOptions options) {
-  if (!perception || !source) return Status::InvalidArgument("grasp planner: perception and source are required");
-  auto model = GraspPlanningModel::Build(cell, options.planning);
-  if (!model.ok()) return model.status();
-  std::string teach_file = options.teach_file.empty() ? DefaultTeachFile(cell) : options.teach_file;
-  if (teach_file == "-") teach_file.clear();
-  auto teach = std::make_unique<TeachStore>(teach_file);
-  if (Status s = teach->Load(); !s.ok()) return s;
-  std::unique_ptr<BinPickingPlanner> planner(new BinPickingPlanner());
-  planner->cell_ = cell;
-  planner->options_ = options;
-  planner->perception_ = std::move(perception);
-  planner->model_ = std::move(*model);
-  planner->teach_ = std::move(teach);
-  planner->source_ = std::move(source);
-  return planner;
-}
-
-BinPickingPlanner::~BinPickingPlanner() = default;
-
-Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
-  CaptureRequest capture;
-  capture.config_id = request.camera_config_id;
-  capture.X_BF = request.X_BF;
-  std::lock_guard lock(source_mutex_);
-  Result<Frame> frame = source_->Capture(capture);
-  if (!frame.ok()) return frame.status();
-  return CaptureHandle(std::make_shared<const CapturedFrame>(std::move(*frame)));
-}
-
-Result<PlanResult> BinPickingPlanner::Plan(const PlanRequest& request, const CapturedScene& scene) {
-  Result<PlanDetail> detail = PlanDetailed(request, scene);
-  if (!detail.ok()) return detail.status();
-  return std::move(detail->result);
-}
-
-Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, const CapturedScene& scene) {
-  const auto* captured = dynamic_cast<const CapturedFrame*>(&scene);
-  if (captured == nullptr) return Status::InvalidArgument("grasp planner: scene was not captured by this planner");
-  const Frame& frame = captured->frame();
-  const TaskSpec& task = request.task;
-  Result<PerceptionResult> perception = perception_->Run(frame, task.part_classes);
-  if (!perception.ok()) return perception.status();
-
-  PlanDetail detail;
-  detail.perception = std::move(*perception);
-  PlanResult& result = detail.result;
-  const std::vector<StageTiming> first_timings = detail.perception.timings;
-  double grasps_ms = -1, retry_ms = -1;
-
-  if (task.kind == TaskSpec::Kind::kInHand || task.kind == TaskSpec::Kind::kPlace) {
-    // The best-scoring detection is the part in hand / the place area.
-    const PerceptionResult& per = detail.perception;
-    int best = -1;
-    for (int d = 0; d < static_cast<int>(per.detections.size()); ++d) {
-      if (best < 0 || per.detections[d].score > per.detections[best].score) best = d;
-    }
-    if (best < 0) {
-      result.outcome = PlanResult::Outcome::kNoObjects;
-      result.message = per.reason.empty() ? "nothing detected" : per.reason;
-    } else {
-      const Detection& det = per.detections[best];
-      Grasp g;
-      g.X_BO = det.X_BO;
-      g.instance_id = best;
-      g.class_id = det.class_id;
-      g.score = det.score;
-      if (task.kind == TaskSpec::Kind::kInHand) {
-        if (!request.X_BF) return Status::InvalidArgument("in-hand task " + std::to_string(task.id) + " needs the robot pose");
-        g.name = "in_hand";
-        g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_FO
-      } else {
-        g.name = "place_offset";
-        g.X_BT = det.X_BO * task.place_reference.inverse();  // X_off
-        g.related_X_B.push_back(det.X_BO);
-      }
-      g.X_BT_pre = g.X_BT;
-      result.outcome = PlanResult::Outcome::kGrasps;
-      result.grasps.push_back(std::move(g));
-    }
-  } else {
-    std::vector<TaughtGrasp> taught = teach_->All();
-    auto t0 = std::chrono::steady_clock::now();
-    detail.plan = PlanGrasps(*model_, task, detail.perception, taught, &frame);
-    grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
-                                 detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
-    if (options_.thorough_retry && nothing_to_pick && detail.perception.largest_region_points > 0) {
-      t0 = std::chrono::steady_clock::now();
-      Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
-      if (again.ok()) {
-        GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
-        spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
-                      again->detections.size(), plan.stats.Describe());
-        // Adopted when it gives grasps, and also when it finds parts where
-        // the normal run found none: the answer is then "no collision-free
-        // grasp" for the parts it found, not "no object".
-        if (plan.outcome == PlanResult::Outcome::kGrasps ||
-            (detail.plan.outcome == PlanResult::Outcome::kNoObjects &&
-             plan.outcome == PlanResult::Outcome::kNoCollisionFree)) {
-          detail.perception = std::move(*again);
-          detail.plan = std::move(plan);
-          detail.thorough_retry = true;
-        }
-      }
-      retry_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    }
-    result.outcome = detail.plan.outcome;
-    result.grasps = detail.plan.queue;
-    result.message = detail.plan.stats.Describe();
-    if (result.outcome == PlanResult::Outcome::kNoObjects && !detail.perception.reason.empty()) {
-      result.message = detail.perception.reason;
-    }
-    if (detail.thorough_retry) result.message += " (after a thorough perception retry)";
-  }
-
-  // The perception the plan is made from (a thorough retry may replace it).
-  const PerceptionResult& per = detail.perception;
-  result.roi_points = per.roi_point_count;
-  result.image_pixels = static_cast<int64_t>(frame.intrinsics.width) * frame.intrinsics.height;
-  result.largest_region_points = per.largest_region_points;
-  result.detections = static_cast<int>(per.detections.size());
-  for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
-  for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});
-  if (grasps_ms >= 0) result.stages.push_back({"grasps", grasps_ms});
-  if (retry_ms >= 0) result.stages.push_back({"thorough_retry", retry_ms});  // perception + grasps, used or not
-
-  // Match detections to ground truth (synthetic frames only): the true
-  // instance most of the detection's support points show in the label image
-  // (robust to a wrong pose estimate), else the nearest true part of its class.
+// Match detections to ground truth (synthetic frames only): the true
+// instance most of the detection's support points show in the label image
+// (robust to a wrong pose estimate), else the nearest true part of its class.
+std::vector<int> MatchTruth(const Frame& frame, const PerceptionResult& per) {
   std::vector<int> truth(per.detections.size(), -1);
   if (frame.truth) {
     const LabelImage& labels = frame.truth->labels;
@@ -188,6 +53,97 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
       }
     }
   }
+  return truth;
+}
+
+}  // namespace
+
+std::string DefaultTeachFile(const Cell& cell) {
+  if (cell.path.empty() || cell.path.front() == '<') return {};
+  std::filesystem::path p(cell.path);
+  p.replace_extension(".taught.yaml");
+  return p.string();
+}
+
+Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell& cell,
+                                                                     std::shared_ptr<const Perception> perception,
+                                                                     std::unique_ptr<CaptureSource> source,
+                                                                     BinPickingPlannerOptions options) {
+  if (!perception || !source) return Status::InvalidArgument("grasp planner: perception and source are required");
+  auto model = GraspPlanningModel::Build(cell, options.planning);
+  if (!model.ok()) return model.status();
+  std::string teach_file = options.teach_file.empty() ? DefaultTeachFile(cell) : options.teach_file;
+  if (teach_file == "-") teach_file.clear();
+  auto teach = std::make_unique<TeachStore>(teach_file);
+  if (Status s = teach->Load(); !s.ok()) return s;
+  std::unique_ptr<BinPickingPlanner> planner(new BinPickingPlanner());
+  planner->cell_ = cell;
+  planner->options_ = options;
+  planner->perception_ = std::move(perception);
+  planner->model_ = std::move(*model);
+  planner->teach_ = std::move(teach);
+  planner->source_ = std::move(source);
+  return planner;
+}
+
+BinPickingPlanner::~BinPickingPlanner() = default;
+
+Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
+  CaptureRequest capture;
+  capture.config_id = request.camera_config_id;
+  capture.X_BF = request.X_BF;
+  if (request.task.kind == TaskSpec::Kind::kInHand) {
+    capture.view = CaptureRequest::View::kInHand;
+    capture.gripper = request.task.gripper;
+  } else if (LooksAtFixture(request.task)) {
+    capture.view = CaptureRequest::View::kFixture;
+    capture.fixture = request.task.fixture;
+  }
+  std::lock_guard lock(source_mutex_);
+  Result<Frame> frame = source_->Capture(capture);
+  if (!frame.ok()) return frame.status();
+  return CaptureHandle(std::make_shared<const CapturedFrame>(std::move(*frame)));
+}
+
+Result<PlanResult> BinPickingPlanner::Plan(const PlanRequest& request, const CapturedScene& scene) {
+  Result<PlanDetail> detail = PlanDetailed(request, scene);
+  if (!detail.ok()) return detail.status();
+  return std::move(detail->result);
+}
+
+Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, const CapturedScene& scene) {
+  const auto* captured = dynamic_cast<const CapturedFrame*>(&scene);
+  if (captured == nullptr) return Status::InvalidArgument("grasp planner: scene was not captured by this planner");
+  const Frame& frame = captured->frame();
+  const TaskSpec& task = request.task;
+  PlanDetail detail;
+  PlanResult& result = detail.result;
+  double grasps_ms = -1, retry_ms = -1;
+  std::vector<StageTiming> first_timings;
+
+  if (task.kind == TaskSpec::Kind::kInHand || LooksAtFixture(task)) {
+    if (Status s = PlanElsewhere(request, frame, detail); !s.ok()) return s;
+    first_timings = detail.perception.timings;
+  } else {
+    Result<PerceptionResult> perception = perception_->Run(frame, task.part_classes);
+    if (!perception.ok()) return perception.status();
+    detail.perception = std::move(*perception);
+    first_timings = detail.perception.timings;
+    PlanPick(request, frame, detail, &grasps_ms, &retry_ms);
+  }
+
+  // The perception the plan is made from (a thorough retry may replace it).
+  const PerceptionResult& per = detail.perception;
+  result.roi_points = per.roi_point_count;
+  result.image_pixels = static_cast<int64_t>(frame.intrinsics.width) * frame.intrinsics.height;
+  result.largest_region_points = per.largest_region_points;
+  result.detections = static_cast<int>(per.detections.size());
+  for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
+  for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});
+  if (grasps_ms >= 0) result.stages.push_back({"grasps", grasps_ms});
+  if (retry_ms >= 0) result.stages.push_back({"thorough_retry", retry_ms});  // perception + grasps, used or not
+
+  std::vector<int> truth = MatchTruth(frame, per);
 
   {
     std::lock_guard lock(state_mutex_);
@@ -214,6 +170,126 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   return detail;
 }
 
+void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame, PlanDetail& detail, double* grasps_ms,
+                                 double* retry_ms) const {
+  const TaskSpec& task = request.task;
+  PlanResult& result = detail.result;
+  std::vector<TaughtGrasp> taught = teach_->All();
+  auto t0 = std::chrono::steady_clock::now();
+  detail.plan = PlanGrasps(*model_, task, detail.perception, taught, &frame);
+  *grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
+                               detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
+  if (options_.thorough_retry && nothing_to_pick && detail.perception.largest_region_points > 0) {
+    t0 = std::chrono::steady_clock::now();
+    Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
+    if (again.ok()) {
+      GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
+      spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
+                    again->detections.size(), plan.stats.Describe());
+      // Adopted when it gives grasps, and also when it finds parts where
+      // the normal run found none: the answer is then "no collision-free
+      // grasp" for the parts it found, not "no object".
+      if (plan.outcome == PlanResult::Outcome::kGrasps ||
+          (detail.plan.outcome == PlanResult::Outcome::kNoObjects &&
+           plan.outcome == PlanResult::Outcome::kNoCollisionFree)) {
+        detail.perception = std::move(*again);
+        detail.plan = std::move(plan);
+        detail.thorough_retry = true;
+      }
+    }
+    *retry_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  }
+  result.outcome = detail.plan.outcome;
+  result.grasps = detail.plan.queue;
+  result.message = detail.plan.stats.Describe();
+  if (result.outcome == PlanResult::Outcome::kNoObjects && !detail.perception.reason.empty()) {
+    result.message = detail.perception.reason;
+  }
+  if (detail.thorough_retry) result.message += " (after a thorough perception retry)";
+}
+
+Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame& frame, PlanDetail& detail) const {
+  const TaskSpec& task = request.task;
+  PerceptionRegion region;
+  region.box_R = task.roi;
+  std::vector<int> classes = task.part_classes;
+  const FixtureSpec* fixture = nullptr;
+  if (task.kind == TaskSpec::Kind::kInHand) {
+    if (!request.X_BF) {
+      return Status::InvalidArgument("in-hand task " + std::to_string(task.id) + " needs the robot's tool pose");
+    }
+    region.X_BR = *request.X_BF;  // X_BT: the box moves with the tool
+    region.support = false;       // a held part may sit tilted across the cup's lip
+  } else {
+    fixture = cell_.FindFixture(task.fixture);
+    if (fixture == nullptr) return Status::Internal("task " + std::to_string(task.id) + ": no fixture " + task.fixture);
+    region.X_BR = fixture->X_BP_taught;
+    classes = {fixture->class_id};
+  }
+  Result<PerceptionResult> perception = perception_->Run(frame, classes, PerceptionEffort::kNormal, region);
+  if (!perception.ok()) return perception.status();
+  if (perception->detections.empty() && perception->largest_region_points > 0) {
+    // As for picks: a thorough run before answering "nothing there".
+    Result<PerceptionResult> again = perception_->Run(frame, classes, PerceptionEffort::kThorough, region);
+    if (again.ok() && !again->detections.empty()) {
+      perception = std::move(again);
+      detail.thorough_retry = true;
+    }
+  }
+  detail.perception = std::move(*perception);
+  PlanResult& result = detail.result;
+  const PerceptionResult& per = detail.perception;
+  int best = -1;
+  for (int d = 0; d < static_cast<int>(per.detections.size()); ++d) {
+    if (best < 0 || per.detections[d].score > per.detections[best].score) best = d;
+  }
+  if (best < 0) {
+    result.outcome = PlanResult::Outcome::kNoObjects;
+    result.message = per.reason.empty() ? "nothing detected" : per.reason;
+    return Status::Ok();
+  }
+  const Detection& det = per.detections[best];
+  const std::optional<HeldPart> held = this->held();
+  Grasp g;
+  g.X_BO = det.X_BO;
+  g.instance_id = best;
+  g.class_id = det.class_id;
+  g.score = det.score;
+  if (task.kind == TaskSpec::Kind::kInHand) {
+    g.name = "in_hand";
+    g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_TO
+    g.X_BT_pre = g.X_BT;
+  } else if (task.kind == TaskSpec::Kind::kPlaceArea) {
+    g.name = "place_offset";
+    g.X_BT = det.X_BO * fixture->X_BP_taught.inverse();  // X_off
+    g.X_BT_pre = g.X_BT;
+    g.related_X_B.push_back(det.X_BO);
+    // seed 003: tool_in_base = place_in_base * obj_in_Place * inv(obj_in_tool).
+    if (held) g.implied_X_BT.push_back(g.X_BT * fixture->X_BP_taught * fixture->X_PO * held->X_TO.inverse());
+  } else {
+    if (!held) {
+      result.outcome = PlanResult::Outcome::kNoObjects;
+      result.message = "fixture " + fixture->name + " found, but no part was handed out to place";
+      return Status::Ok();
+    }
+    const GripperSpec* gripper = cell_.FindGripper(task.gripper);
+    g.name = "drop_off";
+    g.X_BT = det.X_BO * fixture->X_PO * held->X_TO.inverse();
+    g.X_BT_pre = g.X_BT * MakePose(Mat3::Identity(), Vec3(0, 0, -(gripper ? gripper->approach_distance : 0.0)));
+    g.related_X_B.push_back(det.X_BO);
+    g.class_id = held->class_id;
+  }
+  result.outcome = PlanResult::Outcome::kGrasps;
+  result.grasps.push_back(std::move(g));
+  return Status::Ok();
+}
+
+std::optional<BinPickingPlanner::HeldPart> BinPickingPlanner::held() const {
+  std::lock_guard lock(state_mutex_);
+  return held_;
+}
+
 int BinPickingPlanner::TruthInstanceOf(int task_id, int detection) const {
   std::lock_guard lock(state_mutex_);
   auto it = tasks_.find(task_id);
@@ -225,6 +301,7 @@ int BinPickingPlanner::TruthInstanceOf(int task_id, int detection) const {
 
 void BinPickingPlanner::NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) {
   int instance = -1;
+  const bool pick = task.kind == TaskSpec::Kind::kPick || task.kind == TaskSpec::Kind::kPick2D;
   {
     std::lock_guard lock(state_mutex_);
     TaskState& state = tasks_[task.id];
@@ -233,12 +310,24 @@ void BinPickingPlanner::NotifyHandedOut(const TaskSpec& task, const Grasp& grasp
     if (grasp.instance_id >= 0 && grasp.instance_id < static_cast<int>(state.truth_instance.size())) {
       instance = state.truth_instance[grasp.instance_id];
     }
+    if (task.kind == TaskSpec::Kind::kPick) {
+      held_ = HeldPart{grasp.class_id, grasp.X_BT.inverse() * grasp.X_BO, false};
+    } else if (task.kind == TaskSpec::Kind::kInHand) {
+      held_ = HeldPart{grasp.class_id, grasp.X_BT, true};
+    } else if (LooksAtFixture(task)) {
+      held_.reset();
+    }
   }
-  // Only picks take a part out of the bin (in-hand and place results do not).
-  const bool pick = task.kind == TaskSpec::Kind::kPick || task.kind == TaskSpec::Kind::kPick2D;
+  if (LooksAtFixture(task)) {
+    std::lock_guard lock(source_mutex_);
+    source_->NotifyReleased();
+    return;
+  }
+  // Only picks take a part out of the bin (in-hand results do not).
   if (instance < 0 || !pick) return;
   std::lock_guard lock(source_mutex_);
-  source_->NotifyPicked(instance);
+  // 2D picks' X_BT is in the robot's plane frame: no tool pose in base.
+  source_->NotifyPicked(instance, task.kind == TaskSpec::Kind::kPick ? std::optional<Pose>(grasp.X_BT) : std::nullopt);
 }
 
 Status BinPickingPlanner::Teach(const TeachRequest& request) {

@@ -2,12 +2,23 @@
 // grasp candidates (cell + taught), FCL collision filtering and ranking
 // (grasp/grasp_planning.h), per task kind:
 //   pick (and pick_2d, precision): the queue of grasps, one per part;
-//   in_hand: one "grasp" whose X_BT is the part in the FLANGE frame,
-//            X_FO = X_BF^-1 * X_BO, from the robot pose sent with the request
-//            (InvalidArgument without it);
-//   place:   one "grasp" whose X_BT is the place area's offset from its taught
-//            reference, X_off = X_BP * place_reference^-1 (so X_BP = X_off *
-//            place_reference), with X_BP (the detected place part) as related_X_B[0].
+//   in_hand:    the part in the gripper, looked for in the task's roi in the
+//               tool frame at the robot's pose (X_BT, sent with the capture;
+//               InvalidArgument without it): one "grasp" whose X_BT is the
+//               part in the tool frame, X_TO = X_BT^-1 * X_BO;
+//   place_area: the task's fixture, looked for in its roi in the fixture's
+//               taught frame: one "grasp" whose X_BT is its offset from the
+//               taught pose, X_off = X_BP * X_BP_taught^-1 (so X_BP = X_off *
+//               X_BP_taught), X_BP as related_X_B[0], and as implied_X_BT the
+//               tool pose seed 003's program computes from it,
+//               X_off * (X_BP_taught * X_PO) * X_TO^-1, with the part held;
+//   place:      the same fixture; one grasp whose X_BT is the drop-off,
+//               X_BP * X_PO * X_TO^-1 (seed 000's DROP_OFF_POSE), its
+//               pre-pose backed off by the gripper's approach distance;
+//               no objects when no part is held.
+// The part held (X_TO) is what the last in_hand answer measured since the
+// last pick, else the pick's own: the grasp against its detected part,
+// X_BT^-1 * X_BO. A place or place_area answer releases it.
 //
 // State it owns: the capture source (guarded: the server never runs two
 // captures at once, but NotifyHandedOut may come from another thread), the
@@ -77,10 +88,13 @@ class BinPickingPlanner final : public GraspPlanner {
 
   Result<CaptureHandle> Capture(const PlanRequest& request) override;
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override;
+  // Captures for in_hand and fixture tasks ask the source for that view
+  // (CaptureRequest::View).
   // With a ground-truth frame: tells the source which true instance the
   // grasp's part is (the instance most of its support points show in the
   // label image, else the nearest true part of its class within 3 cm), so a
-  // simulating source removes it. Remembers the part for teaching.
+  // simulating source removes it. Remembers the part for teaching, and the
+  // part held (see above).
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override;
   // Stores X_OG = X_BO^-1 * X_BT for the part last handed out for the task
   // (else the first part of the task's last plan). NotFound when the task has
@@ -95,6 +109,14 @@ class BinPickingPlanner final : public GraspPlanner {
   // The ground-truth instance matched to `detection` of the task's last plan; -1 if none.
   int TruthInstanceOf(int task_id, int detection) const;
 
+  // The part the robot holds, as binpick knows it.
+  struct HeldPart {
+    int class_id = 0;
+    Pose X_TO = Pose::Identity();  // in the tool frame
+    bool measured = false;         // by an in_hand answer; else the pick's own
+  };
+  std::optional<HeldPart> held() const;
+
  private:
   struct TaskState {
     std::vector<Detection> detections;   // last plan's (support dropped)
@@ -103,6 +125,12 @@ class BinPickingPlanner final : public GraspPlanner {
     int held_class = -1;
   };
   BinPickingPlanner() = default;
+  // Pick tasks: perception in the bin, grasps, a thorough retry; the grasp
+  // stage's and the retry's wall times (ms; left alone when not run).
+  void PlanPick(const PlanRequest& request, const Frame& frame, PlanDetail& detail, double* grasps_ms,
+                double* retry_ms) const;
+  // in_hand, place and place_area tasks: perception in the task's region.
+  Status PlanElsewhere(const PlanRequest& request, const Frame& frame, PlanDetail& detail) const;
   Cell cell_;
   BinPickingPlannerOptions options_;
   std::shared_ptr<const Perception> perception_;
@@ -112,6 +140,7 @@ class BinPickingPlanner final : public GraspPlanner {
   std::unique_ptr<CaptureSource> source_;  // GUARDED_BY(source_mutex_)
   mutable std::mutex state_mutex_;
   std::map<int, TaskState> tasks_;         // GUARDED_BY(state_mutex_)
+  std::optional<HeldPart> held_;           // GUARDED_BY(state_mutex_)
 };
 
 // The teach file BinPickingPlanner uses for `cell` with an empty option.

@@ -27,6 +27,10 @@ struct Grasp {
   // withdraws it when one of them is handed out (docs/protocols.md, "Stale
   // grasps"). Empty: no part disturbs it (or the planner does not say).
   std::vector<int> stale_after;
+  // Tool poses in base the robot program computes from this answer and moves
+  // to, when the answer is not itself one (seed 003's place: tool_in_base
+  // from place_area's offset). Checked like X_BT (grasp/robot_targets.h).
+  std::vector<Pose> implied_X_BT;
 };
 
 }  // namespace bp

@@ -14,8 +14,19 @@
 namespace bp {
 
 struct CaptureRequest {
+  // What the camera is asked to look at besides the bin. A real camera sees
+  // what is there; a simulated cell (the synthetic source) renders it:
+  //   kBin      the bin and its pile (pick tasks);
+  //   kInHand   also the robot's gripper and the part it holds, at the
+  //             robot's pose X_BF, read as its tool centre point (seed 003's
+  //             robot sends get_actual_tcp_pose(): docs/protocols.md "Task kinds");
+  //   kFixture  also the fixture `fixture` and the table it stands on.
+  enum class View { kBin, kInHand, kFixture };
   int config_id = 0;              // camera config; 0 = the cell's current default
-  std::optional<Pose> X_BF;       // flange pose sent by the robot (eye-in-hand)
+  std::optional<Pose> X_BF;       // pose sent by the robot (eye-in-hand: its flange)
+  View view = View::kBin;
+  std::string gripper;            // kInHand: cell gripper name
+  std::string fixture;            // kFixture: cell fixture name
 };
 
 class CaptureSource {
@@ -23,9 +34,13 @@ class CaptureSource {
   virtual ~CaptureSource() = default;
   // @returns the next frame, or Unavailable / Corruption / NotFound with the reason.
   virtual Result<Frame> Capture(const CaptureRequest& request) = 0;
-  // A grasp on this instance was handed to a robot. Sources that simulate
-  // picks remove the part from the pile before the next capture; others ignore it.
-  virtual void NotifyPicked(int /*instance_id*/) {}
+  // A grasp on this instance was handed to a robot, whose tool centre point
+  // goes to X_BT. Sources that simulate picks remove the part from the pile
+  // before the next capture (the synthetic source keeps it in the gripper,
+  // where the grasp met it); others ignore it.
+  virtual void NotifyPicked(int /*instance_id*/, const std::optional<Pose>& /*X_BT*/ = std::nullopt) {}
+  // The robot let go of the part it holds (a place was handed out).
+  virtual void NotifyReleased() {}
   // Human-readable description for logs and `binpick info`.
   virtual std::string Describe() const = 0;
 };

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <utility>
 
@@ -86,6 +87,20 @@ Eigen::Vector4d FloorPlane(const Pose& X_BW) {
   return Eigen::Vector4d(z_W_in_B.x(), z_W_in_B.y(), z_W_in_B.z(), floor_d);
 }
 
+// The classes perception has a model of: the cell's parts, then its fixtures
+// (as parts without symmetry or grasps).
+std::vector<PartSpec> ModelSpecs(const Cell& cell) {
+  std::vector<PartSpec> specs = cell.parts;
+  for (const FixtureSpec& f : cell.fixtures) {
+    PartSpec p;
+    p.class_id = f.class_id;
+    p.name = f.name;
+    p.mesh = f.mesh;
+    specs.push_back(std::move(p));
+  }
+  return specs;
+}
+
 class PerceptionImpl final : public Perception {
  public:
   PerceptionImpl(const Cell& cell, const PerceptionOptions& options,
@@ -93,8 +108,8 @@ class PerceptionImpl final : public Perception {
       : cell_(cell), options_(options), models_(std::move(models)), failures_(std::move(failures)),
         box_(internal::MakeRoiBox(cell)) {}
 
-  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
-                               PerceptionEffort effort) const override;
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override;
   const PerceptionOptions& options() const override { return options_; }
 
  private:
@@ -102,12 +117,15 @@ class PerceptionImpl final : public Perception {
   // have none; InvalidArgument for a class the cell does not have.
   Status SelectModels(const std::vector<int>& classes, std::vector<const ClassModel*>* models,
                       std::string* problems) const;
-  // Stages "regions" and "segment".
-  internal::Segments Segment(const internal::RoiCloud& roi, const Frame& frame, StageClock& clock) const;
+  // Stages "regions" and "segment"; X_BW: the frame whose z = 0 is the floor
+  // (none without `floor`).
+  internal::Segments Segment(const internal::RoiCloud& roi, const Frame& frame, const Pose& X_BW, bool floor,
+                             StageClock& clock) const;
   // Stages "pose", "verify", "second_look" and "residual": the views matched
   // and accepted. Fills the result's detections and counts.
   void MatchViews(const internal::Segments& segments, const Frame& frame, std::span<const ClassModel* const> models,
-                  bool thorough, const internal::FitRmsLimit& fit_limit, StageClock& clock,
+                  bool thorough, const internal::FitRmsLimit& fit_limit,
+                  const std::optional<Eigen::Vector4d>& floor_plane_B, StageClock& clock,
                   PerceptionResult& result) const;
 
   Cell cell_;
@@ -119,29 +137,38 @@ class PerceptionImpl final : public Perception {
 
 Status PerceptionImpl::SelectModels(const std::vector<int>& classes, std::vector<const ClassModel*>* models,
                                     std::string* problems) const {
-  for (const PartSpec& part : cell_.parts) {
-    if (!classes.empty() && std::find(classes.begin(), classes.end(), part.class_id) == classes.end()) continue;
-    const auto it = std::find_if(models_.begin(), models_.end(),
-                                 [&](const auto& m) { return m->class_id() == part.class_id; });
+  const auto select = [&](int class_id) {
+    const auto it =
+        std::find_if(models_.begin(), models_.end(), [&](const auto& m) { return m->class_id() == class_id; });
     if (it != models_.end()) {
       models->push_back(it->get());
-    } else if (const auto f = failures_.find(part.class_id); f != failures_.end()) {
+    } else if (const auto f = failures_.find(class_id); f != failures_.end()) {
       *problems += (problems->empty() ? "" : "; ") + f->second;
     }
+  };
+  const auto named = [&](int class_id) { return std::find(classes.begin(), classes.end(), class_id) != classes.end(); };
+  // Empty: every part; fixtures only when named.
+  for (const PartSpec& part : cell_.parts) {
+    if (classes.empty() || named(part.class_id)) select(part.class_id);
+  }
+  for (const FixtureSpec& fixture : cell_.fixtures) {
+    if (named(fixture.class_id)) select(fixture.class_id);
   }
   for (int c : classes) {
-    if (cell_.FindPart(c) == nullptr) {
-      return Status::InvalidArgument("class " + std::to_string(c) + " is not a part of cell '" + cell_.name + "'");
+    if (cell_.FindPart(c) == nullptr && cell_.FindFixture(c) == nullptr) {
+      return Status::InvalidArgument("class " + std::to_string(c) + " is neither a part nor a fixture of cell '" +
+                                     cell_.name + "'");
     }
   }
   return Status::Ok();
 }
 
-internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const Frame& frame,
-                                           StageClock& clock) const {
-  const internal::SegmentationOptions options = SegmentationOptionsOf(options_);
+internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const Frame& frame, const Pose& X_BW,
+                                           bool floor, StageClock& clock) const {
+  internal::SegmentationOptions options = SegmentationOptionsOf(options_);
+  if (!floor) options.floor_band = -std::numeric_limits<float>::infinity();
   if (roi.organized()) {
-    internal::GridLabels labels = internal::LabelGrid(roi, frame, cell_.bin.X_BW, options);
+    internal::GridLabels labels = internal::LabelGrid(roi, frame, X_BW, options);
     clock.Lap("regions");
     internal::Segments segments = internal::GroupGridSegments(roi, std::move(labels), options);
     clock.Lap("segment");
@@ -157,7 +184,8 @@ internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const 
 
 void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame& frame,
                                 std::span<const ClassModel* const> models, bool thorough,
-                                const internal::FitRmsLimit& fit_limit, StageClock& clock,
+                                const internal::FitRmsLimit& fit_limit,
+                                const std::optional<Eigen::Vector4d>& floor_plane_B, StageClock& clock,
                                 PerceptionResult& result) const {
   // Each segment view is the segment's samples, then (context_relative_radius
   // > 0) the other segments' samples near its centroid.
@@ -168,7 +196,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   views.first_region = views.views.size();
   for (const internal::ViewIndices& view : segments.region_views) views.views.push_back(view);
 
-  internal::ViewMatcher matcher(options_, models, thorough, frame, FloorPlane(cell_.bin.X_BW), segments, fit_limit);
+  internal::ViewMatcher matcher(options_, models, thorough, frame, floor_plane_B, segments, fit_limit);
   internal::Acceptance acceptance(result.roi_points_B.size(), models);
   internal::WaveResult waves = internal::MatchInWaves(std::move(views), options_, thorough, segments, matcher,
                                                       acceptance);
@@ -203,11 +231,13 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
 // crop, depth noise, regions and segments, then the views matched in waves,
 // a second look and a residual pass, each followed by acceptance.
 Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vector<int>& classes,
-                                             PerceptionEffort effort) const {
+                                             PerceptionEffort effort,
+                                             const std::optional<PerceptionRegion>& region) const {
   PerceptionResult result;
   std::vector<const ClassModel*> models;
   std::string model_problems;
   if (Status s = SelectModels(classes, &models, &model_problems); !s.ok()) return s;
+  if (region && region->box_R.isEmpty()) return Status::InvalidArgument("perception: the region's box is empty");
   StageClock clock(&result.timings);
 
   // A frame noisier than smoothing_target_sigma is smoothed first and every
@@ -226,21 +256,28 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
   }
   const Frame& used = smoothing_radius > 0 ? smoothed : frame;
 
+  // The region's frame stands in for the bin frame W everywhere below: its
+  // z = 0 plane is the floor.
+  const Pose& X_BW = region ? region->X_BR : cell_.bin.X_BW;
+  const internal::RoiBox box = region ? internal::RoiBox{region->box_R.min().cast<float>(),
+                                                         region->box_R.max().cast<float>()}
+                                      : box_;
   internal::RoiCloud roi;
-  internal::CropToRoi(used, cell_.bin.X_BW, box_, &roi);
+  internal::CropToRoi(used, X_BW, box, &roi);
   clock.Lap("roi");
   result.roi_point_count = static_cast<int64_t>(roi.points_B.size());
   if (roi.valid_points == 0 || roi.points_B.empty()) {
     result.segment_of_point.assign(roi.points_B.size(), -1);
     result.reason = roi.valid_points == 0 ? "frame has no valid points"
                                           : "ROI is empty: none of the frame's " + std::to_string(roi.valid_points) +
-                                                " valid points is inside the bin ROI";
+                                                " valid points is inside the " + (region ? "task's" : "bin") + " ROI";
     result.roi_points_B = std::move(roi.points_B);
     return result;
   }
 
   const internal::FitRmsLimit fit_limit(options_.max_fit_rms_sigmas, options_.min_fit_rms_limit, noise, used);
-  internal::Segments segments = Segment(roi, used, clock);
+  const bool floor = !region || region->support;
+  internal::Segments segments = Segment(roi, used, X_BW, floor, clock);
   result.segment_of_point = std::move(segments.segment_of_point);
   result.largest_region_points = internal::LargestRegionPoints(segments.region_of_point);
   result.roi_points_B = std::move(roi.points_B);
@@ -254,7 +291,8 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     result.reason = model_problems.empty() ? "no part class to look for" : "no pose model: " + model_problems;
     return result;
   }
-  MatchViews(segments, used, models, effort == PerceptionEffort::kThorough, fit_limit, clock, result);
+  MatchViews(segments, used, models, effort == PerceptionEffort::kThorough, fit_limit,
+             floor ? std::optional<Eigen::Vector4d>(FloorPlane(X_BW)) : std::nullopt, clock, result);
   return result;
 }
 
@@ -288,36 +326,44 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
     }
   }
   const internal::CameraFigures camera = internal::CameraFiguresOf(cell, options);
+  const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
-  built.reserve(cell.parts.size());
-  for (size_t i = 0; i < cell.parts.size(); ++i) built.emplace_back(Status::Internal("not built"));
+  built.reserve(specs.size());
+  for (size_t i = 0; i < specs.size(); ++i) built.emplace_back(Status::Internal("not built"));
   tbb::task_arena arena(options.threads);
   arena.execute([&] {
-    tbb::parallel_for(size_t{0}, cell.parts.size(),
-                      [&](size_t i) { built[i] = internal::BuildClassModel(cell.parts[i], camera); });
+    tbb::parallel_for(size_t{0}, specs.size(),
+                      [&](size_t i) { built[i] = internal::BuildClassModel(specs[i], camera); });
   });
   std::vector<std::unique_ptr<ClassModel>> models;
   std::map<int, std::string> failures;
   std::string required_failures;
   std::vector<internal::ClassFigures> figures;
   for (size_t i = 0; i < built.size(); ++i) {
-    const PartSpec& part = cell.parts[i];
+    // specs: the cell's parts, then its fixtures (never optional).
+    const PartSpec& part = specs[i];
+    const bool fixture = i >= cell.parts.size();
+    const char* kind = fixture ? "fixture" : "part";
     if (!built[i].ok()) {
       const std::string why = built[i].status().message();
-      spdlog::error("perception: no model for part '{}' (class {}{}): {}", part.name, part.class_id,
+      spdlog::error("perception: no model for {} '{}' (class {}{}): {}", kind, part.name, part.class_id,
                     part.optional ? ", optional: left out" : "", why);
       failures[part.class_id] = why;
       if (!part.optional) required_failures += (required_failures.empty() ? "" : "; ") + why;
       continue;
     }
     const ClassModel& m = **built[i];
-    figures.push_back({m.diameter(), part.perception.flat_height.value_or(m.lowest_upward_face()),
-                       part.perception.min_view_points.value_or(0)});
+    // The pipeline's options scale to the parts in the bin; a fixture is
+    // looked for in its own region, so it does not shrink them.
+    if (!fixture) {
+      figures.push_back({m.diameter(), part.perception.flat_height.value_or(m.lowest_upward_face()),
+                         part.perception.min_view_points.value_or(0)});
+    }
     const PoseEstimatorOptions& o = m.estimator_options();
-    spdlog::info("perception: part '{}' (class {}), {:.1f} mm across: ppf step {:.2f} mm, icp spacing {:.2f} mm, "
+    spdlog::info("perception: {} '{}' (class {}), {:.1f} mm across: ppf step {:.2f} mm, icp spacing {:.2f} mm, "
                  "verify spacing {:.2f} mm, support {:.2f} mm, free space {:.2f} mm, inside depth {:.2f} mm, "
                  "lowest upward face {:.2f} mm",
-                 part.name, part.class_id, m.diameter() * 1e3, o.ppf_relative_sampling * m.diameter() * 1e3,
+                 kind, part.name, part.class_id, m.diameter() * 1e3, o.ppf_relative_sampling * m.diameter() * 1e3,
                  o.icp_model_spacing * 1e3, o.verify_model_spacing * 1e3, o.support_distance * 1e3,
                  o.free_space_distance * 1e3, m.inside_depth() * 1e3, m.lowest_upward_face() * 1e3);
     models.push_back(std::move(built[i]).value());

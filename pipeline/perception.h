@@ -9,10 +9,12 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "core/cell.h"
 #include "core/pose.h"
@@ -157,6 +159,20 @@ struct PerceptionOptions {
                              .unmeasured_is_no_evidence = true};
 };
 
+// Where perception looks, when not into the bin: a box in a frame R (X_BR in
+// the base) whose z = 0 plane is the surface the objects rest on (what
+// segmentation leaves out as floor, pose seeds rest on and no pose may sink
+// into; see `support`). In-hand tasks
+// look into a box in the tool frame, fixture tasks into one in the fixture's
+// taught frame (TaskSpec::roi). The bin's is the cell's roi in W.
+struct PerceptionRegion {
+  Pose X_BR = Pose::Identity();
+  Eigen::AlignedBox3d box_R;
+  // false: nothing rests on z = 0 (a part held by a gripper, free to sit
+  // tilted across the cup's lip): no floor band, no support plane.
+  bool support = true;
+};
+
 enum class PerceptionEffort {
   kNormal,
   kThorough,  // see PerceptionOptions::thorough_search; slower
@@ -165,11 +181,11 @@ enum class PerceptionEffort {
 class Perception {
  public:
   virtual ~Perception() = default;
-  // Builds model tables for every part class of the cell (slow, once), with
-  // the settings scaled to its parts and camera. Every class whose model
-  // cannot be built is logged; InvalidArgument naming each of them unless
-  // the cell marks it optional (then it is left out). A mesh in the wrong
-  // unit is refused naming the likely unit.
+  // Builds model tables for every part class and every fixture of the cell
+  // (slow, once), with the settings scaled to its parts and camera. Every
+  // class whose model cannot be built is logged; InvalidArgument naming each
+  // of them unless the cell marks the part optional (then it is left out). A
+  // mesh in the wrong unit is refused naming the likely unit.
   static Result<std::unique_ptr<Perception>> Build(const Cell& cell, const PerceptionOptions& options = {});
   // The options in use: Build's, scaled to the cell's parts and camera.
   // Implementations that do not segment (TruthPerception, test doubles)
@@ -178,11 +194,14 @@ class Perception {
     static const PerceptionOptions defaults;
     return defaults;
   }
-  // Detects parts of `classes` (empty = all cell parts) in `frame`. Empty ROI,
+  // Detects objects of `classes` (part or fixture class ids; empty = all cell
+  // parts) in `frame`, inside `region` (nullopt: the bin's roi). Empty ROI,
   // an all-NaN frame or degenerate segments give an OK result with no
-  // detections and a reason; never a pose built from NaNs.
+  // detections and a reason; never a pose built from NaNs. InvalidArgument
+  // for a class that is neither a part nor a fixture of the cell.
   virtual Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {},
-                                       PerceptionEffort effort = PerceptionEffort::kNormal) const = 0;
+                                       PerceptionEffort effort = PerceptionEffort::kNormal,
+                                       const std::optional<PerceptionRegion>& region = std::nullopt) const = 0;
 };
 
 }  // namespace bp

@@ -4,6 +4,9 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
+#include <numbers>
+#include <random>
 #include <string>
 #include <utility>
 
@@ -30,6 +33,58 @@ const CameraConfig* FindCameraConfig(const CameraSpec& camera, int id) {
   return nullptr;
 }
 
+constexpr double kDegToRad = std::numbers::pi / 180.0;
+
+// A point uniform over a disc of radius r (in the xy plane).
+Vec3 InDisc(std::mt19937_64& rng, double r) {
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double rho = r * std::sqrt(u(rng)), a = 2 * std::numbers::pi * u(rng);
+  return Vec3(rho * std::cos(a), rho * std::sin(a), 0.0);
+}
+
+// The offset of fixture `index` from its taught pose after `releases` parts
+// were placed, in P: a translation uniform over a disc in P's xy plane and a
+// turn about P's z uniform in [-max, max]. Drawn from (seed, releases, index).
+Pose FixtureOffset(const SourceSpec& source, int releases, size_t index) {
+  std::mt19937_64 rng(Mix(source.seed ^ Mix(0xF17u + 7919u * static_cast<uint64_t>(releases) + index)));
+  const Vec3 t = InDisc(rng, source.fixture_offset_translation);
+  std::uniform_real_distribution<double> turn(-source.fixture_offset_rotation_deg, source.fixture_offset_rotation_deg);
+  return MakePose(Mat3(Eigen::AngleAxisd(turn(rng) * kDegToRad, Vec3::UnitZ())), t);
+}
+
+// A part's slip in the gripper at pick `pick`, in T: a translation across
+// the tool's z of uniform length in [0, max] and a turn by an angle uniform
+// in [0, max] about a uniformly drawn axis through the tool centre point.
+Pose Slip(const SourceSpec& source, int pick) {
+  if (source.slip_translation <= 0 && source.slip_rotation_deg <= 0) return Pose::Identity();
+  std::mt19937_64 rng(Mix(source.seed ^ Mix(0x511Fu + static_cast<uint64_t>(pick))));
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double a = 2 * std::numbers::pi * u(rng);
+  const Vec3 t = source.slip_translation * u(rng) * Vec3(std::cos(a), std::sin(a), 0.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  Vec3 axis(n(rng), n(rng), n(rng));
+  if (axis.norm() < 1e-9) axis = Vec3::UnitZ();
+  const double angle = source.slip_rotation_deg * kDegToRad * u(rng);
+  return MakePose(Mat3(Eigen::AngleAxisd(angle, axis.normalized())), t);
+}
+
+// The table a fixture stands on: a 20 mm slab under the task area, in the
+// fixture's taught frame P (its top at z = 0), xy from `lo` to `hi`.
+TriangleMesh TableSlab(const Eigen::Vector2d& lo, const Eigen::Vector2d& hi) {
+  TriangleMesh m;
+  for (int i = 0; i < 8; ++i) {
+    m.vertices.emplace_back(static_cast<float>(i & 1 ? hi.x() : lo.x()), static_cast<float>(i & 2 ? hi.y() : lo.y()),
+                            i & 4 ? 0.0f : -0.02f);
+  }
+  // Outward-facing quads of the box (corner index bits: x, y, z).
+  const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (const auto& q : quads) {
+    m.triangles.emplace_back(q[0], q[1], q[2]);
+    m.triangles.emplace_back(q[0], q[2], q[3]);
+  }
+  return m;
+}
+
 }  // namespace
 
 class SyntheticSource::Impl {
@@ -43,19 +98,98 @@ class SyntheticSource::Impl {
   std::shared_ptr<const TriangleMesh> bin_mesh;
   int captures = 0;
   RenderOutput full, solo, projector;  // buffers reused between captures
+  SceneMeshes scene_meshes;
+  int picks = 0;  // NotifyPicked calls with a tool pose (the slip's draw)
 
-  RenderScene Scene(const CameraConfig& config) const {
+  mutable std::mutex world_mutex;            // the truth accessors read from other threads
+  std::optional<HeldPartTruth> held;         // GUARDED_BY(world_mutex)
+  int releases = 0;                          // GUARDED_BY(world_mutex)
+
+  // What a view shows besides the bin and the pile: instances after the
+  // pile's, with the truth they stand for (held part, fixture) or none.
+  struct Extra {
+    RenderInstance instance;
+    std::optional<PartTruth> truth;
+  };
+
+  RenderScene Scene(const CameraConfig& config, std::vector<Extra>* extras,
+                    std::vector<std::shared_ptr<const TriangleMesh>> extra_meshes) const {
     RenderScene s;
     s.meshes.push_back(bin_mesh);
     for (const auto& c : pile->classes()) s.meshes.push_back(c.mesh);
+    const size_t first_extra_mesh = s.meshes.size();
+    for (auto& m : extra_meshes) s.meshes.push_back(std::move(m));
     s.instances.push_back({0, Pose::Identity(), GroundTruth::kBinLabel});
     for (const auto& p : pile->parts()) {
       s.instances.push_back({1 + p.class_index, p.X_WO, static_cast<uint16_t>(p.instance_id)});
+    }
+    for (Extra& e : *extras) {
+      e.instance.mesh_index += first_extra_mesh;
+      s.instances.push_back(e.instance);
     }
     s.z_near = std::max(0.01, 0.5 * config.min_depth);
     s.z_far = std::max(s.z_near + 0.1, 2.0 * config.max_depth);
     s.light_C = config.noise.projector_offset;
     return s;
+  }
+
+  // The gripper at the robot's tool pose and the part it holds (kInHand), or
+  // the fixture and its table (kFixture), in W; mesh indices count from the
+  // first of `meshes`.
+  Status Extras(const CaptureRequest& request, std::vector<Extra>* extras,
+                std::vector<std::shared_ptr<const TriangleMesh>>* meshes) const {
+    const Pose X_WB = X_BW.inverse();
+    if (request.view == CaptureRequest::View::kInHand) {
+      if (!request.X_BF) return Status::InvalidArgument("synthetic source: an in-hand view needs the robot's pose");
+      const auto g = scene_meshes.grippers.find(request.gripper);
+      if (g == scene_meshes.grippers.end()) {
+        return Status::NotFound("synthetic source: no mesh for gripper '" + request.gripper + "'");
+      }
+      const Pose& X_BT = *request.X_BF;
+      meshes->push_back(g->second);
+      extras->push_back({{meshes->size() - 1, X_WB * X_BT, SyntheticSource::kToolLabel}, std::nullopt});
+      std::lock_guard lock(world_mutex);
+      if (held) {
+        for (const PileClass& c : pile->classes()) {
+          if (c.class_id != held->class_id) continue;
+          meshes->push_back(c.mesh);
+          PartTruth t;
+          t.instance_id = held->instance_id;
+          t.class_id = c.class_id;
+          t.class_name = c.name;
+          t.X_BO = X_BT * held->X_TO;
+          extras->push_back({{meshes->size() - 1, X_WB * t.X_BO, static_cast<uint16_t>(held->instance_id)}, t});
+          break;
+        }
+      }
+    } else if (request.view == CaptureRequest::View::kFixture) {
+      const FixtureSpec* fixture = cell.FindFixture(request.fixture);
+      const auto f = scene_meshes.fixtures.find(request.fixture);
+      if (fixture == nullptr || f == scene_meshes.fixtures.end()) {
+        return Status::NotFound("synthetic source: no mesh for fixture '" + request.fixture + "'");
+      }
+      const size_t index = static_cast<size_t>(fixture - cell.fixtures.data());
+      PartTruth t;
+      t.instance_id = SyntheticSource::kFixtureLabel - static_cast<int>(index);
+      t.class_id = fixture->class_id;
+      t.class_name = fixture->name;
+      {
+        std::lock_guard lock(world_mutex);
+        t.X_BO = fixture->X_BP_taught * FixtureOffset(cell.source, releases, index);
+      }
+      // The table under the task's area: the largest roi of a task looking at this fixture, 10 mm wider.
+      Eigen::AlignedBox3d area(Vec3(-0.05, -0.05, 0), Vec3(0.05, 0.05, 0));
+      for (const TaskSpec& task : cell.tasks) {
+        if (LooksAtFixture(task) && task.fixture == fixture->name) area.extend(task.roi);
+      }
+      meshes->push_back(std::make_shared<const TriangleMesh>(
+          TableSlab(area.min().head<2>() - Eigen::Vector2d::Constant(0.01),
+                    area.max().head<2>() + Eigen::Vector2d::Constant(0.01))));
+      extras->push_back({{meshes->size() - 1, X_WB * fixture->X_BP_taught, GroundTruth::kBinLabel}, std::nullopt});
+      meshes->push_back(f->second);
+      extras->push_back({{meshes->size() - 1, X_WB * t.X_BO, static_cast<uint16_t>(t.instance_id)}, t});
+    }
+    return Status::Ok();
   }
 
   // Pixels of `instance` rendered alone: rendered through intrinsics cropped
@@ -109,7 +243,7 @@ SyntheticSource::~SyntheticSource() = default;
 Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cell,
                                                                  std::vector<PileClass> classes,
                                                                  const TriangleMesh& bin_mesh_W,
-                                                                 HandEyeProvider hand_eye) {
+                                                                 HandEyeProvider hand_eye, SceneMeshes scene) {
   const auto& wanted = cell.source.part_classes;
   if (!wanted.empty()) {
     std::erase_if(classes, [&](const PileClass& c) {
@@ -128,6 +262,7 @@ Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cel
   impl->hand_eye = std::move(hand_eye);
   impl->X_BW = cell.bin.X_BW;
   impl->bin_mesh = std::make_shared<TriangleMesh>(bin_mesh_W);
+  impl->scene_meshes = std::move(scene);
   PileOptions options;
   options.num_parts = cell.source.num_parts;
   options.seed = cell.source.seed;
@@ -174,7 +309,10 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   const Pose X_BC = camera.eye_in_hand ? Pose(*request.X_BF * believed) : believed;
   const Pose X_WC = m.X_BW.inverse() * X_BC_real;
   const Intrinsics& K = config->intrinsics;
-  const RenderScene scene = m.Scene(*config);
+  std::vector<Impl::Extra> extras;
+  std::vector<std::shared_ptr<const TriangleMesh>> extra_meshes;
+  if (Status s = m.Extras(request, &extras, &extra_meshes); !s.ok()) return s;
+  const RenderScene scene = m.Scene(*config, &extras, std::move(extra_meshes));
   if (Status s = m.renderer->RenderInto(scene, K, X_WC, m.full); !s.ok()) return s;
 
   Frame frame;
@@ -205,6 +343,18 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     t.visible_fraction = t.unoccluded_pixels > 0
                              ? std::min(1.0, double(t.visible_pixels) / t.unoccluded_pixels)
                              : 0.0;
+    truth.parts.push_back(std::move(t));
+  }
+  const size_t first_extra = 1 + m.pile->parts().size();
+  for (size_t i = 0; i < extras.size(); ++i) {
+    if (!extras[i].truth) continue;
+    PartTruth t = *extras[i].truth;
+    t.visible_pixels = histogram[static_cast<uint16_t>(t.instance_id)];
+    auto unoccluded = m.UnoccludedPixels(scene, scene.instances[first_extra + i], K, X_WC);
+    if (!unoccluded.ok()) return unoccluded.status();
+    t.unoccluded_pixels = *unoccluded;
+    t.visible_fraction =
+        t.unoccluded_pixels > 0 ? std::min(1.0, double(t.visible_pixels) / t.unoccluded_pixels) : 0.0;
     truth.parts.push_back(std::move(t));
   }
 
@@ -238,9 +388,48 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   return frame;
 }
 
-void SyntheticSource::NotifyPicked(int instance_id) {
-  if (!impl_->cell.source.simulate_picks) return;
-  (void)impl_->pile->RemovePart(instance_id);  // unknown ids: nothing to remove
+void SyntheticSource::NotifyPicked(int instance_id, const std::optional<Pose>& X_BT) {
+  Impl& m = *impl_;
+  if (!m.cell.source.simulate_picks) return;
+  std::optional<HeldPartTruth> taken;
+  for (const PilePart& p : m.pile->parts()) {
+    if (p.instance_id != instance_id || !X_BT) continue;
+    // The part stays where the grasp met it, then slips.
+    HeldPartTruth h;
+    h.instance_id = p.instance_id;
+    h.class_id = p.class_id;
+    h.slip_T = Slip(m.cell.source, m.picks++);
+    h.X_TO = h.slip_T * X_BT->inverse() * m.X_BW * p.X_WO;
+    taken = h;
+  }
+  if (!m.pile->RemovePart(instance_id).ok()) return;  // unknown ids: nothing to remove
+  std::lock_guard lock(m.world_mutex);
+  if (taken) m.held = taken;
+}
+
+void SyntheticSource::NotifyReleased() {
+  std::lock_guard lock(impl_->world_mutex);
+  impl_->held.reset();
+  ++impl_->releases;
+}
+
+std::optional<HeldPartTruth> SyntheticSource::held() const {
+  std::lock_guard lock(impl_->world_mutex);
+  return impl_->held;
+}
+
+Result<Pose> SyntheticSource::fixture_truth(const std::string& name) const {
+  const FixtureSpec* fixture = impl_->cell.FindFixture(name);
+  if (fixture == nullptr) return Status::NotFound("synthetic source: no fixture '" + name + "'");
+  std::lock_guard lock(impl_->world_mutex);
+  return Pose(fixture->X_BP_taught *
+              FixtureOffset(impl_->cell.source, impl_->releases,
+                            static_cast<size_t>(fixture - impl_->cell.fixtures.data())));
+}
+
+int SyntheticSource::releases() const {
+  std::lock_guard lock(impl_->world_mutex);
+  return impl_->releases;
 }
 
 std::string SyntheticSource::Describe() const {

@@ -32,7 +32,17 @@ Result<std::unique_ptr<CaptureSource>> MakeSyntheticSource(const Cell& cell, Han
   } else {
     bin_mesh = MakeBinMesh(cell.bin);
   }
-  auto source = SyntheticSource::Create(cell, std::move(classes), bin_mesh, std::move(hand_eye));
+  // Gripper and fixture meshes only matter to in-hand and fixture views: one
+  // that does not load is left out (those views then fail naming it).
+  SceneMeshes scene;
+  for (const GripperSpec& g : cell.grippers) {
+    if (auto mesh = LoadMesh(g.mesh); mesh.ok()) scene.grippers[g.name] = std::make_shared<TriangleMesh>(std::move(*mesh));
+  }
+  for (const FixtureSpec& f : cell.fixtures) {
+    if (auto mesh = LoadMesh(f.mesh); mesh.ok()) scene.fixtures[f.name] = std::make_shared<TriangleMesh>(std::move(*mesh));
+  }
+  auto source =
+      SyntheticSource::Create(cell, std::move(classes), bin_mesh, std::move(hand_eye), std::move(scene));
   if (!source.ok()) return source.status();
   return std::unique_ptr<CaptureSource>(std::move(*source));
 }

@@ -82,8 +82,13 @@ TruthPerception::TruthPerception(Cell cell, TruthPerceptionOptions options)
     : cell_(std::move(cell)), options_(options) {}
 
 Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vector<int>& classes,
-                                              PerceptionEffort /*effort*/) const {
+                                              PerceptionEffort /*effort*/,
+                                              const std::optional<PerceptionRegion>& region) const {
   const auto t0 = std::chrono::steady_clock::now();
+  const Pose X_RB = region ? region->X_BR.inverse() : Pose::Identity();
+  const auto in_roi = [&](const Eigen::Vector3f& p_B) {
+    return region ? region->box_R.contains(X_RB * p_B.cast<double>()) : InRoi(cell_, p_B);
+  };
   PerceptionResult out;
   std::vector<uint16_t> label_of_point;
   const Eigen::Isometry3f X_BC = frame.X_BC.cast<float>();
@@ -95,7 +100,7 @@ Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vec
         const float z = frame.depth.at(u, v);
         if (!std::isfinite(z) || z <= 0.f) continue;
         const Eigen::Vector3f p_B = X_BC * Deproject(frame.intrinsics, static_cast<float>(u), static_cast<float>(v), z);
-        if (!InRoi(cell_, p_B)) continue;
+        if (!in_roi(p_B)) continue;
         out.roi_points_B.push_back(p_B);
         label_of_point.push_back(labelled ? frame.truth->labels.at(u, v) : 0);
       }
@@ -104,7 +109,7 @@ Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vec
     for (const auto& p_C : frame.points_C) {
       if (!p_C.allFinite()) continue;
       const Eigen::Vector3f p_B = X_BC * p_C;
-      if (InRoi(cell_, p_B)) out.roi_points_B.push_back(p_B);
+      if (in_roi(p_B)) out.roi_points_B.push_back(p_B);
     }
     label_of_point.assign(out.roi_points_B.size(), 0);
   }

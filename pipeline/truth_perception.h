@@ -31,9 +31,11 @@ struct TruthPerceptionOptions {
 class TruthPerception final : public Perception {
  public:
   explicit TruthPerception(Cell cell, TruthPerceptionOptions options = {});
-  // `effort` changes nothing: the truth is exact.
+  // `effort` changes nothing: the truth is exact. With a region, its box is
+  // the ROI.
   Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {},
-                               PerceptionEffort effort = PerceptionEffort::kNormal) const override;
+                               PerceptionEffort effort = PerceptionEffort::kNormal,
+                               const std::optional<PerceptionRegion>& region = std::nullopt) const override;
 
  private:
   Cell cell_;

@@ -42,7 +42,7 @@ struct ViewMatcher::Job {
 };
 
 ViewMatcher::ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
-                         const Frame& frame, const Eigen::Vector4d& floor_plane_B, const Segments& segments,
+                         const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
                          const FitRmsLimit& fit_limit)
     : options_(options), models_(models), thorough_(thorough), frame_(frame), floor_plane_B_(floor_plane_B),
       segments_(segments), fit_limit_(fit_limit) {}

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -77,7 +78,7 @@ class ViewMatcher {
  public:
   // Everything referenced must outlive the matcher.
   ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
-              const Frame& frame, const Eigen::Vector4d& floor_plane_B, const Segments& segments,
+              const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
               const FitRmsLimit& fit_limit);
 
   // Per view, in parallel: the classes that fit it ranked (RankClasses), the
@@ -109,7 +110,7 @@ class ViewMatcher {
   std::span<const ClassModel* const> models_;
   bool thorough_;
   const Frame& frame_;
-  Eigen::Vector4d floor_plane_B_;
+  std::optional<Eigen::Vector4d> floor_plane_B_;  // none: nothing rests on a support plane
   const Segments& segments_;
   const FitRmsLimit& fit_limit_;
   MatchCounts counts_;

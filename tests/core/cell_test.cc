@@ -408,6 +408,98 @@ TEST_F(CellFileTest, WorkspaceAndRankingAreParsedAndDefaultToUnboundedAndDefault
   EXPECT_DOUBLE_EQ(cell->tasks[0].ranking.tilt, 0.2);
 }
 
+// kBaseCell with a fixture and the three tasks that look elsewhere than the bin.
+std::string FixtureCell() {
+  std::string text = Mutate(kBaseCell, "tasks:\n", R"(fixtures:
+  - {class_id: 5, name: nest, mesh: meshes/nest.ply, taught_pose: {xyz: [0.3, 0.1, 0.0], rpy_deg: [0, 0, 90]},
+     part_pose: {xyz: [0, 0, 0.035]}}
+tasks:
+  - {id: 2, name: held, kind: in_hand, gripper: suction, roi: {min: [-0.1, -0.1, 0.002], max: [0.1, 0.1, 0.15]}}
+  - {id: 3, name: area, kind: place_area, gripper: suction, fixture: nest, roi: {min: [-0.07, -0.06, 0.002], max: [0.07, 0.06, 0.05]}}
+  - {id: 4, name: drop, kind: place, gripper: suction, fixture: nest, roi: {min: [-0.07, -0.06, 0.002], max: [0.07, 0.06, 0.05]}}
+)");
+  return Mutate(text, "  seed: 7", "  seed: 7\n  in_hand_slip: {translation: 0.01, rotation_deg: 10}");
+}
+
+TEST_F(CellFileTest, FixturesAndTheirTasksAreParsed) {
+  Touch(tmp_ / "meshes/nest.ply");
+  Result<Cell> cell = LoadCell(Write(FixtureCell()));
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  ASSERT_EQ(cell->fixtures.size(), 1u);
+  const FixtureSpec* nest = cell->FindFixture("nest");
+  ASSERT_NE(nest, nullptr);
+  EXPECT_EQ(cell->FindFixture(5), nest);
+  EXPECT_EQ(cell->FindFixture(0), nullptr);  // a part's class
+  EXPECT_EQ(nest->mesh, (tmp_ / "meshes/nest.ply").string());
+  EXPECT_TRUE(nest->X_BP_taught.translation().isApprox(Vec3(0.3, 0.1, 0.0)));
+  EXPECT_TRUE(nest->X_PO.translation().isApprox(Vec3(0, 0, 0.035)));
+  EXPECT_EQ(cell->FindTask(2)->kind, TaskSpec::Kind::kInHand);
+  EXPECT_TRUE(cell->FindTask(2)->roi.contains(Vec3(0.05, -0.05, 0.1)));
+  EXPECT_FALSE(cell->FindTask(2)->roi.contains(Vec3(0, 0, 0.001)));
+  EXPECT_EQ(cell->FindTask(3)->kind, TaskSpec::Kind::kPlaceArea);
+  EXPECT_EQ(cell->FindTask(3)->fixture, "nest");
+  EXPECT_EQ(cell->FindTask(4)->kind, TaskSpec::Kind::kPlace);
+  EXPECT_TRUE(cell->FindTask(0)->roi.isEmpty());  // picks look into the bin's roi
+  EXPECT_DOUBLE_EQ(cell->source.slip_translation, 0.01);
+  EXPECT_DOUBLE_EQ(cell->source.slip_rotation_deg, 10.0);
+  EXPECT_DOUBLE_EQ(cell->source.fixture_offset_translation, SourceSpec{}.fixture_offset_translation);
+  EXPECT_THAT(Describe(*cell), HasSubstr("fixtures: 5=nest taught at [0.300, 0.100, 0.000]"));
+}
+
+TEST_F(CellFileTest, FixtureMistakesAreRejectedWithTheirKeyPath) {
+  Touch(tmp_ / "meshes/nest.ply");
+  const std::string base = FixtureCell();
+  struct Case {
+    const char* from;
+    const char* to;
+    const char* key;
+    const char* reason;
+  };
+  const Case cases[] = {
+      {"class_id: 5, name: nest", "class_id: 1, name: nest", "fixtures[0].class_id", "already a part's"},
+      {"mesh: meshes/nest.ply", "mesh: meshes/none.ply", "fixtures[0].mesh", "does not exist"},
+      {"kind: place_area, gripper: suction, fixture: nest", "kind: place_area, gripper: suction, fixture: tray",
+       "tasks[1].fixture", "unknown fixture 'tray'"},
+      {"kind: place_area, gripper: suction, fixture: nest,", "kind: place_area, gripper: suction,", "tasks[1].fixture",
+       "missing required key"},
+      {"kind: in_hand, gripper: suction, roi: {min: [-0.1, -0.1, 0.002], max: [0.1, 0.1, 0.15]}",
+       "kind: in_hand, gripper: suction", "tasks[0].roi", "missing required key"},
+      {"kind: in_hand, gripper: suction, roi: {min: [-0.1, -0.1, 0.002], max: [0.1, 0.1, 0.15]}",
+       "kind: in_hand, gripper: suction, roi: {min: [-0.1, -0.1, 0.2], max: [0.1, 0.1, 0.15]}", "tasks[0].roi.max",
+       "must be > min"},
+      {"{id: 0, name: pick, kind: pick, gripper: suction}",
+       "{id: 0, name: pick, kind: pick, gripper: suction, fixture: nest}", "tasks[3].fixture",
+       "only place and place_area tasks"},
+      {"{id: 0, name: pick, kind: pick, gripper: suction}",
+       "{id: 0, name: pick, kind: pick, gripper: suction, roi: {min: [0, 0, 0], max: [1, 1, 1]}}", "tasks[3].roi",
+       "only in_hand, place and place_area tasks"},
+      {"  mount: eye_to_hand", "  mount: eye_in_hand", "tasks[0].kind", "needs an eye_to_hand camera"},
+      {"in_hand_slip: {translation: 0.01", "in_hand_slip: {translation: -0.01", "source.in_hand_slip.translation",
+       "must be in [0, 0.1] m"},
+  };
+  for (const Case& c : cases) {
+    Result<Cell> cell = LoadCell(Write(Mutate(base, c.from, c.to)));
+    ASSERT_FALSE(cell.ok()) << c.key << " was accepted";
+    EXPECT_THAT(cell.status().message(), HasSubstr(c.key));
+    EXPECT_THAT(cell.status().message(), HasSubstr(c.reason));
+  }
+}
+
+TEST(Workspace, NamesTheFlangePositionAndTheFirstLimitItBreaks) {
+  RobotSpec robot;
+  robot.workspace = Eigen::AlignedBox3d(Vec3(-1.3, -1.3, -0.2), Vec3(1.3, 1.3, 1.5));
+  EXPECT_TRUE(CheckWorkspace(robot, MakePose(Mat3::Identity(), Vec3(0.5, -0.2, 0.3))).ok());
+  EXPECT_TRUE(CheckWorkspace(robot, MakePose(Mat3::Identity(), Vec3(1.3, -1.3, -0.2))).ok());  // on the faces
+  const Status below = CheckWorkspace(robot, MakePose(Mat3::Identity(), Vec3(0.12, -0.06, -0.3)));
+  EXPECT_EQ(below.code(), Status::Code::kOutOfRange);
+  EXPECT_EQ(below.message(), "flange at (0.120, -0.060, -0.300) m is outside robot.workspace: z -0.300 < min -0.200");
+  const Status far = CheckWorkspace(robot, MakePose(Mat3::Identity(), Vec3(1.4, 0, 2)));
+  EXPECT_THAT(far.message(), HasSubstr("x 1.400 > max 1.300"));
+  const Status nan = CheckWorkspace(robot, MakePose(Mat3::Identity(), Vec3(NAN, 0, 0)));
+  EXPECT_FALSE(nan.ok());
+  EXPECT_TRUE(CheckWorkspace(RobotSpec{}, MakePose(Mat3::Identity(), Vec3(100, -100, 100))).ok());  // unbounded
+}
+
 TEST_F(CellFileTest, SourceVarietyIsParsedAndAbsentByDefault) {
   Result<Cell> plain = LoadCell(Write(kBaseCell));
   ASSERT_TRUE(plain.ok()) << plain.status().ToString();
@@ -778,7 +870,8 @@ TEST_F(CellFileTest, EmptyBoxReferenceResolutionIsReadAndChecked) {
 // The default cell's meshes, as empty files in a temp assets dir: the loader
 // only checks that they exist.
 const char* const kDefaultMeshes[] = {"parts/flanged_bushing.ply", "parts/l_bracket.ply", "parts/pipe_tee.ply",
-                                      "grippers/suction_cup.ply", "grippers/parallel_jaw.ply"};
+                                      "grippers/suction_cup.ply", "grippers/parallel_jaw.ply",
+                                      "fixtures/place_nest.ply"};
 
 TEST(DefaultCell, LoadsWithItsPartsGrippersTasksAndConfigs) {
   const fs::path assets = testing::FreshDir("assets");
@@ -802,7 +895,14 @@ TEST(DefaultCell, LoadsWithItsPartsGrippersTasksAndConfigs) {
   EXPECT_EQ(cell->FindGripper("parallel")->kind, GripperSpec::Kind::kParallelJaw);
   EXPECT_NE(cell->FindTask(0), nullptr);
   EXPECT_NE(cell->FindTask(1), nullptr);
+  // Seed 003's program switches to tasks 0 (pick), 1 (in hand) and 3 (place area).
+  EXPECT_EQ(cell->FindTask(0)->kind, TaskSpec::Kind::kPick);
+  EXPECT_EQ(cell->FindTask(1)->kind, TaskSpec::Kind::kInHand);
   EXPECT_EQ(cell->FindTask(2)->kind, TaskSpec::Kind::kPlace);
+  EXPECT_EQ(cell->FindTask(3)->kind, TaskSpec::Kind::kPlaceArea);
+  ASSERT_NE(cell->FindFixture(cell->FindTask(3)->fixture), nullptr);
+  EXPECT_EQ(cell->FindFixture(cell->FindTask(3)->fixture)->mesh,
+            (assets / "fixtures/place_nest.ply").lexically_normal().string());
   EXPECT_EQ(cell->camera.default_config, 1);
   ASSERT_NE(cell->camera.FindConfig(1), nullptr);
   ASSERT_NE(cell->camera.FindConfig(2), nullptr);

@@ -672,6 +672,43 @@ TEST(MeshGen, ParallelJawLeavesTheOpeningFreeBetweenFingers) {
   EXPECT_LT(NearestTriangle(m, V3(-0.03, 0, 0.0)).distance, 1e-9);
 }
 
+TEST(MeshGen, PlaceNestIsOneClosedSolidWithoutSymmetryAndSlopesACameraAboveSees) {
+  const PlaceNestParams p;
+  const TriangleMesh m = MakePlaceNest(p);
+  EXPECT_TRUE(IsWatertight(m));
+  // Plate plus a frustum with rectangular ends (prismatoid: h/6 (A0 + 4 Am + A1)).
+  using V2 = Eigen::Vector2d;
+  const V2 b = p.base_max - p.base_min, t = p.top_max - p.top_min, mid = (b + t) / 2;
+  const double frustum = p.pyramid_height / 6 * (b.prod() + 4 * mid.prod() + t.prod());
+  const double analytic = p.plate_size.prod() * p.plate_thickness + frustum;
+  EXPECT_NEAR(SignedVolume(m) / analytic, 1.0, 1e-6);
+  ExpectBounds(m, V3(-0.055, -0.045, 0), V3(0.055, 0.045, 0.035));
+  EXPECT_FALSE(VertexSetInvariant(m, RotZ(kPi)));
+  EXPECT_FALSE(VertexSetInvariant(m, RotZ(kPi / 2)));
+  Eigen::Affine3d mirror_x = Eigen::Affine3d::Identity(), mirror_y = Eigen::Affine3d::Identity();
+  mirror_x.linear()(0, 0) = -1;
+  mirror_y.linear()(1, 1) = -1;
+  EXPECT_FALSE(VertexSetInvariant(m, mirror_x));
+  EXPECT_FALSE(VertexSetInvariant(m, mirror_y));
+  // The four slopes face up and out, 40 to 60 deg from the vertical: seen by
+  // a camera above, well before the depth camera's grazing dropout.
+  const double z_mid = p.plate_thickness + p.pyramid_height / 2;
+  const V2 mid_lo = (p.base_min + p.top_min) / 2, mid_hi = (p.base_max + p.top_max) / 2;
+  const V2 c = (mid_lo + mid_hi) / 2;
+  const std::vector<std::pair<V3, V3>> faces = {  // a point 1 mm inside each slope, mid-height; its outward side
+      {V3(mid_hi.x() - 0.001, c.y(), z_mid), V3(1, 0, 0)},
+      {V3(mid_lo.x() + 0.001, c.y(), z_mid), V3(-1, 0, 0)},
+      {V3(c.x(), mid_hi.y() - 0.001, z_mid), V3(0, 1, 0)},
+      {V3(c.x(), mid_lo.y() + 0.001, z_mid), V3(0, -1, 0)}};
+  for (const auto& [probe, dir] : faces) {
+    const Nearest slope = NearestTriangle(m, probe);
+    const double from_vertical = std::acos(slope.normal.z()) * 180 / kPi;
+    EXPECT_GT(slope.normal.dot(dir), 0.5) << dir.transpose();
+    EXPECT_GT(from_vertical, 40) << dir.transpose();
+    EXPECT_LT(from_vertical, 60) << dir.transpose();
+  }
+}
+
 // The committed files under assets/ are what the generator makes today.
 TEST(MeshGen, CommittedAssetsMatchTheGenerator) {
   const std::string assets = TestAssetsDir();
@@ -681,7 +718,8 @@ TEST(MeshGen, CommittedAssetsMatchTheGenerator) {
   const std::vector<std::pair<std::string, TriangleMesh>> expected = {
       {"parts/flanged_bushing.ply", MakeFlangedBushing()}, {"parts/l_bracket.ply", MakeLBracket()},
       {"parts/pipe_tee.ply", MakePipeTee()},               {"grippers/suction_cup.ply", MakeSuctionGripper()},
-      {"grippers/parallel_jaw.ply", MakeParallelJawGripper()}, {"bin/default_bin.ply", MakeBinMesh(bin)}};
+      {"grippers/parallel_jaw.ply", MakeParallelJawGripper()}, {"bin/default_bin.ply", MakeBinMesh(bin)},
+      {"fixtures/place_nest.ply", MakePlaceNest()}};
   for (const auto& [name, mesh] : expected) {
     const Result<TriangleMesh> loaded = LoadMesh(assets + "/" + name);
     ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();

@@ -28,9 +28,9 @@ Cell SyntheticCell(int parts, uint64_t seed) {
 class ShiftedTruth final : public Perception {
  public:
   ShiftedTruth(const Cell& cell, const Pose& offset) : truth_(cell), offset_(offset) {}
-  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
-                               PerceptionEffort effort) const override {
-    Result<PerceptionResult> r = truth_.Run(frame, classes, effort);
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort, region);
     if (r.ok()) {
       for (Detection& d : r->detections) d.X_BO = d.X_BO * offset_;
     }

@@ -115,9 +115,9 @@ TEST(BinPickingPlanner, AnEmptyBinIsNoObjectsAndEmpty) {
 class FindsOnlyWhenThorough final : public Perception {
  public:
   explicit FindsOnlyWhenThorough(const Cell& cell) : truth_(cell) {}
-  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes,
-                               PerceptionEffort effort) const override {
-    Result<PerceptionResult> r = truth_.Run(frame, classes, effort);
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort, region);
     if (!r.ok()) return r;
     if (effort == PerceptionEffort::kThorough) {
       ++thorough_runs;
@@ -314,28 +314,127 @@ TEST(TeachStore, RefusesGraspsBeyondTheCapPerClassAndGripper) {
   std::filesystem::remove(file);
 }
 
-TEST(BinPickingPlanner, InHandAndPlaceTasksReportPosesRelativeToFlangeAndReference) {
-  Cell cell = SyntheticCell(1, 3);
-  auto planner = MakeOraclePlanner(cell);
-  const Pose X_BF = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.5, 0.1, 0.6));
-  TaskSpec in_hand = *cell.FindTask(0);
-  in_hand.kind = TaskSpec::Kind::kInHand;
-  PlanRequest request{in_hand, X_BF, 0};
-  auto scene = planner->Capture(request);
-  ASSERT_TRUE(scene.ok());
-  const Pose X_BO = static_cast<const CapturedFrame&>(**scene).frame().truth->parts.at(0).X_BO;
-  auto plan = planner->Plan(request, **scene);
-  ASSERT_TRUE(plan.ok());
-  ASSERT_EQ(plan->grasps.size(), 1u);
-  EXPECT_TRUE((X_BF * plan->grasps[0].X_BT).isApprox(X_BO, 1e-9));
-  request.X_BF.reset();
-  EXPECT_FALSE(planner->Plan(request, **scene).ok());  // in-hand needs the robot pose
+// Where the seed 003 robot holds the part up to the camera (adjust_det_pose):
+// 0.5 m below the camera, tool pointing up at it.
+Pose InHandPose() { return MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.7, 0.0, 0.55)); }
 
-  const TaskSpec place = *cell.FindTask(2);
-  auto placed = planner->Plan({place, std::nullopt, 0}, **scene);
-  ASSERT_TRUE(placed.ok());
-  ASSERT_EQ(placed->grasps.size(), 1u);
-  EXPECT_TRUE((placed->grasps[0].X_BT * place.place_reference).isApprox(X_BO, 1e-9));
+// The oracle planner and its source (the planner owns it).
+struct OracleRig {
+  SyntheticSource* source = nullptr;
+  std::unique_ptr<BinPickingPlanner> planner;
+  Result<PlanResult> CaptureAndPlan(const TaskSpec& task, const std::optional<Pose>& X_BT) {
+    const PlanRequest request{task, X_BT, 0};
+    Result<CaptureHandle> scene = planner->Capture(request);
+    if (!scene.ok()) return scene.status();
+    return planner->Plan(request, **scene);
+  }
+};
+OracleRig MakeOracleRig(const Cell& cell) {
+  auto source = MakeSyntheticSource(cell);
+  EXPECT_TRUE(source.ok()) << source.status().ToString();
+  OracleRig rig;
+  rig.source = dynamic_cast<SyntheticSource*>(source->get());
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  rig.planner =
+      std::move(BinPickingPlanner::Create(cell, std::make_shared<TruthPerception>(cell), std::move(*source), options))
+          .value();
+  return rig;
+}
+
+TEST(BinPickingPlanner, InHandAnswersThePartInTheToolWhereTheGraspReallyMetIt) {
+  Cell cell = SyntheticCell(3, 5);
+  cell.source.slip_translation = 0.008;
+  cell.source.slip_rotation_deg = 6;
+  OracleRig rig = MakeOracleRig(cell);
+  const TaskSpec& pick = *cell.FindTask(0);
+  const TaskSpec& in_hand = *cell.FindTask(1);
+  ASSERT_EQ(in_hand.kind, TaskSpec::Kind::kInHand);
+
+  // Nothing in the gripper yet: the camera sees the gripper, which the roi
+  // leaves out: no part.
+  const PlanRequest look{in_hand, InHandPose(), 0};
+  Result<CaptureHandle> gripper_only = rig.planner->Capture(look);
+  ASSERT_TRUE(gripper_only.ok()) << gripper_only.status().ToString();
+  const LabelImage& labels = static_cast<const CapturedFrame&>(**gripper_only).frame().truth->labels;
+  EXPECT_GT(std::count(labels.data.begin(), labels.data.end(), SyntheticSource::kToolLabel), 500);
+  Result<PlanResult> empty = rig.planner->Plan(look, **gripper_only);
+  ASSERT_TRUE(empty.ok()) << empty.status().ToString();
+  EXPECT_EQ(empty->outcome, PlanResult::Outcome::kNoObjects);
+  EXPECT_EQ(empty->roi_points, 0);
+
+  Result<PlanResult> picks = rig.CaptureAndPlan(pick, std::nullopt);
+  ASSERT_TRUE(picks.ok());
+  ASSERT_EQ(picks->outcome, PlanResult::Outcome::kGrasps) << picks->message;
+  const Grasp grasp = picks->grasps.front();
+  rig.planner->NotifyHandedOut(pick, grasp);
+  const std::optional<HeldPartTruth> held = rig.source->held();
+  ASSERT_TRUE(held.has_value());
+  EXPECT_GT(held->slip_T.translation().norm(), 1e-4);  // it slipped
+  // What binpick believes it holds before looking: the grasp against its detected part.
+  ASSERT_TRUE(rig.planner->held().has_value());
+  EXPECT_FALSE(rig.planner->held()->measured);
+  EXPECT_TRUE(rig.planner->held()->X_TO.isApprox(grasp.X_BT.inverse() * grasp.X_BO, 1e-9));
+
+  Result<PlanResult> seen = rig.CaptureAndPlan(in_hand, InHandPose());
+  ASSERT_TRUE(seen.ok()) << seen.status().ToString();
+  ASSERT_EQ(seen->outcome, PlanResult::Outcome::kGrasps) << seen->message;
+  ASSERT_EQ(seen->grasps.size(), 1u);
+  EXPECT_EQ(seen->grasps[0].class_id, grasp.class_id);
+  EXPECT_TRUE(seen->grasps[0].X_BT.isApprox(held->X_TO, 1e-6));  // X_TO, the oracle's exact pose
+  EXPECT_TRUE(seen->grasps[0].implied_X_BT.empty());
+  rig.planner->NotifyHandedOut(in_hand, seen->grasps[0]);
+  EXPECT_TRUE(rig.planner->held()->measured);
+  EXPECT_TRUE(rig.source->held().has_value());  // looking takes nothing out of the gripper
+
+  const Result<PlanResult> blind = rig.planner->Plan({in_hand, std::nullopt, 0}, CapturedFrame(Frame{}));
+  EXPECT_EQ(blind.status().code(), Status::Code::kInvalidArgument);  // in-hand needs the robot's pose
+}
+
+TEST(BinPickingPlanner, PlaceAreaAnswersTheFixturesOffsetAndReleasesThePart) {
+  Cell cell = SyntheticCell(3, 5);
+  OracleRig rig = MakeOracleRig(cell);
+  const TaskSpec& pick = *cell.FindTask(0);
+  const TaskSpec& place_area = *cell.FindTask(3);
+  const TaskSpec& drop_off = *cell.FindTask(2);
+  const FixtureSpec& nest = *cell.FindFixture(place_area.fixture);
+
+  // Seed 000's drop-off needs a part handed out first.
+  Result<PlanResult> nothing_held = rig.CaptureAndPlan(drop_off, std::nullopt);
+  ASSERT_TRUE(nothing_held.ok()) << nothing_held.status().ToString();
+  EXPECT_EQ(nothing_held->outcome, PlanResult::Outcome::kNoObjects);
+  EXPECT_EQ(nothing_held->detections, 1);  // the fixture was seen
+
+  Result<PlanResult> picks = rig.CaptureAndPlan(pick, std::nullopt);
+  ASSERT_TRUE(picks.ok());
+  rig.planner->NotifyHandedOut(pick, picks->grasps.front());
+  const Pose X_TO = rig.planner->held()->X_TO;
+
+  const Pose X_BP = rig.source->fixture_truth(nest.name).value();
+  EXPECT_FALSE(X_BP.isApprox(nest.X_BP_taught, 1e-6));  // it stands off its taught pose
+  Result<PlanResult> area = rig.CaptureAndPlan(place_area, std::nullopt);
+  ASSERT_TRUE(area.ok()) << area.status().ToString();
+  ASSERT_EQ(area->outcome, PlanResult::Outcome::kGrasps) << area->message;
+  const Grasp& offset = area->grasps.at(0);
+  EXPECT_EQ(offset.class_id, nest.class_id);
+  EXPECT_TRUE((offset.X_BT * nest.X_BP_taught).isApprox(X_BP, 1e-6));  // X_off * X_BP_taught = X_BP
+  // The place seed 003's program computes from it, checked before sending.
+  ASSERT_EQ(offset.implied_X_BT.size(), 1u);
+  EXPECT_TRUE(offset.implied_X_BT[0].isApprox(X_BP * nest.X_PO * X_TO.inverse(), 1e-6));
+
+  // Seed 000's drop-off is that tool pose itself.
+  Result<PlanResult> drop = rig.CaptureAndPlan(drop_off, std::nullopt);
+  ASSERT_TRUE(drop.ok());
+  ASSERT_EQ(drop->outcome, PlanResult::Outcome::kGrasps) << drop->message;
+  EXPECT_TRUE(drop->grasps[0].X_BT.isApprox(X_BP * nest.X_PO * X_TO.inverse(), 1e-6));
+  EXPECT_NEAR((drop->grasps[0].X_BT.inverse() * drop->grasps[0].X_BT_pre).translation().z(), -0.08, 1e-9);
+
+  // Handing the offset out lets go of the part; the next fixture stands elsewhere.
+  rig.planner->NotifyHandedOut(place_area, offset);
+  EXPECT_FALSE(rig.source->held().has_value());
+  EXPECT_FALSE(rig.planner->held().has_value());
+  EXPECT_EQ(rig.source->releases(), 1);
+  EXPECT_FALSE(rig.source->fixture_truth(nest.name)->isApprox(X_BP, 1e-6));
 }
 
 TEST(BinClearing, AShortClearHasNoGroundTruthCollisionsAndEndsEmpty) {
