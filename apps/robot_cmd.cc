@@ -38,6 +38,8 @@ int RunRobotCommand(int argc, char** argv) {
   app.add_option("--flow", flow.flow, flows)->required();
   app.add_option("--task", flow.task_id, "task id (payload_1)");
   app.add_option("--place-task", flow.place_task_id, "pick-place: the place task id");
+  app.add_option("--in-hand-task", flow.in_hand_task_id, "pick-correct-place: the in_hand task id");
+  app.add_option("--place-area-task", flow.place_area_task_id, "pick-correct-place: the place_area task id");
   app.add_option("--config", flow.config_id, "switch-config: camera config id");
   app.add_option("--max-cycles", flow.max_cycles, "pick: capture cycles at most");
   app.add_option("--poses", flow.manual_poses, "calib-manual / calib-guidance: poses to send");
@@ -46,7 +48,8 @@ int RunRobotCommand(int argc, char** argv) {
   app.add_option("--cell", cell_path,
                  "calib-manual / calib-auto / calib-guidance: the server's cell (default: the embedded "
                  "default cell); with a calibration section the robot starts where the board faces the "
-                 "camera, as `binpick calib` does");
+                 "camera, as `binpick calib` does. pick-correct-place: the taught obj_in_Place is the "
+                 "place_area task's fixture taught pose * part_pose");
   bool modbus = false;
   int unit_id = 1;
   int wait_master_s = 60;
@@ -70,6 +73,19 @@ int RunRobotCommand(int argc, char** argv) {
       return 2;
     }
     if (cell->calibration) flow.calib_start_X_BF = BoardFacingStartPose(*cell);
+  }
+  if (flow.flow == "pick-correct-place") {
+    Result<Cell> cell = LoadCellOrDefault(cell_path);
+    const TaskSpec* task = cell.ok() ? cell->FindTask(flow.place_area_task_id) : nullptr;
+    const FixtureSpec* fixture = task ? cell->FindFixture(task->fixture) : nullptr;
+    if (fixture == nullptr) {
+      std::cerr << "binpick robot: "
+                << (cell.ok() ? "task " + std::to_string(flow.place_area_task_id) + " of the cell has no fixture"
+                              : cell.status().ToString())
+                << "\n";
+      return 2;
+    }
+    flow.obj_in_place = fixture->X_BP_taught * fixture->X_PO;
   }
   const std::optional<RobotModel> model = FindRobotModel(robot);
   if (!model) {

@@ -19,6 +19,7 @@
 #include "core/sanitizers.h"
 #include "grasp/empty_box.h"
 #include "grasp/grasp_queue.h"
+#include "grasp/robot_targets.h"
 
 namespace bp {
 namespace {
@@ -598,6 +599,10 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
                   t.spec.id, plan.status().ToString());
     result.outcome = PlanResult::Outcome::kPlannerFailed;
   }
+  // A grasp that would send the robot outside its workspace never enters
+  // the queue (grasp/robot_targets.h; the link's range is checked later,
+  // at the pop: docs/protocols.md "Poses the robot moves to").
+  DropUnreachable(cell_, t.spec, result);
   const auto t2 = std::chrono::steady_clock::now();
   const auto ms = std::chrono::duration<double, std::milli>(t2 - t0);
   spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
@@ -687,6 +692,8 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f, ClientContext*
   return [this, &t, f, client]() -> std::optional<Response> {
     // The answer for a grasp, as the robot will read it; OutOfRange when a
     // field does not fit the wire (int32, or the transport's range).
+    // DROP_OFF_POSE only where seed 000 defines it (its place task); seed
+    // 003's in_hand and place_area answers are OBJECTS_FOUND (docs/protocols.md "Task kinds").
     const int32_t found =
         t.spec.kind == TaskSpec::Kind::kPlace ? daoai::kDropOffPose : daoai::kObjectsFound;
     auto answer_for = [&](const Grasp& g, int remaining) -> Result<Response> {
@@ -782,8 +789,16 @@ void RequestHandler::Impl::AutoView(CalibrationKind kind, const Pose& X_BF,
                  step.status().ToString());
   }
   const bool complete = step.ok() && step->done;
-  if (complete || failed_views_in_a_row_ >= kMaxFailedViewsInARow) {
-    if (!complete) {
+  // A planned view the robot cannot reach is never sent (docs/protocols.md
+  // "Poses the robot moves to"): the calibration ends there as after failed
+  // views, with DONE, the one status the seed's loop leaves on.
+  const std::optional<Pose> next = step.ok() && !complete ? step->next_X_BF : std::nullopt;
+  const Status reachable = next ? CheckWorkspace(cell_.robot, *next) : Status::Ok();
+  if (complete || failed_views_in_a_row_ >= kMaxFailedViewsInARow || !reachable.ok()) {
+    if (!reachable.ok()) {
+      spdlog::error("daoai: the calibration's next planned view is not sent: {}; ending the "
+                    "calibration with the views it has", reachable.message());
+    } else if (!complete) {
       spdlog::error("daoai: {} calibration views in a row failed; ending the calibration with the "
                     "views it has", failed_views_in_a_row_);
     }
@@ -795,7 +810,7 @@ void RequestHandler::Impl::AutoView(CalibrationKind kind, const Pose& X_BF,
   }
   // A failed view is skipped: the next planned pose, or the robot's own
   // when nothing is planned yet (the start view: it tries again there).
-  answer(mode, step.ok() ? step->next_X_BF : std::nullopt);
+  answer(mode, next);
 }
 
 void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pose>& pose,

@@ -47,6 +47,13 @@ Pose PlaneCentrePose() {
   return MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.0, 0.0, 0.3));
 }
 
+// seed 003 adjust_det_pose: where the robot shows the camera the part it
+// holds: 0.5 m under the default cell's camera, tool pointing up at it,
+// turned 0.4 rad about the vertical so a part's features are not axis-aligned.
+Pose AdjustDetectionPose() {
+  return MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.7, 0.0, 0.55));
+}
+
 class Runner {
  public:
   Runner(RobotClient& robot, std::ostream& out) : robot_(robot), out_(out) {}
@@ -215,6 +222,58 @@ Status PickPlaceFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   return Status::Ok();
 }
 
+// seed 003's daoai_capture_and_process() then daoai_get_picking_pose() at
+// `at`: the answer's pose, or none (the program stays in its stage).
+Result<std::optional<Pose>> CaptureAndAsk(RobotClient& robot, Runner& run, int task, const Pose& at) {
+  Result<bool> captured = CaptureAt(robot, run, task, at);
+  if (!captured.ok()) return captured.status();
+  if (!*captured) return std::optional<Pose>();
+  Result<RobotReply> reply = run.Call(daoai::kPickPose, task);
+  if (!reply.ok()) return reply.status();
+  if (!PickPoseOk(*reply) || !reply->X_BT) return std::optional<Pose>();
+  return std::optional<Pose>(*reply->X_BT);
+}
+
+// seed 003 "Robot Program", one pass of its stages per cycle: pick (task 0)
+// from detection_pose, look at the part in the gripper (task 1) at
+// adjust_det_pose (obj_in_tool), look at the place area (task 3) from
+// place_det_pose (place_in_base), then tool_in_base = place_in_base *
+// obj_in_Place * obj_in_tool^-1, reached through pre_drop_pose (0.1 m above).
+// A stage without an answer ends the flow: the pick stage's as the pick
+// flow's (nothing left), the other two as a failure.
+Status PickCorrectPlaceFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
+  FlowSummary& s = run.summary();
+  if (!o.obj_in_place) return Status::InvalidArgument("pick-correct-place needs the taught obj_in_Place");
+  for (int cycle = 0; cycle < o.max_cycles; ++cycle) {
+    Result<std::optional<Pose>> pick = CaptureAndAsk(robot, run, o.task_id, DetectionPose());
+    if (!pick.ok()) return pick.status();
+    if (!*pick) return Status::Ok();
+    ++s.picks;
+    s.pick_poses.push_back(**pick);
+    robot.SetPose(**pick);  // MoveJ pick_pose
+    Result<std::optional<Pose>> obj_in_tool = CaptureAndAsk(robot, run, o.in_hand_task_id, AdjustDetectionPose());
+    if (!obj_in_tool.ok()) return obj_in_tool.status();
+    Result<std::optional<Pose>> place_in_base =
+        *obj_in_tool ? CaptureAndAsk(robot, run, o.place_area_task_id, DetectionPose())
+                     : Result<std::optional<Pose>>(std::optional<Pose>());
+    if (!place_in_base.ok()) return place_in_base.status();
+    if (!*obj_in_tool || !*place_in_base) {
+      s.ok = false;
+      return Status::Ok();
+    }
+    const Pose obj_in_base = **place_in_base * *o.obj_in_place;
+    const Pose tool_in_base = obj_in_base * (**obj_in_tool).inverse();
+    const Pose pre_drop = MakePose(Mat3::Identity(), Vec3(0, 0, 0.1)) * tool_in_base;
+    robot.SetPose(pre_drop);      // MoveJ pre_drop_pose
+    robot.SetPose(tool_in_base);  // MoveJ tool_in_base
+    robot.SetPose(pre_drop);
+    s.obj_in_tool.push_back(**obj_in_tool);
+    s.place_in_base.push_back(**place_in_base);
+    s.place_poses.push_back(tool_in_base);
+  }
+  return Status::Ok();
+}
+
 Status ManualCalibrationFlow(RobotClient& robot, Runner& run, const FlowOptions& o) {
   FlowSummary& s = run.summary();
   const Pose start_pose = o.calib_start_X_BF.value_or(DetectionPose());
@@ -310,7 +369,7 @@ Status GuidanceCalibrationFlow(RobotClient& robot, Runner& run, const FlowOption
 
 const std::vector<std::string>& FlowNames() {
   static const std::vector<std::string> kNames = {
-      "pick",        "pick-place",    "calib-manual", "calib-auto", "calib-auto-2d",
+      "pick",        "pick-place",    "pick-correct-place", "calib-manual", "calib-auto", "calib-auto-2d",
       "calib-guidance", "empty-check", "teach",      "switch-config", "precision", "pick-2d"};
   return kNames;
 }
@@ -325,6 +384,8 @@ Result<FlowSummary> RunFlow(RobotClient& robot, const FlowOptions& o, std::ostre
     st = Pick2DFlow(robot, run, o);
   } else if (o.flow == "pick-place") {
     st = PickPlaceFlow(robot, run, o);
+  } else if (o.flow == "pick-correct-place") {
+    st = PickCorrectPlaceFlow(robot, run, o);
   } else if (o.flow == "calib-manual") {
     st = ManualCalibrationFlow(robot, run, o);
   } else if (o.flow == "calib-auto") {

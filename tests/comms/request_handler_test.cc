@@ -65,6 +65,74 @@ TEST(RequestHandler, ScalesPositionsByTheCellsPositionUnit) {
   EXPECT_EQ(pick->position, (std::array<int32_t, 3>{5000000, -1000000, 1000000}));
 }
 
+TEST(RequestHandler, GraspsOutsideTheWorkspaceNeverEnterTheQueue) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  Cell cell = MakeTestCell();
+  // Scripted grasps stand at x = 0.50, 0.51, 0.52 m: the first inside.
+  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(-2, -2, -2), Vec3(0.505, 2, 2));
+  ScriptedPlanner::Script script;
+  script.grasps = 3;
+  planner->SetScript(0, script);
+  RequestHandler handler(cell, planner, nullptr);
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  const auto first = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(first);
+  EXPECT_EQ(first->status, daoai::kObjectsFound);
+  EXPECT_EQ(first->position[0], 5000);
+  EXPECT_EQ(first->payload[0], 10000);  // the two outside are not counted: never queued
+  const auto rest = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(rest);
+  EXPECT_EQ(rest->status, daoai::kNoObjectFound);
+  EXPECT_EQ(planner->handed_out().size(), 1u);
+}
+
+TEST(RequestHandler, APlanWithEveryGraspOutsideTheWorkspaceIsNoSafePoseWithTheRobotsOwnPose) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  Cell cell = MakeTestCell();
+  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(-2, -2, -2), Vec3(0.45, 2, 2));
+  ScriptedPlanner::Script script;
+  script.grasps = 3;
+  planner->SetScript(0, script);
+  RequestHandler handler(cell, planner, nullptr);
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  const auto answer = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(answer);
+  EXPECT_EQ(answer->status, daoai::kNoCollisionFreePose);
+  EXPECT_EQ(answer->position, (std::array<int32_t, 3>{5000, -2500, 3000}));  // where it is
+  EXPECT_TRUE(planner->handed_out().empty());
+}
+
+// Proposes a next auto-calibration pose 1 m below the robot.
+class SinkingCalibrationService final : public CalibrationService {
+ public:
+  Status Start(CalibrationKind, const Pose&) override { return Status::Ok(); }
+  Result<CalibrationStep> Accumulate(CalibrationKind, const Pose& X_BF) override {
+    CalibrationStep step;
+    step.next_X_BF = MakePose(Mat3::Identity(), Vec3(0, 0, -1)) * X_BF;
+    return step;
+  }
+  Status Finish(CalibrationKind) override { return Status::Ok(); }
+};
+
+TEST(RequestHandler, AnAutoCalibrationPoseOutsideTheWorkspaceIsNotSent) {
+  Cell cell = MakeTestCell();
+  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(-2, -2, -0.2), Vec3(2, 2, 2));
+  RequestHandler handler(cell, std::make_shared<ScriptedPlanner>(), std::make_unique<SinkingCalibrationService>());
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kStartAutoCalibration), client)->status, daoai::kModeAutoCalibration);
+  // The robot at z = 0.3 m; the proposed z = -0.7 m breaks z >= -0.2: not
+  // sent; the calibration ends with DONE (the seed's loop leaves on it), the
+  // robot's own pose in the answer.
+  const auto next = handler.Handle(Req(daoai::kAutoAccumulatePose), client);
+  ASSERT_TRUE(next);
+  EXPECT_EQ(next->status, daoai::kDoneCalibration);
+  EXPECT_EQ(next->position, (std::array<int32_t, 3>{5000, -2500, 3000}));
+  // The calibration ended: a further accumulate is outside it.
+  EXPECT_EQ(handler.Handle(Req(daoai::kAutoAccumulatePose), client)->status, daoai::kUnknownCommand);
+}
+
 TEST(RequestHandler, EmptyBoxRuleNeedsFewPointsAndNoDetections) {
   auto planner = std::make_shared<ScriptedPlanner>();
   Cell cell = MakeTestCell();
