@@ -31,6 +31,7 @@ Command InfoCommand();
 Command RobotCommand();
 Command EvalCommand();  // eval_cmd.cc
 Command ClearCommand();  // clear_cmd.cc
+Command PlaceCommand();  // place_cmd.cc
 Command CalibCommand();  // calib_cmd.cc
 Command ReplayCommand();  // replay_cmd.cc
 Command ReplayMergeCommand();  // replay_merge_cmd.cc

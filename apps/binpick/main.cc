@@ -41,8 +41,9 @@ int main(int argc, char** argv) {
   std::string log_level = "warn";
   app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")->capture_default_str();
 
-  const std::vector<Command> commands = {RenderCommand(), InfoCommand(), EvalCommand(), ClearCommand(), RobotCommand(),
-                                         CalibCommand(), ReplayCommand(), ReplayMergeCommand()};
+  const std::vector<Command> commands = {RenderCommand(), InfoCommand(),  EvalCommand(),   ClearCommand(),
+                                         PlaceCommand(),  RobotCommand(), CalibCommand(),  ReplayCommand(),
+                                         ReplayMergeCommand()};
   std::function<int()> action;
   for (const Command& command : commands) {
     CLI::App* sub = app.add_subcommand(command.name, command.help);
