@@ -536,8 +536,7 @@ int UrSeedProgram::PickProgram(const UrPose& detection_pose, int max_cycles) {
 
 int UrSeedProgram::PickCorrectPlaceProgram(const UrPose& detection_pose, const UrPose& adjust_det_pose,
                                            const UrPose& place_det_pose, const UrPose& pre_drop_pose,
-                                           const UrPose& obj_in_Place, int iterations,
-                                           bool in_hand_and_place) {
+                                           const UrPose& obj_in_Place, int iterations) {
   int picks = 0;
   UrPose obj_in_tool{}, place_in_base{};
   for (int i = 0; i < iterations; ++i) {  // Loop
@@ -552,10 +551,6 @@ int UrSeedProgram::PickCorrectPlaceProgram(const UrPose& detection_pose, const U
           ++picks;
         }
       }
-    }
-    if (stage == 1 && !in_hand_and_place) {
-      ++stages_pending_;  // stages 1-3: issue 44 (in-hand and place-area task kinds)
-      continue;
     }
     if (stage == 1) {
       daoai_switch_job(1);

@@ -116,15 +116,16 @@ class UrSeedProgram {
   // RC_CHECK_EMPTY_BOX): stops on an empty box, or when a capture or a pick
   // pose fails, or after max_cycles captures. @returns the picks made.
   int PickProgram(const UrPose& detection_pose, int max_cycles);
-  // Seed 003 "抓取 - 物体姿态修正 - 放置", `iterations` passes of its Loop.
-  // Stage 0 (task 0: pick) runs as printed. Stages 1 (task 1: the part's
-  // pose in the gripper) and 2 (task 3: the place area's offset) and the
-  // place computation of stage 3 need issue 44's task kinds: with
-  // `in_hand_and_place` false they are skipped and counted in
-  // stages_pending(); true runs them as printed. @returns the picks made.
+  // Seed 003 "抓取 - 物体姿态修正 - 放置", `iterations` passes of its Loop,
+  // as printed: stage 0 (task 0) picks, stage 1 (task 1) records the part's
+  // pose in the gripper (obj_in_tool) without moving, stage 2 (task 3) the
+  // place area's offset from where it was taught (place_in_base), stage 3
+  // moves to tool_in_base = place_in_base * obj_in_Place * obj_in_tool^-1
+  // between two MoveJ pre_drop_pose. A stage that gets no answer leaves the
+  // pass (the next starts at stage 0). @returns the picks made.
   int PickCorrectPlaceProgram(const UrPose& detection_pose, const UrPose& adjust_det_pose,
                               const UrPose& place_det_pose, const UrPose& pre_drop_pose,
-                              const UrPose& obj_in_place, int iterations, bool in_hand_and_place);
+                              const UrPose& obj_in_place, int iterations);
 
   // ---- seed 000 / 003 interface functions, as printed. ----
   void send_robot_data();
@@ -158,7 +159,6 @@ class UrSeedProgram {
   const std::vector<UrPopup>& popups() const { return popups_; }
   std::vector<std::string> failure_popups() const;
   const std::vector<UrPose>& moves() const { return moves_; }  // every MoveL / MoveJ target
-  int stages_pending() const { return stages_pending_; }
   // Globals of the seed's script (read-only for tests).
   double payload_1() const { return daoai_payload_1_; }
   double payload_2() const { return daoai_payload_2_; }
@@ -190,7 +190,6 @@ class UrSeedProgram {
   UrPose actual_tcp_pose_{};
   std::vector<UrPopup> popups_;
   std::vector<UrPose> moves_;
-  int stages_pending_ = 0;
   int requests_sent_ = 0;
   std::chrono::steady_clock::time_point answer_deadline_{};
 

@@ -26,6 +26,7 @@
 #include "comms/modbus_robot_sim.h"
 #include "comms/ur_seed_program.h"
 #include "core/cell.h"
+#include "grasp/robot_targets.h"
 #include "tests/testing/binpickd.h"
 #include "tests/testing/files.h"
 
@@ -271,24 +272,36 @@ TEST_P(SeedPrograms, Seed000ProgramsCalibratePickAndClearTheBinWithoutAFailurePo
 }
 
 // Seed 003's auto calibration program (the same as seed 000's), then its
-// "抓取 - 物体姿态修正 - 放置" program: stage 0 (pick) as printed, one pick per
-// pass of its Loop; stages 1 and 2 (the part's pose in the gripper, the place
-// area) need issue 44's task kinds and are counted as pending, not run.
-TEST_P(SeedPrograms, Seed003CalibratesThenItsPickStageClearsTheBinOnePickPerPass) {
+// "抓取 - 物体姿态修正 - 放置" program as printed, one part per pass of its
+// Loop: stage 0 picks (task 0), stage 1 looks at the part in the gripper
+// (task 1, in_hand: obj_in_tool), stage 2 at the place area (task 3,
+// place_area: place_in_base, the nest's offset from where it was taught),
+// stage 3 moves the tool to place_in_base * obj_in_Place * obj_in_tool^-1.
+TEST_P(SeedPrograms, Seed003CalibratesThenPicksCorrectsInHandAndPlacesEveryPart) {
   const int parts = SeedParts();
   Rig rig(GetParam(), parts, SeedScene(), "seed003");
   ASSERT_TRUE(rig.ready()) << rig.log();
+  const Cell cell = LoadCell(rig.cell_path()).value();
   {  // The default cell's camera is not where the cell file says until the
      // cell is calibrated (calibration.true_pose): uncalibrated, the emptied
      // bin still showed ~19,000 points and detections without a grasp.
-    const UrPose facing = ToUrPose(BoardFacingStartPose(LoadCell(rig.cell_path()).value()));
+    const UrPose facing = ToUrPose(BoardFacingStartPose(cell));
     auto c = rig.Program(facing);
     ASSERT_TRUE(c->Run([&] { c->AutoCalibrationProgram(facing, 30); }).ok()) << rig.log();
     EXPECT_EQ(c->status(), 33);
     EXPECT_TRUE(c->failure_popups().empty()) << Popups(*c);
     ASSERT_TRUE(Rig::WaitForFile(rig.cell_path() + ".calibration.yaml")) << rig.log();
   }
+  // The program's taught waypoints for the default cell: adjust_det_pose
+  // 0.5 m under the camera with the tool pointing up at it; the place area
+  // seen from detection_pose; pre_drop_pose 0.2 m above the nest, tool down;
+  // obj_in_Place where the part stood on the nest when the place was taught.
+  const FixtureSpec& nest = *cell.FindFixture(cell.FindTask(3)->fixture);
   const UrPose detection = DetectionPose();
+  const UrPose adjust = ToUrPose(MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.7, 0.0, 0.55)));
+  const Pose obj_in_place = nest.X_BP_taught * nest.X_PO;
+  const UrPose pre_drop = ToUrPose(
+      MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), nest.X_BP_taught.translation() + Vec3(0, 0, 0.2)));
   auto p = rig.Program(detection);
   int picks = 0, passes = 0;
   bool empty = false;
@@ -297,8 +310,7 @@ TEST_P(SeedPrograms, Seed003CalibratesThenItsPickStageClearsTheBinOnePickPerPass
   // time until daoai_check_box_empty() says empty.
   ASSERT_TRUE(p->Run([&] {
     auto run = [&](int n) {
-      picks += p->PickCorrectPlaceProgram(detection, detection, detection, detection, detection, n,
-                                          /*in_hand_and_place=*/false);
+      picks += p->PickCorrectPlaceProgram(detection, adjust, detection, pre_drop, ToUrPose(obj_in_place), n);
       passes += n;
     };
     run(parts);
@@ -309,10 +321,22 @@ TEST_P(SeedPrograms, Seed003CalibratesThenItsPickStageClearsTheBinOnePickPerPass
     }
   }).ok()) << rig.log();
   EXPECT_EQ(picks, parts) << Popups(*p);
-  EXPECT_EQ(p->stages_pending(), picks);  // issue 44
   EXPECT_TRUE(empty);
   EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
-  for (const UrPose& m : p->moves()) EXPECT_FALSE(IsZero(m));
+  // Each place is MoveJ pre_drop_pose, MoveJ tool_in_base, MoveJ pre_drop_pose.
+  const std::vector<UrPose>& moves = p->moves();
+  int places = 0;
+  for (size_t i = 0; i + 2 < moves.size(); ++i) {
+    if (moves[i] != pre_drop || moves[i + 2] != pre_drop) continue;
+    ++places;
+    // The tool holds the part within its grasp's reach (hub_top: 4 cm) of
+    // where the part belongs on the nest, and inside the workspace.
+    const Pose tool_in_base = FromUrPose(moves[i + 1]);
+    EXPECT_LT((tool_in_base.translation() - obj_in_place.translation()).norm(), 0.1) << "place " << places;
+    EXPECT_TRUE(CheckToolPose(cell, cell.FindTask(3)->gripper, tool_in_base).ok()) << "place " << places;
+  }
+  EXPECT_EQ(places, picks);
+  for (const UrPose& m : moves) EXPECT_FALSE(IsZero(m));
 }
 
 INSTANTIATE_TEST_SUITE_P(Links, SeedPrograms, ::testing::Values(Link::kSocket, Link::kModbus),
