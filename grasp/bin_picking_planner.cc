@@ -4,12 +4,27 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <limits>
 #include <utility>
 
+#include "pipeline/pose_estimator.h"
+
 namespace bp {
 namespace {
+
+// How far an in_hand answer may stand from the part held as binpick believes
+// it (the pick's grasp against its detected part, or the last in_hand
+// answer), modulo the part's symmetry, before it is not trusted. A part
+// slips in the gripper by millimetres and degrees (the simulator's slip is
+// at most 10 mm / 10 deg; the pick's belief is off by up to 13 mm / 10 deg
+// at p99, docs/tuning.md), while a pose estimate turned over on a part seen
+// from below is about 180 deg off. Beyond either limit binpick cannot tell
+// which of the two is wrong, and a place 180 deg wrong is worse than a stop:
+// the answer is NO_OBJECT_FOUND. Set from those bounds, not tuned.
+constexpr double kInHandMaxDeviationM = 0.03;
+constexpr double kInHandMaxDeviationRad = 45.0 * M_PI / 180.0;
 
 // Match detections to ground truth (synthetic frames only): the true
 // instance most of the detection's support points show in the label image
@@ -260,6 +275,23 @@ Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame&
     g.name = "in_hand";
     g.X_BT = request.X_BF->inverse() * det.X_BO;  // X_TO
     g.X_BT_pre = g.X_BT;
+    const PartSpec* part = cell_.FindPart(det.class_id);
+    if (held && held->class_id == det.class_id && part != nullptr) {
+      const double off_m = SymmetricTranslationError(g.X_BT, held->X_TO, part->symmetry);
+      const double off_rad = SymmetricRotationError(g.X_BT, held->X_TO, part->symmetry);
+      if (off_m > kInHandMaxDeviationM || off_rad > kInHandMaxDeviationRad) {
+        char why[200];
+        std::snprintf(why, sizeof(why),
+                      "in-hand pose %.1f mm / %.1f deg from the part held as %s (limits %.0f mm / %.0f deg): "
+                      "not trusted, the estimate may have the part turned over",
+                      1000 * off_m, off_rad * 180 / M_PI, held->measured ? "last measured" : "picked",
+                      1000 * kInHandMaxDeviationM, kInHandMaxDeviationRad * 180 / M_PI);
+        spdlog::warn("task {}: {}", task.id, why);
+        result.outcome = PlanResult::Outcome::kNoObjects;
+        result.message = why;
+        return Status::Ok();
+      }
+    }
   } else if (task.kind == TaskSpec::Kind::kPlaceArea) {
     g.name = "place_offset";
     g.X_BT = det.X_BO * fixture->X_BP_taught.inverse();  // X_off

@@ -5,7 +5,9 @@
 //   in_hand:    the part in the gripper, looked for in the task's roi in the
 //               tool frame at the robot's pose (X_BT, sent with the capture;
 //               InvalidArgument without it): one "grasp" whose X_BT is the
-//               part in the tool frame, X_TO = X_BT^-1 * X_BO;
+//               part in the tool frame, X_TO = X_BT^-1 * X_BO; none (no
+//               objects) when it stands more than 30 mm / 45 deg from the
+//               part held (below): a pose estimate turned over, not a slip;
 //   place_area: the task's fixture, looked for in its roi in the fixture's
 //               taught frame: one "grasp" whose X_BT is its offset from the
 //               taught pose, X_off = X_BP * X_BP_taught^-1 (so X_BP = X_off *

@@ -14,6 +14,7 @@
 #include "grasp/bin_clearing.h"
 #include "grasp/empty_box.h"
 #include "pipeline/frame_io.h"
+#include "pipeline/pose_estimator.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 #include "tests/testing/files.h"
@@ -389,6 +390,62 @@ TEST(BinPickingPlanner, InHandAnswersThePartInTheToolWhereTheGraspReallyMetIt) {
 
   const Result<PlanResult> blind = rig.planner->Plan({in_hand, std::nullopt, 0}, CapturedFrame(Frame{}));
   EXPECT_EQ(blind.status().code(), Status::Code::kInvalidArgument);  // in-hand needs the robot's pose
+}
+
+// Ground truth, except that a part seen in a region (the in-hand view) is
+// estimated turned over: 180 deg about its own x axis.
+class TurnsHeldPartsOver final : public Perception {
+ public:
+  explicit TurnsHeldPartsOver(const Cell& cell) : truth_(cell) {}
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort, region);
+    if (!r.ok() || !region) return r;
+    for (Detection& d : r->detections) d.X_BO = d.X_BO * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3::Zero());
+    return r;
+  }
+
+ private:
+  TruthPerception truth_;
+};
+
+TEST(BinPickingPlanner, AnInHandPoseTurnedOverAgainstThePartAsPickedIsNotAnswered) {
+  Cell cell = SyntheticCell(3, 5);
+  cell.source.slip_translation = 0.01;
+  cell.source.slip_rotation_deg = 10;
+  auto source = MakeSyntheticSource(cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  auto planner = std::move(BinPickingPlanner::Create(cell, std::make_shared<TurnsHeldPartsOver>(cell),
+                                                     std::move(*source), options)).value();
+  const TaskSpec& pick = *cell.FindTask(0);
+  const TaskSpec& in_hand = *cell.FindTask(1);
+  auto plan = [&](const TaskSpec& task, const std::optional<Pose>& X_BT) -> Result<PlanResult> {
+    const PlanRequest request{task, X_BT, 0};
+    Result<CaptureHandle> scene = planner->Capture(request);
+    if (!scene.ok()) return scene.status();
+    return planner->Plan(request, **scene);
+  };
+  Result<PlanResult> picks = plan(pick, std::nullopt);
+  ASSERT_TRUE(picks.ok());
+  ASSERT_EQ(picks->outcome, PlanResult::Outcome::kGrasps) << picks->message;
+  const Grasp grasp = picks->grasps.front();
+  planner->NotifyHandedOut(pick, grasp);
+  const Pose believed = grasp.X_BT.inverse() * grasp.X_BO;
+  const Pose turned = believed * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3::Zero());
+  ASSERT_GT(SymmetricRotationError(turned, believed, cell.FindPart(grasp.class_id)->symmetry), M_PI / 2);
+
+  // The part is in the gripper and seen, but 180 deg from how it was picked
+  // (slip: at most 10 mm / 10 deg): not answered, nothing measured.
+  Result<PlanResult> seen = plan(in_hand, InHandPose());
+  ASSERT_TRUE(seen.ok()) << seen.status().ToString();
+  EXPECT_EQ(seen->outcome, PlanResult::Outcome::kNoObjects);
+  EXPECT_TRUE(seen->grasps.empty());
+  EXPECT_EQ(seen->detections, 1);
+  EXPECT_NE(seen->message.find("turned over"), std::string::npos) << seen->message;
+  ASSERT_TRUE(planner->held().has_value());
+  EXPECT_FALSE(planner->held()->measured);
 }
 
 TEST(BinPickingPlanner, PlaceAreaAnswersTheFixturesOffsetAndReleasesThePart) {
