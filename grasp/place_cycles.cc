@@ -1,5 +1,7 @@
 #include "grasp/place_cycles.h"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -96,7 +98,7 @@ class CycleRunner {
                 const Symmetry& symmetry) {
     Result<PlanResult> seen = CaptureAndPlan(*pile.planner, in_hand_, o_.X_BT_adjust);
     if (!seen.ok()) return seen.status();
-    if (seen->grasps.empty()) return Missed(pile, c, "in_hand_missed", report_.in_hand_missed);
+    if (seen->grasps.empty()) return Missed(pile, c, "in_hand_missed", report_.in_hand_missed, seen->message);
     const Pose X_TO_measured = seen->grasps[0].X_BT;
     std::tie(c.in_hand_error_mm, c.in_hand_error_deg) = Error(X_TO_measured, X_TO_true, symmetry);
     pile.planner->NotifyHandedOut(in_hand_, seen->grasps[0]);
@@ -104,10 +106,11 @@ class CycleRunner {
     const Pose X_BP = pile.source->fixture_truth(fixture_.name).value();
     Result<PlanResult> area = CaptureAndPlan(*pile.planner, place_area_, std::nullopt);
     if (!area.ok()) return area.status();
-    if (area->grasps.empty()) return Missed(pile, c, "place_area_missed", report_.place_area_missed);
+    if (area->grasps.empty()) return Missed(pile, c, "place_area_missed", report_.place_area_missed, area->message);
     const Grasp& offset = area->grasps[0];
     if (!CheckRobotTargets(cell_, place_area_, offset).ok()) {
-      return Missed(pile, c, "outside_workspace", report_.refused);  // the handler's gate: never sent
+      return Missed(pile, c, "outside_workspace", report_.refused,  // the handler's gate: never sent
+                    CheckRobotTargets(cell_, place_area_, offset).message());
     }
     CountSent(place_area_, offset);
     // seed 003: tool_in_base = place_in_base * obj_in_Place * obj_in_tool^-1.
@@ -124,7 +127,8 @@ class CycleRunner {
   }
 
   // A stage without an answer: the robot puts the part aside.
-  Status Missed(Pile& pile, PlaceCycle& c, const char* outcome, int& counter) {
+  Status Missed(Pile& pile, PlaceCycle& c, const char* outcome, int& counter, const std::string& why) {
+    spdlog::info("place cycle {} (pile {}): {}: {}", report_.cycles.size(), c.scene_seed, outcome, why);
     c.outcome = outcome;
     ++counter;
     pile.source->NotifyReleased();
