@@ -26,6 +26,28 @@ namespace {
 constexpr double kInHandMaxDeviationM = 0.03;
 constexpr double kInHandMaxDeviationRad = 45.0 * M_PI / 180.0;
 
+// Of a detection's poses (X_BO and its alternatives, PoseHypothesis::
+// alternatives), the one in the tool frame T nearest to X_TO_held: least
+// rotation error modulo symmetry, then least translation error (degrees
+// and millimetres weighed 1:1). @returns X_TO.
+Pose NearestToHeld(const Pose& X_BT, const Detection& det, const Pose& X_TO_held, const Symmetry& symmetry) {
+  const Pose X_TB = X_BT.inverse();
+  Pose best = X_TB * det.X_BO;
+  double best_cost = std::numeric_limits<double>::infinity();
+  auto consider = [&](const Pose& X_BO) {
+    const Pose X_TO = X_TB * X_BO;
+    const double cost = SymmetricRotationError(X_TO, X_TO_held, symmetry) * 180.0 / M_PI +
+                        1000.0 * SymmetricTranslationError(X_TO, X_TO_held, symmetry);
+    if (cost < best_cost) {
+      best_cost = cost;
+      best = X_TO;
+    }
+  };
+  consider(det.X_BO);
+  for (const Pose& X_BO : det.alternatives_X_BO) consider(X_BO);
+  return best;
+}
+
 // Match detections to ground truth (synthetic frames only): the true
 // instance most of the detection's support points show in the label image
 // (robust to a wrong pose estimate), else the nearest true part of its class.
@@ -277,6 +299,12 @@ Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame&
     g.X_BT_pre = g.X_BT;
     const PartSpec* part = cell_.FindPart(det.class_id);
     if (held && held->class_id == det.class_id && part != nullptr) {
+      // An ambiguous view (a tee seen from below with its branch behind the
+      // cup) explains its alternatives as well as X_BO: the part held is
+      // the one nearest to what binpick believes it holds.
+      g.X_BT = NearestToHeld(*request.X_BF, det, held->X_TO, part->symmetry);
+      g.X_BO = *request.X_BF * g.X_BT;
+      g.X_BT_pre = g.X_BT;
       const double off_m = SymmetricTranslationError(g.X_BT, held->X_TO, part->symmetry);
       const double off_rad = SymmetricRotationError(g.X_BT, held->X_TO, part->symmetry);
       if (off_m > kInHandMaxDeviationM || off_rad > kInHandMaxDeviationRad) {
