@@ -198,8 +198,8 @@ TEST(PickCorrectPlace, InHandCaptureWithAnEmptyGripperIsNoObjectFound) {
 
 TEST(PickCorrectPlace, APlaceThatWouldLeaveTheWorkspaceIsRefusedAndLogged) {
   Cell cell = SimulatedCell();
-  cell.source.part_classes.clear();  // seed 11's first pick is then a tee, placed with the flange at x 0.402 m
-  // The bin (x 0.45 to 0.95 m) inside, the fixture (x 0.365 m) outside.
+  cell.source.part_classes.clear();  // seed 11's first pick is then a tee, whose place puts the flange at x < 0.42 m
+  // The bin (x 0.45 to 0.95 m) inside, the fixture (x 0.37 m) outside.
   cell.robot.workspace = Eigen::AlignedBox3d(Vec3(0.42, -1.3, -0.2), Vec3(1.3, 1.3, 1.5));
   auto planner = MakePlanner(cell);
   RequestHandler handler(cell, planner, nullptr);

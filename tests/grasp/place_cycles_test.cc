@@ -65,8 +65,9 @@ TEST(PlaceCycles, WithoutSlipTheOraclesPickAloneAlreadyPlacesExactly) {
 
 TEST(PlaceCycles, APlaceOutsideTheWorkspaceIsRefusedNotSent) {
   Cell cell = SmallPileCell(0.005, 5);
-  // The bin (x 0.45 to 0.95 m) inside, the fixture (x 0.365 m) outside.
-  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(0.42, -1.3, -0.2), Vec3(1.3, 1.3, 1.5));
+  // The bin (x 0.45 to 0.95 m, y -0.18 to 0.18 m) inside, the fixture (x
+  // 0.37 m, y 0.23 m) outside.
+  cell.robot.workspace = Eigen::AlignedBox3d(Vec3(0.42, -1.3, -0.2), Vec3(1.3, 0.19, 1.5));
   PlaceCyclesOptions o;
   o.cycles = 2;
   o.seed = 23;
