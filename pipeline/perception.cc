@@ -223,6 +223,9 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
                     (counts.rejected_low_score > 0
                          ? " (" + std::to_string(counts.rejected_low_score) + " below min_detection_score)"
                          : std::string()) +
+                    (counts.rejected_free_space > 0
+                         ? " (" + std::to_string(counts.rejected_free_space) + " too much in free space)"
+                         : std::string()) +
                     (counts.first_reason.empty() ? "" : " (e.g. " + counts.first_reason + ")");
   }
 }
@@ -312,6 +315,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
     return Status::InvalidArgument(
         "perception: smoothing_target_sigma must be finite and >= 0, smoothing_max_radius >= 0, "
         "smoothing_gate_sigmas > 0");
+  }
+  if (!(options.max_free_space_fraction >= 0.0 && options.max_free_space_fraction <= 1.0)) {
+    return Status::InvalidArgument("perception: max_free_space_fraction must be in [0, 1]");
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");

@@ -129,6 +129,14 @@ struct PerceptionOptions {
   // Weight, >= 0, of the view's planar share outside the class's range in
   // the class ranking (besides the extents); 0 = extents alone.
   double rank_planar_share_weight = 4.0;
+  // A hypothesis with more than this fraction of its seen samples in free
+  // space (in front of the measured surface, beyond free_space_distance at
+  // the pixel and around it: where the camera saw through the part) is not
+  // a detection, whatever its score. In [0, 1]; 1 = off. The free-space test
+  // is set beyond the noise (6.8 sigma_z), so true poses leave none but at
+  // their outline; a part fitted into a larger one (a bushing in a tee's
+  // run) sticks out of its surface.
+  double max_free_space_fraction = 0.01;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

@@ -79,6 +79,7 @@ struct EvalCliOptions {
   bool thorough = false;
   double second_look = PerceptionOptions{}.second_look_below;
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
+  double max_free_space = PerceptionOptions{}.max_free_space_fraction;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
@@ -270,6 +271,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
   popt.max_fit_rms_sigmas = opt.fit_rms;
+  popt.max_free_space_fraction = opt.max_free_space;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   return popt;
@@ -559,6 +561,10 @@ Command EvalCommand() {
                                   "largest fit residual, in sigma_z of the depth noise "
                                   "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 100.0));
+                   sub.add_option("--max-free-space", opt->max_free_space,
+                                  "largest fraction of a detection's seen surface in free space "
+                                  "(PerceptionOptions::max_free_space_fraction; 1 = off, tuning)")
+                       ->check(CLI::Range(0.0, 1.0));
                    sub.add_option("--smooth", opt->smooth,
                                   "smooth frames noisier than this at their median depth, metres "
                                   "(PerceptionOptions::smoothing_target_sigma; 0 = never, tuning)")

@@ -85,6 +85,7 @@ class PpfClassModel final : public ClassModel {
       c.rms_residual = h.rms_residual;
       const int seen = h.visible_points - h.occluded_points;
       c.visible_fraction = h.visible_points > 0 ? static_cast<double>(std::max(0, seen)) / h.visible_points : 0.0;
+      c.free_space_fraction = seen > 0 ? static_cast<double>(h.free_space_points) / seen : 0.0;
       c.support = std::move(h.supporting_indices);
       c.alternatives = std::move(h.alternatives);
       out.hypotheses.push_back(std::move(c));

@@ -38,6 +38,9 @@ struct ClassHypothesis {
   double score = 0.0;
   double visible_fraction = 0.0;
   double rms_residual = 0.0;
+  // Of the part's seen samples (visible, not occluded), those in free space
+  // in front of the measured surface (PoseHypothesis::free_space_points).
+  double free_space_fraction = 0.0;
   std::vector<int> support;  // indices into SegmentView::points_B
   std::vector<Pose> alternatives;  // PoseHypothesis::alternatives
 };

@@ -205,6 +205,10 @@ void ViewMatcher::CollectCandidates(const ViewSet& views, std::vector<std::vecto
           ++counts_.rejected_low_score;
           continue;
         }
+        if (h.free_space_fraction > options_.max_free_space_fraction) {
+          ++counts_.rejected_free_space;
+          continue;
+        }
         Candidate c;
         c.class_id = model.class_id();
         c.diameter = model.diameter();

@@ -69,6 +69,7 @@ struct MatchCounts {
   std::atomic<int> coarse_refined{0};
   std::atomic<int> coarse_skipped{0};
   int rejected_low_score = 0;  // hypotheses below the detection bar
+  int rejected_free_space = 0;  // above it, but too much in free space (max_free_space_fraction)
   std::string first_reason;    // the first estimate's reason for no hypothesis
 };
 
