@@ -241,7 +241,14 @@ FrameEvaluation EvaluateFrame(const PerceptionResult& result, const GroundTruth&
         o.rotation_error = SymmetryAwareRotationError(d.X_BO, p.X_BO, model->symmetry);
         o.adds = AddSDistance(model->points_O, d.X_BO, p.X_BO);
         o.adds_ok = o.adds < options.adds_relative * model->diameter;
+        if (o.verdict == DetectionVerdict::kGross) {
+          for (const Pose& X_BO : d.alternatives_X_BO) {
+            o.carried |= SymmetryAwareTranslationError(X_BO, p.X_BO, model->symmetry) <= options.translation_tolerance &&
+                         SymmetryAwareRotationError(X_BO, p.X_BO, model->symmetry) <= options.rotation_tolerance;
+          }
+        }
       }
+      o.alternatives = static_cast<int>(d.alternatives_X_BO.size());
     }
     out.detections.push_back(o);
   }
@@ -327,6 +334,7 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
           case DetectionVerdict::kTrue: break;
           case DetectionVerdict::kGross:
             ++f.gross_errors;
+            f.gross_carried += o.carried ? 1 : 0;
             r_near.push_back(o.rotation_error * 180.0 / kPi);
             continue;
           case DetectionVerdict::kDuplicate: ++f.duplicates; continue;

@@ -101,6 +101,12 @@ struct DetectionOutcome {
   double rotation_error = 0.0;     // radians
   double adds = 0.0;               // metres
   bool adds_ok = false;
+  // Detection::alternatives_X_BO: how many, and (kGross) whether one of them
+  // is within tolerance of near_instance: the wrong pose was carried with
+  // the right one as an ambiguity, and the planner keeps only grasps that
+  // land under both.
+  int alternatives = 0;
+  bool carried = false;
 };
 
 // One handed-out grasp judged against the true scene (grasp/grasp_judge.h
@@ -136,6 +142,7 @@ struct ClassFigures {
   std::string name;  // class name or "all"
   int targets = 0, found = 0, detections = 0, true_positives = 0;
   int gross_errors = 0, duplicates = 0, false_positives = 0;
+  int gross_carried = 0;  // gross errors whose true pose is among their alternatives
   double recall = 0, precision = 0;
   double gross_fraction = 0;  // gross errors / detections
   // Over true positives.

@@ -159,6 +159,8 @@ nlohmann::ordered_json FrameJson(const std::string& name, const Frame& frame, co
                     {"near_instance", o.near_instance},
                     {"translation_error_mm", 1000.0 * o.translation_error},
                     {"rotation_error_deg", o.rotation_error * 180.0 / M_PI},
+                    {"alternatives", o.alternatives},
+                    {"carried", o.carried},
                     {"X_BO", PoseToJson(d.X_BO)}});
   }
   j["detections"] = std::move(dets);
@@ -195,6 +197,7 @@ nlohmann::ordered_json ToJson(const EvalReport& report, const SegmentationFigure
                             {"detections", c.detections},
                             {"true_positives", c.true_positives},
                             {"gross_errors", c.gross_errors},
+                            {"gross_carried", c.gross_carried},
                             {"duplicates", c.duplicates},
                             {"false_positives", c.false_positives},
                             {"recall", c.recall},
@@ -242,6 +245,9 @@ void PrintTable(const EvalReport& report, const SegmentationFigures& seg, const 
                 c.r_median_deg, c.r_p95_deg, c.r_near_p95_deg, c.r_near_max_deg);
   }
   std::printf("(t/r over true positives; nr_*: rotation error over true positives and gross errors)\n");
+  std::printf("gross errors carried with the true pose among their alternatives:");
+  for (const ClassFigures& c : report.classes) std::printf(" %s %d / %d", c.name.c_str(), c.gross_carried, c.gross_errors);
+  std::printf("\n");
   const GraspFigures& g = report.grasps;
   if (g.frames > 0) {
     std::string failures;

@@ -82,6 +82,38 @@ TEST(StrictEvaluation, ATeeTurnedAboutItsRunAxisAtAnExactOriginIsAGrossError) {
   EXPECT_EQ(EvaluateFrame(result, truth, Models()).detections[0].verdict, DetectionVerdict::kTrue);
 }
 
+// A gross error whose alternatives hold the true pose (within tolerance,
+// modulo symmetry) is carried: the planner keeps only grasps that land under
+// both. One whose alternatives are all wrong is not.
+TEST(StrictEvaluation, AGrossErrorIsCarriedOnlyWhenAnAlternativeIsTheTruePose) {
+  const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3(0.3, 0.2, 1.0), 40);
+  GroundTruth truth;
+  truth.parts.push_back(Truth(1, kTee, X_BO));
+  const Pose turned = X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 30);
+  PerceptionResult result;
+  Detection carried = Detected(kTee, turned, 0.95);
+  // The true pose as its symmetric copy (half turn about z), 2 deg off.
+  carried.alternatives_X_BO = {X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 60),
+                               X_BO * Rotated(Vec3::Zero(), Vec3::UnitZ(), 182)};
+  result.detections.push_back(carried);
+  const FrameEvaluation fe = EvaluateFrame(result, truth, Models());
+  ASSERT_EQ(fe.detections.size(), 1u);
+  EXPECT_EQ(fe.detections[0].verdict, DetectionVerdict::kGross);
+  EXPECT_EQ(fe.detections[0].alternatives, 2);
+  EXPECT_TRUE(fe.detections[0].carried);
+  EXPECT_EQ(Summarize({fe}, Models()).classes.back().gross_carried, 1);
+
+  result.detections[0].alternatives_X_BO = {X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 60),
+                                            X_BO * Rotated(Vec3::Zero(), Vec3::UnitX(), 8)};
+  const FrameEvaluation wrong = EvaluateFrame(result, truth, Models());
+  EXPECT_FALSE(wrong.detections[0].carried);
+  EXPECT_EQ(Summarize({wrong}, Models()).classes.back().gross_carried, 0);
+  // A true detection is never "carried", whatever its alternatives.
+  result.detections[0].X_BO = X_BO;
+  result.detections[0].alternatives_X_BO = {turned};
+  EXPECT_FALSE(EvaluateFrame(result, truth, Models()).detections[0].carried);
+}
+
 TEST(StrictEvaluation, TheToleranceIsTranslationAndRotationModuloSymmetry) {
   const Pose X_BO = Rotated(Vec3(0.7, 0.0, 0.05), Vec3::UnitY(), 20);
   GroundTruth truth;
