@@ -215,6 +215,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   if (pile == nullptr) return Status::Internal("clear: the synthetic source is not a SyntheticSource");
   BinPickingPlannerOptions planner_options;
   planner_options.teach_file = "-";  // clearing never teaches
+  planner_options.thorough_retry_ms = options.thorough_retry_ms;
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
   if (!planner.ok()) return planner.status();
   BinPickingPlanner& p = **planner;

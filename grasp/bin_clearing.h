@@ -52,6 +52,10 @@ struct ClearOptions {
   // as binpickd's queue does: docs/protocols.md, "Stale grasps"); false: they
   // are served and judged (to measure what the withdrawal saves).
   bool withdraw_stale = true;
+  // The planner's thorough retry budget (BinPickingPlannerOptions::
+  // thorough_retry_ms). A time budget makes a clear depend on the machine's
+  // speed and load; a large one makes it repeatable.
+  double thorough_retry_ms = 150.0;
   GraspJudgeOptions judge;
 };
 

@@ -51,6 +51,13 @@ Pose NearestToHeld(const Pose& X_BT, const Detection& det, const Pose& X_TO_held
 // Match detections to ground truth (synthetic frames only): the true
 // instance most of the detection's support points show in the label image
 // (robust to a wrong pose estimate), else the nearest true part of its class.
+// Says in the plan whether its thorough retry ran out of budget.
+void NoteRetryBudget(double budget_ms, PlanDetail& detail) {
+  if (detail.retry_estimates_skipped == 0) return;
+  detail.result.message += " (thorough retry stopped at its " + std::to_string(std::lround(budget_ms)) +
+                           " ms budget, " + std::to_string(detail.retry_estimates_skipped) + " estimates not run)";
+}
+
 std::vector<int> MatchTruth(const Frame& frame, const PerceptionResult& per) {
   std::vector<int> truth(per.detections.size(), -1);
   if (frame.truth) {
@@ -107,6 +114,9 @@ Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell&
                                                                      std::unique_ptr<CaptureSource> source,
                                                                      BinPickingPlannerOptions options) {
   if (!perception || !source) return Status::InvalidArgument("grasp planner: perception and source are required");
+  if (!(options.thorough_retry_ms > 0) || !std::isfinite(options.thorough_retry_ms)) {
+    return Status::InvalidArgument("grasp planner: thorough_retry_ms must be a finite number of milliseconds > 0");
+  }
   auto model = GraspPlanningModel::Build(cell, options.planning);
   if (!model.ok()) return model.status();
   std::string teach_file = options.teach_file.empty() ? DefaultTeachFile(cell) : options.teach_file;
@@ -168,6 +178,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
     first_timings = detail.perception.timings;
     PlanPick(request, frame, detail, &grasps_ms, &retry_ms);
   }
+  NoteRetryBudget(options_.thorough_retry_ms, detail);
 
   // The perception the plan is made from (a thorough retry may replace it).
   const PerceptionResult& per = detail.perception;
@@ -219,8 +230,11 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
                                detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
   if (options_.thorough_retry && nothing_to_pick && detail.perception.largest_region_points > 0) {
     t0 = std::chrono::steady_clock::now();
-    Result<PerceptionResult> again = perception_->Run(frame, task.part_classes, PerceptionEffort::kThorough);
+    // The retry's grasp stage is budgeted at what the normal one took.
+    Result<PerceptionResult> again =
+        perception_->RunThorough(frame, task.part_classes, RetryBudget(RetryClockMs(), *grasps_ms));
     if (again.ok()) {
+      detail.retry_estimates_skipped = again->estimates_skipped;
       GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
       spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
                     again->detections.size(), plan.stats.Describe());
@@ -246,6 +260,17 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
   if (detail.thorough_retry) result.message += " (after a thorough perception retry)";
 }
 
+PerceptionBudget BinPickingPlanner::RetryBudget(double started_ms, double reserve_ms) const {
+  PerceptionBudget budget;
+  budget.deadline_ms = started_ms + options_.thorough_retry_ms - std::max(0.0, reserve_ms);
+  budget.now_ms = options_.retry_clock_ms;
+  return budget;
+}
+
+double BinPickingPlanner::RetryClockMs() const {
+  return options_.retry_clock_ms ? options_.retry_clock_ms() : SteadyClockMs();
+}
+
 Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame& frame, PlanDetail& detail) const {
   const TaskSpec& task = request.task;
   PerceptionRegion region;
@@ -268,7 +293,9 @@ Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame&
   if (!perception.ok()) return perception.status();
   if (perception->detections.empty() && perception->largest_region_points > 0) {
     // As for picks: a thorough run before answering "nothing there".
-    Result<PerceptionResult> again = perception_->Run(frame, classes, PerceptionEffort::kThorough, region);
+    Result<PerceptionResult> again = perception_->RunThorough(frame, classes, RetryBudget(RetryClockMs(), 0.0),
+                                                              region);
+    if (again.ok()) detail.retry_estimates_skipped = again->estimates_skipped;
     if (again.ok() && !again->detections.empty()) {
       perception = std::move(again);
       detail.thorough_retry = true;

@@ -29,6 +29,7 @@
 // teaching). Thread-safety: every member may be called concurrently.
 #pragma once
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -69,6 +70,18 @@ struct BinPickingPlannerOptions {
   // PerceptionEffort::kThorough and plan from that if it gives grasps. Costs
   // time only on the answers that would otherwise stop the robot.
   bool thorough_retry = true;
+  // Time budget of a thorough retry, ms > 0, the retry's grasp stage
+  // included for picks (that stage is assumed to take what the normal
+  // plan's took). Estimates the budget would not cover are not started,
+  // the views most likely to hold a part going first
+  // (Perception::RunThorough); a plan whose retry ran out says so
+  // (PlanDetail::retry_estimates_skipped, the message). 150 ms: one normal
+  // plan at 1920 x 1200 (issue 40's frame -> full queue target; docs/tuning.md,
+  // thorough_retry_ms).
+  double thorough_retry_ms = 150.0;
+  // The clock the retry's budget is read on, ms; empty: the steady clock.
+  // Tests inject a deterministic one.
+  std::function<double()> retry_clock_ms;
 };
 
 // Everything one Plan produced, for tools (`binpick clear`) and tests.
@@ -77,6 +90,9 @@ struct PlanDetail {
   GraspPlan plan;
   PerceptionResult perception;
   bool thorough_retry = false;  // the plan comes from a thorough perception retry
+  // A thorough retry's estimates its budget did not cover (retry used or
+  // not); > 0: it ran out, and the plan's message says so.
+  int retry_estimates_skipped = 0;
 };
 
 class BinPickingPlanner final : public GraspPlanner {
@@ -131,6 +147,11 @@ class BinPickingPlanner final : public GraspPlanner {
   // stage's and the retry's wall times (ms; left alone when not run).
   void PlanPick(const PlanRequest& request, const Frame& frame, PlanDetail& detail, double* grasps_ms,
                 double* retry_ms) const;
+  // The budget of a thorough retry started at `started_ms` on the retry
+  // clock that must leave `reserve_ms` of thorough_retry_ms for what
+  // follows it.
+  PerceptionBudget RetryBudget(double started_ms, double reserve_ms) const;
+  double RetryClockMs() const;
   // in_hand, place and place_area tasks: perception in the task's region.
   Status PlanElsewhere(const PlanRequest& request, const Frame& frame, PlanDetail& detail) const;
   Cell cell_;

@@ -29,6 +29,10 @@ double PerceptionResult::TotalMs() const {
   return total;
 }
 
+double SteadyClockMs() {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
 namespace {
 
 using internal::ClassModel;
@@ -109,10 +113,21 @@ class PerceptionImpl final : public Perception {
         box_(internal::MakeRoiBox(cell)) {}
 
   Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
-                               const std::optional<PerceptionRegion>& region) const override;
+                               const std::optional<PerceptionRegion>& region) const override {
+    return RunWithin(frame, classes, effort, region, nullptr);
+  }
+  Result<PerceptionResult> RunThorough(const Frame& frame, const std::vector<int>& classes,
+                                       const PerceptionBudget& budget,
+                                       const std::optional<PerceptionRegion>& region) const override {
+    return RunWithin(frame, classes, PerceptionEffort::kThorough, region, &budget);
+  }
   const PerceptionOptions& options() const override { return options_; }
 
  private:
+  // The pipeline; `budget` (optional) bounds the pose stage.
+  Result<PerceptionResult> RunWithin(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                                     const std::optional<PerceptionRegion>& region,
+                                     const PerceptionBudget* budget) const;
   // The models of the requested classes (empty = all) and why the others
   // have none; InvalidArgument for a class the cell does not have.
   Status SelectModels(const std::vector<int>& classes, std::vector<const ClassModel*>* models,
@@ -125,8 +140,8 @@ class PerceptionImpl final : public Perception {
   // and accepted. Fills the result's detections and counts.
   void MatchViews(const internal::Segments& segments, const Frame& frame, std::span<const ClassModel* const> models,
                   bool thorough, const internal::FitRmsLimit& fit_limit,
-                  const std::optional<Eigen::Vector4d>& floor_plane_B, StageClock& clock,
-                  PerceptionResult& result) const;
+                  const std::optional<Eigen::Vector4d>& floor_plane_B, const PerceptionBudget* budget,
+                  StageClock& clock, PerceptionResult& result) const;
 
   Cell cell_;
   PerceptionOptions options_;
@@ -185,8 +200,8 @@ internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const 
 void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame& frame,
                                 std::span<const ClassModel* const> models, bool thorough,
                                 const internal::FitRmsLimit& fit_limit,
-                                const std::optional<Eigen::Vector4d>& floor_plane_B, StageClock& clock,
-                                PerceptionResult& result) const {
+                                const std::optional<Eigen::Vector4d>& floor_plane_B,
+                                const PerceptionBudget* budget, StageClock& clock, PerceptionResult& result) const {
   // Each segment view is the segment's samples, then (context_relative_radius
   // > 0) the other segments' samples near its centroid.
   double max_diameter = 0.0;
@@ -196,7 +211,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   views.first_region = views.views.size();
   for (const internal::ViewIndices& view : segments.region_views) views.views.push_back(view);
 
-  internal::ViewMatcher matcher(options_, models, thorough, frame, floor_plane_B, segments, fit_limit);
+  internal::ViewMatcher matcher(options_, models, thorough, frame, floor_plane_B, segments, fit_limit, budget);
   internal::Acceptance acceptance(result.roi_points_B.size(), models);
   internal::WaveResult waves = internal::MatchInWaves(std::move(views), options_, thorough, segments, matcher,
                                                       acceptance);
@@ -215,6 +230,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   result.views = counts.views + waves.views_explained;
   result.views_explained = waves.views_explained;
   result.estimator_calls = counts.estimator_calls;
+  result.estimates_skipped = counts.estimates_skipped.load();
   result.coarse_refined = counts.coarse_refined.load();
   result.coarse_skipped = counts.coarse_skipped.load();
   result.detections = acceptance.TakeDetections();
@@ -226,16 +242,20 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
                     (counts.rejected_free_space > 0
                          ? " (" + std::to_string(counts.rejected_free_space) + " too much in free space)"
                          : std::string()) +
-                    (counts.first_reason.empty() ? "" : " (e.g. " + counts.first_reason + ")");
+                    (counts.first_reason.empty() ? "" : " (e.g. " + counts.first_reason + ")") +
+                    (result.budget_exhausted()
+                         ? " (budget used: " + std::to_string(result.estimates_skipped) + " estimates not run)"
+                         : std::string());
   }
 }
 
 // The pipeline, stage by stage (docs/perception_pipeline.md): deproject and
 // crop, depth noise, regions and segments, then the views matched in waves,
 // a second look and a residual pass, each followed by acceptance.
-Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vector<int>& classes,
-                                             PerceptionEffort effort,
-                                             const std::optional<PerceptionRegion>& region) const {
+Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std::vector<int>& classes,
+                                                   PerceptionEffort effort,
+                                                   const std::optional<PerceptionRegion>& region,
+                                                   const PerceptionBudget* budget) const {
   PerceptionResult result;
   std::vector<const ClassModel*> models;
   std::string model_problems;
@@ -295,7 +315,7 @@ Result<PerceptionResult> PerceptionImpl::Run(const Frame& frame, const std::vect
     return result;
   }
   MatchViews(segments, used, models, effort == PerceptionEffort::kThorough, fit_limit,
-             floor ? std::optional<Eigen::Vector4d>(FloorPlane(X_BW)) : std::nullopt, clock, result);
+             floor ? std::optional<Eigen::Vector4d>(FloorPlane(X_BW)) : std::nullopt, budget, clock, result);
   return result;
 }
 

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -68,6 +69,10 @@ struct PerceptionResult {
   // the camera config's NoiseModel it scales the fit residual limit.
   double depth_noise_sigma = 0.0;
   double depth_noise_at = 0.0;
+  // A run within a PerceptionBudget: (view, class) estimates not started
+  // because the budget would have been exceeded (not in estimator_calls).
+  int estimates_skipped = 0;
+  bool budget_exhausted() const { return estimates_skipped > 0; }
   std::string reason;                   // why there are no detections, when there are none
   double TotalMs() const;
 };
@@ -186,6 +191,22 @@ enum class PerceptionEffort {
   kThorough,  // see PerceptionOptions::thorough_search; slower
 };
 
+// A deadline for the pose stage of a run (the planner's thorough retry,
+// Perception::RunThorough). A (view, class) estimate starts only when the
+// clock plus the mean duration of the run's estimates so far is at or
+// before deadline_ms; the others are skipped and counted
+// (PerceptionResult::estimates_skipped). Estimates already running finish,
+// so a run overshoots by less than its longest estimate at worst. The
+// stages before the pose search (crop, segmentation) always run.
+struct PerceptionBudget {
+  double deadline_ms = 0.0;  // on now_ms's scale
+  // Milliseconds since any fixed origin, thread-safe; called twice per
+  // estimate. Empty: SteadyClockMs. Tests inject a deterministic clock.
+  std::function<double()> now_ms;
+};
+// The steady clock in milliseconds (PerceptionBudget's default clock).
+double SteadyClockMs();
+
 class Perception {
  public:
   virtual ~Perception() = default;
@@ -210,6 +231,17 @@ class Perception {
   virtual Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes = {},
                                        PerceptionEffort effort = PerceptionEffort::kNormal,
                                        const std::optional<PerceptionRegion>& region = std::nullopt) const = 0;
+  // A thorough run (PerceptionEffort::kThorough) within `budget`, its views
+  // started most likely to hold a part first: larger waves first, and
+  // within a wave the views whose extents fit a class best. The default is
+  // Run(frame, classes, kThorough, region) for implementations that do not
+  // estimate poses (TruthPerception, test doubles): they finish at once.
+  virtual Result<PerceptionResult> RunThorough(const Frame& frame, const std::vector<int>& classes,
+                                               const PerceptionBudget& budget,
+                                               const std::optional<PerceptionRegion>& region = std::nullopt) const {
+    (void)budget;
+    return Run(frame, classes, PerceptionEffort::kThorough, region);
+  }
 };
 
 }  // namespace bp

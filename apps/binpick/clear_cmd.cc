@@ -37,6 +37,7 @@ struct ClearCliOptions {
   int task_id = 0;
   std::vector<int> fallback_task_ids;
   std::string save_left_dir;
+  double thorough_retry_ms = ClearOptions{}.thorough_retry_ms;
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
@@ -121,6 +122,7 @@ int Run(const ClearCliOptions& opt) {
   options.save_left_dir = opt.save_left_dir;
   options.serve_queue = !opt.capture_every_pick;
   options.withdraw_stale = !opt.keep_stale;
+  options.thorough_retry_ms = opt.thorough_retry_ms;
   ClearReport report;
   report.oracle = opt.oracle;
   for (int i = 0; i < opt.scenes; ++i) {
@@ -178,6 +180,11 @@ Command ClearCommand() {
     sub.add_option("--save-left", opt->save_left_dir,
                    "write the last frame of every scene that ends with parts left to this directory (depth PNG, "
                    "intrinsics, ground truth), for `binpick eval --source files:DIR`");
+    sub.add_option("--thorough-retry-ms", opt->thorough_retry_ms,
+                   "time budget of the planner's thorough perception retry, ms (a large one makes the run "
+                   "repeatable: the budget depends on the machine's speed and load)")
+        ->capture_default_str()
+        ->check(CLI::PositiveNumber);
     sub.add_flag("--variety", opt->variety,
                  "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "
                  "source.variety, else the defaults; docs/synthetic.md)");

@@ -16,6 +16,7 @@
 
 #include "apps/binpick/command.h"
 #include "core/atomic_file.h"
+#include "grasp/bin_picking_planner.h"
 #include "record/replay.h"
 #include "record/replay_fleet.h"
 
@@ -110,7 +111,24 @@ Command ReplayCommand() {
                            "cell file (default: the session's cell.yaml, else the embedded default)");
             sub.add_option("--tol-mm", options->tolerance_mm, "position tolerance for parts and grasps (mm)");
             sub.add_option("--tol-deg", options->tolerance_deg, "rotation tolerance for parts and grasps (deg)");
-            return [dir, json_out, manifest, shard, options]() -> int {
+            auto retry_ms = std::make_shared<double>(BinPickingPlannerOptions{}.thorough_retry_ms);
+            sub.add_option("--thorough-retry-ms", *retry_ms,
+                           "time budget of the planner's thorough perception retry, ms "
+                           "(BinPickingPlannerOptions::thorough_retry_ms)")
+                ->capture_default_str()
+                ->check(CLI::PositiveNumber);
+            return [dir, json_out, manifest, shard, options, retry_ms]() -> int {
+              options->make_planner = [retry_ms](const Cell& cell, std::unique_ptr<CaptureSource> source)
+                  -> Result<std::unique_ptr<GraspPlanner>> {
+                Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
+                if (!perception.ok()) return perception.status();
+                BinPickingPlannerOptions planner_options;
+                planner_options.thorough_retry_ms = *retry_ms;
+                auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
+                                                         std::move(source), planner_options);
+                if (!planner.ok()) return planner.status();
+                return std::unique_ptr<GraspPlanner>(std::move(*planner));
+              };
               if (manifest->empty()) {
                 if (dir->empty()) return Fail("replay", Status::InvalidArgument("give a DIR or --manifest FILE"));
                 return ReplayOne(*dir, *json_out, *options);

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <numeric>
 #include <tuple>
 #include <utility>
 
@@ -35,20 +37,41 @@ double PlanarShareMismatch(float share, const ClassModel& model) {
   return std::max(0.0, lo - kPlanarShareSlack - share) + std::max(0.0, share - hi - kPlanarShareSlack);
 }
 
+BudgetGate::BudgetGate(const PerceptionBudget& budget) : budget_(budget) {}
+
+double BudgetGate::Now() const { return budget_.now_ms ? budget_.now_ms() : SteadyClockMs(); }
+
+std::optional<double> BudgetGate::Admit() const {
+  const double now = Now();
+  const int n = done_.load();
+  const double mean_ms = n > 0 ? 1e-3 * static_cast<double>(done_us_.load()) / n : 0.0;
+  if (now + mean_ms > budget_.deadline_ms) return std::nullopt;
+  return now;
+}
+
+void BudgetGate::Finished(double started_ms) {
+  done_us_ += static_cast<int64_t>(std::llround(1e3 * std::max(0.0, Now() - started_ms)));
+  ++done_;
+}
+
 struct ViewMatcher::Job {
   int model = 0;
   bool too_small = false;
+  bool skipped = false;  // not run: over the budget
   ClassEstimate estimate;
 };
 
 ViewMatcher::ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
                          const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
-                         const FitRmsLimit& fit_limit)
+                         const FitRmsLimit& fit_limit, const PerceptionBudget* budget)
     : options_(options), models_(models), thorough_(thorough), frame_(frame), floor_plane_B_(floor_plane_B),
-      segments_(segments), fit_limit_(fit_limit) {}
+      segments_(segments), fit_limit_(fit_limit) {
+  if (budget != nullptr) budget_.emplace(*budget);
+}
 
 void ViewMatcher::RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier,
-                              std::vector<int>* order, std::vector<int>* too_small) const {
+                              std::vector<int>* order, std::vector<int>* too_small, double* best_cost) const {
+  *best_cost = std::numeric_limits<double>::infinity();
   const size_t n_models = models_.size();
   std::vector<Eigen::Vector3f> points;
   for (int32_t k : view) points.push_back(segments_.points[static_cast<size_t>(k)]);
@@ -84,7 +107,10 @@ void ViewMatcher::RankClasses(const ViewIndices& view, bool region_view, const V
                         static_cast<int>(m));
   }
   if (options_.early_exit_score > 0.0 && !thorough_) std::stable_sort(ranked.begin(), ranked.end());
-  for (const auto& [wave, cost, m] : ranked) order->push_back(m);
+  for (const auto& [wave, cost, m] : ranked) {
+    order->push_back(m);
+    *best_cost = std::min(*best_cost, cost);
+  }
 }
 
 void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms, size_t from, size_t to,
@@ -100,6 +126,15 @@ void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms
     const ClassModel& model = *models_[static_cast<size_t>(ms[r])];
     const auto mi = static_cast<size_t>(ms[r]);
     const WaveTrace* skip = earlier != nullptr && mi < earlier->size() ? &(*earlier)[mi] : nullptr;
+    std::optional<double> started;
+    if (budget_) {
+      started = budget_->Admit();
+      if (!started) {
+        job.skipped = true;
+        ++counts_.estimates_skipped;
+        return;
+      }
+    }
     if (skip != nullptr && (!skip->coarse_poses.empty() || skip->prepared) && view.search) {
       SegmentView with_skip = view;
       with_skip.reuse.skip_coarse = skip->coarse_poses;
@@ -108,6 +143,7 @@ void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms
     } else {
       job.estimate = model.Estimate(view);
     }
+    if (started) budget_->Finished(*started);
     counts_.coarse_skipped += job.estimate.trace.coarse_skipped;
     counts_.coarse_refined += static_cast<int>(job.estimate.trace.coarse_poses.size());
     if (trace != nullptr) {
@@ -130,17 +166,29 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
                                 bool keep_traces) {
   const size_t n_views = views.views.size();
   std::vector<std::vector<int>> order(n_views), too_small(n_views);
+  std::vector<double> best_cost(n_views);
   tbb::parallel_for(size_t{0}, n_views, [&](size_t v) {
     RankClasses(views.views[v], v >= views.first_region, earlier != nullptr ? &(*earlier)[v] : nullptr, &order[v],
-                &too_small[v]);
+                &too_small[v], &best_cost[v]);
   });
+  // The order views start in: as given, or (budget) best-fitting first.
+  // Each task of the loop below takes the next view of this list, so views
+  // start in this order whatever the partitioner does.
+  std::vector<size_t> start_order(n_views);
+  std::iota(start_order.begin(), start_order.end(), size_t{0});
+  if (budget_) {
+    std::stable_sort(start_order.begin(), start_order.end(),
+                     [&](size_t a, size_t b) { return best_cost[a] < best_cost[b]; });
+  }
+  std::atomic<size_t> next_view{0};
   MatchOutcome out;
   std::vector<std::vector<Job>> per_view(n_views);
   const bool early_exit = options_.early_exit_score > 0.0 && !thorough_;
   out.best.assign(n_views, -1.0);
   if (keep_traces) out.traces.assign(n_views, ViewTrace(models_.size()));
   const bool have_normals = !segments_.normals.empty();
-  tbb::parallel_for(size_t{0}, n_views, [&](size_t v) {
+  tbb::parallel_for(size_t{0}, n_views, [&](size_t) {
+    const size_t v = start_order[next_view++];
     const ViewIndices& index = views.views[v];
     std::vector<Eigen::Vector3f> points, normals;
     points.reserve(index.size());
@@ -182,7 +230,9 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     if (!found) RunClasses(view, too_small[v], 0, too_small[v].size(), true, view_earlier, trace, &jobs);
   });
   counts_.views += static_cast<int>(n_views);
-  for (const std::vector<Job>& jobs : per_view) counts_.estimator_calls += static_cast<int>(jobs.size());
+  for (const std::vector<Job>& jobs : per_view) {
+    for (const Job& job : jobs) counts_.estimator_calls += job.skipped ? 0 : 1;
+  }
   CollectCandidates(views, per_view, &out.candidates);
   return out;
 }
@@ -192,6 +242,7 @@ void ViewMatcher::CollectCandidates(const ViewSet& views, std::vector<std::vecto
   for (size_t v = 0; v < per_view.size(); ++v) {
     const ViewIndices& index = views.views[v];
     for (Job& job : per_view[v]) {
+      if (job.skipped) continue;
       const ClassModel& model = *models_[static_cast<size_t>(job.model)];
       if (job.estimate.hypotheses.empty() && counts_.first_reason.empty()) counts_.first_reason = job.estimate.reason;
       for (ClassHypothesis& h : job.estimate.hypotheses) {

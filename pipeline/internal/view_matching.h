@@ -68,19 +68,41 @@ struct MatchCounts {
   int estimator_calls = 0;
   std::atomic<int> coarse_refined{0};
   std::atomic<int> coarse_skipped{0};
+  std::atomic<int> estimates_skipped{0};  // not started: the budget would have been exceeded
   int rejected_low_score = 0;  // hypotheses below the detection bar
   int rejected_free_space = 0;  // above it, but too much in free space (max_free_space_fraction)
   std::string first_reason;    // the first estimate's reason for no hypothesis
+};
+
+// The PerceptionBudget of a run: admits an estimate while the clock plus
+// the mean duration of the estimates admitted so far is within the
+// deadline. Thread-safe.
+class BudgetGate {
+ public:
+  explicit BudgetGate(const PerceptionBudget& budget);
+  // The clock now if an estimate may start, else nullopt.
+  std::optional<double> Admit() const;
+  // An admitted estimate that started at `started_ms` has finished.
+  void Finished(double started_ms);
+
+ private:
+  double Now() const;
+  const PerceptionBudget& budget_;
+  std::atomic<int64_t> done_us_{0};  // summed durations of finished estimates, microseconds
+  std::atomic<int> done_{0};
 };
 
 // Runs class models on views, per frame. Not thread-safe itself; Match runs
 // its views and classes in parallel on the caller's oneTBB arena.
 class ViewMatcher {
  public:
-  // Everything referenced must outlive the matcher.
+  // Everything referenced must outlive the matcher. With a budget, views
+  // start in order of their best class's ranking cost (the views most
+  // likely to hold a part first) and estimates the budget would not cover
+  // are skipped (MatchCounts::estimates_skipped).
   ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
               const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
-              const FitRmsLimit& fit_limit);
+              const FitRmsLimit& fit_limit, const PerceptionBudget* budget = nullptr);
 
   // Per view, in parallel: the classes that fit it ranked (RankClasses), the
   // first alone, the others unless it gave a confident hypothesis
@@ -98,8 +120,9 @@ class ViewMatcher {
   struct Job;
   // The class ranking of one view: the classes that fit it (best first) and
   // those too small for it. Empty for a region view no class fits.
+  // *best_cost: the ranking cost of the best class that fits (+inf: none).
   void RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier, std::vector<int>* order,
-                   std::vector<int>* too_small) const;
+                   std::vector<int>* too_small, double* best_cost) const;
   // Runs the classes ms[from, to) on one view in parallel, appending to jobs.
   void RunClasses(const SegmentView& view, const std::vector<int>& ms, size_t from, size_t to, bool too_small,
                   const ViewTrace* earlier, ViewTrace* trace, std::vector<Job>* jobs);
@@ -114,6 +137,7 @@ class ViewMatcher {
   std::optional<Eigen::Vector4d> floor_plane_B_;  // none: nothing rests on a support plane
   const Segments& segments_;
   const FitRmsLimit& fit_limit_;
+  std::optional<BudgetGate> budget_;
   MatchCounts counts_;
 };
 

@@ -199,6 +199,63 @@ TEST(BinPickingPlanner, ARetryThatFindsPartsButNoGraspAnswersNoCollisionFree) {
   EXPECT_FALSE(IsBoxEmpty(request.task.empty_box, detail->result));
 }
 
+// A detector that finds nothing on a normal run, and on a thorough one
+// records the budget it was given and reports it ran out of it.
+class RunsOutOfItsRetryBudget final : public Perception {
+ public:
+  explicit RunsOutOfItsRetryBudget(const Cell& cell) : truth_(cell) {}
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort, region);
+    if (r.ok()) r->detections.clear();
+    return r;
+  }
+  Result<PerceptionResult> RunThorough(const Frame& frame, const std::vector<int>& classes,
+                                       const PerceptionBudget& budget,
+                                       const std::optional<PerceptionRegion>& region) const override {
+    deadline_ms = budget.deadline_ms;
+    now_at_start_ms = budget.now_ms ? budget.now_ms() : -1.0;
+    Result<PerceptionResult> r = Run(frame, classes, PerceptionEffort::kThorough, region);
+    if (r.ok()) r->estimates_skipped = 7;
+    return r;
+  }
+  mutable double deadline_ms = 0.0, now_at_start_ms = 0.0;
+
+ private:
+  TruthPerception truth_;
+};
+
+// The retry's deadline is its budget from the retry's start, less
+// what the normal grasp stage took (the retry's grasp stage comes after
+// it), on the planner's clock; a retry that ran out says so.
+TEST(BinPickingPlanner, TheThoroughRetryGetsItsBudgetAndThePlanSaysWhenItRanOut) {
+  Cell cell = SyntheticCell(3, 5);
+  auto perception = std::make_shared<RunsOutOfItsRetryBudget>(cell);
+  auto source = MakeSyntheticSource(cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  options.thorough_retry_ms = 80.0;
+  auto ticks = std::make_shared<int>(1000);  // read by one thread: the plan's
+  options.retry_clock_ms = [ticks] { return static_cast<double>((*ticks)++); };
+  auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
+  ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+  PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+  auto scene = (*planner)->Capture(request);
+  ASSERT_TRUE(scene.ok());
+  auto detail = (*planner)->PlanDetailed(request, **scene);
+  ASSERT_TRUE(detail.ok()) << detail.status().ToString();
+  EXPECT_EQ(detail->retry_estimates_skipped, 7);
+  const PlanResult* plan = &detail->result;
+  const auto grasps = std::find_if(plan->stages.begin(), plan->stages.end(),
+                                   [](const StageTime& st) { return st.stage == "grasps"; });
+  ASSERT_NE(grasps, plan->stages.end());
+  EXPECT_DOUBLE_EQ(perception->now_at_start_ms, 1001.0);  // the clock read once at the retry's start
+  EXPECT_NEAR(perception->deadline_ms, 1000.0 + 80.0 - grasps->ms, 1e-9);
+  EXPECT_NE(plan->message.find("thorough retry stopped at its 80 ms budget, 7 estimates not run"), std::string::npos)
+      << plan->message;
+}
+
 TEST(BinPickingPlanner, AnEmptyRoiIsNotRetried) {
   Cell cell = SyntheticCell(0, 5);
   auto perception = std::make_shared<FindsOnlyWhenThorough>(cell);

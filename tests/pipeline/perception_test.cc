@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <functional>
@@ -339,6 +340,65 @@ TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   std::vector<std::string> stages;
   for (const StageTiming& t : r.timings) stages.push_back(t.stage);
   EXPECT_EQ(stages, (std::vector<std::string>{"roi", "regions", "segment", "pose", "verify", "second_look", "residual"}));
+}
+
+// A clock for PerceptionBudget that advances 1 ms at every reading: an
+// estimate admitted at t finishes at t + 1 (the gate reads the clock once
+// before and once after it), so on one thread the k-th admitted estimate
+// (k >= 1) is admitted at 2k only while 2k + 1 <= deadline.
+struct TickClock {
+  std::shared_ptr<std::atomic<int>> ticks = std::make_shared<std::atomic<int>>(0);
+  PerceptionBudget Budget(double deadline_ms) const {
+    return {deadline_ms, [t = ticks] { return static_cast<double>((*t)++); }};
+  }
+};
+
+PerceptionResult RunThoroughOnOneThread(const Frame& frame, const PerceptionBudget& budget) {
+  tbb::task_arena arena(1);
+  Result<PerceptionResult> r = Status::Internal("not run");
+  arena.execute([&] { r = Fixture::Get().perception->RunThorough(frame, {}, budget); });
+  EXPECT_TRUE(r.ok()) << r.status().ToString();
+  return r.ok() ? *r : PerceptionResult{};
+}
+
+TEST_F(PerceptionTest, AThoroughRunStartsNoEstimateItsBudgetDoesNotCover) {
+  const Frame frame = fx().Pile(3);
+  // Deadline 9: estimates admitted at 0, 2, 4, 6, 8 (each ending 1 later, by
+  // 9); every later one is skipped.
+  TickClock clock;
+  const PerceptionResult r = RunThoroughOnOneThread(frame, clock.Budget(9.0));
+  EXPECT_EQ(r.estimator_calls, 5);
+  EXPECT_GT(r.estimates_skipped, 0);
+  EXPECT_TRUE(r.budget_exhausted());
+  // Nothing left: no estimate at all, and the reason says why.
+  TickClock none;
+  const PerceptionResult empty = RunThoroughOnOneThread(frame, none.Budget(-1.0));
+  EXPECT_EQ(empty.estimator_calls, 0);
+  EXPECT_TRUE(empty.detections.empty());
+  EXPECT_NE(empty.reason.find("budget used"), std::string::npos) << empty.reason;
+}
+
+TEST_F(PerceptionTest, AThoroughRunSpendsASmallBudgetOnTheViewsMostLikelyToHoldAPart) {
+  // A pile, and a budget of the first 8 estimates: started on the largest
+  // views that best fit a class, they find parts.
+  TickClock clock;
+  const PerceptionResult r = RunThoroughOnOneThread(fx().Pile(3), clock.Budget(15.0));
+  EXPECT_EQ(r.estimator_calls, 8);
+  EXPECT_FALSE(r.detections.empty()) << r.reason;
+}
+
+TEST_F(PerceptionTest, AThoroughRunWithinItsBudgetFindsWhatAnUnboundedOneFinds) {
+  const Frame frame = fx().Render({{1, PoseW(0.03, -0.02, 0.0, 30.0)}, {2, PoseW(-0.05, 0.04, 0.04, 100.0, 60.0)}});
+  const PerceptionResult unbounded = fx().Run(frame, {}, PerceptionEffort::kThorough);
+  TickClock clock;
+  const PerceptionResult bounded = RunThoroughOnOneThread(frame, clock.Budget(1e9));
+  EXPECT_EQ(bounded.estimates_skipped, 0);
+  EXPECT_EQ(bounded.estimator_calls, unbounded.estimator_calls);
+  ASSERT_EQ(bounded.detections.size(), unbounded.detections.size());
+  for (size_t i = 0; i < bounded.detections.size(); ++i) {
+    EXPECT_EQ(bounded.detections[i].class_id, unbounded.detections[i].class_id);
+    EXPECT_LT((bounded.detections[i].X_BO.translation() - unbounded.detections[i].X_BO.translation()).norm(), 1e-4);
+  }
 }
 
 TEST_F(PerceptionTest, ClassesArgumentRestrictsTheSearch) {
