@@ -4,6 +4,9 @@
 // their true poses (TruthPerception support points, so the scene-point OcTree
 // holds the points of the bin no detection explains), and the frame's depth
 // for the seen-contact check (the hidden parts' grasps fail it).
+// Both at camera config 1 (640 x 480) and 2 (1920 x 1200), with the
+// obstacles voxelised (the default) and point by point (voxelised:0, the
+// reference: GraspPlanningOptions::voxelised_obstacles).
 //   ./build/bin/bp_grasp_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 #include <tbb/task_arena.h>
@@ -22,7 +25,8 @@ struct BenchScene {
   Cell cell;
   Frame frame;  // the seen-contact check reads its depth image
   PerceptionResult perception;
-  std::shared_ptr<const GraspPlanningModel> model;
+  std::shared_ptr<const GraspPlanningModel> model;            // voxelised obstacles
+  std::shared_ptr<const GraspPlanningModel> model_by_point;   // the reference
 };
 
 [[noreturn]] void Die(const Status& s) {
@@ -30,9 +34,9 @@ struct BenchScene {
   std::abort();
 }
 
-const BenchScene& Scene() {
-  static const BenchScene scene = [] {
-    BenchScene b;
+BenchScene MakeScene(int config) {
+  BenchScene b;
+  {
     auto cell = LoadDefaultCell();
     if (!cell.ok()) Die(cell.status());
     cell->source.num_parts = 20;
@@ -40,7 +44,9 @@ const BenchScene& Scene() {
     b.cell = *cell;
     auto source = MakeSyntheticSource(b.cell);
     if (!source.ok()) Die(source.status());
-    auto frame = (*source)->Capture({});
+    CaptureRequest capture;
+    capture.config_id = config;
+    auto frame = (*source)->Capture(capture);
     if (!frame.ok()) Die(frame.status());
     TruthPerceptionOptions options;
     options.min_visible_fraction = 0.0;
@@ -63,17 +69,29 @@ const BenchScene& Scene() {
     auto model = GraspPlanningModel::Build(b.cell);
     if (!model.ok()) Die(model.status());
     b.model = *model;
-    return b;
-  }();
-  return scene;
+    GraspPlanningOptions by_point;
+    by_point.voxelised_obstacles = false;
+    auto reference = GraspPlanningModel::Build(b.cell, by_point);
+    if (!reference.ok()) Die(reference.status());
+    b.model_by_point = *reference;
+  }
+  return b;
 }
 
+const BenchScene& Scene(int config) {
+  static const BenchScene vga = MakeScene(1);
+  static const BenchScene wuxga = MakeScene(2);
+  return config == 2 ? wuxga : vga;
+}
+
+// Args: threads, camera config, voxelised (1) or point by point (0).
 void Run(benchmark::State& state, const BenchScene& s) {
   const TaskSpec task = *s.cell.FindTask(0);
   tbb::task_arena arena(static_cast<int>(state.range(0)));
+  const GraspPlanningModel& model = state.range(2) != 0 ? *s.model : *s.model_by_point;
   GraspPlan plan;
   for (auto _ : state) {
-    arena.execute([&] { plan = PlanGrasps(*s.model, task, s.perception, {}, &s.frame); });
+    arena.execute([&] { plan = PlanGrasps(model, task, s.perception, {}, &s.frame); });
     benchmark::DoNotOptimize(plan.queue.data());
   }
   state.counters["parts"] = static_cast<double>(s.perception.detections.size());
@@ -93,21 +111,30 @@ void Run(benchmark::State& state, const BenchScene& s) {
   state.counters["rejected_points"] = plan.stats.rejected[static_cast<int>(RejectReason::kPoints)];
 }
 
-void BM_FilterAllCandidates20Parts(benchmark::State& state) { Run(state, Scene()); }
-BENCHMARK(BM_FilterAllCandidates20Parts)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+void Args(benchmark::internal::Benchmark* b) {
+  b->ArgNames({"threads", "config", "voxelised"})
+      ->ArgsProduct({{1, 2}, {1, 2}, {0, 1}})
+      ->Unit(benchmark::kMillisecond)
+      ->UseRealTime();
+}
+
+void BM_FilterAllCandidates20Parts(benchmark::State& state) { Run(state, Scene(static_cast<int>(state.range(1)))); }
+BENCHMARK(BM_FilterAllCandidates20Parts)->Apply(Args);
 
 // Worst case for the point check: no point is explained by a detection, so
 // the OcTree holds all ROI points (each part's own points too: most grasps
 // are then rejected by points, after the full FCL query).
 void BM_FilterAllCandidates20PartsAllPointsObstacles(benchmark::State& state) {
-  static const BenchScene s = [] {
-    BenchScene b = Scene();
+  auto unexplained = [](int config) {
+    BenchScene b = Scene(config);
     for (Detection& d : b.perception.detections) d.support.clear();
     return b;
-  }();
-  Run(state, s);
+  };
+  static const BenchScene vga = unexplained(1);
+  static const BenchScene wuxga = unexplained(2);
+  Run(state, state.range(1) == 2 ? wuxga : vga);
 }
-BENCHMARK(BM_FilterAllCandidates20PartsAllPointsObstacles)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FilterAllCandidates20PartsAllPointsObstacles)->Apply(Args);
 
 }  // namespace
 }  // namespace bp

@@ -3,9 +3,11 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <set>
@@ -487,6 +489,105 @@ std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, cons
   return candidates;
 }
 
+// The distinct voxels of `points` (B frame) in the OcTree's grid, edge
+// `res`: voxel k holds the coordinates c with floor(c / res) == k, as
+// octomap keys them (PointObstacle), so an OcTree built from the returned
+// centres is the one built from the points. Deduplicated on a dense bitmap
+// over the points' voxel bounds: O(points + voxels of those bounds), which
+// the ROI bounds whatever the image size.
+std::vector<Eigen::Vector3f> VoxelCentres(std::span<const Eigen::Vector3f> points, double res) {
+  const double inv = 1.0 / res;  // octomap's resolution_factor
+  auto key = [inv](float c) { return static_cast<int64_t>(std::floor(inv * static_cast<double>(c))); };
+  Eigen::Array3<int64_t> lo = Eigen::Array3<int64_t>::Constant(std::numeric_limits<int64_t>::max());
+  Eigen::Array3<int64_t> hi = Eigen::Array3<int64_t>::Constant(std::numeric_limits<int64_t>::min());
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    const Eigen::Array3<int64_t> k(key(p.x()), key(p.y()), key(p.z()));
+    lo = lo.min(k);
+    hi = hi.max(k);
+  }
+  std::vector<Eigen::Vector3f> centres;
+  if ((lo > hi).any()) return centres;
+  const Eigen::Array3<int64_t> dims = hi - lo + 1;
+  auto centre = [res](int64_t k) { return static_cast<float>((static_cast<double>(k) + 0.5) * res); };
+  // Points spread beyond any bin (a bad ROI): sort instead of a bitmap.
+  constexpr int64_t kMaxCells = int64_t{1} << 27;
+  if (dims.x() > kMaxCells / dims.y() / dims.z()) {
+    std::vector<std::array<int64_t, 3>> keys;
+    keys.reserve(points.size());
+    for (const Eigen::Vector3f& p : points) {
+      if (p.allFinite()) keys.push_back({key(p.x()), key(p.y()), key(p.z())});
+    }
+    std::sort(keys.begin(), keys.end());
+    keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+    for (const auto& k : keys) centres.emplace_back(centre(k[0]), centre(k[1]), centre(k[2]));
+    return centres;
+  }
+  std::vector<uint8_t> seen(static_cast<size_t>(dims.prod()), 0);
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    const Eigen::Array3<int64_t> k = Eigen::Array3<int64_t>(key(p.x()), key(p.y()), key(p.z())) - lo;
+    uint8_t& bit = seen[static_cast<size_t>((k.z() * dims.y() + k.y()) * dims.x() + k.x())];
+    if (bit) continue;
+    bit = 1;
+    centres.emplace_back(centre(k.x() + lo.x()), centre(k.y() + lo.y()), centre(k.z() + lo.z()));
+  }
+  return centres;
+}
+
+// The occluded columns (GraspPlanningOptions::occluded_columns): for every
+// (x, y) column of voxels of edge `res` in the bin frame W (z up from the
+// floor) holding a point of `rest` (B frame), one point per voxel below the
+// highest such point, down to the floor, appended to `rest`. `dense`: the
+// column tops on a 2D array over the points' columns (O(points + columns));
+// else sorted (O(points log points), the reference).
+void AppendOccludedColumns(const Pose& X_BW_d, double res_d, bool dense, std::vector<Eigen::Vector3f>& rest) {
+  const float res = static_cast<float>(res_d);
+  const Eigen::Affine3f X_WB = X_BW_d.inverse().cast<float>();
+  const Eigen::Affine3f X_BW = X_BW_d.cast<float>();
+  auto cell_of = [res](float v) { return static_cast<int64_t>(std::floor(v / res)); };
+  auto fill = [&](int64_t cx, int64_t cy, int64_t top) {
+    for (int64_t cz = top - 1; cz >= 0; --cz) {
+      rest.push_back(X_BW * Eigen::Vector3f((cx + 0.5f) * res, (cy + 0.5f) * res, (cz + 0.5f) * res));
+    }
+  };
+  std::vector<std::tuple<int64_t, int64_t, int64_t>> tops;
+  tops.reserve(rest.size());
+  int64_t x0 = std::numeric_limits<int64_t>::max(), x1 = std::numeric_limits<int64_t>::min();
+  int64_t y0 = x0, y1 = x1;
+  for (const Eigen::Vector3f& p : rest) {
+    const Eigen::Vector3f w = X_WB * p;
+    tops.emplace_back(cell_of(w.x()), cell_of(w.y()), cell_of(w.z()));
+    x0 = std::min(x0, std::get<0>(tops.back()));
+    x1 = std::max(x1, std::get<0>(tops.back()));
+    y0 = std::min(y0, std::get<1>(tops.back()));
+    y1 = std::max(y1, std::get<1>(tops.back()));
+  }
+  constexpr int64_t kMaxColumns = int64_t{1} << 24;
+  if (dense && !tops.empty() && (x1 - x0 + 1) <= kMaxColumns / (y1 - y0 + 1)) {
+    // Per (x, y) column the highest voxel.
+    const int64_t nx = x1 - x0 + 1, ny = y1 - y0 + 1;
+    std::vector<int64_t> top(static_cast<size_t>(nx * ny), std::numeric_limits<int64_t>::min());
+    for (const auto& [cx, cy, cz] : tops) {
+      int64_t& t = top[static_cast<size_t>((cy - y0) * nx + (cx - x0))];
+      t = std::max(t, cz);
+    }
+    for (int64_t cy = y0; cy <= y1; ++cy) {
+      for (int64_t cx = x0; cx <= x1; ++cx) {
+        const int64_t t = top[static_cast<size_t>((cy - y0) * nx + (cx - x0))];
+        if (t != std::numeric_limits<int64_t>::min()) fill(cx, cy, t);
+      }
+    }
+    return;
+  }
+  std::sort(tops.begin(), tops.end(), std::greater<>());
+  for (size_t k = 0; k < tops.size();) {
+    const auto [cx, cy, top] = tops[k];
+    while (k < tops.size() && std::get<0>(tops[k]) == cx && std::get<1>(tops[k]) == cy) ++k;
+    fill(cx, cy, top);
+  }
+}
+
 // Stage 2: the other parts as meshes, the points no detection explains (and
 // the occluded columns under them) as an OcTree and an occupancy bitmap.
 FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception) {
@@ -510,31 +611,18 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   for (size_t i = 0; i < explained.size(); ++i) {
     if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
   }
+  const double res = m.options.octree_resolution;
+  // The columns from the points themselves (their cells in W), then every
+  // point voxelised in the OcTree's grid (B).
   if (m.options.occluded_columns && !rest.empty()) {
-    // One point per voxel (in the bin frame W, z up from the floor) under
-    // each unexplained point, down to the floor; the surface points stay.
-    const float res = static_cast<float>(m.options.octree_resolution);
-    const Eigen::Affine3f X_WB = m.cell.bin.X_BW.inverse().cast<float>();
-    const Eigen::Affine3f X_BW = m.cell.bin.X_BW.cast<float>();
-    auto cell_of = [res](float v) { return static_cast<int64_t>(std::floor(v / res)); };
-    std::vector<std::tuple<int64_t, int64_t, int64_t>> tops;
-    tops.reserve(rest.size());
-    for (const Eigen::Vector3f& p : rest) {
-      const Eigen::Vector3f w = X_WB * p;
-      tops.emplace_back(cell_of(w.x()), cell_of(w.y()), cell_of(w.z()));
-    }
-    // Per (x, y) column the highest voxel; everything below it is filled.
-    std::sort(tops.begin(), tops.end(), std::greater<>());
-    for (size_t k = 0; k < tops.size();) {
-      const auto [cx, cy, top] = tops[k];
-      while (k < tops.size() && std::get<0>(tops[k]) == cx && std::get<1>(tops[k]) == cy) ++k;
-      for (int64_t cz = top - 1; cz >= 0; --cz) {
-        rest.push_back(X_BW * Eigen::Vector3f((cx + 0.5f) * res, (cy + 0.5f) * res, (cz + 0.5f) * res));
-      }
-    }
+    AppendOccludedColumns(m.cell.bin.X_BW, res, m.options.voxelised_obstacles, rest);
   }
-  auto points = PointObstacle::FromPoints(rest, m.options.octree_resolution);
+  if (m.options.voxelised_obstacles) rest = VoxelCentres(rest, res);
+  auto points = PointObstacle::FromPoints(rest, res);
   if (points.ok()) obstacles.points = *points;
+  // 1 cm cells: a voxel the sweep overlaps has its centre within `res` of
+  // the slab box the check pads by `res`, so the pre-filter stays
+  // conservative on voxel centres as on points.
   obstacles.grid = internal::OccupancyGrid(rest, 0.01);
   return obstacles;
 }

@@ -85,7 +85,21 @@ struct GraspPlanningOptions {
   double revolute_step_deg = 15.0;  // samples about a revolute symmetry axis
   double approach_step = 0.005;     // m between swept copies of the gripper
   double contact_margin = 0.005;    // m the gripper is lifted for self / point checks
-  double octree_resolution = 0.004; // m, voxel edge of the scene-point OcTree
+  // m, voxel edge of the scene-point OcTree: the points no detection
+  // explains are that obstacle inflated by up to one voxel. Derived from
+  // the clearance of the point check and the depth noise: the gripper is
+  // lifted by contact_margin (5 mm) for it, and a measured point of the
+  // surface it lands on lies up to 2 sigma_z (~1 mm at the bin floor, the
+  // default camera) above that surface; one voxel more must stay within the
+  // lift: 5 - 1 = 4 mm.
+  double octree_resolution = 0.004;
+  // Unexplained points are voxelised in the OcTree's grid, and the occluded
+  // columns found on a dense grid of the bin's columns, before any
+  // structure is built: the obstacle costs in proportion to the occupied
+  // voxels of the bin, not to the image's pixels. The OcTree is the one
+  // built point by point (same voxels), so every verdict is the same.
+  // false: point by point (the reference tests compare with).
+  bool voxelised_obstacles = true;
   // The space below each scene point no detection explains, down to the bin
   // floor, is an obstacle too (voxels of octree_resolution): the camera sees
   // the top edge of an undetected plate standing on end, not the plate below
