@@ -254,6 +254,15 @@ class RequestHandler::Impl {
   }
 
   void HandleAsync(const Request& req, ClientContext& client, Completion done);
+  // The steps of HandleAsync.
+  bool ReadHeader(const Request& req, ClientContext& client, WireFormat& f, const Completion& done) const;
+  std::optional<Pose> RecordPose(const Request& req, const WireFormat& f, ClientContext& client,
+                                 AnswerEvent* answer_event) const;
+  bool ResolveTask(const Request& req, ClientContext& client, const WireFormat& f, const Completion& done,
+                   TaskState** out);
+  void TeachPose(const Request& req, const ClientContext& client, const std::optional<Pose>& X_BF, Completion done);
+  void Dispatch(const Request& req, ClientContext& client, const WireFormat& f, const std::optional<Pose>& X_BF,
+                TaskState* task, Completion done);
 
   void AddObserver(std::shared_ptr<ServerObserver> observer) {
     observers_.push_back(std::move(observer));
@@ -1085,6 +1094,23 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   if (MovesTo(req.command)) f.own_pose.emplace(req.position, req.orientation);
   done = InRange(req, f, std::move(done));
 
+  if (!ReadHeader(req, client, f, done)) return;
+  const std::optional<Pose> X_BF = RecordPose(req, f, client, answer_event.get());
+  TaskState* task = nullptr;
+  if (!ResolveTask(req, client, f, done, &task)) return;
+  if (ChangesTheCell(req.command) && !client.may_change_cell) {
+    RefuseChange(req, client, f, std::move(done));
+    return;
+  }
+
+  Dispatch(req, client, f, X_BF, task, std::move(done));
+}
+
+// The message's header: meta_2 (echoed) and meta_1 (the orientation
+// convention) into `f`. @returns false when the request is answered
+// UNKNOWN_COMMAND for it (`done` called).
+bool RequestHandler::Impl::ReadHeader(const Request& req, ClientContext& client, WireFormat& f,
+                                      const Completion& done) const {
   // meta_2 is 1 or 2 (both seeds' programs send 1, seed 000's text says 2)
   // and is echoed; anything else is garbage (or a misaligned stream): answer
   // UNKNOWN_COMMAND. The rules follow the cell's dialect, not meta_2.
@@ -1093,7 +1119,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
                  "answering UNKNOWN_COMMAND", client.peer, req.meta_2, req.command);
     f.meta_2 = cell_.robot.protocol_version;
     done(Respond(Base(daoai::kUnknownCommand, f)));
-    return;
+    return false;
   }
   f.meta_2 = req.meta_2;
   // meta_1 selects the orientation convention of both directions.
@@ -1102,7 +1128,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     spdlog::warn("daoai: {} sent unknown robot type (meta_1) {} (command {}); answering "
                  "UNKNOWN_COMMAND", client.peer, req.meta_1, req.command);
     done(Respond(Base(daoai::kUnknownCommand, f)));
-    return;
+    return false;
   }
   if (model->type != cell_.robot.model.type && !client.warned_meta_1) {
     client.warned_meta_1 = true;
@@ -1117,9 +1143,13 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   if (model->type == RobotType::kOther && cell_.robot.model.type == RobotType::kOther) {
     f.convention = cell_.robot.model.convention;
   }
+  return true;
+}
 
-  // Every message carries the robot pose: record it (status page, liveness,
-  // eye-in-hand captures, calibration, teaching).
+// Every message carries the robot pose: recorded on `client` (status page,
+// liveness, eye-in-hand captures, calibration, teaching) when it decodes.
+std::optional<Pose> RequestHandler::Impl::RecordPose(const Request& req, const WireFormat& f, ClientContext& client,
+                                                     AnswerEvent* answer_event) const {
   std::optional<Pose> X_BF;
   if (Result<Pose> decoded = DecodePose(req, f); decoded.ok()) {
     X_BF = *decoded;
@@ -1130,30 +1160,67 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     spdlog::debug("daoai: {} sent an undecodable pose: {}", client.peer,
                   decoded.status().ToString());
   }
+  return X_BF;
+}
 
-  TaskState* task = nullptr;
+// The task payload_1 names, for the commands that need one (null for the
+// others); remembered on `client`. @returns false when the task is unknown
+// (answered UNKNOWN_COMMAND: `done` called).
+bool RequestHandler::Impl::ResolveTask(const Request& req, ClientContext& client, const WireFormat& f,
+                                       const Completion& done, TaskState** out) {
+  *out = nullptr;
   if (NeedsTask(req.command)) {
     auto it = tasks_.find(req.payload_1);
     if (it == tasks_.end()) {
       spdlog::warn("daoai: {} named unknown task id {} (payload_1) with command {}; answering "
                    "UNKNOWN_COMMAND", client.peer, req.payload_1, req.command);
       done(Respond(Base(daoai::kUnknownCommand, f)));
-      return;
+      return false;
     }
-    task = it->second.get();
+    TaskState* task = it->second.get();
     client.last_task_id = task->spec.id;
     if (IsPickTask(task->spec) && (req.command == daoai::kCaptureAndProcessAsync ||
                                    req.command == daoai::kCaptureAndProcess ||
                                    req.command == daoai::kPickPose)) {
       client.last_pick_task_id = task->spec.id;
     }
+    *out = task;
   }
+  return true;
+}
 
-  if (ChangesTheCell(req.command) && !client.may_change_cell) {
-    RefuseChange(req, client, f, std::move(done));
+// Teach (30): no response. The pose is the robot's tool pose (what it
+// sends); the planner stores it on the calibration and teach sequence.
+void RequestHandler::Impl::TeachPose(const Request& req, const ClientContext& client, const std::optional<Pose>& X_BF,
+                                     Completion done) {
+  if (!X_BF) {
+    spdlog::warn("daoai: {} sent a teach pose that could not be decoded; ignored", client.peer);
+    done(NoResponse());
     return;
   }
+  const TaskState* taught = TeachTask(req, client);
+  if (taught == nullptr) {
+    spdlog::warn("daoai: {} sent a teach pose, but payload_1 {} names no pick task and the "
+                 "connection has picked on none; ignored", client.peer, req.payload_1);
+    done(NoResponse());
+    return;
+  }
+  TeachRequest teach{taught->spec, *X_BF};
+  done(NoResponse());
+  const bool posted = serial_.Post([this, teach] {
+    const Status s = Guard("teach", [&] { return planner_->Teach(teach); });
+    if (s.ok()) {
+      spdlog::info("daoai: taught a grasp for task {}", teach.task.id);
+    } else {
+      spdlog::warn("daoai: teach for task {} not stored: {}", teach.task.id, s.ToString());
+    }
+  });
+  if (!posted) CountRefusedJob("a teach pose");
+}
 
+// Answers a request whose header, pose and task HandleAsync has read.
+void RequestHandler::Impl::Dispatch(const Request& req, ClientContext& client, const WireFormat& f,
+                                    const std::optional<Pose>& X_BF, TaskState* task, Completion done) {
   switch (req.command) {
     case daoai::kNoCommand:
       done(NoResponse());
@@ -1195,33 +1262,9 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
       return;
     }
 
-    case daoai::kSendPose: {
-      // Teach: no response. The pose is the robot's tool pose (what it sends).
-      if (!X_BF) {
-        spdlog::warn("daoai: {} sent a teach pose that could not be decoded; ignored", client.peer);
-        done(NoResponse());
-        return;
-      }
-      const TaskState* taught = TeachTask(req, client);
-      if (taught == nullptr) {
-        spdlog::warn("daoai: {} sent a teach pose, but payload_1 {} names no pick task and the "
-                     "connection has picked on none; ignored", client.peer, req.payload_1);
-        done(NoResponse());
-        return;
-      }
-      TeachRequest teach{taught->spec, *X_BF};
-      done(NoResponse());
-      const bool posted = serial_.Post([this, teach] {
-        const Status s = Guard("teach", [&] { return planner_->Teach(teach); });
-        if (s.ok()) {
-          spdlog::info("daoai: taught a grasp for task {}", teach.task.id);
-        } else {
-          spdlog::warn("daoai: teach for task {} not stored: {}", teach.task.id, s.ToString());
-        }
-      });
-      if (!posted) CountRefusedJob("a teach pose");
+    case daoai::kSendPose:
+      TeachPose(req, client, X_BF, std::move(done));
       return;
-    }
 
     case daoai::kCheckEmptyBox:
       PostCheck(*task, &TaskState::empty_box, MakePlanRequest(*task, X_BF), EchoMeta2(f, std::move(done)),
