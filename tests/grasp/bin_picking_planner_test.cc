@@ -449,6 +449,23 @@ TEST(BinPickingPlanner, InHandAnswersThePartInTheToolWhereTheGraspReallyMetIt) {
   EXPECT_EQ(blind.status().code(), Status::Code::kInvalidArgument);  // in-hand needs the robot's pose
 }
 
+// The 5-part synthetic pile whose picked part slips in the gripper by up to
+// 10 mm / 10 deg (the in-hand tests).
+Cell SlippingCell() {
+  Cell cell = SyntheticCell(3, 5);
+  cell.source.slip_translation = 0.01;
+  cell.source.slip_rotation_deg = 10;
+  return cell;
+}
+
+// One capture for `task` with the robot at X_BT, then its plan.
+Result<PlanResult> CaptureAndPlan(BinPickingPlanner& planner, const TaskSpec& task, const std::optional<Pose>& X_BT) {
+  const PlanRequest request{task, X_BT, 0};
+  Result<CaptureHandle> scene = planner.Capture(request);
+  if (!scene.ok()) return scene.status();
+  return planner.Plan(request, **scene);
+}
+
 // Ground truth, except that a part seen in a region (the in-hand view) is
 // estimated turned over: 180 deg about its own x axis.
 class TurnsHeldPartsOver final : public Perception {
@@ -467,9 +484,7 @@ class TurnsHeldPartsOver final : public Perception {
 };
 
 TEST(BinPickingPlanner, AnInHandPoseTurnedOverAgainstThePartAsPickedIsNotAnswered) {
-  Cell cell = SyntheticCell(3, 5);
-  cell.source.slip_translation = 0.01;
-  cell.source.slip_rotation_deg = 10;
+  const Cell cell = SlippingCell();
   auto source = MakeSyntheticSource(cell);
   ASSERT_TRUE(source.ok()) << source.status().ToString();
   BinPickingPlannerOptions options;
@@ -478,11 +493,8 @@ TEST(BinPickingPlanner, AnInHandPoseTurnedOverAgainstThePartAsPickedIsNotAnswere
                                                      std::move(*source), options)).value();
   const TaskSpec& pick = *cell.FindTask(0);
   const TaskSpec& in_hand = *cell.FindTask(1);
-  auto plan = [&](const TaskSpec& task, const std::optional<Pose>& X_BT) -> Result<PlanResult> {
-    const PlanRequest request{task, X_BT, 0};
-    Result<CaptureHandle> scene = planner->Capture(request);
-    if (!scene.ok()) return scene.status();
-    return planner->Plan(request, **scene);
+  auto plan = [&](const TaskSpec& task, const std::optional<Pose>& X_BT) {
+    return CaptureAndPlan(*planner, task, X_BT);
   };
   Result<PlanResult> picks = plan(pick, std::nullopt);
   ASSERT_TRUE(picks.ok());
@@ -530,9 +542,7 @@ class AmbiguousInHand final : public Perception {
 };
 
 TEST(BinPickingPlanner, AnAmbiguousInHandViewAnswersThePoseNearestToThePartAsPicked) {
-  Cell cell = SyntheticCell(3, 5);
-  cell.source.slip_translation = 0.01;
-  cell.source.slip_rotation_deg = 10;
+  const Cell cell = SlippingCell();
   auto source = MakeSyntheticSource(cell);
   ASSERT_TRUE(source.ok()) << source.status().ToString();
   SyntheticSource* sim = dynamic_cast<SyntheticSource*>(source->get());
@@ -542,11 +552,8 @@ TEST(BinPickingPlanner, AnAmbiguousInHandViewAnswersThePoseNearestToThePartAsPic
                                                      std::move(*source), options)).value();
   const TaskSpec& pick = *cell.FindTask(0);
   const TaskSpec& in_hand = *cell.FindTask(1);
-  auto plan = [&](const TaskSpec& task, const std::optional<Pose>& X_BT) -> Result<PlanResult> {
-    const PlanRequest request{task, X_BT, 0};
-    Result<CaptureHandle> scene = planner->Capture(request);
-    if (!scene.ok()) return scene.status();
-    return planner->Plan(request, **scene);
+  auto plan = [&](const TaskSpec& task, const std::optional<Pose>& X_BT) {
+    return CaptureAndPlan(*planner, task, X_BT);
   };
   for (int cycle = 0; cycle < 3; ++cycle) {
     Result<PlanResult> picks = plan(pick, std::nullopt);
