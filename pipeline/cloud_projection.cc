@@ -252,16 +252,26 @@ RayBounds BoundsOf(const std::vector<RayPoint>& rays) {
   return r;
 }
 
+// The number of pixels along one axis that holds the largest coordinate
+// `hi`: PixelIndex computes its pixel coordinate as hi * f + c, which can
+// differ from (hi - lo) / pitch in the last bits. When that lands on a
+// half-integer the point would fall off a grid sized from the extent alone
+// (found by fuzz/pcd_fuzz: an out-of-range index in NeighbourSpacing).
+int PixelsToCover(double hi, double f, double c, double extent_px) {
+  const int from_extent = static_cast<int>(std::lround(extent_px)) + 1;
+  return std::max(from_extent, static_cast<int>(std::floor(hi * f + c + 0.5)) + 1);
+}
+
 // Square pixels of `pitch` (tangent units) covering the bounds, the first
-// pixel's centre on the smallest coordinates.
+// pixel's centre on the smallest coordinates. Every ray within the bounds has
+// a pixel (PixelIndex >= 0).
 Intrinsics GridOfPitch(const RayBounds& bounds, double pitch) {
   Intrinsics K;
   K.fx = K.fy = 1.0 / pitch;
-  // The last point's column is lround(extent / pitch): every point is inside.
-  K.width = static_cast<int>(std::lround((bounds.a1 - bounds.a0) / pitch)) + 1;
-  K.height = static_cast<int>(std::lround((bounds.b1 - bounds.b0) / pitch)) + 1;
   K.cx = -bounds.a0 / pitch;
   K.cy = -bounds.b0 / pitch;
+  K.width = PixelsToCover(bounds.a1, K.fx, K.cx, (bounds.a1 - bounds.a0) / pitch);
+  K.height = PixelsToCover(bounds.b1, K.fy, K.cy, (bounds.b1 - bounds.b0) / pitch);
   return K;
 }
 

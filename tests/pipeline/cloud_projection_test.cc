@@ -374,6 +374,29 @@ TEST(ProjectCloud, PointsFarOffTheViewAxisAreDropped) {
   EXPECT_EQ(ProjectCloud(cloud, DefaultCell(), true).status().code(), Status::Code::kInvalidArgument);
 }
 
+// Found by fuzz/pcd_fuzz: 25 points spread over a square put the spacing
+// search's cell at 2/5 of the square, so the far edge's pixel coordinate
+// (2.5) rounded off a grid sized from the extent (an index of -1). Random
+// such squares, off any lattice: every point gets a pixel.
+TEST(ProjectCloud, EveryPointOfASquareCloudGetsAPixel) {
+  std::mt19937 rng{11};
+  std::uniform_real_distribution<float> corner(-0.3f, 0.2f), side(0.01f, 0.1f), inside(0.f, 1.f);
+  for (int trial = 0; trial < 300; ++trial) {
+    Frame cloud;
+    cloud.X_BC = DefaultCell().camera.X_BC;
+    const float x0 = corner(rng), s = side(rng);
+    for (const float cx : {0.f, 1.f}) {
+      for (const float cy : {0.f, 1.f}) cloud.points_C.emplace_back(x0 + cx * s, x0 + cy * s, 1.f);
+    }
+    while (cloud.points_C.size() < 25) {
+      cloud.points_C.emplace_back(x0 + inside(rng) * s, x0 + inside(rng) * s, 1.f);
+    }
+    Result<CloudProjection> p = ProjectCloud(cloud, DefaultCell(), true);
+    ASSERT_TRUE(p.ok()) << "trial " << trial << ": " << p.status().ToString();
+    ASSERT_EQ(p->points, 25) << "trial " << trial;
+  }
+}
+
 TEST(ProjectCloud, AnOrganizedFrameOrNoPointInFrontIsInvalidArgument) {
   const Cell& cell = DefaultCell();
   const Frame organized = FloorWithBox(cell.camera.FindConfig(1)->intrinsics, cell.camera.X_BC);
