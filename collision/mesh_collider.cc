@@ -3,6 +3,7 @@
 #include <fcl/broadphase/broadphase_dynamic_AABB_tree.h>
 #include <fcl/geometry/bvh/BVH_model.h>
 #include <fcl/geometry/shape/box.h>
+#include <fcl/geometry/shape/sphere.h>
 #include <fcl/narrowphase/collision.h>
 #include <fcl/narrowphase/collision_object.h>
 #include <fcl/narrowphase/distance.h>
@@ -93,6 +94,37 @@ double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeo
   fcl::distance(a.impl().model.get(), ToFcl(X_WA), b.impl().model.get(), ToFcl(X_WB), request,
                 result);
   return result.min_distance;
+}
+
+SurfacePoint NearestSurfacePoint(const CollisionGeometry& g, const Pose& X_WG, const Eigen::Vector3d& p_W) {
+  const FclMesh& model = *g.impl().model;
+  // A sphere of radius 0 is a point: FCL measures it to each triangle it
+  // reaches through the BVH (sphere-triangle distance, exact).
+  const fcl::Sphered point(0.0);
+  fcl::Transform3d X_WP = fcl::Transform3d::Identity();
+  X_WP.translation() = p_W;
+  const fcl::Transform3d X_WG_fcl = ToFcl(X_WG);
+  fcl::DistanceRequestd request;
+  request.enable_nearest_points = true;
+  fcl::DistanceResultd result;
+  fcl::distance(&model, X_WG_fcl, &point, X_WP, request, result);
+  SurfacePoint out;
+  const int triangle = result.b1;
+  if (triangle >= 0 && triangle < model.num_tris) {
+    const fcl::Triangle& t = model.tri_indices[triangle];
+    const Eigen::Vector3d& a = g.impl().vertices[t[0]];
+    const Eigen::Vector3d n_G = (g.impl().vertices[t[1]] - a).cross(g.impl().vertices[t[2]] - a);
+    if (n_G.norm() > 0) out.normal_W = X_WG.linear() * n_G.normalized();
+  }
+  // FCL reports a point lying on a triangle as "in contact" (distance < 0,
+  // no nearest points): the query point is then the surface point.
+  if (result.min_distance > 0) {
+    out.distance = result.min_distance;
+    out.point_W = X_WG * result.nearest_points[0];  // the triangle's point, in the mesh frame
+  } else {
+    out.point_W = p_W;
+  }
+  return out;
 }
 
 // --- CollisionScene ---------------------------------------------------------

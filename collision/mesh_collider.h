@@ -63,6 +63,21 @@ bool Collides(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeome
 double Distance(const CollisionGeometry& a, const Pose& X_WA, const CollisionGeometry& b,
                 const Pose& X_WB);
 
+// The point of a placed geometry's surface (its triangles) nearest to a query
+// point, and the surface's orientation there.
+struct SurfacePoint {
+  double distance = 0.0;                        // metres from the query point; 0 on the surface
+  Eigen::Vector3d point_W = Eigen::Vector3d::Zero();   // the nearest surface point
+  // Unit outward normal of the triangle that point lies on (counter-clockwise
+  // winding seen from outside, as every binpick mesh is built).
+  Eigen::Vector3d normal_W = Eigen::Vector3d::UnitZ();
+};
+
+// The surface of `g` placed at X_WG nearest to p_W (an FCL distance query
+// between g's BVH and a point). A point inside a closed mesh is measured to
+// the surface too: the distance is never negative.
+SurfacePoint NearestSurfacePoint(const CollisionGeometry& g, const Pose& X_WG, const Eigen::Vector3d& p_W);
+
 // Several placed objects with a broadphase (dynamic AABB tree). Objects are
 // named by caller-chosen integer ids.
 class CollisionScene {

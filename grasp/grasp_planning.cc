@@ -364,15 +364,14 @@ struct FrameObstacles {
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
 
-// Whether a tool at X_BT, planned as the grasp X_OG_nominal (the cell's,
-// before any "~v" turn) on `det` at det.X_BO, lands on the part at each of
-// the detection's alternative poses too: tool centre within max_position of
-// the grasp's contact point there and approach within max_approach of its
-// approach, both modulo the part's symmetry (LandOnTruth, the strict grasp
-// judge's rule).
+// Parallel jaws: whether a tool at X_BT, planned as the grasp X_OG_nominal
+// on `det` at det.X_BO, lands on the part at each of the detection's
+// alternative poses too: tool centre within max_position of the grasp's
+// contact point there and approach within max_approach of its approach,
+// both modulo the part's symmetry (LandOnTruth, the strict grasp judge's
+// rule): the jaws close where they were planned to, whichever pose is true.
 bool LandsUnderEveryAlternative(const Detection& det, const Symmetry& symmetry, const Pose& X_BT,
                                 const Pose& X_OG_nominal, double max_position, double max_approach) {
-  if (det.alternatives_X_BO.empty()) return true;
   const Vec3 p_O = det.X_BO.inverse() * X_BT.translation();
   const Vec3 a_O = X_OG_nominal.linear().col(2);
   for (const Pose& X_BO : det.alternatives_X_BO) {
@@ -381,6 +380,25 @@ bool LandsUnderEveryAlternative(const Detection& det, const Symmetry& symmetry, 
     if (l.truth_instance < 0 || l.position_error > max_position || l.approach_error > max_approach + 1e-9) {
       return false;
     }
+  }
+  return true;
+}
+
+// Suction: whether a cup at X_BT seals on the part at each of the
+// detection's alternative poses. A cup does not care where on the part it
+// lands, only that it meets the surface squarely enough: the tool centre
+// within max_distance of the part's surface placed at the alternative, and
+// the approach (+z of T, into the part) within max_angle of the inward
+// normal of that surface at its nearest point. A cup that would meet air
+// beside the part, or a flank steeper than its compliance, does not seal.
+bool SealsUnderEveryAlternative(const Detection& det, const CollisionGeometry& part, const Pose& X_BT,
+                                double max_distance, double max_angle) {
+  const Vec3 centre_B = X_BT.translation();
+  const Vec3 approach_B = X_BT.linear().col(2);
+  const double min_cos = std::cos(max_angle);
+  for (const Pose& X_BO : det.alternatives_X_BO) {
+    const SurfacePoint s = NearestSurfacePoint(part, X_BO, centre_B);
+    if (s.distance > max_distance || approach_B.dot(-s.normal_W) < min_cos - 1e-12) return false;
   }
   return true;
 }
@@ -646,12 +664,15 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
   const Pose X_TF = gripper.spec->X_FT.inverse();
   const SeenContactRule& rule = gripper.spec->seen_contact;
   const double pad = m.options.octree_resolution;
-  // Pose ambiguity: a candidate must land under every alternative pose of
-  // its detection, within the judge's position and the gripper's approach
-  // limit; the part's symmetry per detection.
-  const double ambiguity_approach = gripper.spec->kind == GripperSpec::Kind::kSuction
-                                        ? m.options.suction_compliance_deg * M_PI / 180.0
-                                        : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+  // Pose ambiguity: a candidate must hold the part under every alternative
+  // pose of its detection. Suction: the cup seals on the surface there
+  // (within the compliance less the margin kept for that pose's own error);
+  // jaws: they land at the grasp point (the judge's rule), the part's
+  // symmetry per detection.
+  const bool suction = gripper.spec->kind == GripperSpec::Kind::kSuction;
+  const double seal_angle =
+      std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0;
+  const double jaw_approach = m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
   std::vector<Symmetry> symmetry(detections.size());
   for (size_t d = 0; d < detections.size(); ++d) {
     if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry[d] = part->symmetry;
@@ -664,10 +685,15 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
       }
-      // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
-      if (!LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
-                                      m.options.ambiguity_max_position, ambiguity_approach)) {
-        return RejectReason::kAmbiguous;
+      if (!det.alternatives_X_BO.empty()) {
+        auto part = m.parts.find(det.class_id);
+        // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
+        const bool holds =
+            suction ? part != m.parts.end() && SealsUnderEveryAlternative(det, *part->second, c.X_BT,
+                                                                          m.options.ambiguity_max_position, seal_angle)
+                    : LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
+                                                 m.options.ambiguity_max_position, jaw_approach);
+        if (!holds) return RejectReason::kAmbiguous;
       }
       if (seen != nullptr && NeedsSeenContact(rule, det)) {
         c.seen_fraction = SeenShare(c, *seen);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
 #include <thread>
 
 #include "tests/test_meshes.h"
@@ -51,6 +52,31 @@ TEST(MeshCollider, WorldBoundsFollowThePose) {
   X.linear() = Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized()).toRotationMatrix();
   const auto exact = a->WorldBounds(X), loose = a->ConservativeWorldBounds(X);
   EXPECT_TRUE(loose.contains(exact));
+}
+
+TEST(MeshCollider, NearestSurfacePointFindsTheFaceItsNormalAndTheDistanceFromOutsideOnAndInside) {
+  // Vertices are floats: positions hold to about 1e-9 m.
+  auto near = [](const Vec3& a, const Vec3& b) { return (a - b).norm() < 1e-8; };
+  auto box = Box(0.1f, 0.1f, 0.1f);
+  // Turned 90 deg about x and moved: the box's -y face looks up (+z).
+  Pose X_WG = At(0.2, 0.1, 0.3);
+  X_WG.linear() = Eigen::AngleAxisd(M_PI / 2, Vec3::UnitX()).toRotationMatrix();
+  const SurfacePoint above = NearestSurfacePoint(*box, X_WG, Vec3(0.21, 0.12, 0.37));
+  EXPECT_NEAR(above.distance, 0.02, 1e-8);
+  EXPECT_TRUE(near(above.point_W, Vec3(0.21, 0.12, 0.35))) << above.point_W.transpose();
+  EXPECT_TRUE(above.normal_W.isApprox(Vec3::UnitZ(), 1e-9)) << above.normal_W.transpose();
+  // Beside the box's edge: the nearest point is on the edge.
+  const SurfacePoint beside = NearestSurfacePoint(*box, X_WG, Vec3(0.28, 0.1, 0.38));
+  EXPECT_NEAR(beside.distance, std::hypot(0.03, 0.03), 1e-8);
+  EXPECT_TRUE(near(beside.point_W, Vec3(0.25, 0.1, 0.35))) << beside.point_W.transpose();
+  // On the face, and 10 mm inside the box under it: the face is the surface.
+  const SurfacePoint on = NearestSurfacePoint(*box, X_WG, Vec3(0.19, 0.08, 0.35));
+  EXPECT_NEAR(on.distance, 0.0, 1e-8);
+  EXPECT_TRUE(on.normal_W.isApprox(Vec3::UnitZ(), 1e-9)) << on.normal_W.transpose();
+  const SurfacePoint inside = NearestSurfacePoint(*box, X_WG, Vec3(0.19, 0.08, 0.34));
+  EXPECT_NEAR(inside.distance, 0.01, 1e-8);
+  EXPECT_TRUE(near(inside.point_W, Vec3(0.19, 0.08, 0.35))) << inside.point_W.transpose();
+  EXPECT_TRUE(inside.normal_W.isApprox(Vec3::UnitZ(), 1e-9)) << inside.normal_W.transpose();
 }
 
 TEST(CollisionScene, MeshAgainstSceneReportsTheObjectsItHits) {
