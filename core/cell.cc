@@ -928,7 +928,7 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
     const YAML::Node t = n[i];
     const std::string path = At("tasks", i);
     ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "ranking", "fixture",
-                        "roi"});
+                        "roi", "failed_picks"});
     TaskSpec task;
     task.id = Int(Req(t, path, "id"), Join(path, "id"));
     Check(task.id >= 0, t["id"], Join(path, "id"), "must be >= 0");
@@ -977,6 +977,17 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
     Check(task.max_tilt_deg >= 0 && task.max_tilt_deg <= 180, t["max_tilt_deg"], Join(path, "max_tilt_deg"),
           "must be in [0, 180]");
     ParseTaskRegion(t, path, cell, task);
+    if (const YAML::Node fp = t["failed_picks"]; fp.IsDefined()) {
+      const std::string fkey = Join(path, "failed_picks");
+      ExpectMap(fp, fkey, {"radius_mm", "captures", "max_failures"});
+      task.failed_picks.radius = OptNumber(fp, fkey, "radius_mm", 1000.0 * task.failed_picks.radius) / 1000.0;
+      task.failed_picks.captures = OptInt(fp, fkey, "captures", task.failed_picks.captures);
+      task.failed_picks.max_failures = OptInt(fp, fkey, "max_failures", task.failed_picks.max_failures);
+      Check(task.failed_picks.radius > 0 && task.failed_picks.radius <= 1.0, fp["radius_mm"],
+            Join(fkey, "radius_mm"), "must be in (0, 1000]");
+      Check(task.failed_picks.captures >= 1, fp["captures"], Join(fkey, "captures"), "must be >= 1");
+      Check(task.failed_picks.max_failures >= 1, fp["max_failures"], Join(fkey, "max_failures"), "must be >= 1");
+    }
     if (const YAML::Node r = t["ranking"]; r.IsDefined()) {
       const std::string rkey = Join(path, "ranking");
       ExpectMap(r, rkey, {"height", "detection", "tilt"});

@@ -291,6 +291,24 @@ struct GraspRanking {
 //   in_hand    seed 003 stage 2: the part held by the gripper, in the tool frame;
 //   place_area seed 003 stage 3: the fixture's offset from its taught pose;
 //   precision  the precision check's target; pick_2d  2D picks.
+// What binpick does after a robot reports a failed pick (docs/protocols.md
+// "Failed-pick feedback", command 60). A failed spot is the part's position
+// in the bin frame W and its class; it is remembered for `captures` captures
+// of the task after its last failure, across re-captures.
+struct FailedPickRule {
+  // m: grasps on parts whose origin lies within this of a failed spot (the
+  // part itself and its near neighbours) are withdrawn while anything else
+  // can be picked. 30 mm: about half the smallest part of the default cell,
+  // wider than a detection's position error (5 mm) plus a slip.
+  double radius = 0.03;
+  // N >= 1: captures of the task a spot is remembered for after its last failure.
+  int captures = 3;
+  // K >= 1: failures on one spot (same class within `radius`) after which
+  // binpick no longer sends the robot there: its grasps are refused even when
+  // nothing else is left (the pick is answered NO_COLLISION_FREE_POSE).
+  int max_failures = 3;
+};
+
 struct TaskSpec {
   enum class Kind { kPick, kPlace, kInHand, kPlaceArea, kPrecision, kPick2D };
   int id = 0;
@@ -309,6 +327,8 @@ struct TaskSpec {
   // the surface the object rests on (the suction cup's lip, the table).
   // Empty for the other kinds (they look into the bin's roi).
   Eigen::AlignedBox3d roi;
+  // pick tasks: failed-pick feedback (tasks[].failed_picks).
+  FailedPickRule failed_picks;
 };
 // True for the kinds that look at a fixture / at the gripper.
 inline bool LooksAtFixture(const TaskSpec& t) {

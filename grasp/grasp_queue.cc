@@ -30,7 +30,29 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
   withdrawn_ids_.clear();
   summary_ = s;
   ++generation_;
+  ApplyScreen();
   return true;
+}
+
+int GraspQueue::ApplyScreen() {
+  if (!screen_ || grasps_.empty()) return 0;
+  const std::vector<Grasp> removed = screen_(grasps_);
+  if (removed.empty()) return 0;
+  for (const Grasp& g : removed) withdrawn_ids_.push_back(g.instance_id);
+  if (summary_) {
+    summary_->screened += static_cast<int>(removed.size());
+    // Only refused grasps leave a queue empty (withheld ones stay when
+    // nothing else is left): no collision-free grasp the robot may try.
+    if (grasps_.empty() && summary_->outcome == PlanResult::Outcome::kGrasps) {
+      summary_->outcome = PlanResult::Outcome::kNoCollisionFree;
+    }
+  }
+  return static_cast<int>(removed.size());
+}
+
+int GraspQueue::Rescreen() {
+  std::lock_guard lock(mutex_);
+  return ApplyScreen();
 }
 
 bool GraspQueue::Restore(Popped p) {
@@ -54,6 +76,7 @@ bool GraspQueue::Restore(Popped p) {
     const size_t at = std::min(static_cast<size_t>(std::max(position, 0)), grasps_.size());
     grasps_.insert(grasps_.begin() + static_cast<std::ptrdiff_t>(at), std::move(grasp));
   }
+  ApplyScreen();
   return true;
 }
 

@@ -5,7 +5,10 @@
 // whose approach passes close to it) leave the queue with it, and the
 // remaining count says so (docs/protocols.md, "Stale grasps").
 //
-// Thread-safety: every member is safe to call concurrently; each grasp of a
+// A screen (SetScreen) may take grasps out too: the failed-pick feedback
+// (grasp/failed_picks.h) withholds grasps on spots a robot failed to pick.
+//
+// Thread-safety: every member but SetScreen is safe to call concurrently; each grasp of a
 // Replace() is handed out by at most one Pop() (exactly one unless withdrawn).
 // Replace and Pop are atomic with respect to each other: a Pop sees either
 // the old or the new queue.
@@ -60,7 +63,19 @@ class GraspQueue {
     int64_t largest_region_points = 0;
     int detections = 0;
     int withdrawn = 0;  // grasps withdrawn as stale since the plan was queued
+    int screened = 0;   // grasps the screen took out (failed-pick feedback) since then
   };
+
+  // Takes grasps out of the queue, under its lock, and returns them
+  // (FailedPicks::Screen: failed-pick feedback). Called after every Replace
+  // and Restore, and by Rescreen. It must not call back into the queue.
+  using Screen = std::function<std::vector<Grasp>(std::deque<Grasp>&)>;
+  // Set once, before the queue is used (not synchronized with the other members).
+  void SetScreen(Screen screen) { screen_ = std::move(screen); }
+  // Runs the screen on the queued grasps now (after a failure report).
+  // A queue the screen empties reports kNoCollisionFree from then on.
+  // @returns the grasps it took out.
+  int Rescreen();
 
   // Discards what is left and queues result.grasps in order, unless the
   // queue already holds the plan of a later capture: `capture_seq` numbers
@@ -101,6 +116,10 @@ class GraspQueue {
   uint64_t capture_seq_ = 0;        // GUARDED_BY(mutex_): of the plan queued
   bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
   std::vector<int> withdrawn_ids_;  // GUARDED_BY(mutex_): since the last Replace / Reset
+  Screen screen_;                   // set before use, then read-only
+
+  // Runs screen_ on grasps_. Needs mutex_. @returns the grasps it took out.
+  int ApplyScreen();
 
   // Queued grasps that handing out part `picked` makes stale. Needs mutex_.
   int StaleCount(int picked) const;

@@ -1,0 +1,117 @@
+#include "grasp/failed_picks.h"
+
+#include <algorithm>
+#include <tuple>
+
+namespace bp {
+
+std::string_view ToString(PickFailure reason) {
+  switch (reason) {
+    case PickFailure::kUnspecified:
+      return "unspecified";
+    case PickFailure::kNoVacuum:
+      return "no_vacuum";
+    case PickFailure::kSlipped:
+      return "slipped";
+  }
+  return "unspecified";
+}
+
+bool PickFailureFromWire(int32_t value, PickFailure* out) {
+  if (value < 0 || value > 2) return false;
+  *out = static_cast<PickFailure>(value);
+  return true;
+}
+
+std::string BaseGraspName(const std::string& name) {
+  const size_t end = name.find_first_of("@~");
+  return end == std::string::npos ? name : name.substr(0, end);
+}
+
+FailedPicks::FailedPicks(FailedPickRule rule, Pose X_BW) : rule_(rule), X_WB_(X_BW.inverse()) {}
+
+Vec3 FailedPicks::InBin(const Grasp& grasp) const { return X_WB_ * grasp.X_BO.translation(); }
+
+FailedPicks::Recorded FailedPicks::Report(const Grasp& grasp, PickFailure reason) {
+  const Vec3 p_W = InBin(grasp);
+  std::lock_guard lock(mutex_);
+  ++counts_[{grasp.class_id, BaseGraspName(grasp.name), static_cast<int32_t>(reason)}];
+  Spot* same = nullptr;
+  for (Spot& s : spots_) {
+    if (s.class_id != grasp.class_id || (s.p_W - p_W).norm() > rule_.radius) continue;
+    if (same == nullptr || (s.p_W - p_W).norm() < (same->p_W - p_W).norm()) same = &s;
+  }
+  if (same == nullptr) {
+    spots_.push_back(Spot{p_W, grasp.class_id, 0, 0});
+    same = &spots_.back();
+  }
+  ++same->failures;
+  same->age = 0;
+  same->p_W = p_W;  // where the part was last tried (a slip may have moved it)
+  return Recorded{same->failures, same->failures >= rule_.max_failures};
+}
+
+void FailedPicks::OnCapture() {
+  std::lock_guard lock(mutex_);
+  for (Spot& s : spots_) ++s.age;
+  spots_.erase(std::remove_if(spots_.begin(), spots_.end(), [&](const Spot& s) { return s.age > rule_.captures; }),
+               spots_.end());
+}
+
+FailedPicks::Verdict FailedPicks::Judge(const Grasp& grasp) const {
+  const Vec3 p_W = InBin(grasp);
+  std::lock_guard lock(mutex_);
+  Verdict v = Verdict::kServe;
+  for (const Spot& s : spots_) {
+    if ((s.p_W - p_W).norm() > rule_.radius) continue;
+    if (s.class_id == grasp.class_id && s.failures >= rule_.max_failures) return Verdict::kRefused;
+    v = Verdict::kWithheld;
+  }
+  return v;
+}
+
+template <typename Seq>
+std::vector<Grasp> FailedPicks::ScreenImpl(Seq& grasps) const {
+  std::vector<Grasp> removed;
+  {
+    std::lock_guard lock(mutex_);
+    if (spots_.empty()) return removed;
+  }
+  std::vector<Verdict> verdicts;
+  verdicts.reserve(grasps.size());
+  bool any_served = false;
+  for (const Grasp& g : grasps) {
+    verdicts.push_back(Judge(g));
+    any_served = any_served || verdicts.back() == Verdict::kServe;
+  }
+  Seq kept;
+  for (size_t i = 0; i < grasps.size(); ++i) {
+    const bool keep = verdicts[i] == Verdict::kServe || (verdicts[i] == Verdict::kWithheld && !any_served);
+    if (keep) {
+      kept.push_back(std::move(grasps[i]));
+    } else {
+      removed.push_back(std::move(grasps[i]));
+    }
+  }
+  grasps = std::move(kept);
+  return removed;
+}
+
+std::vector<Grasp> FailedPicks::Screen(std::deque<Grasp>& grasps) const { return ScreenImpl(grasps); }
+std::vector<Grasp> FailedPicks::Screen(std::vector<Grasp>& grasps) const { return ScreenImpl(grasps); }
+
+std::vector<FailedPicks::Count> FailedPicks::Counts() const {
+  std::lock_guard lock(mutex_);
+  std::vector<Count> out;
+  for (const auto& [key, n] : counts_) {
+    out.push_back(Count{std::get<0>(key), std::get<1>(key), static_cast<PickFailure>(std::get<2>(key)), n});
+  }
+  return out;
+}
+
+std::vector<FailedPicks::Spot> FailedPicks::Spots() const {
+  std::lock_guard lock(mutex_);
+  return spots_;
+}
+
+}  // namespace bp

@@ -1,0 +1,111 @@
+// Failed-pick feedback (issue 41 part 3; docs/protocols.md "Failed-pick
+// feedback"): a robot reports that the last grasp it was given failed, and
+// binpick stops sending it to that spot for a while.
+//
+// A failed spot is where the part was, in the bin frame W (X_WB * the part's
+// origin in base), with its class, so it survives re-captures: a later
+// capture's detection of the same part lands on the same spot. One task's
+// rule (FailedPickRule, cell tasks[].failed_picks):
+//   - a report on a part within `radius` of a remembered spot of the same
+//     class counts one more failure there; else it opens a spot;
+//   - a spot is remembered for `captures` captures of the task after its
+//     last failure (OnCapture ages it), then released;
+//   - a grasp whose part lies within `radius` of a remembered spot (the
+//     part itself, or a near neighbour that the failed attempt may have
+//     moved) is withheld: it leaves the queue while any other grasp is left;
+//     when only withheld grasps are left they stay (the robot would
+//     otherwise stop on a part it may still pick: a slip is often chance);
+//   - a grasp on a spot with `max_failures` failures (same class) is
+//     refused: it leaves the queue even when nothing else is left, and a
+//     queue emptied that way answers NO_COLLISION_FREE_POSE.
+//
+// Thread-safety: every member is safe to call concurrently (one mutex).
+// Screen() is called under a GraspQueue's lock (GraspQueue::SetScreen), so
+// FailedPicks never calls into a queue.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <string>
+#include <string_view>
+#include <tuple>
+#include <utility>
+#include <vector>
+
+#include "core/cell.h"
+#include "core/pose.h"
+#include "grasp/grasp.h"
+
+namespace bp {
+
+// Why the pick failed, as the robot says (the request's payload_2).
+enum class PickFailure : int32_t {
+  kUnspecified = 0,
+  kNoVacuum = 1,  // the vacuum never built up
+  kSlipped = 2,   // the part was held, then lost
+};
+std::string_view ToString(PickFailure reason);
+// 0, 1, 2 -> the reason; anything else -> false.
+bool PickFailureFromWire(int32_t value, PickFailure* out);
+
+class FailedPicks {
+ public:
+  // `X_BW`: the bin frame in base the spots are kept in (the cell's bin pose).
+  FailedPicks(FailedPickRule rule, Pose X_BW);
+
+  // What a report did.
+  struct Recorded {
+    int failures = 0;      // failures on the spot, this one included
+    bool refused = false;  // the spot reached max_failures: its grasps are refused
+  };
+  // The robot reports that `grasp` failed.
+  Recorded Report(const Grasp& grasp, PickFailure reason);
+  // A capture of the task happened: every spot ages by one capture; spots
+  // `captures` captures past their last failure are released.
+  void OnCapture();
+
+  enum class Verdict { kServe, kWithheld, kRefused };
+  Verdict Judge(const Grasp& grasp) const;
+  // Applies the rule above to grasps in queue order (order kept).
+  // @returns the grasps removed.
+  std::vector<Grasp> Screen(std::deque<Grasp>& grasps) const;
+  std::vector<Grasp> Screen(std::vector<Grasp>& grasps) const;
+
+  // Failures reported since start, per part class and grasp name (the
+  // cell's grasp name; a symmetry variant's suffix "@k" / "~v" kept off).
+  struct Count {
+    int class_id = 0;
+    std::string grasp;
+    PickFailure reason = PickFailure::kUnspecified;
+    uint64_t failures = 0;
+  };
+  std::vector<Count> Counts() const;
+  // A spot remembered now.
+  struct Spot {
+    Vec3 p_W = Vec3::Zero();  // part origin in the bin frame, m
+    int class_id = 0;
+    int failures = 0;
+    int age = 0;  // captures since its last failure
+  };
+  std::vector<Spot> Spots() const;
+  const FailedPickRule& rule() const { return rule_; }
+
+ private:
+  Vec3 InBin(const Grasp& grasp) const;
+  template <typename Seq>
+  std::vector<Grasp> ScreenImpl(Seq& grasps) const;
+
+  const FailedPickRule rule_;
+  const Pose X_WB_;
+  mutable std::mutex mutex_;
+  std::vector<Spot> spots_;  // GUARDED_BY(mutex_)
+  // (class, grasp name, reason) -> failures.  GUARDED_BY(mutex_)
+  std::map<std::tuple<int, std::string, int32_t>, uint64_t> counts_;
+};
+
+// The cell's grasp name of a queued grasp: "run_top@3~v" -> "run_top".
+std::string BaseGraspName(const std::string& name);
+
+}  // namespace bp
