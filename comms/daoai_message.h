@@ -75,6 +75,11 @@ enum Command : int32_t {
   kCheckEmptyBox = 40,
   kPrecisionCheck = 50,
   kSwitchConfig = 69,
+  // binpick extension (docs/protocols.md "Failed-pick feedback"): the last
+  // grasp of task payload_1 handed to this robot failed; payload_2 the
+  // reason (PickFailure: 0 unspecified, 1 vacuum not built, 2 slipped).
+  // No seed uses 60 or 61 (seeds 000, 003, 004 list their codes).
+  kReportPickFailure = 60,
 };
 
 // The commands of a calibration (manual, auto, guided, 2D): each belongs to
@@ -119,6 +124,10 @@ enum Status : int32_t {
   kPrecisionCheckFail = 52,
   kSwitchConfigSuccess = 66,
   kSwitchConfigFail = 67,
+  // binpick extension: answer to 60. payload_1 1 (x MULT) when the spot
+  // reached the task's max_failures (binpick will not send the robot there
+  // again), else 0.
+  kPickFailureNoted = 61,
 };
 
 }  // namespace bp::daoai

@@ -55,6 +55,7 @@ bool NeedsTask(int32_t command) {
     case daoai::kPickPose:
     case daoai::kCheckEmptyBox:
     case daoai::kPrecisionCheck:
+    case daoai::kReportPickFailure:
       return true;
     default:
       return false;
@@ -215,6 +216,12 @@ class RequestHandler::Impl {
     // sequence number of the detection they wait for.
     std::multimap<uint64_t, std::function<void()>> waiters;
     CheckLane empty_box, precision;  // GUARDED_BY(mutex)
+    // Pick tasks: the failed spots (internally locked; the queue's screen).
+    std::unique_ptr<FailedPicks> failed;
+    // GUARDED_BY(mutex): the last grasp handed out on any transport and not
+    // reported failed since: what a report from a connection that was
+    // handed none blames (a GRI robot's DaoAI side, a robot that reconnected).
+    std::optional<Grasp> last_handed_out;
   };
 
   Impl(Cell cell, std::shared_ptr<GraspPlanner> planner,
@@ -229,6 +236,12 @@ class RequestHandler::Impl {
     for (const TaskSpec& t : cell_.tasks) {
       auto state = std::make_unique<TaskState>();
       state->spec = t;
+      if (t.kind == TaskSpec::Kind::kPick) {
+        state->failed = std::make_unique<FailedPicks>(t.failed_picks, cell_.bin.X_BW);
+        state->queue.SetScreen([failed = state->failed.get()](std::deque<Grasp>& grasps) {
+          return failed->Screen(grasps);
+        });
+      }
       tasks_.emplace(t.id, std::move(state));
     }
   }
@@ -302,7 +315,13 @@ class RequestHandler::Impl {
     s.grasps_requeued = grasps_requeued_.load(std::memory_order_relaxed);
     s.grasps_superseded = grasps_superseded_.load(std::memory_order_relaxed);
     s.grasps_discarded = grasps_discarded_.load(std::memory_order_relaxed);
+    s.pick_failures = pick_failures_.load(std::memory_order_relaxed);
+    s.pick_failures_refused = pick_failures_refused_.load(std::memory_order_relaxed);
     return s;
+  }
+  std::vector<FailedPicks::Spot> FailedSpots(int task_id) const {
+    const TaskState* t = FindTask(task_id);
+    return t && t->failed ? t->failed->Spots() : std::vector<FailedPicks::Spot>{};
   }
 
  private:
@@ -451,6 +470,20 @@ class RequestHandler::Impl {
                 const std::function<void(int32_t, const std::optional<Pose>&)>& answer);
   void RefuseChange(const Request& req, const ClientContext& client, const WireFormat& f,
                     Completion done);
+  // Command 60: the last grasp of `t` handed to this robot failed
+  // (grasp/failed_picks.h; docs/protocols.md "Failed-pick feedback").
+  void ReportPickFailure(const Request& req, ClientContext& client, const WireFormat& f, TaskState& t,
+                         Completion done);
+  // The grasp a report from `client` on `t` blames, taken (a second report
+  // needs another hand-out); nullopt: none.
+  std::optional<Grasp> TakeLastGrasp(ClientContext& client, TaskState& t);
+  // Remembers a grasp the robot received (the one a report would blame).
+  void Received(TaskState& t, const Grasp& g, ClientContext* client) {
+    if (!t.failed) return;
+    if (client) client->last_grasps[t.spec.id] = g;
+    std::lock_guard lock(t.mutex);
+    t.last_handed_out = g;
+  }
   void Calibrate(const Request& req, const std::optional<Pose>& X_BF, const WireFormat& f,
                  Completion done);
 
@@ -481,6 +514,8 @@ class RequestHandler::Impl {
   std::atomic<uint64_t> grasps_requeued_{0};
   std::atomic<uint64_t> grasps_superseded_{0};
   std::atomic<uint64_t> grasps_discarded_{0};
+  std::atomic<uint64_t> pick_failures_{0};
+  std::atomic<uint64_t> pick_failures_refused_{0};
 
   // Calls `notify` on every observer. An observer that throws (it must not)
   // is logged and counted, and the others and the caller carry on: a
@@ -594,6 +629,8 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
     return;
   }
   captured(true);
+  // A capture of the task: failed spots age (released `captures` after their last failure).
+  if (t.failed) t.failed->OnCapture();
   Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
   PlanResult result;
   if (plan.ok()) {
@@ -670,11 +707,15 @@ bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>&
 void RequestHandler::Impl::HandOut(TaskState& t, const GraspQueue::Popped& p,
                                    ClientContext* client) {
   if (client == nullptr || !client->settle_after_write) {
+    Received(t, *p.grasp, client);
     planner_->NotifyHandedOut(t.spec, *p.grasp);
     return;
   }
   if (client->settle) std::exchange(client->settle, nullptr)(true);  // left unsettled
-  client->settle = [this, &t, p](bool written) { Settle(t, p, written); };
+  client->settle = [this, &t, p, client](bool written) {
+    if (written) Received(t, *p.grasp, client);
+    Settle(t, p, written);
+  };
 }
 
 void RequestHandler::Impl::Settle(TaskState& t, const GraspQueue::Popped& p, bool written) {
@@ -1106,6 +1147,61 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   Dispatch(req, client, f, X_BF, task, std::move(done));
 }
 
+std::optional<Grasp> RequestHandler::Impl::TakeLastGrasp(ClientContext& client, TaskState& t) {
+  std::optional<Grasp> g;
+  if (auto it = client.last_grasps.find(t.spec.id); it != client.last_grasps.end()) {
+    g = std::move(it->second);
+    client.last_grasps.erase(it);
+  }
+  std::lock_guard lock(t.mutex);
+  if (!g) {
+    g = std::move(t.last_handed_out);
+  } else if (t.last_handed_out && t.last_handed_out->instance_id == g->instance_id &&
+             t.last_handed_out->X_BT.isApprox(g->X_BT)) {
+    t.last_handed_out.reset();  // the same hand-out: blamed once
+  }
+  return g;
+}
+
+void RequestHandler::Impl::ReportPickFailure(const Request& req, ClientContext& client, const WireFormat& f,
+                                             TaskState& t, Completion done) {
+  auto refuse = [&](const std::string& why) {
+    const uint64_t n = pick_failures_refused_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::warn("daoai: {} reported a failed pick on task {} (reason {}): {}; answering UNKNOWN_COMMAND ({} "
+                 "refused since start)", client.peer, t.spec.id, req.payload_2, why, n);
+    done(Respond(Base(daoai::kUnknownCommand, f)));
+  };
+  PickFailure reason = PickFailure::kUnspecified;
+  if (!t.failed) return refuse("task " + std::to_string(t.spec.id) + " is not a pick task");
+  if (!PickFailureFromWire(req.payload_2, &reason)) {
+    return refuse("payload_2 must be 0 (unspecified), 1 (vacuum not built) or 2 (slipped)");
+  }
+  const std::optional<Grasp> g = TakeLastGrasp(client, t);
+  if (!g) return refuse("no grasp of the task was handed out since the last report");
+  const FailedPicks::Recorded recorded = t.failed->Report(*g, reason);
+  const int withdrawn = t.queue.Rescreen();
+  pick_failures_.fetch_add(1, std::memory_order_relaxed);
+  spdlog::info("daoai: {} reports grasp {} on part {} (class {}) of task {} failed ({}): failure {} on that spot{}; "
+               "{} queued grasp(s) withdrawn", client.peer, g->name, g->instance_id, g->class_id, t.spec.id,
+               ToString(reason), recorded.failures, recorded.refused ? ", no more picks there" : "", withdrawn);
+  if (!observers_.empty()) {
+    PickFailureEvent e;
+    e.task_id = t.spec.id;
+    e.client_id = client.id;
+    e.peer = client.peer;
+    e.grasp = *g;
+    e.reason = reason;
+    e.failures_on_spot = recorded.failures;
+    e.refused = recorded.refused;
+    e.withdrawn = withdrawn;
+    e.time = std::chrono::system_clock::now();
+    Notify("OnPickFailure", [&](ServerObserver& o) { o.OnPickFailure(e); });
+  }
+  Response r = Base(daoai::kPickFailureNoted, f);
+  r.payload[0] = recorded.refused ? static_cast<int32_t>(kMult) : 0;
+  done(Respond(r));
+}
+
 // The message's header: meta_2 (echoed) and meta_1 (the orientation
 // convention) into `f`. @returns false when the request is answered
 // UNKNOWN_COMMAND for it (`done` called).
@@ -1276,6 +1372,10 @@ void RequestHandler::Impl::Dispatch(const Request& req, ClientContext& client, c
                 [this](const PlanRequest& r) { return PrecisionCheck(r); });
       return;
 
+    case daoai::kReportPickFailure:
+      ReportPickFailure(req, client, f, *task, std::move(done));
+      return;
+
     case daoai::kSwitchConfig: {
       if (cell_.camera.FindConfig(req.payload_1) == nullptr) {
         spdlog::warn("daoai: {} asked for unknown camera config {}", client.peer, req.payload_1);
@@ -1396,6 +1496,9 @@ bool RequestHandler::RunCalibration(std::function<void(CalibrationService&)> job
   return impl_->RunCalibration(std::move(job));
 }
 RequestHandlerStats RequestHandler::stats() const { return impl_->stats(); }
+std::vector<FailedPicks::Spot> RequestHandler::FailedSpots(int task_id) const {
+  return impl_->FailedSpots(task_id);
+}
 
 Result<GraspQueue::Popped> RequestHandler::PopGrasp(int task_id, ClientContext* client,
                                                     const Sendable& sendable) {

@@ -27,14 +27,17 @@
 #include <chrono>
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "comms/calibration_service.h"
 #include "comms/daoai_message.h"
 #include "comms/server_observer.h"
 #include "core/cell.h"
+#include "grasp/failed_picks.h"
 #include "grasp/grasp_queue.h"
 #include "grasp/planner.h"
 
@@ -54,7 +57,7 @@ struct ClientContext {
   std::optional<Pose> X_BF;         // last robot pose received (position scaled to metres)
   std::chrono::system_clock::time_point pose_time{};  // when X_BF was received
   uint64_t requests = 0;            // requests handled on this connection
-  int last_task_id = 0;             // task of the last 19/20/21/40/50
+  int last_task_id = 0;             // task of the last 19/20/21/40/50/60
   std::optional<int> last_pick_task_id;  // task of the last 19/20/21 on a pick task (teach)
   bool warned_meta_1 = false;       // a meta_1 mismatch was logged once
   // The transport's value range, set by the transport before its first
@@ -80,6 +83,10 @@ struct ClientContext {
   // client's next request, the grasp counts as handed out.
   bool settle_after_write = false;
   std::function<void(bool written)> settle;
+  // Per task, the last grasp handed out on this connection and not yet
+  // reported failed (command 60 names it: docs/protocols.md "Failed-pick
+  // feedback"). Touched on the transport's thread only.
+  std::map<int, Grasp> last_grasps;
 };
 
 struct RequestHandlerOptions {
@@ -96,6 +103,8 @@ struct RequestHandlerStats {
   uint64_t grasps_requeued = 0;     // popped, their answer not written: back in the queue
   uint64_t grasps_superseded = 0;   // popped, not written, the queue replaced meanwhile: dropped
   uint64_t grasps_discarded = 0;    // left in a queue a later detection replaced (never popped)
+  uint64_t pick_failures = 0;       // failed picks reported (command 60), accepted
+  uint64_t pick_failures_refused = 0;  // reports refused: no grasp to blame, bad reason, not a pick task
 };
 
 class RequestHandler {
@@ -176,6 +185,9 @@ class RequestHandler {
   [[nodiscard]] bool RunCalibration(std::function<void(CalibrationService&)> job);
 
   RequestHandlerStats stats() const;
+  // The failed spots a pick task remembers now (grasp/failed_picks.h);
+  // empty for other tasks and unknown ones. Any thread.
+  std::vector<FailedPicks::Spot> FailedSpots(int task_id) const;
 
  private:
   class Impl;

@@ -19,6 +19,7 @@
 #include "comms/daoai_message.h"
 #include "core/pose.h"
 #include "core/status.h"
+#include "grasp/failed_picks.h"
 #include "grasp/planner.h"
 
 namespace bp {
@@ -50,9 +51,24 @@ struct AnswerEvent {
   std::chrono::system_clock::time_point time{};
 };
 
+// A robot reported that the last grasp it was given failed (command 60;
+// grasp/failed_picks.h). Sent on the transport's thread, before the answer.
+struct PickFailureEvent {
+  int task_id = 0;
+  uint64_t client_id = 0;
+  std::string peer;
+  Grasp grasp;  // the grasp that failed, as handed out
+  PickFailure reason = PickFailure::kUnspecified;
+  int failures_on_spot = 0;  // this one included
+  bool refused = false;      // the spot reached max_failures
+  int withdrawn = 0;         // queued grasps withheld or refused at once
+  std::chrono::system_clock::time_point time{};
+};
+
 class ServerObserver {
  public:
   virtual ~ServerObserver() = default;
+  virtual void OnPickFailure(const PickFailureEvent& /*event*/) {}
   virtual void OnDetection(const DetectionEvent& /*event*/) {}
   virtual void OnAnswer(const AnswerEvent& /*event*/) {}
 };

@@ -12,6 +12,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <tuple>
 
 #include "core/conventions.h"
 #include "grasp/bin_picking_planner.h"
@@ -57,20 +58,21 @@ const char* CalibrationModeOf(int32_t status) {
 // one binpick knows (comms/daoai_message.h), "other" for anything else. A
 // robot can send any int32 as a command: labelling it raw would grow
 // /metrics by one series per distinct number (issue 39).
-constexpr std::array<int32_t, 16> kCommandLabels = {
+constexpr std::array<int32_t, 17> kCommandLabels = {
     daoai::kNoCommand, daoai::kStartManualCalibration, daoai::kStopManualCalibration,
     daoai::kStartAutoCalibration, daoai::kManualAccumulatePose, daoai::kAutoAccumulatePose,
     daoai::kGuidanceCalibration, daoai::kStart2DAutoCalibration, daoai::kAutoAccumulate2DPose,
     daoai::kCaptureAndProcessAsync, daoai::kCaptureAndProcess, daoai::kPickPose,
-    daoai::kSendPose, daoai::kCheckEmptyBox, daoai::kPrecisionCheck, daoai::kSwitchConfig};
-constexpr std::array<int32_t, 21> kStatusLabels = {
+    daoai::kSendPose, daoai::kCheckEmptyBox, daoai::kPrecisionCheck, daoai::kSwitchConfig,
+    daoai::kReportPickFailure};
+constexpr std::array<int32_t, 22> kStatusLabels = {
     daoai::kUnknownCommand, daoai::kObjectsFound, daoai::kNoObjectFound,
     daoai::kNoCollisionFreePose, daoai::kDetection, daoai::kDropOffPose, daoai::kCaptureFail,
     daoai::kModeCalibration, daoai::kModeAutoCalibration, daoai::kGuidanceGood,
     daoai::kGuidanceBad, daoai::kMode2DAutoCalibration, daoai::kDoneGuidanceCalibration,
     daoai::kDoneCalibration, daoai::kDone2DAutoCalibration, daoai::kBoxEmpty,
     daoai::kBoxNotEmpty, daoai::kPrecisionCheckSuccess, daoai::kPrecisionCheckFail,
-    daoai::kSwitchConfigSuccess, daoai::kSwitchConfigFail};
+    daoai::kSwitchConfigSuccess, daoai::kSwitchConfigFail, daoai::kPickFailureNoted};
 
 // Index of `value` in `known`, or known.size() for "other".
 template <size_t N>
@@ -281,6 +283,27 @@ class StatusState::Impl {
     }
   }
 
+  // A failed pick reported by a robot (command 60): counted per task, class,
+  // grasp name and reason; the page lists the totals.
+  void OnPickFailure(const PickFailureEvent& e) {
+    const auto name = part_names_.find(e.grasp.class_id);
+    const std::string klass = name != part_names_.end() ? name->second : std::to_string(e.grasp.class_id);
+    const std::string grasp = BaseGraspName(e.grasp.name);
+    metrics_
+        .GetCounter("binpick_failed_picks_total",
+                    "Failed picks reported by robots (command 60) by task, part class, grasp and reason.",
+                    {{"task", std::to_string(e.task_id)}, {"class", klass}, {"grasp", grasp},
+                     {"reason", std::string(ToString(e.reason))}})
+        .Inc();
+    std::lock_guard lock(mutex_);
+    FailedPickRow& row = failed_picks_[{e.task_id, klass, grasp}];
+    ++row.failures;
+    row.last_reason = std::string(ToString(e.reason));
+    row.last_time = e.time;
+    row.last_peer = e.peer;
+    if (e.refused) ++row.spots_refused;
+  }
+
   // binpick_responses_total for a (command, status) label index pair: looked
   // up in the registry once, then read from the cache without its mutex.
   Counter& ResponseCounter(size_t command, size_t status) {
@@ -309,6 +332,7 @@ class StatusState::Impl {
     Detection d;
     Queue queue;
     std::map<std::string, Robot> robots;
+    std::map<std::tuple<int, std::string, std::string>, FailedPickRow> failed_picks;
     Calibration calibration;
     uint64_t detections = 0;
     std::function<int(int)> queue_size;
@@ -319,6 +343,7 @@ class StatusState::Impl {
       d = last_;
       queue = queue_;
       robots = robots_;
+      failed_picks = failed_picks_;
       calibration = calibration_;
       detections = detections_;
       queue_size = queue_size_;
@@ -416,6 +441,15 @@ class StatusState::Impl {
       rl.push_back(rj);
     }
     j["robots"] = rl;
+
+    json fp = json::array();
+    for (const auto& [key, row] : failed_picks) {
+      fp.push_back({{"task", std::get<0>(key)}, {"class", std::get<1>(key)}, {"grasp", std::get<2>(key)},
+                    {"failures", row.failures}, {"spots_refused", row.spots_refused},
+                    {"last_reason", row.last_reason}, {"last_peer", row.last_peer},
+                    {"last_time", IsoTime(row.last_time)}});
+    }
+    j["failed_picks"] = fp;
 
     json cal = json::array();
     if (calibration_probe) {
@@ -582,6 +616,14 @@ class StatusState::Impl {
   std::map<std::string, Robot> robots_;   // GUARDED_BY(mutex_), by peer
   Calibration calibration_;               // GUARDED_BY(mutex_)
   std::map<int32_t, int32_t> last_empty_answer_;  // GUARDED_BY(mutex_): task -> 41 / 42
+  struct FailedPickRow {
+    uint64_t failures = 0;
+    uint64_t spots_refused = 0;  // reports that took a spot to its max_failures
+    std::string last_reason, last_peer;
+    std::chrono::system_clock::time_point last_time{};
+  };
+  // GUARDED_BY(mutex_): (task, class name, grasp name) -> failed picks reported.
+  std::map<std::tuple<int, std::string, std::string>, FailedPickRow> failed_picks_;
 };
 
 StatusState::StatusState(const Cell& cell, MetricsRegistry& metrics, StatusStateOptions options)
@@ -599,6 +641,13 @@ void StatusState::OnDetection(const DetectionEvent& event) {
 void StatusState::OnAnswer(const AnswerEvent& event) {
   try {
     impl_->OnAnswer(event);
+  } catch (const std::exception&) {
+  }
+}
+
+void StatusState::OnPickFailure(const PickFailureEvent& event) {
+  try {
+    impl_->OnPickFailure(event);
   } catch (const std::exception&) {
   }
 }

@@ -49,6 +49,8 @@ class StatusState final : public ServerObserver {
 
   void OnDetection(const DetectionEvent& event) override;
   void OnAnswer(const AnswerEvent& event) override;
+  // Counts binpick_failed_picks_total and lists the totals on the page.
+  void OnPickFailure(const PickFailureEvent& event) override;
 
   // Grasps left in a task's queue (RequestHandler::QueueSize), so the page
   // can mark the grasps already handed out. Thread-safe; called on the HTTP thread.

@@ -696,6 +696,110 @@ TEST_F(DaoaiServerTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndTheRe
   EXPECT_EQ(handler_->QueueSize(0), 0);
 }
 
+// Failed-pick feedback (command 60, docs/protocols.md "Failed-pick
+// feedback"). Task 0 of these cells: the scripted grasps lie 10 mm apart
+// along x (0.50, 0.51, ...), so a 15 mm radius withholds the failed part
+// and its next neighbour.
+Cell FeedbackCell(double radius, int captures, int max_failures) {
+  Cell cell = MakeTestCell();
+  for (TaskSpec& t : cell.tasks) {
+    t.failed_picks.radius = radius;
+    t.failed_picks.captures = captures;
+    t.failed_picks.max_failures = max_failures;
+  }
+  return cell;
+}
+
+// The robot at (0.5, -0.25, 0.3) m reports that its last grasp of task 0
+// slipped (payload_2 2).
+const char* kReport60 = "00001388 FFFFF63C 00000BB8" "00000000 00000000 00003D5C 00000000" "0000003C 00000000 00000002" "00000007 00000002";
+// PICK_FAILURE_NOTED (61), payload_1 0: the spot may still be tried.
+const char* kNoted61 = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00000000 00000000 00000000 00000000 00000000 00000000" "0000003D 00000007 00000002";
+// 61 with payload_1 1 x MULT: the spot reached max_failures.
+const char* kNoted61Refused = "00000000 00000000 00000000" "00000000 00000000 00000000 00000000" "00002710 00000000 00000000 00000000 00000000 00000000" "0000003D 00000007 00000002";
+
+daoai::Request Report(int task, int32_t reason) {
+  daoai::Request r = Req(daoai::kReportPickFailure, task);
+  r.payload_2 = reason;
+  return r;
+}
+
+TEST_F(DaoaiServerTest, AFailedPickReportAndItsAnswerHaveGoldenBytes) {
+  Start(FeedbackCell(0.015, 3, 3));
+  const auto request = daoai::EncodeRequest(Report(0, 2));
+  EXPECT_EQ(Hex(request), Normalize(kReport60));
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
+  EXPECT_RESPONSE(*c, Report(0, 2), kNoted61);
+}
+
+TEST_F(DaoaiServerTest, AfterAReportedFailureTheNextPickIsAnotherPartAwayFromIt) {
+  Start(FeedbackCell(0.015, 3, 3));
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  planner_->SetScript(0, five);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  auto pick_x_mm = [&] {
+    Result<RobotReply> r = c->Call(daoai::kPickPose, 0);
+    EXPECT_TRUE(r.ok() && r->status == daoai::kObjectsFound && r->X_BT);
+    return r.ok() && r->X_BT ? std::round(1000 * r->X_BT->translation().x()) : -1.0;
+  };
+  ASSERT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  EXPECT_EQ(pick_x_mm(), 500);
+  Result<RobotReply> noted = c->Call(daoai::kReportPickFailure, 0, 1);  // vacuum not built
+  ASSERT_TRUE(noted.ok());
+  EXPECT_EQ(noted->status, daoai::kPickFailureNoted);
+  EXPECT_EQ(noted->payload[0], 0);
+  // The queue already lost the neighbour at 0.51 m; a new capture finds the
+  // failed part again at 0.50 m and withholds it and its neighbour.
+  EXPECT_EQ(handler_->QueueSize(0), 3);
+  ASSERT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  EXPECT_EQ(pick_x_mm(), 520);
+  EXPECT_EQ(handler_->FailedSpots(0).size(), 1u);
+  EXPECT_EQ(handler_->stats().pick_failures, 1u);
+}
+
+TEST_F(DaoaiServerTest, KFailuresOnOneSpotAnswerNoCollisionFreePoseRatherThanTheSameSpot) {
+  Start(FeedbackCell(0.015, 3, 2));
+  ScriptedPlanner::Script one;
+  one.grasps = 1;
+  planner_->SetScript(0, one);
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  ASSERT_EQ(c->Call(daoai::kPickPose, 0)->status, daoai::kObjectsFound);
+  EXPECT_RESPONSE(*c, Report(0, 2), kNoted61);
+  // Nothing else to pick: the part is tried again (fewer than K = 2 failures).
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  Result<RobotReply> again = c->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(again.ok());
+  ASSERT_EQ(again->status, daoai::kObjectsFound);
+  EXPECT_NEAR(again->X_BT->translation().x(), 0.5, 1e-4);
+  EXPECT_RESPONSE(*c, Report(0, 2), kNoted61Refused);
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kNoCf4);
+}
+
+TEST_F(DaoaiServerTest, AMalformedFailureReportGetsUnknownCommandAndTheNextRequestIsServed) {
+  Start(FeedbackCell(0.015, 3, 3));
+  auto c = Connect(2);
+  ASSERT_TRUE(c);
+  EXPECT_RESPONSE(*c, Report(0, 2), kUnknown) << "no grasp was handed out yet";
+  EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
+  EXPECT_RESPONSE(*c, Report(0, 9), kUnknown) << "reason 9 is not 0, 1 or 2";
+  EXPECT_RESPONSE(*c, Report(42, 2), kUnknown) << "no task 42";
+  EXPECT_RESPONSE(*c, Report(2, 2), kUnknown) << "task 2 is a place task";
+  EXPECT_RESPONSE(*c, Report(0, 2), kNoted61) << "the grasp is still the one to blame";
+  EXPECT_RESPONSE(*c, Report(0, 2), kUnknown) << "reported once";
+  EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_1) << "the next request is served";
+  EXPECT_EQ(handler_->stats().pick_failures, 1u);
+  EXPECT_EQ(handler_->stats().pick_failures_refused, 4u);  // task 42: refused as every unknown task
+}
+
 TEST_F(DaoaiServerTest, PipelinedRequestsAreAnsweredInOrder) {
   Start();
   auto c = Connect(2);

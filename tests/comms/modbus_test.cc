@@ -56,6 +56,37 @@ TEST(ModbusCodec, RequestFieldsAreInt16TwosComplementInOrder) {
   EXPECT_EQ(modbus::DecodeRequest(golden), r);
 }
 
+// The failed-pick report (command 60, payload_1 task 0, payload_2 reason 2
+// slipped) from a UR at (0.5, -0.25, 0.3) m, and its answer 61 (payload_1
+// 1 x MULT: the spot reached max_failures), register by register.
+TEST(ModbusCodec, FailedPickReportAndItsAnswerHaveGoldenRegisters) {
+  daoai::Request r;
+  r.position = {5000, -2500, 3000};
+  r.orientation = {0, 0, 15708, 0};
+  r.command = daoai::kReportPickFailure;
+  r.payload_1 = 0;
+  r.payload_2 = 2;
+  r.meta_1 = 7;
+  r.meta_2 = 2;
+  const auto regs = modbus::EncodeRequest(r);
+  ASSERT_TRUE(regs.ok());
+  const std::array<uint16_t, 12> golden = {0x1388, 0xF63C, 0x0BB8, 0x0000, 0x0000, 0x3D5C,
+                                           0x0000, 0x003C, 0x0000, 0x0002, 0x0007, 0x0002};
+  EXPECT_EQ(*regs, golden);
+  EXPECT_EQ(modbus::DecodeRequest(golden), r);
+
+  daoai::Response a;
+  a.status = daoai::kPickFailureNoted;
+  a.payload[0] = 10000;
+  a.meta_1 = 7;
+  a.meta_2 = 2;
+  const auto answer = modbus::EncodeResponse(a);
+  ASSERT_TRUE(answer.ok());
+  const std::array<uint16_t, 16> golden_answer = {0, 0, 0, 0, 0, 0, 0, 0x2710, 0, 0, 0, 0, 0, 0x003D, 0x0007, 0x0002};
+  EXPECT_EQ(*answer, golden_answer);
+  EXPECT_EQ(modbus::DecodeResponse(golden_answer), a);
+}
+
 TEST(ModbusCodec, RequestThatDoesNotFitIsRefusedNotWrapped) {
   daoai::Request r;
   r.position[1] = 32768;  // 3.2768 m
@@ -152,6 +183,7 @@ struct RigOptions {
   double position_scale = 1.0;
   std::chrono::microseconds write_interval{0};  // the robot's, between registers
   std::chrono::milliseconds backoff{10};         // the master's first reconnect delay
+  double failed_pick_radius = 0.03;              // every task's failed_picks.radius, m
 };
 
 class ModbusRig {
@@ -160,6 +192,7 @@ class ModbusRig {
     planner_ = std::make_shared<ScriptedPlanner>();
     Cell cell = MakeTestCell();
     cell.robot.position_scale = o.position_scale;
+    for (TaskSpec& t : cell.tasks) t.failed_picks.radius = o.failed_pick_radius;
     handler_ = std::make_unique<RequestHandler>(cell, planner_,
                                                 std::make_unique<CountingCalibrationService>(4));
     StartRobot(0);
@@ -260,6 +293,35 @@ TEST_P(ModbusVersionTest, AfterAPickGraspsOnATouchingNeighbourAreWithdrawnAndThe
   EXPECT_EQ(remaining, (std::vector<double>{3, 2, 1, 0}));
   EXPECT_EQ(x_mm, (std::vector<double>{500, 520, 540}));  // grasps 0, 2, 4
   EXPECT_EQ(rig.planner_->handed_out().size(), 3u);
+}
+
+// The Modbus twin of command 60: the same registers carry the report, and
+// the next capture's first pick is away from the failed part (grasps 10 mm
+// apart, radius 15 mm: the part at 0.50 m and its neighbour at 0.51 m withheld).
+TEST_P(ModbusVersionTest, AFailedPickReportedOverModbusSendsTheNextPickElsewhere) {
+  RigOptions o;
+  o.version = GetParam();
+  o.failed_pick_radius = 0.015;
+  ModbusRig rig(o);
+  ScriptedPlanner::Script five;
+  five.grasps = 5;
+  rig.planner_->SetScript(0, five);
+  auto pick_x_mm = [&] {
+    Result<RobotReply> r = rig.robot_->Call(daoai::kPickPose, 0);
+    EXPECT_TRUE(r.ok() && r->status == daoai::kObjectsFound && r->X_BT);
+    return r.ok() && r->X_BT ? std::round(1000 * r->X_BT->translation().x()) : -1.0;
+  };
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  EXPECT_EQ(pick_x_mm(), 500);
+  Result<RobotReply> noted = rig.robot_->Call(daoai::kReportPickFailure, 0, 2);
+  ASSERT_TRUE(noted.ok()) << noted.status().ToString();
+  EXPECT_EQ(noted->status, daoai::kPickFailureNoted);
+  Result<RobotReply> bad = rig.robot_->Call(daoai::kReportPickFailure, 0, 5);
+  ASSERT_TRUE(bad.ok()) << bad.status().ToString();
+  EXPECT_EQ(bad->status, daoai::kUnknownCommand) << "reason 5 does not exist";
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  EXPECT_EQ(pick_x_mm(), 520);
+  EXPECT_EQ(rig.handler_->stats().pick_failures, 1u);
 }
 
 TEST_P(ModbusVersionTest, AutoCalibrationStartsAndAccumulatesUntilDone) {

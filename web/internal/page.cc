@@ -59,6 +59,12 @@ tr.next { background: #dfd; }
 <th class="l">quaternion (w x y z)</th></tr></thead>
 <tbody></tbody>
 </table>
+<h2>Failed picks reported by robots</h2>
+<table id="failed-picks">
+<thead><tr><th>task</th><th class="l">class</th><th class="l">grasp</th><th>failures</th>
+<th>spots refused</th><th class="l">last reason</th><th class="l">last robot</th><th class="l">last time</th></tr></thead>
+<tbody></tbody>
+</table>
 <h2>Recent warnings and errors</h2>
 <table id="errors"><thead><tr><th class="l">time</th><th class="l">level</th><th class="l">message</th></tr></thead><tbody></tbody></table>
 <script>
@@ -119,6 +125,9 @@ function render(s) {
                 [p ? f3(p.position_m[2]) : ""],
                 [p ? p.quaternion_wxyz.map(f3).join(" ") : "", "l"]], "robot");
   }));
+  fill("failed-picks", (s.failed_picks || []).map(p =>
+      row([[p.task], [p.class, "l"], [p.grasp, "l"], [p.failures], [p.spots_refused],
+           [p.last_reason, "l"], [p.last_peer, "l"], [p.last_time, "l"]])));
   fill("errors", s.errors.slice().reverse().map(e =>
       row([[e.time, "l"], [e.level, "l " + e.level], [e.message, "l"]])));
   const seq = d ? d.seq : -1;
