@@ -5,12 +5,15 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <optional>
+#include <random>
 #include <system_error>
 #include <utility>
 
 #include "grasp/bin_picking_planner.h"
 #include "grasp/empty_box.h"
+#include "grasp/failed_picks.h"
 #include "grasp/grasp_planning.h"
 #include "grasp/grasp_queue.h"
 #include "pipeline/capture_source.h"
@@ -43,6 +46,38 @@ const PartTruth* FindInstance(const std::vector<PartTruth>& parts, int instance)
   return nullptr;
 }
 
+// The simulated robot's failed-pick reports (ClearOptions::feedback): one
+// FailedPicks per task, as binpickd keeps them (comms/request_handler.cc).
+class Feedback {
+ public:
+  Feedback(const Cell& cell, bool on) : cell_(cell), on_(on) {}
+  // nullptr when the feedback is off.
+  FailedPicks* For(const TaskSpec& task) {
+    if (!on_) return nullptr;
+    auto& f = by_task_[task.id];
+    if (!f) f = std::make_unique<FailedPicks>(task.failed_picks, cell_.bin.X_BW);
+    return f.get();
+  }
+  // A capture: every task's spots age.
+  void OnCapture() {
+    for (auto& [id, f] : by_task_) f->OnCapture();
+  }
+
+ private:
+  const Cell& cell_;
+  const bool on_;
+  std::map<int, std::unique_ptr<FailedPicks>> by_task_;
+};
+
+// A task's plan as its queue would hold it: the failed-pick feedback's
+// screen applied (the queue applies it at Replace too, to the same effect).
+void ScreenPlan(Feedback& feedback, const TaskSpec& task, PlanResult& plan, SceneClearReport& report) {
+  FailedPicks* f = feedback.For(task);
+  if (f == nullptr || plan.grasps.empty()) return;
+  report.screened += static_cast<int>(f->Screen(plan.grasps).size());
+  if (plan.grasps.empty()) plan.outcome = PlanResult::Outcome::kNoCollisionFree;
+}
+
 // The plan whose grasps the robot takes on this capture: the primary task's,
 // else the first fallback task's with a grasp. `primary` is always the
 // primary task's (the final empty-box answer is the primary task's).
@@ -53,7 +88,8 @@ struct CyclePlan {
 };
 
 Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, const TaskSpec& task,
-                            const std::vector<const TaskSpec*>& fallbacks, uint64_t seed, SceneClearReport& report) {
+                            const std::vector<const TaskSpec*>& fallbacks, uint64_t seed, Feedback& feedback,
+                            SceneClearReport& report) {
   // Every candidate of a task's plan and why it was rejected (debug log).
   const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
     if (!spdlog::should_log(spdlog::level::debug)) return;
@@ -71,6 +107,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (!detail.ok()) return detail.status();
   log_candidates(task, *detail);
+  ScreenPlan(feedback, task, detail->result, report);
   out.primary = detail->result;
   out.taken = detail->result;
   out.used = &task;
@@ -83,6 +120,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
     report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
     if (!fb_detail.ok()) return fb_detail.status();
     log_candidates(*fb, *fb_detail);
+    ScreenPlan(feedback, *fb, fb_detail->result, report);
     if (!fb_detail->result.grasps.empty()) {
       out.taken = std::move(fb_detail->result);
       out.used = fb;
@@ -158,6 +196,58 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
   return v;
 }
 
+// What serving one capture's queue needs besides the queue.
+struct Serving {
+  BinPickingPlanner& planner;
+  SyntheticSource& pile;
+  const TaskSpec& used;
+  bool fallback = false;  // `used` is a fallback task
+  FailedPicks* feedback = nullptr;
+  std::mt19937_64& slip_rng;
+  const std::vector<PartTruth>& at_capture;
+  const ClearOptions& options;
+};
+
+// Takes the queue's grasps one by one like the seed robot (or only the
+// first), each judged on the pile as it is now; a pick the judge lets
+// succeed fails anyway with probability slip_rate. A failed pick is
+// reported (feedback) and the queue screened again at once.
+void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
+    report.withdrawn += static_cast<int>(popped.withdrawn.size());
+    PickVerdict v = JudgePick(s.planner, s.used, *popped.grasp, report.cycles, s.at_capture, PileTruth(s.pile),
+                              s.options.judge, report);
+    ++report.attempts;
+    const bool slip = uniform(s.slip_rng) < s.options.slip_rate;  // drawn for every pick
+    if (v.success && slip) {
+      v.success = false;
+      v.cause = "slipped";
+      v.line = "cycle " + std::to_string(report.cycles) + ": task " + std::to_string(s.used.id) + " grasp " +
+               popped.grasp->name + " (detection " + std::to_string(popped.grasp->instance_id) +
+               "): slipped off instance " + std::to_string(v.landed) + " (--slip); it stays";
+      ++report.slipped;
+    }
+    if (v.success) {
+      ++report.picks;
+      if (s.fallback) ++report.fallback_picks;
+      s.pile.NotifyPicked(v.landed);  // removes it and lets the rest resettle
+    } else {
+      ++report.failed_picks;
+      report.stale_failures += v.cause == "stale_queue" ? 1 : 0;
+      ++report.failure_causes[v.cause];
+      report.failures.push_back(v.line);
+      if (s.feedback) {
+        // What the robot can tell: the part slipped off, or the vacuum never built.
+        s.feedback->Report(*popped.grasp, v.cause == "slipped" ? PickFailure::kSlipped : PickFailure::kNoVacuum);
+        ++report.reported;
+        report.screened += queue.Rescreen();
+      }
+    }
+    if (!s.options.serve_queue) break;
+  }
+}
+
 // "instance 7 (l_bracket) at (...) mm: part z axis (...), up is part +y, 83% visible"
 std::string DescribeLeft(const PartTruth& t) {
   const Vec3 z = t.X_BO.linear().col(2);
@@ -228,7 +318,8 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   PlanResult last;
   std::vector<PartTruth> truth_parts;
   std::optional<Frame> last_frame;  // kept only for save_left_dir
-  GraspQueue queue;
+  Feedback feedback(cell, options.feedback);
+  std::mt19937_64 slip_rng(options.slip_seed * 1000003u + seed);
   for (;;) {
     auto scene = p.Capture(request);
     if (!scene.ok()) return scene.status();
@@ -240,34 +331,28 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
       report.parts_placed = static_cast<int>(truth_parts.size());
       if (max_cycles <= 0) max_cycles = 3 * report.parts_placed + 5;
     }
-    auto cycle = PlanCycle(p, **scene, *task, fallbacks, seed, report);
+    feedback.OnCapture();  // before the plan is screened, as binpickd's RunDetection
+    const int screened_before = report.screened;
+    auto cycle = PlanCycle(p, **scene, *task, fallbacks, seed, feedback, report);
     if (!cycle.ok()) return cycle.status();
     ++report.cycles;
     last = cycle->primary;
-    if (cycle->taken.grasps.empty() || report.cycles >= max_cycles) break;
+    if (cycle->taken.grasps.empty()) {
+      report.stopped_by_feedback = report.screened > screened_before;
+      break;
+    }
+    if (report.cycles >= max_cycles) break;
 
     const TaskSpec& used = *cycle->used;
     if (!options.withdraw_stale) {
       for (Grasp& g : cycle->taken.grasps) g.stale_after.clear();
     }
+    GraspQueue queue;
+    FailedPicks* screen = feedback.For(used);
+    if (screen) queue.SetScreen([screen](std::deque<Grasp>& grasps) { return screen->Screen(grasps); });
     queue.Replace(cycle->taken);
-    for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
-      report.withdrawn += static_cast<int>(popped.withdrawn.size());
-      const PickVerdict v = JudgePick(p, used, *popped.grasp, report.cycles, truth_parts, PileTruth(*pile),
-                                      options.judge, report);
-      ++report.attempts;
-      if (v.success) {
-        ++report.picks;
-        if (&used != task) ++report.fallback_picks;
-        pile->NotifyPicked(v.landed);  // removes it and lets the rest resettle
-      } else {
-        ++report.failed_picks;
-        report.stale_failures += v.cause == "stale_queue" ? 1 : 0;
-        ++report.failure_causes[v.cause];
-        report.failures.push_back(v.line);
-      }
-      if (!options.serve_queue) break;
-    }
+    const Serving serving{p, *pile, used, &used != task, screen, slip_rng, truth_parts, options};
+    ServeQueue(serving, queue, report);
   }
   // What is left: the pile as it is, with the last capture's visibility.
   std::vector<PartTruth> left = PileTruth(*pile);
@@ -295,6 +380,10 @@ void ClearReport::Add(SceneClearReport scene) {
   failed_picks += scene.failed_picks;
   stale_failures += scene.stale_failures;
   withdrawn += scene.withdrawn;
+  slipped += scene.slipped;
+  reported += scene.reported;
+  screened += scene.screened;
+  stopped_by_feedback += scene.stopped_by_feedback ? 1 : 0;
   for (const auto& [cause, n] : scene.failure_causes) failure_causes[cause] += n;
   fallback_picks += scene.fallback_picks;
   cycles += scene.cycles;

@@ -57,6 +57,18 @@ struct ClearOptions {
   // speed and load; a large one makes it repeatable.
   double thorough_retry_ms = 150.0;
   GraspJudgeOptions judge;
+  // Fraction in [0, 1] of the picks the judge lets succeed that the
+  // simulated robot fails anyway, at random (`--slip`: the vacuum breaks, the
+  // part slips off the cup); the part stays where it was. Drawn once per
+  // pick from a generator seeded with slip_seed and the scene's seed.
+  double slip_rate = 0.0;
+  uint64_t slip_seed = 1;
+  // true: the simulated robot reports every failed pick (judged or slipped)
+  // as a robot reports it to binpickd (command 60, docs/protocols.md
+  // "Failed-pick feedback"): one FailedPicks per task with the task's rule,
+  // aged by every capture, screening the task's plans and its queue after
+  // each report. false: nothing is reported (what the feedback buys).
+  bool feedback = true;
 };
 
 struct SceneClearReport {
@@ -67,6 +79,12 @@ struct SceneClearReport {
   int failed_picks = 0;         // grasps that took nothing (the part stays)
   int stale_failures = 0;       // of which failed on a queue made stale by an earlier pick
   int withdrawn = 0;            // queued grasps withdrawn as stale before they were served
+  int slipped = 0;              // of the failed picks, slips (ClearOptions::slip_rate)
+  int reported = 0;             // failed picks reported (ClearOptions::feedback)
+  int screened = 0;             // grasps withheld or refused by the failed-pick feedback
+  // The scene ended because the feedback refused every grasp left (the
+  // robot was answered NO_COLLISION_FREE_POSE rather than sent back there).
+  bool stopped_by_feedback = false;
   int fallback_picks = 0;       // successful picks planned by a fallback task
   int cycles = 0;               // captures
   int truth_collisions = 0;     // grasps colliding with the true scene
@@ -91,7 +109,8 @@ struct ClearReport {
   bool oracle = false;  // detections came from the ground-truth oracle
   // Totals.
   int parts_placed = 0, attempts = 0, picks = 0, failed_picks = 0, stale_failures = 0, withdrawn = 0, fallback_picks = 0, cycles = 0,
-      truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0;
+      truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0, slipped = 0, reported = 0, screened = 0,
+      stopped_by_feedback = 0;
   std::map<std::string, int> failure_causes;
   // Appends `scene` and adds it to the totals.
   void Add(SceneClearReport scene);

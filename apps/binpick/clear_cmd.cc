@@ -41,6 +41,9 @@ struct ClearCliOptions {
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
+  double slip = 0.0;
+  uint64_t slip_seed = 1;
+  bool no_feedback = false;
 };
 
 int Error(const Status& s) {
@@ -66,6 +69,10 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"failed_picks", s.failed_picks},
                       {"stale_failures", s.stale_failures},
                       {"withdrawn", s.withdrawn},
+                      {"slipped", s.slipped},
+                      {"failures_reported", s.reported},
+                      {"screened_by_feedback", s.screened},
+                      {"stopped_by_feedback", s.stopped_by_feedback},
                       {"failure_causes", s.failure_causes},
                       {"fallback_picks", s.fallback_picks},
                       {"cycles", s.cycles},
@@ -91,6 +98,10 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                 {"failed_picks", r.failed_picks},
                 {"stale_failures", r.stale_failures},
                 {"withdrawn", r.withdrawn},
+                {"slipped", r.slipped},
+                {"failures_reported", r.reported},
+                {"screened_by_feedback", r.screened},
+                {"stopped_by_feedback", r.stopped_by_feedback},
                 {"failure_causes", r.failure_causes},
                 {"fallback_picks", r.fallback_picks},
                 {"cycles", r.cycles},
@@ -123,6 +134,9 @@ int Run(const ClearCliOptions& opt) {
   options.serve_queue = !opt.capture_every_pick;
   options.withdraw_stale = !opt.keep_stale;
   options.thorough_retry_ms = opt.thorough_retry_ms;
+  options.slip_rate = opt.slip;
+  options.slip_seed = opt.slip_seed;
+  options.feedback = !opt.no_feedback;
   ClearReport report;
   report.oracle = opt.oracle;
   for (int i = 0; i < opt.scenes; ++i) {
@@ -137,6 +151,10 @@ int Run(const ClearCliOptions& opt) {
                 s.wrong_empty_answer ? " (WRONG)" : "", s.plan_ms_total, tag);
     for (const std::string& c : s.collisions) std::printf("  collision: %s\n", c.c_str());
     for (const std::string& f : s.failures) std::printf("  failed pick: %s\n", f.c_str());
+    if (s.slipped > 0 || s.reported > 0) {
+      std::printf("  feedback: %d slipped, %d failures reported, %d grasps withheld or refused%s\n", s.slipped,
+                  s.reported, s.screened, s.stopped_by_feedback ? ", stopped: every grasp left refused" : "");
+    }
     if (s.parts_left > 0) std::printf("  last plan: %s\n", s.final_outcome.c_str());
     for (const std::string& l : s.left) std::printf("  left: %s\n", l.c_str());
     if (!s.saved_frame.empty()) std::printf("  saved: %s\n", s.saved_frame.c_str());
@@ -152,6 +170,10 @@ int Run(const ClearCliOptions& opt) {
               report.scenes.size(), report.parts_placed, report.picks, report.fallback_picks, report.failed_picks,
               causes.c_str(), report.withdrawn, report.CyclesPerPick(), report.truth_collisions, report.parts_left,
               100.0 * report.ClearedFraction(), report.wrong_empty_answers, tag);
+  std::printf("feedback %s: slip rate %.3f, %d picks slipped, %d failures reported, %d grasps withheld or refused, "
+              "%d scenes stopped with every grasp left refused\n",
+              options.feedback ? "on" : "off", options.slip_rate, report.slipped, report.reported, report.screened,
+              report.stopped_by_feedback);
   if (!opt.json_out.empty()) {
     std::ofstream out(opt.json_out);
     out << ToJson(report).dump(2) << "\n";
@@ -193,6 +215,15 @@ Command ClearCommand() {
     sub.add_flag("--keep-stale", opt->keep_stale,
                  "serve the grasps a pick makes stale instead of withdrawing them as binpickd does (docs/protocols.md, "
                  "\"Stale grasps\"): measures what the withdrawal saves");
+    sub.add_option("--slip", opt->slip,
+                   "fraction of the picks that would succeed which the simulated robot fails at random (the part "
+                   "slips off and stays); reported like a robot's failed pick (command 60)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0, 1.0));
+    sub.add_option("--slip-seed", opt->slip_seed, "seed of the slips (with each scene's seed)")->capture_default_str();
+    sub.add_flag("--no-feedback", opt->no_feedback,
+                 "the simulated robot does not report its failed picks (docs/protocols.md \"Failed-pick feedback\"): "
+                 "measures what the feedback buys");
     sub.add_flag("--oracle", opt->oracle,
                  "use ground-truth detections instead of perception (does NOT measure perception)");
     return [opt] { return Run(*opt); };
