@@ -364,7 +364,7 @@ struct FrameObstacles {
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
 
-// Parallel jaws: whether a tool at X_BT, planned as the grasp X_OG_nominal
+// Whether a tool at X_BT, planned as the grasp X_OG_nominal
 // on `det` at det.X_BO, lands on the part at each of the detection's
 // alternative poses too: tool centre within max_position of the grasp's
 // contact point there and approach within max_approach of its approach,
@@ -664,15 +664,17 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
   const Pose X_TF = gripper.spec->X_FT.inverse();
   const SeenContactRule& rule = gripper.spec->seen_contact;
   const double pad = m.options.octree_resolution;
-  // Pose ambiguity: a candidate must hold the part under every alternative
-  // pose of its detection. Suction: the cup seals on the surface there
-  // (within the compliance less the margin kept for that pose's own error);
-  // jaws: they land at the grasp point (the judge's rule), the part's
-  // symmetry per detection.
+  // Pose ambiguity: a candidate must land at its grasp point under every
+  // alternative pose of its detection (the judge's rule: the gripper's
+  // approach limit, the part's symmetry per detection). A suction candidate
+  // that misses its grasp point under one but whose cup still seals on the
+  // surface under each (within the compliance less the margin kept for that
+  // pose's own error) is kept as a last resort (seal_only).
   const bool suction = gripper.spec->kind == GripperSpec::Kind::kSuction;
   const double seal_angle =
       std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0;
-  const double jaw_approach = m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+  const double land_approach = suction ? m.options.suction_compliance_deg * M_PI / 180.0
+                                       : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
   std::vector<Symmetry> symmetry(detections.size());
   for (size_t d = 0; d < detections.size(); ++d) {
     if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry[d] = part->symmetry;
@@ -685,15 +687,16 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
       }
-      if (!det.alternatives_X_BO.empty()) {
+      // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
+      if (!det.alternatives_X_BO.empty() &&
+          !LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
+                                      m.options.ambiguity_max_position, land_approach)) {
         auto part = m.parts.find(det.class_id);
-        // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
-        const bool holds =
-            suction ? part != m.parts.end() && SealsUnderEveryAlternative(det, *part->second, c.X_BT,
-                                                                          m.options.ambiguity_max_position, seal_angle)
-                    : LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
-                                                 m.options.ambiguity_max_position, jaw_approach);
-        if (!holds) return RejectReason::kAmbiguous;
+        if (!suction || part == m.parts.end() ||
+            !SealsUnderEveryAlternative(det, *part->second, c.X_BT, m.options.ambiguity_max_position, seal_angle)) {
+          return RejectReason::kAmbiguous;
+        }
+        c.seal_only = true;
       }
       if (seen != nullptr && NeedsSeenContact(rule, det)) {
         c.seen_fraction = SeenShare(c, *seen);
@@ -724,6 +727,19 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
     };
     c.rejected = verdict();
   });
+}
+
+// Stage 3b: the last resort. Grasps kept only because the cup seals under
+// every alternative pose (seal_only) would land off their grasp point were
+// an alternative true: they are refused (kAmbiguous) while the plan keeps
+// any other grasp, so that a part whose landing is certain is picked first.
+void KeepSealOnlyAsLastResort(std::vector<GraspCandidate>& candidates) {
+  const bool certain = std::any_of(candidates.begin(), candidates.end(),
+                                   [](const GraspCandidate& c) { return !c.rejected && !c.seal_only; });
+  if (!certain) return;
+  for (GraspCandidate& c : candidates) {
+    if (!c.rejected && c.seal_only) c.rejected = RejectReason::kAmbiguous;
+  }
 }
 
 // Stage 4: scores of the accepted candidates (task.ranking) and the counts.
@@ -881,6 +897,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
 
   FilterCandidates(m, gripper, task, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
+  KeepSealOnlyAsLastResort(plan.candidates);
   RankCandidates(m.cell, task, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);
   const auto t_neighbours = std::chrono::steady_clock::now();

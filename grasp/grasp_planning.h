@@ -20,11 +20,15 @@
 //
 // Pose ambiguity (issue 37 item 3). A detection whose view other poses
 // explain as well (Detection::alternatives_X_BO: a tee turned about its run
-// with its branch hidden) keeps only the candidates that hold the part under
-// every one of those poses too (kAmbiguous, checked right after the
-// workspace): a suction cup seals on the part's surface placed there (tool
-// centre near the surface, approach within the cup's compliance of its
-// normal; FCL's nearest triangle), parallel jaws land at their grasp point. A part with none is left for the next
+// with its branch hidden) keeps only the candidates that land on the part
+// at their grasp point under every one of those poses too (kAmbiguous,
+// checked right after the workspace). A suction candidate that misses its
+// grasp point under one of them but whose cup still seals on the part's
+// surface under each (tool centre near the surface, approach within the
+// cup's compliance of its normal; FCL's nearest triangle) is a last resort
+// (GraspCandidate::seal_only): offered only when the plan keeps no other
+// grasp (a tee standing on its branch, turned about its run, alone in the
+// bin), else refused as kAmbiguous. A part with none is left for the next
 // capture; when no part has one, the plan is kNoCollisionFree, which the
 // robot hears as "no collision-free grasp" (docs/protocols.md, pick pose).
 //
@@ -73,7 +77,7 @@ namespace bp {
 enum class RejectReason : int {
   kTilt = 0,   // approach further from vertical than task.max_tilt_deg
   kWorkspace,  // flange outside robot.workspace at the grasp or pre-grasp
-  kAmbiguous,  // would not hold the part under another pose the view allows (Detection::alternatives_X_BO)
+  kAmbiguous,  // would miss its grasp point under another pose the view allows (Detection::alternatives_X_BO)
   kUnseen,     // the frame's depth does not show the contact region (SeenContactRule)
   kBin,        // swept gripper hits the bin
   kPart,       // swept gripper hits another detected part
@@ -118,19 +122,18 @@ struct GraspPlanningOptions {
   double suction_compliance_deg = 20.0;
   double suction_compliance_margin_deg = 5.0;
   // Pose ambiguity (issue 37 item 3): on a detection with alternative poses
-  // (Detection::alternatives_X_BO) a grasp is kept only when it holds the
-  // part at each of them as well, whichever pose is true.
-  // Suction: the cup seals where it meets the part placed there, wherever on
-  // the part that is: the tool centre within ambiguity_max_position (m) of
-  // the part's surface, and the approach within suction_compliance_deg less
-  // suction_compliance_margin_deg (the alternative is itself an estimate,
-  // up to the strict 5 deg off) of the surface's inward normal there.
-  // Parallel jaws: tool centre within ambiguity_max_position of the grasp's
-  // point on the part there, modulo symmetry, and approach within
-  // ambiguity_jaw_approach_deg of its approach (the strict judge's rule,
-  // grasp/grasp_judge.h): the jaws close where the grasp was planned.
-  // 2 mm is the contact error the judge allows a cup or a jaw of the
-  // default cell to absorb.
+  // (Detection::alternatives_X_BO) a grasp is kept only when it lands on the
+  // part at each of them as well: tool centre within ambiguity_max_position
+  // (m) of the grasp's point on the part there, modulo symmetry, and approach
+  // within the gripper's compliance (suction_compliance_deg; parallel jaws
+  // ambiguity_jaw_approach_deg). The figures are the strict grasp judge's
+  // (grasp/grasp_judge.h): a grasp offered must land whichever pose is true.
+  // Last resort (suction only, GraspCandidate::seal_only): the cup seals
+  // where it meets the part placed at each alternative, wherever on the part
+  // that is: tool centre within ambiguity_max_position of the part's
+  // surface, approach within suction_compliance_deg less
+  // suction_compliance_margin_deg (the alternative is itself an estimate, up
+  // to the strict 5 deg off) of the surface's inward normal there.
   double ambiguity_max_position = 0.002;
   double ambiguity_jaw_approach_deg = 5.0;
   // Stale neighbours (Grasp::stale_after): parts closer than touch_distance
@@ -173,6 +176,10 @@ struct GraspCandidate {
   // The least seen share over the grasp's contacts; -1 when not checked.
   double seen_fraction = -1.0;
   std::optional<RejectReason> rejected;
+  // Suction on an ambiguous detection: misses its grasp point under an
+  // alternative pose, but the cup seals on the part under each. Kept only
+  // when no other candidate of the plan is (else rejected as kAmbiguous).
+  bool seal_only = false;
   double score = 0.0;       // ranking score (accepted candidates)
 };
 

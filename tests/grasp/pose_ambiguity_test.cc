@@ -251,7 +251,7 @@ Detection AtTruth(const View& v, const Pose& truth, std::vector<Pose> alternativ
 // refused every straight-down grasp: under the turns the tool is 2.4 and
 // 5 mm from the grasp's point on the run. Turned about its own axis the run
 // is where it was: the cup meets its top squarely whichever pose is true,
-// and the straight-down grasp is offered.
+// and, the tee being the only part, the straight-down grasp is offered.
 TEST(PoseAmbiguity, ATeeStandingOnItsBranchTurnedAboutItsRunIsGraspedStraightDownBySuction) {
   const Pose truth = TeeStandingOnItsBranch();
   const View v = Look(truth, /*hide_branch=*/false);
@@ -261,9 +261,56 @@ TEST(PoseAmbiguity, ATeeStandingOnItsBranchTurnedAboutItsRunIsGraspedStraightDow
   ASSERT_EQ(plan.queue.size(), 1u);
   const Grasp& g = plan.queue.front();
   EXPECT_EQ(g.name.rfind("run_bottom", 0), 0u) << g.name;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (!c.rejected) {
+      EXPECT_TRUE(c.seal_only) << c.name << ": lands at its grasp point under the turns";
+    }
+  }
   EXPECT_GT(-g.X_BT.linear().col(2).z(), std::cos(1.0 * M_PI / 180)) << "not straight down: " << g.name;
   const PartTruth part{0, kTee, {}, truth, 0, 0, 0.0};
   EXPECT_TRUE(JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1)).on_part);
+}
+
+// The standing tee's seal-only grasps are a last resort: beside a tee whose
+// pose is certain (on its side, its branch seen), that tee is served and the
+// standing one is left for the next capture.
+TEST(PoseAmbiguity, ASealOnlySuctionGraspWaitsWhileAnotherPartHasAGraspThatLandsAtItsGraspPoint) {
+  const Pose standing = TeeStandingOnItsBranch();
+  const Pose lying = DefaultCell().bin.X_BW *
+                     MakePose(Mat3(Eigen::AngleAxisd(M_PI / 2, Vec3::UnitX())), Vec3(0.01, -0.10, 0.020));
+  const Pose& X_BW = DefaultCell().bin.X_BW;
+  static const TriangleMesh floor = testing::MakeBox({-0.25f, -0.18f, -0.01f}, {0.25f, 0.18f, 0.0f});
+  testing::TestCamera cam;
+  cam.K = DefaultCell().camera.configs.front().intrinsics;
+  cam.X_BC = DefaultCell().camera.X_BC;
+  const testing::RenderedScene scene =
+      testing::Render({{&TeeMesh(), standing}, {&TeeMesh(), lying}, {&floor, X_BW}}, cam, 0.0002, 7);
+  PerceptionResult p;
+  std::vector<Detection> detections(2);
+  for (size_t i = 0; i < scene.points_B.size(); ++i) {
+    const int label = scene.point_label[i];
+    if (label == 1 || label == 2) detections[label - 1].support.push_back(static_cast<int32_t>(p.roi_points_B.size()));
+    p.roi_points_B.push_back(scene.points_B[i]);
+  }
+  detections[0].class_id = detections[1].class_id = kTee;
+  detections[0].X_BO = standing;
+  detections[0].alternatives_X_BO = {TurnedAboutTheRun(standing, 6.8), TurnedAboutTheRun(standing, 14.3)};
+  detections[1].X_BO = lying;
+  detections[0].score = detections[1].score = 1.0;
+  p.detections = detections;
+  TaskSpec task = *DefaultCell().FindTask(0);
+  task.part_classes = {kTee};
+  const GraspPlan plan = PlanGrasps(Model(), task, p);
+  ASSERT_EQ(plan.outcome, PlanResult::Outcome::kGrasps) << plan.stats.Describe();
+  ASSERT_EQ(plan.queue.size(), 1u);
+  EXPECT_EQ(plan.queue.front().instance_id, 1);
+  int withheld = 0;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (c.detection != 0 || !c.seal_only) continue;
+    ++withheld;
+    EXPECT_EQ(c.rejected, RejectReason::kAmbiguous) << c.name;
+  }
+  EXPECT_GT(withheld, 0);
 }
 
 // The safety the rule keeps: the same tee, but a pose the view allows
