@@ -928,7 +928,7 @@ void Parser::ParseTasks(const YAML::Node& n, Cell& cell) const {
     const YAML::Node t = n[i];
     const std::string path = At("tasks", i);
     ExpectMap(t, path, {"id", "name", "kind", "parts", "gripper", "empty_box", "max_tilt_deg", "ranking", "fixture",
-                        "roi", "failed_picks"});
+                        "roi", "failed_picks", "place_on"});
     TaskSpec task;
     task.id = Int(Req(t, path, "id"), Join(path, "id"));
     Check(task.id >= 0, t["id"], Join(path, "id"), "must be >= 0");
@@ -1043,6 +1043,13 @@ void Parser::ParseTaskRegion(const YAML::Node& t, const std::string& path, const
   }
   if (fixture) {
     Check(!t["parts"].IsDefined(), t["parts"], Join(path, "parts"), "a fixture task looks for its fixture, not parts");
+  }
+  if (const YAML::Node p = t["place_on"]; p.IsDefined()) {
+    Check(task.kind == TaskSpec::Kind::kPick, p, Join(path, "place_on"),
+          "only pick tasks name the fixture their parts are placed on");
+    task.place_on = Name(p, Join(path, "place_on"));
+    Check(cell.FindFixture(task.place_on) != nullptr, p, Join(path, "place_on"),
+          "unknown fixture '" + task.place_on + "' (not in fixtures)");
   }
   if (task.kind == TaskSpec::Kind::kInHand) {
     Check(!cell.camera.eye_in_hand, t["kind"], Join(path, "kind"),

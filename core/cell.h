@@ -321,6 +321,12 @@ struct TaskSpec {
   GraspRanking ranking;
   // place, place_area: the fixture looked for (fixtures[].name).
   std::string fixture;
+  // pick: the fixture (fixtures[].name) every part this task picks is placed
+  // on at its part_pose, seed 003's pick -> correct in hand -> place. Its
+  // grasps are then only those whose place pose, with the fixture at its
+  // taught pose, keeps the flange inside robot.workspace at the place and at
+  // its approach (grasp_planning.h, RejectReason::kUnplaceable). Empty: any.
+  std::string place_on;
   // in_hand, place, place_area: where perception looks instead of the bin,
   // a box in the task's frame: in_hand the tool frame T at the robot's pose,
   // place and place_area the fixture's taught frame P. Its z = 0 plane is

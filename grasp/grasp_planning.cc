@@ -29,6 +29,7 @@ std::string_view ToString(RejectReason reason) {
   switch (reason) {
     case RejectReason::kTilt: return "tilt";
     case RejectReason::kWorkspace: return "workspace";
+    case RejectReason::kUnplaceable: return "unplaceable";
     case RejectReason::kAmbiguous: return "ambiguous";
     case RejectReason::kUnseen: return "unseen";
     case RejectReason::kBin: return "bin";
@@ -653,6 +654,18 @@ double SeenShare(const GraspCandidate& c, const internal::SeenSurface& seen) {
   return least;
 }
 
+// True when a part at X_BO held with the tool at X_BT, placed at X_BO_place
+// (the tool then at X_BO_place * X_BO^-1 * X_BT, seed 003's tool_in_base with
+// the fixture at its taught pose), keeps the flange inside `workspace` at the
+// place and at its approach (approach_distance back along the tool's z).
+bool Placeable(const Pose& X_BO_place, const Pose& X_BO, const Pose& X_BT, double approach_distance, const Pose& X_TF,
+               const Eigen::AlignedBox3d& workspace) {
+  const Pose X_BT_place = X_BO_place * X_BO.inverse() * X_BT;
+  const Pose X_BT_approach = X_BT_place * TranslateZ(-approach_distance);
+  return workspace.contains((X_BT_place * X_TF).translation()) &&
+         workspace.contains((X_BT_approach * X_TF).translation());
+}
+
 // Stage 3: each candidate's verdict, cheapest check first, in parallel over
 // candidates (the caller's arena). `seen` is null when no grasp needs it.
 void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper, const TaskSpec& task,
@@ -664,6 +677,11 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
   const Pose X_TF = gripper.spec->X_FT.inverse();
   const SeenContactRule& rule = gripper.spec->seen_contact;
   const double pad = m.options.octree_resolution;
+  // task.place_on: where the held part goes (taught pose * part_pose, X_BO').
+  std::optional<Pose> place;
+  if (const FixtureSpec* f = task.place_on.empty() ? nullptr : cell.FindFixture(task.place_on); f != nullptr) {
+    place = Pose(f->X_BP_taught * f->X_PO);
+  }
   // Pose ambiguity: a candidate must land at its grasp point under every
   // alternative pose of its detection (the judge's rule: the gripper's
   // approach limit, the part's symmetry per detection). A suction candidate
@@ -686,6 +704,9 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
       if (c.tilt_rad > max_tilt + 1e-9) return RejectReason::kTilt;
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
+      }
+      if (place && !Placeable(*place, det.X_BO, c.X_BT, gripper.spec->approach_distance, X_TF, workspace)) {
+        return RejectReason::kUnplaceable;
       }
       // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
       if (!det.alternatives_X_BO.empty() &&

@@ -10,7 +10,8 @@
 // union of copies at every approach_step from the grasp back to the pre-grasp,
 // one OBBRSS BVH per gripper, built once. Each candidate is checked, cheapest
 // first, for: approach tilt from vertical (task.max_tilt_deg), flange inside
-// robot.workspace at the grasp and the pre-grasp, the swept gripper against
+// robot.workspace at the grasp and the pre-grasp (and, when the task names
+// place_on, at the place pose and its approach), the swept gripper against
 // the bin, against the other detected parts (meshes at their estimated poses,
 // FCL broadphase), against its own part and against the scene points not
 // explained by any detection (an FCL OcTree built once per frame, behind a
@@ -77,6 +78,10 @@ namespace bp {
 enum class RejectReason : int {
   kTilt = 0,   // approach further from vertical than task.max_tilt_deg
   kWorkspace,  // flange outside robot.workspace at the grasp or pre-grasp
+  // task.place_on: held this way, the part placed on that fixture (taught
+  // pose, part_pose) puts the flange outside robot.workspace at the place or
+  // its approach (e.g. the tool under a part picked on the face that goes down)
+  kUnplaceable,
   kAmbiguous,  // would miss its grasp point under another pose the view allows (Detection::alternatives_X_BO)
   kUnseen,     // the frame's depth does not show the contact region (SeenContactRule)
   kBin,        // swept gripper hits the bin
@@ -84,7 +89,7 @@ enum class RejectReason : int {
   kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
   kPoints,     // lifted swept gripper hits scene points no detection explains
 };
-inline constexpr int kNumRejectReasons = 8;
+inline constexpr int kNumRejectReasons = 9;
 std::string_view ToString(RejectReason reason);
 
 struct GraspPlanningOptions {

@@ -30,7 +30,9 @@ namespace bp {
 struct PlaceCyclesOptions {
   int cycles = 100;
   uint64_t seed = 1;  // the first pile's; each new pile takes the next seed
-  int pick_task_id = 0;
+  // The default cell's pick_to_place: its grasps are those the part can be
+  // placed on the nest with (TaskSpec::place_on).
+  int pick_task_id = 7;
   int in_hand_task_id = 1;
   int place_area_task_id = 3;
   // seed 003 adjust_det_pose: the tool pose at which the part is shown to

@@ -107,6 +107,9 @@ Command PlaceCommand() {
     sub.add_option("--cycles", opt->cycles.cycles, "pick -> correct -> place cycles")->capture_default_str();
     sub.add_option("--seed", opt->cycles.seed, "seed of the first pile (the next piles take seed + 1, ...)")
         ->capture_default_str();
+    sub.add_option("--pick-task", opt->cycles.pick_task_id,
+                   "the cell's pick task (the default cell's 7 places every part it picks: place_on)")
+        ->capture_default_str();
     sub.add_option("--slip-mm", opt->slip_mm, "the part slips in the gripper by up to this (mm)")
         ->check(CLI::Range(0.0, 100.0))
         ->capture_default_str();

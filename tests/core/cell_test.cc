@@ -440,6 +440,11 @@ TEST_F(CellFileTest, FixturesAndTheirTasksAreParsed) {
   EXPECT_EQ(cell->FindTask(3)->fixture, "nest");
   EXPECT_EQ(cell->FindTask(4)->kind, TaskSpec::Kind::kPlace);
   EXPECT_TRUE(cell->FindTask(0)->roi.isEmpty());  // picks look into the bin's roi
+  EXPECT_TRUE(cell->FindTask(0)->place_on.empty());
+  Result<Cell> placing = LoadCell(Write(Mutate(FixtureCell(), "{id: 0, name: pick, kind: pick, gripper: suction}",
+                                               "{id: 0, name: pick, kind: pick, gripper: suction, place_on: nest}")));
+  ASSERT_TRUE(placing.ok()) << placing.status().ToString();
+  EXPECT_EQ(placing->FindTask(0)->place_on, "nest");
   EXPECT_DOUBLE_EQ(cell->source.slip_translation, 0.01);
   EXPECT_DOUBLE_EQ(cell->source.slip_rotation_deg, 10.0);
   EXPECT_DOUBLE_EQ(cell->source.fixture_offset_translation, SourceSpec{}.fixture_offset_translation);
@@ -474,6 +479,11 @@ TEST_F(CellFileTest, FixtureMistakesAreRejectedWithTheirKeyPath) {
        "{id: 0, name: pick, kind: pick, gripper: suction, roi: {min: [0, 0, 0], max: [1, 1, 1]}}", "tasks[3].roi",
        "only in_hand, place and place_area tasks"},
       {"  mount: eye_to_hand", "  mount: eye_in_hand", "tasks[0].kind", "needs an eye_to_hand camera"},
+      {"{id: 0, name: pick, kind: pick, gripper: suction}",
+       "{id: 0, name: pick, kind: pick, gripper: suction, place_on: tray}", "tasks[3].place_on",
+       "unknown fixture 'tray'"},
+      {"kind: place_area, gripper: suction, fixture: nest,", "kind: place_area, gripper: suction, fixture: nest, place_on: nest,",
+       "tasks[1].place_on", "only pick tasks"},
       {"in_hand_slip: {translation: 0.01", "in_hand_slip: {translation: -0.01", "source.in_hand_slip.translation",
        "must be in [0, 0.1] m"},
   };

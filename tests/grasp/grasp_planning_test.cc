@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "grasp/grasp_queue.h"
+#include "grasp/robot_targets.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 
@@ -264,6 +265,41 @@ TEST(GraspFilter, RejectsFlangePosesOutsideTheWorkspace) {
   const GraspPlan plan = PlanGrasps(**model, PickTask(), Scene({Bushing(0, 0)}));
   EXPECT_EQ(Count(Verdicts(plan, 0, "hub_top@"), RejectReason::kWorkspace), 24);
   EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoCollisionFree);
+}
+
+TEST(GraspFilter, APickThatFeedsAPlaceKeepsOnlyGraspsThePartCanBePlacedWith) {
+  // An L-bracket (class 1) turned 135 deg about its y axis, high above the
+  // floor: base_bottom (tool along the part's +z) and upright_outer (along
+  // +x) both come in 45 deg from vertical, within the task's 60. On the nest
+  // the bracket stands on its base (part_pose): held by base_bottom the tool
+  // would stand under it, the flange 0.27 m below the part's base at z
+  // 0.035 m, below robot.workspace's z -0.2; held by upright_outer the tool
+  // is level beside it, inside.
+  Detection bracket;
+  bracket.class_id = 1;
+  bracket.X_BO = DefaultCell().bin.X_BW *
+                 MakePose(Mat3(Eigen::AngleAxisd(135 * M_PI / 180, Vec3::UnitY())), Vec3(0.0, 0.0, 0.08));
+  bracket.score = 0.9;
+  TaskSpec task = *DefaultCell().FindTask(0);
+  task.part_classes = {1};
+  const GraspPlan any = PlanGrasps(Model(), task, Scene({bracket}));
+  // Each grasp and its "~v" copy (turned within the cup's compliance).
+  EXPECT_EQ(Count(Verdicts(any, 0, "base_bottom"), std::nullopt), 2);
+  EXPECT_EQ(Count(Verdicts(any, 0, "upright_outer"), std::nullopt), 2);
+
+  task.place_on = "place_nest";
+  const GraspPlan placing = PlanGrasps(Model(), task, Scene({bracket}));
+  EXPECT_EQ(Count(Verdicts(placing, 0, "base_bottom"), RejectReason::kUnplaceable), 2);
+  EXPECT_EQ(Count(Verdicts(placing, 0, "upright_outer"), std::nullopt), 2);
+  EXPECT_EQ(placing.stats.rejected[static_cast<int>(RejectReason::kUnplaceable)], 2);
+  ASSERT_FALSE(placing.queue.empty());
+  for (const Grasp& g : placing.queue) EXPECT_EQ(g.name.rfind("upright_outer", 0), 0u) << g.name;
+  // The answer's place pose (seed 003: tool_in_base with the nest where it
+  // was taught) keeps the flange inside the workspace.
+  const FixtureSpec& nest = *DefaultCell().FindFixture("place_nest");
+  const Grasp& first = placing.queue.front();
+  const Pose X_BT_place = nest.X_BP_taught * nest.X_PO * (first.X_BT.inverse() * first.X_BO).inverse();
+  EXPECT_TRUE(CheckToolPose(DefaultCell(), task.gripper, X_BT_place).ok());
 }
 
 TEST(GraspFilter, RejectsGraspsThroughUnexplainedScenePointsButIgnoresThePartsOwnPoints) {
