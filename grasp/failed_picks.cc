@@ -59,8 +59,12 @@ void FailedPicks::OnCapture() {
 }
 
 FailedPicks::Verdict FailedPicks::Judge(const Grasp& grasp) const {
-  const Vec3 p_W = InBin(grasp);
   std::lock_guard lock(mutex_);
+  return JudgeLocked(grasp);
+}
+
+FailedPicks::Verdict FailedPicks::JudgeLocked(const Grasp& grasp) const {
+  const Vec3 p_W = InBin(grasp);
   Verdict v = Verdict::kServe;
   for (const Spot& s : spots_) {
     if ((s.p_W - p_W).norm() > rule_.radius) continue;
@@ -73,16 +77,16 @@ FailedPicks::Verdict FailedPicks::Judge(const Grasp& grasp) const {
 template <typename Seq>
 std::vector<Grasp> FailedPicks::ScreenImpl(Seq& grasps) const {
   std::vector<Grasp> removed;
-  {
-    std::lock_guard lock(mutex_);
-    if (spots_.empty()) return removed;
-  }
   std::vector<Verdict> verdicts;
   verdicts.reserve(grasps.size());
   bool any_served = false;
-  for (const Grasp& g : grasps) {
-    verdicts.push_back(Judge(g));
-    any_served = any_served || verdicts.back() == Verdict::kServe;
+  {
+    std::lock_guard lock(mutex_);
+    if (spots_.empty()) return removed;
+    for (const Grasp& g : grasps) {
+      verdicts.push_back(JudgeLocked(g));
+      any_served = any_served || verdicts.back() == Verdict::kServe;
+    }
   }
   Seq kept;
   for (size_t i = 0; i < grasps.size(); ++i) {

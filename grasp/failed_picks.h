@@ -94,6 +94,7 @@ class FailedPicks {
 
  private:
   Vec3 InBin(const Grasp& grasp) const;
+  Verdict JudgeLocked(const Grasp& grasp) const;  // mutex_ held
   template <typename Seq>
   std::vector<Grasp> ScreenImpl(Seq& grasps) const;
 
