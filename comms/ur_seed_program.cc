@@ -29,6 +29,8 @@ constexpr int RC_MANUAL_ACCUMULATE_POSE = 6;
 constexpr int RC_START_AUTO_CALIBRATION = 4;
 constexpr int RC_AUTO_ACCUMULATE_POSE = 7;
 constexpr int RC_GUIDANCE_CALIBRATION = 10;
+constexpr int RC_START_2D_AUTO_CALIBRATION = 11;
+constexpr int RC_AUTO_ACCUMULATE_2D_POSE = 12;
 constexpr int RC_DAOAI_CAPTURE_AND_PROCESS_ASYNC = 19;
 constexpr int RC_DAOAI_CAPTURE_AND_PROCESS = 20;
 constexpr int RC_DAOAI_PICK_POSE = 21;
@@ -44,7 +46,9 @@ constexpr int DAOAI_NO_COLLISION_FREE_POSE = 4;
 constexpr int DAOAI_CAPTURE_SUCCESS = 5;
 constexpr int DAOAI_MODE_CALIBRATION = 10;
 constexpr int DAOAI_MODE_AUTO_CALIBRATION = 11;
+constexpr int DAOAI_MODE_2D_AUTO_CALIBRATION = 14;
 constexpr int DAOAI_DONE_CALIBRATION = 33;
+constexpr int DAOAI_DONE_2D_AUTO_CALIBRATION = 34;
 constexpr int DAOAI_BOX_EMPTY = 41;
 constexpr int DAOAI_BOX_NOT_EMPTY = 42;
 constexpr int DAOAI_PRECISION_CHECK_SUCCESS = 51;
@@ -182,7 +186,8 @@ UrSeedProgram::UrSeedProgram(std::unique_ptr<Link> link, const UrPose& start, Ur
     : link_(std::move(link)),
       options_(std::move(options)),
       modbus_(dynamic_cast<ModbusLink*>(link_.get()) != nullptr),
-      actual_tcp_pose_(start) {}
+      actual_tcp_pose_(start),
+      daoai_plane_(options_.daoai_plane) {}
 
 UrSeedProgram::~UrSeedProgram() = default;
 
@@ -256,6 +261,11 @@ void UrSeedProgram::send_robot_data() {
   robot_data[9] = daoai_payload_2_;
   robot_data[10] = DAOAI_ROBOT_TYPE;
   robot_data[11] = DAOAI_META_VERSION;
+  SendFields(robot_data);
+  daoai_r_command_ = RC_DAOAI_NO_COMMAND;
+}
+
+void UrSeedProgram::SendFields(const std::array<double, 12>& robot_data) {
   if (modbus_) {
     modbustcp_send_robot_data(robot_data);
   } else {
@@ -263,7 +273,6 @@ void UrSeedProgram::send_robot_data() {
     for (double v : robot_data) socket_send_int(v);
   }
   ++requests_sent_;
-  daoai_r_command_ = RC_DAOAI_NO_COMMAND;
 }
 
 std::array<double, 17> UrSeedProgram::modbustcp_recv_daoai_data() {
@@ -284,7 +293,7 @@ std::array<double, 17> UrSeedProgram::modbustcp_recv_daoai_data() {
   return daoai_data;
 }
 
-void UrSeedProgram::recv_daoai_data() {
+std::vector<double> UrSeedProgram::ReceiveFields() {
   answer_deadline_ = Clock::now() + options_.answer_timeout;
   std::vector<double> daoai_data;
   bool wait_for_data = true;
@@ -303,6 +312,11 @@ void UrSeedProgram::recv_daoai_data() {
   if (daoai_data[16] != DAOAI_META_VERSION) {
     popup("The DaoAI interface version does not match the version of this program.", /*failure=*/true);
   }
+  return daoai_data;
+}
+
+void UrSeedProgram::recv_daoai_data() {
+  const std::vector<double> daoai_data = ReceiveFields();
   daoai_tcp_pose_ = {daoai_data[1] / mult, daoai_data[2] / mult, daoai_data[3] / mult,
                      daoai_data[4] / mult, daoai_data[5] / mult, daoai_data[6] / mult};
   daoai_payload_1_ = daoai_data[8] / mult;
@@ -312,6 +326,51 @@ void UrSeedProgram::recv_daoai_data() {
   daoai_payload_5_ = daoai_data[12] / mult;
   daoai_payload_6_ = daoai_data[13] / mult;
   daoai_status_ = static_cast<int>(daoai_data[14]);
+}
+
+// seed 000 send_robot_data_2d (seed 003: the same fields, one socket_send_int each).
+void UrSeedProgram::send_robot_data_2d(const UrPose& plane, bool optional_z, double z_value) {
+  std::array<double, 12> robot_data{};
+  const Pose base_in_plane = FromUrPose(plane).inverse();                          // pose_inv(plane)
+  const UrPose tool_in_plane = ToUrPose(base_in_plane * FromUrPose(get_actual_tcp_pose()));  // pose_trans
+  const UrPose p_actual_pose = tool_in_plane;
+  if (optional_z) {
+    robot_data[2] = Floor(mult * z_value);
+  } else {
+    robot_data[2] = Floor(mult * p_actual_pose[2]);
+  }
+  robot_data[0] = Floor(mult * p_actual_pose[0]);
+  robot_data[1] = Floor(mult * p_actual_pose[1]);
+  robot_data[3] = Floor(mult * p_actual_pose[3]);
+  robot_data[4] = Floor(mult * p_actual_pose[4]);
+  robot_data[5] = Floor(mult * p_actual_pose[5]);
+  robot_data[6] = Floor(mult * 0.0);
+  robot_data[7] = daoai_r_command_;
+  robot_data[8] = daoai_payload_1_;
+  robot_data[9] = daoai_payload_2_;
+  robot_data[10] = DAOAI_ROBOT_TYPE;
+  robot_data[11] = DAOAI_META_VERSION;
+  SendFields(robot_data);
+  daoai_r_command_ = RC_DAOAI_NO_COMMAND;
+}
+
+// seed 000 recv_daoai_data_2d: the answer's pose is the tool in the plane;
+// the robot keeps its own z.
+void UrSeedProgram::recv_daoai_data_2d(const UrPose& plane) {
+  const std::vector<double> daoai_data = ReceiveFields();
+  const UrPose tool_in_plane = {daoai_data[1] / mult, daoai_data[2] / mult, daoai_data[3] / mult,
+                                daoai_data[4] / mult, daoai_data[5] / mult, daoai_data[6] / mult};
+  const UrPose bp = ToUrPose(FromUrPose(plane) * FromUrPose(tool_in_plane));  // pose_trans(plane, tool_in_plane)
+  const UrPose cur_pose = get_actual_tcp_pose();
+  daoai_tcp_pose_ = bp;
+  daoai_payload_1_ = daoai_data[8] / mult;
+  daoai_payload_2_ = daoai_data[9] / mult;
+  daoai_payload_3_ = daoai_data[10] / mult;
+  daoai_payload_4_ = daoai_data[11] / mult;
+  daoai_payload_5_ = daoai_data[12] / mult;
+  daoai_payload_6_ = daoai_data[13] / mult;
+  daoai_status_ = static_cast<int>(daoai_data[14]);
+  daoai_tcp_pose_[2] = cur_pose[2];
 }
 
 // ---- Calibration (seed 000 "Calibration/校准函数"). ----
@@ -362,6 +421,30 @@ bool UrSeedProgram::daoai_auto_accumulate() {
   return true;
 }
 
+// ---- 2D auto calibration (seed 000 "2D Auto Calibration"). ----
+
+bool UrSeedProgram::daoai_start_auto_calibration_2d() {
+  daoai_r_command_ = RC_START_2D_AUTO_CALIBRATION;
+  send_robot_data_2d(daoai_plane_);
+  recv_daoai_data_2d(daoai_plane_);
+  if (daoai_status_ != DAOAI_MODE_2D_AUTO_CALIBRATION) {
+    popup("DaoAI Cannot Start Auto 2d Calibration.", /*failure=*/true);
+    return false;
+  }
+  return true;
+}
+
+bool UrSeedProgram::daoai_auto_accumulate_2d() {
+  daoai_r_command_ = RC_AUTO_ACCUMULATE_2D_POSE;
+  send_robot_data_2d(daoai_plane_);
+  recv_daoai_data_2d(daoai_plane_);
+  if (daoai_status_ == DAOAI_DONE_2D_AUTO_CALIBRATION) {
+    popup("DaoAI Done Calibration.", /*failure=*/false);
+    return false;
+  }
+  return true;
+}
+
 // ---- Teach, capture, pick (seed 000). ----
 
 void UrSeedProgram::daoai_teach_pose() {
@@ -407,6 +490,53 @@ bool UrSeedProgram::daoai_get_picking_pose() {
     popup("NO OBJECTS FOUND.", /*failure=*/true);
     return false;
   }
+  pick_pose_ = daoai_tcp_pose_;
+  return true;
+}
+
+// ---- 2D teach, capture, pick (seed 000 "Teach Pose", "2D Camera Capture", "2D Pick"). ----
+
+void UrSeedProgram::daoai_teach_pose_2d() {
+  daoai_r_command_ = RC_DAOAI_CAPTURE_AND_PROCESS;  // as printed (header comment): not RC_SEND_POSE
+  send_robot_data_2d(daoai_plane_);
+}
+
+bool UrSeedProgram::daoai_capture_and_process_2d_async() {
+  daoai_r_command_ = RC_DAOAI_CAPTURE_AND_PROCESS_ASYNC;
+  daoai_payload_1_ = daoai_task_id_;
+  send_robot_data_2d(daoai_plane_);
+  recv_daoai_data_2d(daoai_plane_);
+  if (daoai_status_ == DAOAI_CAPTURE_SUCCESS) return true;
+  popup("DaoAI Image Capture Failed.", /*failure=*/true);
+  return false;
+}
+
+bool UrSeedProgram::daoai_capture_and_process_2d() {
+  daoai_r_command_ = RC_DAOAI_CAPTURE_AND_PROCESS;
+  daoai_payload_1_ = daoai_task_id_;
+  send_robot_data_2d(daoai_plane_);
+  recv_daoai_data_2d(daoai_plane_);
+  if (daoai_status_ == DAOAI_CAPTURE_SUCCESS) return true;
+  popup("DaoAI Image Capture Failed.", /*failure=*/true);
+  return false;
+}
+
+bool UrSeedProgram::daoai_get_picking_pose_2d() {
+  daoai_r_command_ = RC_DAOAI_PICK_POSE;
+  daoai_payload_1_ = daoai_task_id_;
+  send_robot_data_2d(daoai_plane_);
+  recv_daoai_data_2d(daoai_plane_);
+  daoai_num_remaining_objects_ = daoai_payload_1_;
+  daoai_object_type_id_ = daoai_payload_2_;
+  if (daoai_status_ == DAOAI_NO_OBJECT_FOUND) {
+    popup("No object found or detected.", /*failure=*/true);
+    return false;
+  }
+  if (daoai_status_ == DAOAI_NO_COLLISION_FREE_POSE) {
+    popup("NO Collision-free PICK pose.", /*failure=*/true);
+    return false;
+  }
+  if (daoai_payload_1_ <= 0) return false;  // no popup, as printed
   pick_pose_ = daoai_tcp_pose_;
   return true;
 }
@@ -512,6 +642,39 @@ int UrSeedProgram::AutoCalibrationProgram(const UrPose& center_pose, int max_loo
     }
   }
   return loops;
+}
+
+int UrSeedProgram::AutoCalibration2DProgram(const UrPose& center_pose, int max_loops) {
+  popup("Start Auto Calibration", /*failure=*/false);
+  MoveJ(center_pose);
+  int loops = 0;
+  if (daoai_start_auto_calibration_2d()) {
+    while (loops < max_loops && daoai_auto_accumulate_2d()) {
+      ++loops;
+      const UrPose calibra_pose = daoai_tcp_pose_;
+      MoveL(calibra_pose);
+    }
+  }
+  return loops;
+}
+
+int UrSeedProgram::Pick2DProgram(const UrPose& detection_pose, int max_cycles) {
+  int picks = 0;
+  for (int cycle = 0; cycle < max_cycles; ++cycle) {
+    MoveJ(detection_pose);
+    if (daoai_check_box_empty()) break;
+    if (!daoai_capture_and_process_2d()) break;
+    bool picked_last = false;
+    while (!picked_last && daoai_get_picking_pose_2d()) {
+      MoveL(detection_pose);
+      MoveL(pick_pose_);
+      MoveL(detection_pose);
+      ++picks;
+      picked_last = daoai_remaining_objects() <= 1;  // seed 000 step 7, as in PickProgram
+    }
+    if (!picked_last) break;
+  }
+  return picks;
 }
 
 int UrSeedProgram::PickProgram(const UrPose& detection_pose, int max_cycles) {

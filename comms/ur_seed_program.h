@@ -33,6 +33,10 @@
 //     send_robot_data never reads: RC 69 goes out with the stale
 //     daoai_payload_1 (kept as printed; `cam_config_sets_payload` runs the
 //     one-line fix);
+//   - daoai_teach_pose_2d sends RC_DAOAI_CAPTURE_AND_PROCESS (20), not
+//     RC_SEND_POSE, and reads no answer: binpick captures and answers 5,
+//     which the program's next recv_daoai_data_2d reads as the answer to its
+//     next request (kept as printed; no test program calls it);
 //   - URScript divides as real numbers and a real written to an integer
 //     port is truncated toward zero (a remaining count read as 3.0 is sent
 //     back as 3); registers hold int16 two's complement, as binpick's codec
@@ -82,6 +86,9 @@ struct UrSeedProgramOptions {
   std::chrono::microseconds register_poll{200};
   // See the header comment: false runs daoai_cam_config as printed.
   bool cam_config_sets_payload = false;
+  // daoai_plane, the plane P of the 2D functions (the robot's base frame to
+  // P, UR pose); the seed's globals do not list it, its 2D programs set it.
+  std::array<double, 6> daoai_plane{0, 0, 0, 0, 0, 0};
 };
 
 class UrSeedProgram {
@@ -110,6 +117,15 @@ class UrSeedProgram {
   // Loop daoai_auto_accumulate(): calibra_pose = daoai_tcp_pose; MoveL calibra_pose.
   // `max_loops` bounds the loop (the seed's has no bound); @returns the loops run.
   int AutoCalibrationProgram(const UrPose& center_pose, int max_loops);
+  // 2D auto calibration, the 3D program with the 2D functions (seed 000
+  // prints no 2D example program): MoveJ center_pose; if
+  // daoai_start_auto_calibration_2d(): Loop daoai_auto_accumulate_2d():
+  // calibra_pose = daoai_tcp_pose; MoveL calibra_pose. @returns the loops run.
+  int AutoCalibration2DProgram(const UrPose& center_pose, int max_loops);
+  // 2D pick: PickProgram with daoai_capture_and_process_2d() and
+  // daoai_get_picking_pose_2d() (the empty-box check is the 3D function, the
+  // only one the seed has). @returns the picks made.
+  int Pick2DProgram(const UrPose& detection_pose, int max_cycles);
   // Pick (seed 000 "抓取通信示例" with its step 7: a pose with payload_1 = 1 is
   // the last of its capture, the robot captures again instead of asking once
   // more), starting each cycle with daoai_check_box_empty() (seed 000:
@@ -148,6 +164,15 @@ class UrSeedProgram {
   void daoai_switch_job(int id);  // printed as daoai_switch_task in the text, daoai_switch_job in the code
   int daoai_object_type() const;
   bool daoai_precision_check();
+  // The 2D functions (seed 000 "2D ..." sections, seed 003 for the socket).
+  void send_robot_data_2d(const UrPose& plane, bool optional_z = false, double z_value = 0);
+  void recv_daoai_data_2d(const UrPose& plane);
+  bool daoai_start_auto_calibration_2d();
+  bool daoai_auto_accumulate_2d();
+  void daoai_teach_pose_2d();
+  bool daoai_capture_and_process_2d_async();
+  bool daoai_capture_and_process_2d();
+  bool daoai_get_picking_pose_2d();
 
   // ---- The controller. ----
   UrPose get_actual_tcp_pose() const { return actual_tcp_pose_; }
@@ -178,6 +203,13 @@ class UrSeedProgram {
   class ModbusLink;
   UrSeedProgram(std::unique_ptr<Link> link, const UrPose& start, UrSeedProgramOptions options);
 
+  // The wire half of send_robot_data / send_robot_data_2d (seed 000:
+  // modbustcp_send_robot_data; seed 003: one socket_send_int per field), and
+  // of recv_daoai_data / recv_daoai_data_2d up to their popups: the 17-entry
+  // daoai_data list.
+  void SendFields(const std::array<double, 12>& robot_data);
+  std::vector<double> ReceiveFields();
+
   // URScript primitives on the link (halt the program on failure).
   void socket_send_int(double value);
   std::vector<double> socket_read_binary_integer(int number);
@@ -203,6 +235,7 @@ class UrSeedProgram {
   double daoai_num_remaining_objects_ = 0;
   double daoai_object_type_id_ = 0;
   UrPose pick_pose_{};
+  UrPose daoai_plane_{};
 };
 
 }  // namespace bp

@@ -13,9 +13,11 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <memory>
 #include <string>
@@ -53,6 +55,19 @@ std::string WriteCell(const std::string& dir, int parts, uint64_t seed) {
   return path;
 }
 
+// The 2D cell (assets/cells/twod.yaml: flat parts on a table under a fixed
+// camera, task 0 pick_2d), relative paths made absolute but the 2D
+// calibration file, which lands next to it.
+std::string WriteTwodCell(const std::string& dir) {
+  std::ifstream in(std::string(BINPICK_SOURCE_DIR) + "/assets/cells/twod.yaml");
+  std::string text((std::istreambuf_iterator<char>(in)), {});
+  const std::string assets = std::string(BINPICK_SOURCE_DIR) + "/assets/";
+  for (size_t p = text.find("../"); p != std::string::npos; p = text.find("../", p)) text.replace(p, 3, assets);
+  const std::string path = dir + "/twod_cell.yaml";
+  testing::WriteText(path, text);
+  return path;
+}
+
 int SeedParts() {
   const char* env = std::getenv("BINPICK_SEED_PARTS");
   return env ? std::atoi(env) : 6;
@@ -77,9 +92,13 @@ bool IsZero(const UrPose& p) {
 // binpickd on the test cell, and the robot's side of the link.
 class Rig {
  public:
-  Rig(Link link, int parts, uint64_t seed, const std::string& name) : link_(link) {
+  Rig(Link link, int parts, uint64_t seed, const std::string& name)
+      : Rig(link, name, [&](const std::string& dir) { return WriteCell(dir, parts, seed); }) {}
+  // binpickd on the cell `write_cell` writes into the test's directory.
+  Rig(Link link, const std::string& name, const std::function<std::string(const std::string&)>& write_cell)
+      : link_(link) {
     dir_ = testing::FreshDir(name);
-    cell_path_ = WriteCell(dir_, parts, seed);
+    cell_path_ = write_cell(dir_);
     const std::string bin = std::string(BINPICK_BINARY_DIR) + "/bin/";
     std::vector<std::string> args = {bin + "binpickd", "--cell", cell_path_, "--gri-port", "0",
                                      "--gri-official-port", "0", "--no-record"};
@@ -146,6 +165,8 @@ class Rig {
 };
 
 class SeedPrograms : public ::testing::TestWithParam<Link> {};
+
+const char* LinkName(Link link) { return link == Link::kSocket ? "socket" : "Modbus"; }
 
 std::string Popups(const UrSeedProgram& p) {
   std::string s;
@@ -259,10 +280,14 @@ TEST_P(SeedPrograms, Seed000ProgramsCalibratePickAndClearTheBinWithoutAFailurePo
     EXPECT_TRUE(Rig::WaitForFile(rig.Sibling(".taught.yaml"))) << rig.log();
     EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
   }
+  const int picked_before = picked;  // by the teach stage
   {  // The pick program until the box is empty.
     auto p = rig.Program(DetectionPose());
     ASSERT_TRUE(p->Run([&] { picked += p->PickProgram(DetectionPose(), 3 * parts); }).ok()) << rig.log();
     EXPECT_EQ(picked, parts) << Popups(*p);
+    std::printf("seed 000 over %s: %d parts, %d picked (teach stage %d, pick program %d), %zu failure popups\n",
+                LinkName(GetParam()), parts, picked, picked_before, picked - picked_before,
+                p->failure_popups().size());
     EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
     ASSERT_FALSE(p->popups().empty());
     EXPECT_EQ(p->popups().back().text, "Box Empty.");
@@ -326,6 +351,8 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
     }
   }).ok()) << rig.log();
   EXPECT_EQ(picks, parts) << Popups(*p);
+  std::printf("seed 003 program over %s: %d parts, %d picked in %d passes, %zu failure popups",
+              LinkName(GetParam()), parts, picks, passes, p->failure_popups().size());
   EXPECT_TRUE(empty);
   // A pass whose stage 1 or 2 gets no answer stops there with the program's
   // "NO OBJECTS FOUND." popup: binpick's honest 3 when perception misses the
@@ -349,7 +376,85 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
   }
   EXPECT_EQ(places + static_cast<int>(failures.size()), picks) << Popups(*p);  // each pass placed or stopped
   EXPECT_GE(places, 1) << Popups(*p);
+  std::printf(", %d placed\n", places);
   for (const UrPose& m : moves) EXPECT_FALSE(IsZero(m));
+}
+
+// Seed 000's 2D auto calibration loop and 2D pick (send_robot_data_2d /
+// recv_daoai_data_2d: poses in the robot's plane, the robot keeps its z) on
+// the 2D cell: started where the camera cannot see the marker, every answer
+// keeps the robot where it is and three failed views end it (34, the status
+// daoai_auto_accumulate_2d stops on); from the plane's centre binpickd walks
+// its 5 x 4 grid, fits and writes the calibration; then the pick program
+// clears the table (8 flat parts, twod.yaml's scene) until "Box Empty.".
+TEST_P(SeedPrograms, Seed000TwoDProgramsCalibrateAndClearThePlaneWithoutAFailurePopup) {
+  Rig rig(GetParam(), "seed000_2d", WriteTwodCell);
+  ASSERT_TRUE(rig.ready()) << rig.log();
+  const Cell cell = LoadCell(rig.cell_path()).value();
+  const std::string plane_file = cell.camera.plane_calibration_file;  // resolved next to the cell
+  ASSERT_FALSE(plane_file.empty());
+  // daoai_plane: the table, the synthetic scene's bin frame.
+  const UrPose plane = ToUrPose(cell.bin.X_BW);
+  UrSeedProgramOptions o;
+  o.daoai_plane = plane;
+  // The tool-mounted marker on the plane, tool pointing down.
+  auto on_plane = [&](double x, double y, double z) {
+    return ToUrPose(FromUrPose(plane) * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(x, y, z)));
+  };
+  {
+    const UrPose away = on_plane(0.6, 0.0, 0.0);  // 0.6 m off the camera's axis: out of view
+    auto p = rig.Program(away, o);
+    ASSERT_TRUE(p);
+    int loops = 0;
+    ASSERT_TRUE(p->Run([&] { loops = p->AutoCalibration2DProgram(away, 20); }).ok()) << rig.log();
+    EXPECT_EQ(loops, 2);  // 14, 14, then 34
+    EXPECT_EQ(p->status(), 34);
+    ASSERT_EQ(p->moves().size(), 3u);  // MoveJ center_pose, then the two loops' MoveL
+    for (const UrPose& m : p->moves()) {
+      EXPECT_LT(std::abs(m[0] - away[0]) + std::abs(m[1] - away[1]) + std::abs(m[2] - away[2]), 3e-4);
+    }
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    EXPECT_EQ(p->popups().back().text, "DaoAI Done Calibration.");
+    EXPECT_FALSE(std::filesystem::exists(plane_file));
+  }
+  {
+    const UrPose centre = on_plane(0.0, 0.0, 0.0);
+    auto p = rig.Program(centre, o);
+    int loops = 0;
+    ASSERT_TRUE(p->Run([&] { loops = p->AutoCalibration2DProgram(centre, 40); }).ok()) << rig.log();
+    EXPECT_EQ(p->status(), 34);
+    EXPECT_EQ(loops, 20);  // the centre, then 20 grid points; the 21st view is answered 34
+    for (const UrPose& m : p->moves()) {
+      // On the grid (0.36 m x 0.24 m about the centre), on the plane: the robot keeps its z.
+      const Vec3 in_plane = FromUrPose(plane).inverse() * Vec3(m[0], m[1], m[2]);
+      EXPECT_LE(std::abs(in_plane.x()), 0.18 + 1e-3);
+      EXPECT_LE(std::abs(in_plane.y()), 0.12 + 1e-3);
+      EXPECT_NEAR(m[2], centre[2], 1e-9);
+    }
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    EXPECT_TRUE(Rig::WaitForFile(plane_file)) << rig.log();
+  }
+  {
+    const int parts = cell.source.num_parts;
+    const UrPose detection = on_plane(0.0, 0.0, 0.3);
+    auto p = rig.Program(detection, o);
+    int picked = 0;
+    ASSERT_TRUE(p->Run([&] { picked = p->Pick2DProgram(detection, 3 * parts); }).ok()) << rig.log();
+    EXPECT_EQ(picked, parts) << Popups(*p);
+    std::printf("seed 000 2D pick program over %s: %d parts, %d picked, %zu failure popups, %d requests\n",
+                LinkName(GetParam()), parts, picked, p->failure_popups().size(), p->requests_sent());
+    EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
+    ASSERT_FALSE(p->popups().empty());
+    EXPECT_EQ(p->popups().back().text, "Box Empty.");
+    for (const UrPose& m : p->moves()) {
+      // Over the table, at the robot's own height (recv_daoai_data_2d keeps z).
+      const Vec3 in_plane = FromUrPose(plane).inverse() * Vec3(m[0], m[1], m[2]);
+      EXPECT_LE(std::abs(in_plane.x()), cell.bin.inner_size.x() / 2) << in_plane.transpose();
+      EXPECT_LE(std::abs(in_plane.y()), cell.bin.inner_size.y() / 2) << in_plane.transpose();
+      EXPECT_NEAR(m[2], detection[2], 1e-9);
+    }
+  }
+  EXPECT_EQ(rig.log().find("interface version"), std::string::npos);
 }
 
 INSTANTIATE_TEST_SUITE_P(Links, SeedPrograms, ::testing::Values(Link::kSocket, Link::kModbus),
