@@ -90,11 +90,15 @@ struct WireFormat {
 
 // Commands whose answer pose a seed program moves to: seed 000's
 // `calibra_pose≔daoai_tcp_pose; MoveL calibra_pose` after 4 / 7 (and the 2D
-// loop after 11 / 12), `pick_pose = daoai_tcp_pose` after 21.
+// loop after 11 / 12), `pick_pose = daoai_tcp_pose` after 21; and seed 004's
+// guidance answers (12 / 13 / 32 to 10), whose robot program the seed does
+// not print ("Vision would calculate and output the next recommended pose"):
+// a program that moves to the answer's pose stays where it is.
 bool MovesTo(int32_t command) {
   switch (command) {
     case daoai::kStartAutoCalibration:
     case daoai::kAutoAccumulatePose:
+    case daoai::kGuidanceCalibration:
     case daoai::kStart2DAutoCalibration:
     case daoai::kAutoAccumulate2DPose:
     case daoai::kPickPose:

@@ -217,11 +217,18 @@ TEST(GuidanceCalibration, Version1AnswersGoodBadAndDone) {
   EXPECT_EQ(rig.robot->Call(daoai::kGuidanceCalibration)->status, daoai::kGuidanceGood);
   // The same pose again adds nothing: bad.
   EXPECT_EQ(rig.robot->Call(daoai::kGuidanceCalibration)->status, daoai::kGuidanceBad);
-  // A pose where the board is out of view: bad.
+  // A pose where the board is out of view: bad, with the robot's own pose
+  // (seed 004 does not print its guidance program: one that moves to the
+  // answer stays where it is, never goes to the base origin).
   Pose away = start;
   away.translation() += Vec3(0.6, 0, 0);
   rig.robot->SetPose(away);
-  EXPECT_EQ(rig.robot->Call(daoai::kGuidanceCalibration)->status, daoai::kGuidanceBad);
+  Result<RobotReply> bad = rig.robot->Call(daoai::kGuidanceCalibration);
+  ASSERT_TRUE(bad.ok());
+  EXPECT_EQ(bad->status, daoai::kGuidanceBad);
+  ASSERT_TRUE(bad->X_BT);
+  EXPECT_LT((bad->X_BT->translation() - away.translation()).norm(), 2e-4);
+  EXPECT_LT(RotationErrorDeg(*bad->X_BT, away), 0.05);
   // Planned poses: good until enough, then done.
   const Vec3 c_B = rig.cell.camera.X_BC.translation();
   const Vec3 p_B = rig.camera->true_pose() * (rig.camera->TrueX_CT(start) * BoardCentre(*rig.cell.calibration));
