@@ -733,6 +733,30 @@ TEST(ModbusMaster, OverflowSaturatesTheRemainingCountAndRefusesOtherFields) {
   EXPECT_EQ(rig.master_->stats().refused, 1u);
 }
 
+// Seed 000's daoai_teach_pose never sets payload_1: after a pick pose with 4
+// or more left the Modbus robot holds 3.2767 (saturated) and sends back 3,
+// which names task 3, another pick task. The master remembers the answer as
+// the robot read it, so binpick sees the stale 3 and files the pose on task 0,
+// the task picked from (with the answer as built, 5 left, it would not match).
+TEST(ModbusMaster, TeachAfterASaturatedRemainingCountIsFiledOnTheTaskPickedFrom) {
+  ModbusRig rig;
+  ScriptedPlanner::Script many;
+  many.grasps = 6;
+  rig.planner_->SetScript(0, many);
+  ASSERT_EQ(rig.robot_->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  Result<RobotReply> pick = rig.robot_->Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok());
+  ASSERT_DOUBLE_EQ(pick->payload[0], 3.2767);
+  ASSERT_TRUE(rig.robot_->Send(daoai::kSendPose, 3).ok());  // trunc(daoai_payload_1)
+  const auto deadline = std::chrono::steady_clock::now() + 5s;
+  while (rig.planner_->taught().empty() && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(1ms);
+  }
+  const std::vector<TeachRequest> taught = rig.planner_->taught();
+  ASSERT_EQ(taught.size(), 1u);
+  EXPECT_EQ(taught[0].task.id, 0);
+}
+
 // Nothing is lost in 16 bits: the pick pose is encoded and range-checked
 // before its grasp leaves the queue; one that cannot be sent stays queued and
 // the robot gets UNKNOWN_COMMAND with its own pose (every seed program stops
