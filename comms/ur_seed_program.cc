@@ -677,6 +677,19 @@ int UrSeedProgram::Pick2DProgram(const UrPose& detection_pose, int max_cycles) {
   return picks;
 }
 
+int UrSeedProgram::PickLoopAsPrinted(const UrPose& detection_pose) {
+  int picks = 0;
+  if (daoai_capture_and_process()) {
+    while (daoai_get_picking_pose()) {
+      MoveL(detection_pose);
+      MoveL(pick_pose_);
+      MoveL(detection_pose);
+      ++picks;
+    }
+  }
+  return picks;
+}
+
 int UrSeedProgram::PickProgram(const UrPose& detection_pose, int max_cycles) {
   int picks = 0;
   for (int cycle = 0; cycle < max_cycles; ++cycle) {

@@ -117,6 +117,13 @@ class UrSeedProgram {
   // Loop daoai_auto_accumulate(): calibra_pose = daoai_tcp_pose; MoveL calibra_pose.
   // `max_loops` bounds the loop (the seed's has no bound); @returns the loops run.
   int AutoCalibrationProgram(const UrPose& center_pose, int max_loops);
+  // One pass of seed 000's "抓取通信示例" outer Loop exactly as printed: if
+  // daoai_capture_and_process(): Loop daoai_get_picking_pose(): MoveL
+  // detection_pose, MoveL pick_pose, MoveL detection_pose. The inner Loop
+  // ends only when daoai_get_picking_pose() returns False, and each of its
+  // False paths pops up (after the last pose of a capture: binpick answers 3,
+  // payload_1 0, "NO OBJECTS FOUND."). @returns the picks made.
+  int PickLoopAsPrinted(const UrPose& detection_pose);
   // 2D auto calibration, the 3D program with the 2D functions (seed 000
   // prints no 2D example program): MoveJ center_pose; if
   // daoai_start_auto_calibration_2d(): Loop daoai_auto_accumulate_2d():

@@ -280,12 +280,28 @@ TEST_P(SeedPrograms, Seed000ProgramsCalibratePickAndClearTheBinWithoutAFailurePo
     EXPECT_TRUE(Rig::WaitForFile(rig.Sibling(".taught.yaml"))) << rig.log();
     EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
   }
-  const int picked_before = picked;  // by the teach stage
+  {  // One capture with the pick Loop exactly as printed: it asks once more
+     // after the last pose (payload_1 = 1) and gets what step 7 says, 3 with
+     // payload_1 0 and the robot's own pose, so it stops on the seed's own
+     // "NO OBJECTS FOUND." popup, the only way that Loop ends, and moves
+     // nowhere after it.
+    auto p = rig.Program(DetectionPose());
+    int literal = 0;
+    ASSERT_TRUE(p->Run([&] { literal = p->PickLoopAsPrinted(DetectionPose()); }).ok()) << rig.log();
+    picked += literal;
+    EXPECT_EQ(p->failure_popups(), std::vector<std::string>{"NO OBJECTS FOUND."}) << Popups(*p);
+    EXPECT_EQ(p->status(), 3);
+    EXPECT_EQ(p->payload_1(), 0.0);
+    EXPECT_EQ(p->moves().size(), 3u * static_cast<size_t>(literal));
+    for (const UrPose& m : p->moves()) EXPECT_FALSE(IsZero(m));
+  }
+  const int picked_before = picked;  // by the teach stage and the literal Loop
   {  // The pick program until the box is empty.
     auto p = rig.Program(DetectionPose());
     ASSERT_TRUE(p->Run([&] { picked += p->PickProgram(DetectionPose(), 3 * parts); }).ok()) << rig.log();
     EXPECT_EQ(picked, parts) << Popups(*p);
-    std::printf("seed 000 over %s: %d parts, %d picked (teach stage %d, pick program %d), %zu failure popups\n",
+    std::printf("seed 000 over %s: %d parts, %d picked (teach stage and printed Loop %d, pick program %d), %zu "
+                "failure popups\n",
                 LinkName(GetParam()), parts, picked, picked_before, picked - picked_before,
                 p->failure_popups().size());
     EXPECT_TRUE(p->failure_popups().empty()) << Popups(*p);
