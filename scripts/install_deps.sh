@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   build-essential cmake ninja-build ccache pkg-config git
-  clang clang-14 libclang-rt-14-dev
+  clang clang-14 libclang-rt-14-dev lld  # lld: the linker (CMakeLists.txt)
   libeigen3-dev libpcl-dev libopencv-dev libopencv-contrib-dev libfcl-dev
   libmodbus-dev libboost-dev libboost-system-dev libtbb-dev libosmesa6-dev
   libgtest-dev libgmock-dev libbenchmark-dev
