@@ -304,6 +304,79 @@ Result<Frame> EvalFrame(const Cell& cell, const EvalCliOptions& opt, const std::
   return frame;
 }
 
+// --log-level debug, for a missed part: the ROI points on its pixels of the
+// label image (before noise), how the segmentation cut them (segments, the
+// largest one's share of them and of its own points), and how the truth
+// verifies on them alone: tells a part the segmentation lost from one the
+// pose search did not find and from one whose true pose scores below the bar.
+void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
+                            const PartTruth& p,
+                            std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+  if (!frame.organized() || frame.truth->labels.empty()) return;
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_CB = frame.X_BC.inverse();
+  const int w = frame.depth.width, h = frame.depth.height;
+  std::vector<Eigen::Vector3f> own;
+  std::map<int32_t, int> own_by_segment, all_by_segment;
+  const size_t n = std::min(result.roi_points_B.size(), result.segment_of_point.size());
+  for (size_t k = 0; k < n; ++k) {
+    const Eigen::Vector3d q = X_CB * result.roi_points_B[k].cast<double>();
+    if (!(q.z() > 0.0)) continue;
+    const long u = std::lround(K.fx * q.x() / q.z() + K.cx), v = std::lround(K.fy * q.y() / q.z() + K.cy);
+    if (u < 0 || v < 0 || u >= w || v >= h) continue;
+    const int32_t s = result.segment_of_point[k];
+    ++all_by_segment[s];
+    if (frame.truth->labels.data[static_cast<size_t>(v) * w + static_cast<size_t>(u)] != p.instance_id) continue;
+    own.push_back(result.roi_points_B[k]);
+    ++own_by_segment[s];
+  }
+  int segmented = 0, best = 0, segments = 0;
+  int32_t best_segment = -1;
+  for (const auto& [s, c] : own_by_segment) {
+    if (s < 0) continue;
+    segmented += c;
+    ++segments;
+    if (c > best) {
+      best = c;
+      best_segment = s;
+    }
+  }
+  const double own_share = segmented > 0 ? static_cast<double>(best) / segmented : 0.0;
+  const double purity = best_segment >= 0 ? static_cast<double>(best) / all_by_segment[best_segment] : 0.0;
+  std::string scored = "not scored";
+  const PoseEstimator* est = DiagnosticEstimator(cell, p.class_id, diagnostic_estimators);
+  if (est != nullptr && !own.empty()) {
+    SceneView view;
+    view.points_B = own;
+    view.X_BC = frame.X_BC;
+    view.depth = &frame.depth;
+    view.intrinsics = frame.intrinsics;
+    const Result<PoseHypothesis> t = est->Score(view, p.X_BO);
+    if (t.ok()) {
+      scored = fmt::format("score {:.3f}, visible {}, occluded {}, supported {}, free space {}, unmeasured {}",
+                           t->score, t->visible_points, t->occluded_points, t->supported_points,
+                           t->free_space_points, t->unmeasured_points);
+    }
+    // The estimator (default options) on these points alone: what an ideal
+    // segmentation would have given it.
+    const Result<PoseEstimates> e = est->Estimate(view);
+    if (e.ok() && !e->hypotheses.empty()) {
+      const PoseHypothesis& b = e->hypotheses.front();
+      const PartSpec* spec = cell.FindPart(p.class_id);
+      const Symmetry sym = spec != nullptr ? spec->symmetry : Symmetry{};
+      scored += fmt::format("; estimate alone: score {:.3f}, off {:.1f} mm {:.1f} deg", b.score,
+                            1000.0 * (b.X_BO.translation() - p.X_BO.translation()).norm(),
+                            SymmetricRotationError(b.X_BO, p.X_BO, sym) * 180.0 / M_PI);
+    } else {
+      scored += "; estimate alone: none";
+    }
+  }
+  spdlog::debug("frame {} missed inst {}: own points {}, unsegmented {}, in {} segments, the largest holds {:.2f} "
+                "of them and they {:.2f} of it; truth on own points: {}",
+                i, p.instance_id, own.size(), own_by_segment.count(-1) ? own_by_segment[-1] : 0, segments, own_share,
+                purity, scored);
+}
+
 // --log-level debug: each visible part no detection matched, and how a
 // same-class detection near it is off and how the truth and it score on its
 // support.
@@ -320,6 +393,7 @@ void LogMissedParts(const Cell& cell, int i, const Frame& frame, const Perceptio
                   "{:.2f})",
                   i, p.instance_id, p.class_id, p.visible_fraction, p.X_BO.translation().x() * 1000,
                   p.X_BO.translation().y() * 1000, p.X_BO.translation().z() * 1000, z.x(), z.y(), z.z());
+    LogMissedPartOwnPoints(cell, i, frame, result, p, diagnostic_estimators);
     // A detection of the same class near it: how it is off, in the part's
     // frame, and how the truth and it verify against its support.
     for (const Detection& d : result.detections) {
