@@ -340,6 +340,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
     return Status::InvalidArgument("perception: max_free_space_fraction must be in [0, 1]");
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
+  if (!(options.max_support_penetration >= 0.0) || !std::isfinite(options.max_support_penetration)) {
+    return Status::InvalidArgument("perception: max_support_penetration must be finite and >= 0");
+  }
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
   if (!(options.floor_band > 0.0)) return Status::InvalidArgument("perception: floor_band must be > 0");
   if (options.min_segment_points < 1) return Status::InvalidArgument("perception: min_segment_points must be >= 1");
@@ -352,6 +355,8 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
     }
   }
   const internal::CameraFigures camera = internal::CameraFiguresOf(cell, options);
+  PoseEstimatorOptions reference;
+  reference.max_support_penetration = options.max_support_penetration;
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());
@@ -359,7 +364,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   tbb::task_arena arena(options.threads);
   arena.execute([&] {
     tbb::parallel_for(size_t{0}, specs.size(),
-                      [&](size_t i) { built[i] = internal::BuildClassModel(specs[i], camera); });
+                      [&](size_t i) { built[i] = internal::BuildClassModel(specs[i], camera, reference); });
   });
   std::vector<std::unique_ptr<ClassModel>> models;
   std::map<int, std::string> failures;

@@ -106,9 +106,11 @@ struct PerceptionOptions {
   // Grid points within this height of the bin floor whose normal is within
   // 18 deg of up are floor, not parts (> 0); below the shipped parts' 5 mm.
   double floor_band = 0.004;
-  // Detections need this verification score, in [0, 1]; wrong hypotheses
-  // that pass the estimator's lower bar score 0.35-0.87, true ones 0.9+.
-  double min_detection_score = 0.7;
+  // Detections need this verification score, in [0, 1]. The estimator's own
+  // bar (PoseEstimatorOptions::min_score) is 0.6; frames whose grazing faces
+  // drop depth leave true poses at 0.6-0.7, about as often right as the
+  // detections above (strict rule, docs/tuning.md).
+  double min_detection_score = 0.6;
   // A hypothesis whose fit residual exceeds max_fit_rms_sigmas x the depth
   // noise sigma_z at its depth (and min_fit_rms_limit, metres) is the wrong
   // shape. 0 = off. True detections leave at most 1.07 sigma_z.
@@ -142,6 +144,13 @@ struct PerceptionOptions {
   // their outline; a part fitted into a larger one (a bushing in a tee's
   // run) sticks out of its surface.
   double max_free_space_fraction = 0.01;
+  // A pose that sinks the part more than this below the bin floor is not a
+  // detection (metres, >= 0; PoseEstimatorOptions::max_support_penetration,
+  // whose own default, 3 mm, direct estimator users keep). True poses of
+  // parts resting on the floor sink at most about 1.1 mm (tuning seeds with
+  // variety); a pipe tee standing on its branch and turned about its run
+  // pushes the branch's rim 1-3 mm into it (docs/tuning.md).
+  double max_support_penetration = 0.0015;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

@@ -80,6 +80,7 @@ struct EvalCliOptions {
   double second_look = PerceptionOptions{}.second_look_below;
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
   double max_free_space = PerceptionOptions{}.max_free_space_fraction;
+  double max_penetration = PerceptionOptions{}.max_support_penetration;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
@@ -278,6 +279,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.second_look_below = opt.second_look;
   popt.max_fit_rms_sigmas = opt.fit_rms;
   popt.max_free_space_fraction = opt.max_free_space;
+  popt.max_support_penetration = opt.max_penetration;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   return popt;
@@ -641,6 +643,11 @@ Command EvalCommand() {
                                   "largest fit residual, in sigma_z of the depth noise "
                                   "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 100.0));
+                   sub.add_option("--max-penetration", opt->max_penetration,
+                                  "deepest a detection may sink below the bin floor, metres "
+                                  "(PerceptionOptions::max_support_penetration; tuning)")
+                       ->check(CLI::Range(0.0, 0.05))
+                       ->capture_default_str();
                    sub.add_option("--max-free-space", opt->max_free_space,
                                   "largest fraction of a detection's seen surface in free space "
                                   "(PerceptionOptions::max_free_space_fraction; 1 = off, tuning)")
