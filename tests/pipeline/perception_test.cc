@@ -1045,7 +1045,8 @@ TEST(PerceptionEval, ABushingFittedIntoATeeIsRefusedByTheFreeSpaceItLeaves) {
 // PerceptionOptions::max_support_penetration (1.5 mm; the estimator's own
 // default is 3 mm) refuses those turns. Piles of the tuning range (--variety)
 // where a tee was detected so turned: 1004 (refused, left for the next
-// capture), 1034 and 1046 (the right pose found instead).
+// capture) and 1034 (the right pose found instead; also 1046, not run here:
+// each pile costs two perception runs, several seconds under ASan).
 TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
@@ -1065,7 +1066,7 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
     return -lowest;
   };
   int sunk_gross_tees_loose = 0;
-  for (uint64_t seed : {1004u, 1034u, 1046u}) {
+  for (uint64_t seed : {1004u, 1034u}) {
     varied.source.seed = seed;
     auto source = MakeSyntheticSource(varied);
     ASSERT_TRUE(source.ok()) << source.status().ToString();
@@ -1094,7 +1095,7 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
     EXPECT_GE(after.true_positives, before.true_positives) << "pile " << seed;
     for (const Detection& d : result.detections) EXPECT_LE(sink(d), 0.0015 + 1e-4) << "pile " << seed;
   }
-  EXPECT_GE(sunk_gross_tees_loose, 3) << "no tee turned into the floor with the old limit: nothing to refuse";
+  EXPECT_GE(sunk_gross_tees_loose, 2) << "no tee turned into the floor with the old limit: nothing to refuse";
 }
 
 }  // namespace
