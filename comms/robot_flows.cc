@@ -48,10 +48,13 @@ Pose PlaneCentrePose() {
 }
 
 // seed 003 adjust_det_pose: where the robot shows the camera the part it
-// holds: 0.5 m under the default cell's camera, tool pointing up at it,
-// turned 0.4 rad about the vertical so a part's features are not axis-aligned.
+// holds: 0.5 m under the default cell's camera, turned 0.4 rad about the
+// vertical so a part's features are not axis-aligned, the tool tilted 35 deg
+// off the line of sight so the camera sees the part's sides (pointing
+// straight at the camera, a part hides what it has toward the flange).
 Pose AdjustDetectionPose() {
-  return MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.7, 0.0, 0.55));
+  return MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ()) * Eigen::AngleAxisd(35.0 * M_PI / 180, Vec3::UnitX())),
+                  Vec3(0.7, 0.0, 0.55));
 }
 
 class Runner {

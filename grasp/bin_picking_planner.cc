@@ -124,6 +124,14 @@ Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell&
   auto teach = std::make_unique<TeachStore>(teach_file);
   if (Status s = teach->Load(); !s.ok()) return s;
   std::unique_ptr<BinPickingPlanner> planner(new BinPickingPlanner());
+  for (const TaskSpec& task : cell.tasks) {
+    if (task.kind != TaskSpec::Kind::kInHand || planner->tool_meshes_.count(task.gripper) > 0) continue;
+    const GripperSpec* gripper = cell.FindGripper(task.gripper);
+    if (gripper == nullptr || gripper->mesh.empty()) continue;  // the cell loader names a missing gripper
+    Result<TriangleMesh> mesh = LoadMesh(gripper->mesh);
+    if (!mesh.ok()) return mesh.status();
+    planner->tool_meshes_[task.gripper] = std::make_shared<const TriangleMesh>(std::move(*mesh));
+  }
   planner->cell_ = cell;
   planner->options_ = options;
   planner->perception_ = std::move(perception);
@@ -283,6 +291,11 @@ Status BinPickingPlanner::PlanElsewhere(const PlanRequest& request, const Frame&
     }
     region.X_BR = *request.X_BF;  // X_BT: the box moves with the tool
     region.support = false;       // a held part may sit tilted across the cup's lip
+    // The gripper is in view: its points are no part's. Dropping them lets
+    // the box reach below the tool centre point, where a part held on its
+    // side hangs (a tee held on its run with the branch toward the flange:
+    // its branch is the only cue to its turn about the run).
+    if (auto mesh = tool_meshes_.find(task.gripper); mesh != tool_meshes_.end()) region.clear_mesh_R = mesh->second;
   } else {
     fixture = cell_.FindFixture(task.fixture);
     if (fixture == nullptr) return Status::Internal("task " + std::to_string(task.id) + ": no fixture " + task.fixture);

@@ -38,6 +38,7 @@
 #include <vector>
 
 #include "core/cell.h"
+#include "core/mesh.h"
 #include "grasp/grasp_planning.h"
 #include "grasp/planner.h"
 #include "grasp/teach_store.h"
@@ -159,6 +160,9 @@ class BinPickingPlanner final : public GraspPlanner {
   std::shared_ptr<const Perception> perception_;
   std::shared_ptr<const GraspPlanningModel> model_;
   std::unique_ptr<TeachStore> teach_;
+  // The meshes (in T) of the grippers in_hand tasks use, by gripper name:
+  // their points are dropped from an in_hand view (PerceptionRegion::clear_mesh_R).
+  std::map<std::string, std::shared_ptr<const TriangleMesh>> tool_meshes_;
   std::mutex source_mutex_;
   std::unique_ptr<CaptureSource> source_;  // GUARDED_BY(source_mutex_)
   mutable std::mutex state_mutex_;

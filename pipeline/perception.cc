@@ -15,6 +15,7 @@
 #include "pipeline/internal/class_model.h"
 #include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
+#include "pipeline/internal/model_sampling.h"
 #include "pipeline/internal/part_settings.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
@@ -41,6 +42,20 @@ using Clock = std::chrono::steady_clock;
 // Unorganized clouds are grouped by voxel connectivity at this voxel size
 // (fine enough that 5000 points scattered through the bin stay isolated).
 constexpr float kUnorganizedVoxel = 0.003f;
+
+// Surface samples of region.clear_mesh_R at a third of the margin (random,
+// seeded: the same samples every run) in B; drops the ROI points within the
+// margin of them (PerceptionRegion::clear_mesh_R).
+void ClearKnownGeometry(const PerceptionRegion& region, internal::RoiCloud* roi) {
+  constexpr uint64_t kSampleSeed = 0xC1EA5u;
+  internal::OrientedPoints samples =
+      internal::SampleSurface(*region.clear_mesh_R, region.clear_margin / 3, kSampleSeed);
+  const Eigen::Isometry3f X_BR = region.X_BR.cast<float>();
+  for (Eigen::Vector3f& p : samples.points) p = X_BR * p;
+  const int64_t dropped = internal::DropPointsNear(samples.points, static_cast<float>(region.clear_margin), roi);
+  spdlog::debug("perception: {} ROI points within {:.1f} mm of the region's known geometry dropped", dropped,
+                1000 * region.clear_margin);
+}
 
 // Appends each stage's wall time to PerceptionResult::timings.
 class StageClock {
@@ -261,6 +276,9 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
   std::string model_problems;
   if (Status s = SelectModels(classes, &models, &model_problems); !s.ok()) return s;
   if (region && region->box_R.isEmpty()) return Status::InvalidArgument("perception: the region's box is empty");
+  if (region && region->clear_mesh_R && !(region->clear_margin > 0)) {
+    return Status::InvalidArgument("perception: the region's clear_margin must be > 0");
+  }
   StageClock clock(&result.timings);
 
   // A frame noisier than smoothing_target_sigma is smoothed first and every
@@ -287,6 +305,7 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
                                       : box_;
   internal::RoiCloud roi;
   internal::CropToRoi(used, X_BW, box, &roi);
+  if (region && region->clear_mesh_R && !region->clear_mesh_R->empty()) ClearKnownGeometry(*region, &roi);
   clock.Lap("roi");
   result.roi_point_count = static_cast<int64_t>(roi.points_B.size());
   if (roi.valid_points == 0 || roi.points_B.empty()) {

@@ -18,6 +18,7 @@
 #include <Eigen/Geometry>
 
 #include "core/cell.h"
+#include "core/mesh.h"
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/frame.h"
@@ -193,6 +194,14 @@ struct PerceptionRegion {
   // false: nothing rests on z = 0 (a part held by a gripper, free to sit
   // tilted across the cup's lip): no floor band, no support plane.
   bool support = true;
+  // Geometry in view that is no part, in R (the gripper at an in_hand
+  // capture: its mesh, in the tool frame). ROI points within clear_margin
+  // (metres, > 0) of its surface (of surface samples about a third of the
+  // margin apart) are dropped before segmentation, so the box may reach
+  // past the tool centre point and keep a held part's points beside the cup.
+  // Null: nothing dropped.
+  std::shared_ptr<const TriangleMesh> clear_mesh_R;
+  double clear_margin = 0.003;
 };
 
 enum class PerceptionEffort {

@@ -7,6 +7,8 @@
 #include <unordered_map>
 #include <utility>
 
+#include "pipeline/synthetic_source.h"
+
 namespace bp {
 
 namespace {
@@ -101,8 +103,12 @@ Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vec
         if (!std::isfinite(z) || z <= 0.f) continue;
         const Eigen::Vector3f p_B = X_BC * Deproject(frame.intrinsics, static_cast<float>(u), static_cast<float>(v), z);
         if (!in_roi(p_B)) continue;
+        const uint16_t label = labelled ? frame.truth->labels.at(u, v) : 0;
+        // The region's known geometry (PerceptionRegion::clear_mesh_R, the
+        // gripper) is dropped; the labels say which pixels are the tool's.
+        if (region && region->clear_mesh_R && label == SyntheticSource::kToolLabel) continue;
         out.roi_points_B.push_back(p_B);
-        label_of_point.push_back(labelled ? frame.truth->labels.at(u, v) : 0);
+        label_of_point.push_back(label);
       }
     }
   } else {

@@ -9,6 +9,8 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "pipeline/internal/point_hash.h"
+
 namespace bp::internal {
 namespace {
 // CropToRoi: row bands of at least this many rows, at most this many bands.
@@ -119,6 +121,26 @@ void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud
     }
   });
   out->valid_points = valid;
+}
+
+int64_t DropPointsNear(const std::vector<Eigen::Vector3f>& near_B, float margin, RoiCloud* roi) {
+  if (near_B.empty() || roi->points_B.empty()) return 0;
+  PointHash hash;
+  hash.Build(near_B, margin);
+  size_t kept = 0;
+  for (size_t i = 0; i < roi->points_B.size(); ++i) {
+    const bool drop = hash.AnyWithin(roi->points_B[i], margin);
+    if (roi->organized()) {
+      const auto pixel = static_cast<size_t>(roi->pixel_of_point[i]);
+      roi->point_of_pixel[pixel] = drop ? -1 : static_cast<int32_t>(kept);
+      if (!drop) roi->pixel_of_point[kept] = roi->pixel_of_point[i];
+    }
+    if (!drop) roi->points_B[kept++] = roi->points_B[i];
+  }
+  const auto dropped = static_cast<int64_t>(roi->points_B.size() - kept);
+  roi->points_B.resize(kept);
+  if (roi->organized()) roi->pixel_of_point.resize(kept);
+  return dropped;
 }
 
 SampleGrid MakeSampleGrid(const RoiCloud& roi, int stride) {

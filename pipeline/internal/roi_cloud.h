@@ -42,6 +42,11 @@ RoiBox MakeRoiBox(const Cell& cell);
 // is that of one pass. `out`'s buffers are reused.
 void CropToRoi(const Frame& frame, const Pose& X_BW, const RoiBox& box, RoiCloud* out);
 
+// Drops the points within `margin` (> 0) of any of `near_B` (finite), keeping
+// the others in their order (organized clouds stay in row-major pixel order,
+// point_of_pixel updated). @returns how many were dropped.
+int64_t DropPointsNear(const std::vector<Eigen::Vector3f>& near_B, float margin, RoiCloud* roi);
+
 // Grid used by normals and segmentation: every `stride`-th pixel of an
 // organized ROI cloud (stride 1 = all). Indices are ROI point indices.
 struct SampleGrid {

@@ -334,12 +334,15 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
     ASSERT_TRUE(Rig::WaitForFile(rig.cell_path() + ".calibration.yaml")) << rig.log();
   }
   // The program's taught waypoints for the default cell: adjust_det_pose
-  // 0.5 m under the camera with the tool pointing up at it; the place area
+  // 0.5 m under the camera, the tool tilted 35 deg off the line of sight
+  // (as `binpick place`'s, grasp/place_cycles.h); the place area
   // seen from detection_pose; pre_drop_pose 0.2 m above the nest, tool down;
   // obj_in_Place where the part stood on the nest when the place was taught.
   const FixtureSpec& nest = *cell.FindFixture(cell.FindTask(3)->fixture);
   const UrPose detection = DetectionPose();
-  const UrPose adjust = ToUrPose(MakePose(Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), Vec3(0.7, 0.0, 0.55)));
+  const UrPose adjust = ToUrPose(MakePose(
+      Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ()) * Eigen::AngleAxisd(35.0 * M_PI / 180, Vec3::UnitX())),
+      Vec3(0.7, 0.0, 0.55)));
   const Pose obj_in_place = nest.X_BP_taught * nest.X_PO;
   const UrPose pre_drop = ToUrPose(
       MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), nest.X_BP_taught.translation() + Vec3(0, 0, 0.2)));
