@@ -311,9 +311,10 @@ class Parser {
   void ParseTaskRegion(const YAML::Node& t, const std::string& path, const Cell& cell, TaskSpec& task) const;
   // A {min, max} box (max > min on every axis).
   Eigen::AlignedBox3d ParseBox(const YAML::Node& n, const std::string& path) const;
-  // {translation (m), rotation_deg} with both >= 0.
+  // {translation (m), rotation_deg} with both >= 0; `with_tilt`: a
+  // tilt_deg key is allowed too (read by the caller).
   std::pair<double, double> ParseOffsetRange(const YAML::Node& n, const std::string& path,
-                                             std::pair<double, double> fallback) const;
+                                             std::pair<double, double> fallback, bool with_tilt = false) const;
   void ParseRobot(const YAML::Node& n, Cell& cell) const;
   void ParseEndpoints(const YAML::Node& n, Cell& cell) const;
   // endpoints.<name>: a list of IPv4 / IPv6 addresses (absent: empty).
@@ -599,7 +600,7 @@ Pose Parser::ParseHandEye(const YAML::Node& root) {
 void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
   const std::string path = "source";
   ExpectMap(n, path, {"kind", "dir", "num_parts", "seed", "simulate_picks", "part_classes", "variety", "in_hand_slip",
-                      "fixture_offset"});
+                      "fixture_offset", "bin_offset"});
   SourceSpec& s = cell.source;
   if (const YAML::Node k = n["kind"]; k.IsDefined()) {
     s.kind = Enum<SourceSpec::Kind>(k, "source.kind", "source kind",
@@ -632,11 +633,22 @@ void Parser::ParseSource(const YAML::Node& n, Cell& cell) const {
     std::tie(s.fixture_offset_translation, s.fixture_offset_rotation_deg) = ParseOffsetRange(
         v, "source.fixture_offset", {s.fixture_offset_translation, s.fixture_offset_rotation_deg});
   }
+  if (const YAML::Node v = n["bin_offset"]; v.IsDefined()) {
+    std::tie(s.bin_offset_translation, s.bin_offset_yaw_deg) =
+        ParseOffsetRange(v, "source.bin_offset", {s.bin_offset_translation, s.bin_offset_yaw_deg}, true);
+    s.bin_offset_tilt_deg = OptNumber(v, "source.bin_offset", "tilt_deg", s.bin_offset_tilt_deg);
+    Check(s.bin_offset_tilt_deg >= 0 && s.bin_offset_tilt_deg <= 5, v["tilt_deg"], "source.bin_offset.tilt_deg",
+          "must be in [0, 5] deg");
+  }
 }
 
 std::pair<double, double> Parser::ParseOffsetRange(const YAML::Node& n, const std::string& path,
-                                                   std::pair<double, double> fallback) const {
-  ExpectMap(n, path, {"translation", "rotation_deg"});
+                                                   std::pair<double, double> fallback, bool with_tilt) const {
+  if (with_tilt) {
+    ExpectMap(n, path, {"translation", "rotation_deg", "tilt_deg"});
+  } else {
+    ExpectMap(n, path, {"translation", "rotation_deg"});
+  }
   const double t = OptNumber(n, path, "translation", fallback.first);
   const double r = OptNumber(n, path, "rotation_deg", fallback.second);
   Check(t >= 0 && t <= 0.1, n["translation"], Join(path, "translation"), "must be in [0, 0.1] m");
@@ -653,7 +665,7 @@ Eigen::AlignedBox3d Parser::ParseBox(const YAML::Node& n, const std::string& pat
 }
 
 void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {
-  ExpectMap(n, "bin", {"inner_size", "wall_thickness", "pose", "mesh"});
+  ExpectMap(n, "bin", {"inner_size", "wall_thickness", "pose", "mesh", "detect", "detect_search", "detect_warn"});
   BinSpec& b = cell.bin;
   if (const YAML::Node s = n["inner_size"]; s.IsDefined()) {
     b.inner_size = Vector3(s, "bin.inner_size");
@@ -663,6 +675,21 @@ void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {
   Check(b.wall_thickness > 0, n["wall_thickness"], "bin.wall_thickness", "must be > 0");
   if (const YAML::Node p = n["pose"]; p.IsDefined()) b.X_BW = ParsePose(p, "bin.pose");
   if (const YAML::Node m = n["mesh"]; m.IsDefined()) b.mesh = MeshPath(m, "bin.mesh");
+  BinDetectSpec& d = b.detect;
+  if (const YAML::Node m = n["detect"]; m.IsDefined()) {
+    d.mode = Enum<BinDetectSpec::Mode>(m, "bin.detect", "bin detection mode",
+                                       {{"off", BinDetectSpec::Mode::kOff},
+                                        {"on", BinDetectSpec::Mode::kOn},
+                                        {"required", BinDetectSpec::Mode::kRequired}});
+  }
+  if (const YAML::Node v = n["detect_search"]; v.IsDefined()) {
+    std::tie(d.search_translation, d.search_yaw_deg) =
+        ParseOffsetRange(v, "bin.detect_search", {d.search_translation, d.search_yaw_deg});
+  }
+  if (const YAML::Node v = n["detect_warn"]; v.IsDefined()) {
+    std::tie(d.warn_offset, d.warn_offset_deg) =
+        ParseOffsetRange(v, "bin.detect_warn", {d.warn_offset, d.warn_offset_deg});
+  }
 }
 
 void Parser::ParseRoi(const YAML::Node& n, Cell& cell) const {

@@ -126,13 +126,46 @@ struct SourceSpec {
   // in the xy plane of P and a turn about P's z.
   double fixture_offset_translation = 0.01;  // m
   double fixture_offset_rotation_deg = 5.0;  // deg
+  // Synthetic: the bin stands off its nominal pose (bin.pose) by up to these,
+  // drawn from the seed once per scene (source.bin_offset; docs/synthetic.md
+  // "Bin offset"): a translation in the floor's xy plane (uniform in the
+  // square +-bin_offset_translation), a turn about the bin's z (uniform in
+  // +-bin_offset_yaw_deg) and a tilt about a random horizontal axis (uniform
+  // in [0, bin_offset_tilt_deg]). All 0 = the bin where the cell says.
+  double bin_offset_translation = 0.0;  // m, [0, 0.1]
+  double bin_offset_yaw_deg = 0.0;      // deg, [0, 45]
+  double bin_offset_tilt_deg = 0.0;     // deg, [0, 5]
+};
+
+// Bin detection (issue 41, pipeline/bin_detection.h): each capture looking
+// into the bin first measures the bin's pose from the depth (its rim and
+// floor matched to the bin model), and that pose drives the ROI crop, the
+// floor and empty-box rules and the collision walls.
+struct BinDetectSpec {
+  enum class Mode {
+    kOff,       // the nominal pose, always (no stage runs)
+    kOn,        // the measured pose when the bin is found, else the nominal pose (logged)
+    kRequired,  // a capture whose bin is not found fails (DaoAI: 9 CAPTURE_FAIL) with the reason
+  };
+  // Default on: a bin that sits where the cell says costs the stage's time
+  // (~1-3 ms) and nothing else; one that does not is found.
+  Mode mode = Mode::kOn;
+  // Search window about the nominal pose: translation in the floor plane
+  // (m) and yaw (deg). The rim fit converges from anywhere inside it.
+  double search_translation = 0.05;
+  double search_yaw_deg = 10.0;
+  // A bin found farther than this from nominal (translation, m) or turned
+  // more than warn_offset_deg is warned about (log, status page, metric).
+  double warn_offset = 0.01;
+  double warn_offset_deg = 2.0;
 };
 
 struct BinSpec {
   Vec3 inner_size = Vec3(0.6, 0.4, 0.25);  // x length, y width, z height (m)
   double wall_thickness = 0.01;
-  Pose X_BW = Pose::Identity();            // bin frame in robot base
+  Pose X_BW = Pose::Identity();            // bin frame in robot base (nominal)
   std::string mesh;  // optional; generated from the sizes when empty
+  BinDetectSpec detect;
 };
 
 // Region of interest, in the bin frame: the inner box shrunk by wall_margin,

@@ -139,7 +139,8 @@ struct PickVerdict {
 };
 
 // The grasp's verdict on one view of the pile: where it lands, and what the
-// swept gripper hits (the bin, another true part), if anything.
+// swept gripper hits (the bin where it truly stands, X_BW, another true
+// part), if anything.
 struct Landing {
   GraspOutcome outcome;
   std::optional<RejectReason> hit;
@@ -148,7 +149,7 @@ struct Landing {
 };
 
 Landing Land(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& grasp, const std::vector<PartTruth>& pile,
-             const GraspJudgeOptions& options) {
+             const Pose& X_BW, const GraspJudgeOptions& options) {
   Landing l;
   l.outcome = JudgeGrasp(p.model(), used.gripper, grasp, pile, options);
   for (const PartTruth& t : pile) {
@@ -158,15 +159,15 @@ Landing Land(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& gras
     d.X_BO = t.X_BO;
     l.parts.push_back(std::move(d));
   }
-  l.hit = p.model().CheckAgainstParts(used.gripper, grasp.X_BT, l.parts, l.target);
+  l.hit = p.model().CheckAgainstParts(used.gripper, grasp.X_BT, l.parts, l.target, X_BW);
   return l;
 }
 
 PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& grasp, int cycle,
                       const std::vector<PartTruth>& at_capture, const std::vector<PartTruth>& now,
-                      const GraspJudgeOptions& options, SceneClearReport& report) {
+                      const Pose& X_BW, const GraspJudgeOptions& options, SceneClearReport& report) {
   PickVerdict v;
-  const Landing l = Land(p, used, grasp, now, options);
+  const Landing l = Land(p, used, grasp, now, X_BW, options);
   v.landed = l.outcome.truth_instance;
   if (l.hit) {
     ++report.truth_collisions;
@@ -175,7 +176,7 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
     for (size_t j = 0; j < now.size(); ++j) {
       if (static_cast<int>(j) == l.target) continue;
       const Detection pair[] = {l.parts[j]};
-      if (!p.model().CheckAgainstParts(used.gripper, grasp.X_BT, pair, -1)) continue;
+      if (!p.model().CheckAgainstParts(used.gripper, grasp.X_BT, pair, -1, X_BW)) continue;
       line += "; hits instance " + std::to_string(now[j].instance_id) + " (" + now[j].class_name + ")";
     }
     report.collisions.push_back(std::move(line));
@@ -184,7 +185,7 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
   if (v.success) return v;
   // Stale: the pick would have succeeded on the pile as captured; what
   // changed since (earlier picks of the queue and the resettling) made it fail.
-  const Landing then = Land(p, used, grasp, at_capture, options);
+  const Landing then = Land(p, used, grasp, at_capture, X_BW, options);
   const bool stale = then.outcome.on_part && !then.hit;
   v.cause = stale ? "stale_queue" : l.hit ? "collision" : l.outcome.failure;
   char detail[200];
@@ -217,7 +218,7 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
   for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
     report.withdrawn += static_cast<int>(popped.withdrawn.size());
     PickVerdict v = JudgePick(s.planner, s.used, *popped.grasp, report.cycles, s.at_capture, PileTruth(s.pile),
-                              s.options.judge, report);
+                              s.pile.X_BW(), s.options.judge, report);
     ++report.attempts;
     const bool slip = uniform(s.slip_rng) < s.options.slip_rate;  // drawn for every pick
     if (v.success && slip) {

@@ -154,9 +154,19 @@ Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
     capture.view = CaptureRequest::View::kFixture;
     capture.fixture = request.task.fixture;
   }
-  std::lock_guard lock(source_mutex_);
-  Result<Frame> frame = source_->Capture(capture);
+  Result<Frame> frame = Status::Unavailable("not captured");
+  {
+    std::lock_guard lock(source_mutex_);
+    frame = source_->Capture(capture);
+  }
   if (!frame.ok()) return frame.status();
+  // bin.detect: required: a capture into the bin whose bin is not found
+  // fails, with the detection's reason (perception runs the stage again on
+  // the frame; ~1-3 ms).
+  if (capture.view == CaptureRequest::View::kBin && cell_.bin.detect.mode == BinDetectSpec::Mode::kRequired) {
+    const BinDetection bin = DetectBin(*frame, cell_.bin);
+    if (!bin.found) return Status::Unavailable("bin not found (bin.detect: required): " + bin.reason);
+  }
   return CaptureHandle(std::make_shared<const CapturedFrame>(std::move(*frame)));
 }
 
@@ -193,6 +203,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   result.roi_points = per.roi_point_count;
   result.image_pixels = static_cast<int64_t>(frame.intrinsics.width) * frame.intrinsics.height;
   result.largest_region_points = per.largest_region_points;
+  result.bin = per.bin;
   result.detections = static_cast<int>(per.detections.size());
   for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
   for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});

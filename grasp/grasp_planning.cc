@@ -413,12 +413,12 @@ double TiltRad(const Pose& X_BT) {
 
 std::optional<RejectReason> GraspPlanningModel::CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
                                                                   std::span<const Detection> parts,
-                                                                  int target) const {
+                                                                  int target, const Pose& X_BW) const {
   const Impl& m = *impl_;
   auto g = m.grippers.find(gripper);
   if (g == m.grippers.end()) return RejectReason::kPart;
   const CollisionGeometry& sweep = *g->second.sweep;
-  if (Collides(sweep, X_BT, *m.bin, m.cell.bin.X_BW)) return RejectReason::kBin;
+  if (Collides(sweep, X_BT, *m.bin, X_BW)) return RejectReason::kBin;
   const Pose X_BT_lift = X_BT * TranslateZ(-m.options.contact_margin);
   for (int i = 0; i < static_cast<int>(parts.size()); ++i) {
     auto p = m.parts.find(parts[i].class_id);
@@ -634,7 +634,7 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   // The columns from the points themselves (their cells in W), then every
   // point voxelised in the OcTree's grid (B).
   if (m.options.occluded_columns && !rest.empty()) {
-    AppendOccludedColumns(m.cell.bin.X_BW, res, m.options.voxelised_obstacles, rest);
+    AppendOccludedColumns(BinPoseOf(perception, m.cell.bin), res, m.options.voxelised_obstacles, rest);
   }
   if (m.options.voxelised_obstacles) rest = VoxelCentres(rest, res);
   auto points = PointObstacle::FromPoints(rest, res);
@@ -669,7 +669,7 @@ bool Placeable(const Pose& X_BO_place, const Pose& X_BO, const Pose& X_BT, doubl
 // Stage 3: each candidate's verdict, cheapest check first, in parallel over
 // candidates (the caller's arena). `seen` is null when no grasp needs it.
 void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper, const TaskSpec& task,
-                      std::span<const Detection> detections, const FrameObstacles& obstacles,
+                      const Pose& X_BW, std::span<const Detection> detections, const FrameObstacles& obstacles,
                       const internal::SeenSurface* seen, std::vector<GraspCandidate>& candidates) {
   const Cell& cell = m.cell;
   const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
@@ -724,7 +724,7 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
         if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
       }
       const CollisionGeometry& sweep = *gripper.sweep;
-      if (Collides(sweep, c.X_BT, *m.bin, cell.bin.X_BW)) return RejectReason::kBin;
+      if (Collides(sweep, c.X_BT, *m.bin, X_BW)) return RejectReason::kBin;
       const int self[] = {c.detection};
       if (obstacles.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
       const Pose X_BT_lift = c.X_BT * TranslateZ(-m.options.contact_margin);
@@ -764,10 +764,10 @@ void KeepSealOnlyAsLastResort(std::vector<GraspCandidate>& candidates) {
 }
 
 // Stage 4: scores of the accepted candidates (task.ranking) and the counts.
-void RankCandidates(const Cell& cell, const TaskSpec& task, std::span<const Detection> detections,
+void RankCandidates(const Cell& cell, const TaskSpec& task, const Pose& X_BW, std::span<const Detection> detections,
                     std::vector<GraspCandidate>& candidates, FilterStats& stats) {
   const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
-  const Pose X_WB = cell.bin.X_BW.inverse();
+  const Pose X_WB = X_BW.inverse();
   const double height = std::max(1e-6, cell.bin.inner_size.z());
   for (GraspCandidate& c : candidates) {
     ++stats.candidates;
@@ -917,9 +917,11 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   }
   plan.stats.obstacles_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_obstacles).count();
 
-  FilterCandidates(m, gripper, task, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
+  // The walls stand where perception measured the bin (BinPoseOf).
+  const Pose& X_BW = BinPoseOf(perception, m.cell.bin);
+  FilterCandidates(m, gripper, task, X_BW, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
   KeepSealOnlyAsLastResort(plan.candidates);
-  RankCandidates(m.cell, task, detections, plan.candidates, plan.stats);
+  RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);
   const auto t_neighbours = std::chrono::steady_clock::now();
   MarkStaleNeighbours(m, gripper, plan.queue);

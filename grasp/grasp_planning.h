@@ -225,11 +225,13 @@ class GraspPlanningModel {
   // The cell's grasps of `class_id` for `gripper`, expanded.
   const std::vector<TaughtGrasp>& CellGrasps(int class_id, const std::string& gripper) const;
 
-  // Checks one tool pose against the bin and `parts` (meshes at their poses;
-  // parts[target] is the part being grasped), without points or task limits.
-  // Used to judge a grasp against ground truth. nullopt = collision-free.
+  // Checks one tool pose against the bin standing at X_BW and `parts`
+  // (meshes at their poses; parts[target] is the part being grasped),
+  // without points or task limits. Used to judge a grasp against ground
+  // truth (the true bin pose). nullopt = collision-free.
   std::optional<RejectReason> CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
-                                                std::span<const Detection> parts, int target) const;
+                                                std::span<const Detection> parts, int target,
+                                                const Pose& X_BW) const;
 
   class Impl;
   const Impl& impl() const { return *impl_; }

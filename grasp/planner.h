@@ -27,6 +27,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "grasp/grasp.h"
+#include "pipeline/bin_detection.h"
 
 namespace bp {
 
@@ -77,6 +78,9 @@ struct PlanResult {
   std::vector<DetectedPart> parts;    // those instances (planners may leave it empty)
   std::vector<StageTime> stages;      // per-stage latency of this plan, in order
   std::string message;                // human-readable detail for logs
+  // Issue 41: where the plan's perception found the bin (nullopt: the stage
+  // did not run).
+  std::optional<BinDetection> bin;
 };
 std::string_view ToString(PlanResult::Outcome outcome);
 

@@ -34,6 +34,9 @@ struct GroundTruth {
   // before noise and dropout.
   LabelImage labels;
   static constexpr uint16_t kBinLabel = 0xFFFF;
+  // Where the bin truly stands (synthetic: bin.pose moved by
+  // source.bin_offset); nullopt when not recorded (older truth files).
+  std::optional<Pose> X_BW;
 };
 
 struct Frame {

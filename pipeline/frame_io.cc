@@ -1086,6 +1086,7 @@ Status WriteGroundTruthJson(const Frame& frame, const std::string& path) {
   j["seed"] = truth.seed;
   j["source"] = frame.source;
   j["X_BC"] = PoseToJson(frame.X_BC);
+  if (truth.X_BW) j["X_BW"] = PoseToJson(*truth.X_BW);
   j["parts"] = OrderedJson::array();
   for (const PartTruth& part : truth.parts) {
     const Quat q(part.X_BO.linear());
@@ -1112,6 +1113,11 @@ Result<GroundTruth> ReadGroundTruthJson(const std::string& path) {
   try {
     GroundTruth truth;
     truth.seed = j->value("seed", uint64_t{0});
+    if (j->contains("X_BW")) {
+      auto X = PoseFromJson(j->at("X_BW"), where + "X_BW");
+      if (!X.ok()) return X.status();
+      truth.X_BW = *X;
+    }
     if (!j->contains("parts") || !j->at("parts").is_array()) {
       return Status::Corruption(where + "no \"parts\" array");
     }

@@ -106,6 +106,20 @@ Eigen::Vector4d FloorPlane(const Pose& X_BW) {
   return Eigen::Vector4d(z_W_in_B.x(), z_W_in_B.y(), z_W_in_B.z(), floor_d);
 }
 
+// The log line of a bin detection: a warning when found beyond
+// bin.detect_warn, debug otherwise.
+void NoteBin(const BinDetection& bin) {
+  if (!bin.found) {
+    spdlog::debug("bin detection: not found ({}), the nominal bin pose is used", bin.reason);
+  } else if (bin.warn) {
+    spdlog::warn("bin detection: the bin is {:.1f} mm / {:.2f} deg from its nominal pose (bin.detect_warn)",
+                 1e3 * bin.offset, bin.offset_deg);
+  } else {
+    spdlog::debug("bin detection: found {:.1f} mm / {:.2f} deg from nominal, {} rim points, rim rms {:.2f} mm",
+                  1e3 * bin.offset, bin.offset_deg, bin.rim_points, 1e3 * bin.rim_rms);
+  }
+}
+
 // The classes perception has a model of: the cell's parts, then its fixtures
 // (as parts without symmetry or grasps).
 std::vector<PartSpec> ModelSpecs(const Cell& cell) {
@@ -297,9 +311,18 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
   }
   const Frame& used = smoothing_radius > 0 ? smoothed : frame;
 
+  // Bin detection (pipeline/bin_detection.h) for runs into the bin; a bin
+  // not found leaves the nominal pose (the planner refuses the capture
+  // first under `required`).
+  if (!region && cell_.bin.detect.mode != BinDetectSpec::Mode::kOff) {
+    result.bin = DetectBin(used, cell_.bin);
+    result.timings.push_back({"bin", result.bin->ms});
+    clock.Restart();
+    NoteBin(*result.bin);
+  }
   // The region's frame stands in for the bin frame W everywhere below: its
   // z = 0 plane is the floor.
-  const Pose& X_BW = region ? region->X_BR : cell_.bin.X_BW;
+  const Pose& X_BW = region ? region->X_BR : BinPoseOf(result, cell_.bin);
   const internal::RoiBox box = region ? internal::RoiBox{region->box_R.min().cast<float>(),
                                                          region->box_R.max().cast<float>()}
                                       : box_;

@@ -21,6 +21,7 @@
 #include "core/mesh.h"
 #include "core/pose.h"
 #include "core/status.h"
+#include "pipeline/bin_detection.h"
 #include "pipeline/frame.h"
 #include "pipeline/pose_estimator.h"
 
@@ -75,8 +76,20 @@ struct PerceptionResult {
   int estimates_skipped = 0;
   bool budget_exhausted() const { return estimates_skipped > 0; }
   std::string reason;                   // why there are no detections, when there are none
+  // The bin detection stage of a run into the bin (bin.detect on or
+  // required); nullopt when it did not run (off, a task's own region). When
+  // found, its X_BW is the bin pose the run cropped and took the floor from.
+  std::optional<BinDetection> bin;
   double TotalMs() const;
 };
+
+// The bin pose a result stands on: the measured one when its run found the
+// bin, else the cell's nominal bin.pose. The grasp stage tests the gripper
+// against the walls at this pose; the empty-box rule counts the points of
+// the ROI cropped at it.
+inline const Pose& BinPoseOf(const PerceptionResult& result, const BinSpec& bin) {
+  return result.bin && result.bin->found ? result.bin->X_BW : bin.X_BW;
+}
 
 // Defaults were chosen on the shipped cell (docs/tuning.md has the figure
 // behind each and its command) and are the values for its parts and camera:

@@ -52,6 +52,26 @@ Pose FixtureOffset(const SourceSpec& source, int releases, size_t index) {
   return MakePose(Mat3(Eigen::AngleAxisd(turn(rng) * kDegToRad, Vec3::UnitZ())), t);
 }
 
+// Where the scene's bin stands relative to its nominal pose (source.bin_offset):
+// a translation uniform in the square +-bin_offset_translation of the floor
+// plane, a turn about z uniform in +-bin_offset_yaw_deg, then a tilt by an
+// angle uniform in [0, bin_offset_tilt_deg] about a horizontal axis of
+// uniform azimuth, all about the floor's centre; drawn once per seed.
+Pose BinOffset(const SourceSpec& source) {
+  if (source.bin_offset_translation <= 0 && source.bin_offset_yaw_deg <= 0 && source.bin_offset_tilt_deg <= 0) {
+    return Pose::Identity();
+  }
+  std::mt19937_64 rng(Mix(source.seed ^ Mix(0xB1D0FF5Eu)));
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const Vec3 t(source.bin_offset_translation * u(rng), source.bin_offset_translation * u(rng), 0.0);
+  const double yaw = source.bin_offset_yaw_deg * kDegToRad * u(rng);
+  const double azimuth = std::numbers::pi * u(rng);
+  const double tilt = source.bin_offset_tilt_deg * kDegToRad * 0.5 * (1.0 + u(rng));
+  const Mat3 R = Mat3(Eigen::AngleAxisd(tilt, Vec3(std::cos(azimuth), std::sin(azimuth), 0.0))) *
+                 Mat3(Eigen::AngleAxisd(yaw, Vec3::UnitZ()));
+  return MakePose(R, t);
+}
+
 // A part's slip in the gripper at pick `pick`, in T: a translation across
 // the tool's z of uniform length in [0, max] and a turn by an angle uniform
 // in [0, max] about a uniformly drawn axis through the tool centre point.
@@ -260,7 +280,7 @@ Result<std::unique_ptr<SyntheticSource>> SyntheticSource::Create(const Cell& cel
   auto impl = std::make_unique<Impl>();
   impl->cell = cell;
   impl->hand_eye = std::move(hand_eye);
-  impl->X_BW = cell.bin.X_BW;
+  impl->X_BW = cell.bin.X_BW * BinOffset(cell.source);
   impl->bin_mesh = std::make_shared<TriangleMesh>(bin_mesh_W);
   impl->scene_meshes = std::move(scene);
   PileOptions options;
@@ -325,6 +345,7 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   GroundTruth truth;
   truth.seed = m.cell.source.seed;
   truth.labels = m.full.labels;
+  truth.X_BW = m.X_BW;
   std::vector<int> histogram(0x10000, 0);
   for (uint16_t l : truth.labels.data) ++histogram[l];
   for (size_t i = 0; i < m.pile->parts().size(); ++i) {

@@ -92,6 +92,8 @@ class SyntheticSource final : public CaptureSource {
 
   // The current pile, poses in the bin frame W (X_BO = X_BW() * X_WO).
   const SyntheticPile& pile() const;
+  // Where the bin really stands: the cell's bin.pose moved by the seeded
+  // source.bin_offset (the nominal pose without one).
   const Pose& X_BW() const;
   // Number of frames captured so far.
   int capture_count() const;

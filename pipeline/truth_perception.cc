@@ -72,8 +72,8 @@ int64_t LargestRegionPoints(std::span<const Eigen::Vector3f> points, double cell
   return best;
 }
 
-bool InRoi(const Cell& cell, const Eigen::Vector3f& p_B) {
-  const Vec3 p_W = cell.bin.X_BW.inverse() * p_B.cast<double>();
+bool InRoi(const Cell& cell, const Pose& X_BW, const Eigen::Vector3f& p_B) {
+  const Vec3 p_W = X_BW.inverse() * p_B.cast<double>();
   const double hx = cell.bin.inner_size.x() / 2 - cell.roi.wall_margin;
   const double hy = cell.bin.inner_size.y() / 2 - cell.roi.wall_margin;
   return std::abs(p_W.x()) <= hx && std::abs(p_W.y()) <= hy && p_W.z() >= cell.roi.floor_margin &&
@@ -88,10 +88,17 @@ Result<PerceptionResult> TruthPerception::Run(const Frame& frame, const std::vec
                                               const std::optional<PerceptionRegion>& region) const {
   const auto t0 = std::chrono::steady_clock::now();
   const Pose X_RB = region ? region->X_BR.inverse() : Pose::Identity();
-  const auto in_roi = [&](const Eigen::Vector3f& p_B) {
-    return region ? region->box_R.contains(X_RB * p_B.cast<double>()) : InRoi(cell_, p_B);
-  };
   PerceptionResult out;
+  // The oracle knows where the bin truly stands when the frame's truth does.
+  if (!region && frame.truth && frame.truth->X_BW) {
+    out.bin = BinDetection{};
+    out.bin->found = true;
+    out.bin->X_BW = *frame.truth->X_BW;
+  }
+  const Pose X_BW = BinPoseOf(out, cell_.bin);
+  const auto in_roi = [&](const Eigen::Vector3f& p_B) {
+    return region ? region->box_R.contains(X_RB * p_B.cast<double>()) : InRoi(cell_, X_BW, p_B);
+  };
   std::vector<uint16_t> label_of_point;
   const Eigen::Isometry3f X_BC = frame.X_BC.cast<float>();
   const bool labelled = frame.truth && frame.organized() && frame.truth->labels.width == frame.depth.width &&

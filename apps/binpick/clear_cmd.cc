@@ -44,6 +44,7 @@ struct ClearCliOptions {
   double slip = 0.0;
   uint64_t slip_seed = 1;
   bool no_feedback = false;
+  BinCliOptions bin;
 };
 
 int Error(const Status& s) {
@@ -118,6 +119,7 @@ int Run(const ClearCliOptions& opt) {
   Result<Cell> cell = LoadCellOrDefault(opt.cell_path);
   if (!cell.ok()) return Error(cell.status());
   if (opt.variety && !cell->source.variety) cell->source.variety = VarietySpec{};
+  ApplyBinOptions(opt.bin, *cell);
   std::shared_ptr<const Perception> perception;
   if (opt.oracle) {
     perception = std::make_shared<TruthPerception>(*cell);
@@ -210,6 +212,7 @@ Command ClearCommand() {
     sub.add_flag("--variety", opt->variety,
                  "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "
                  "source.variety, else the defaults; docs/synthetic.md)");
+    AddBinOptions(sub, &opt->bin);
     sub.add_flag("--capture-every-pick", opt->capture_every_pick,
                  "capture again after every pick instead of serving the whole queue first");
     sub.add_flag("--keep-stale", opt->keep_stale,

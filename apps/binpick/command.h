@@ -7,6 +7,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "core/cell.h"
 #include "core/status.h"
 
 namespace bp::cli {
@@ -42,5 +43,17 @@ int ExitCodeFor(const Status& status);
 // Prints "binpick <command>: <status>" as one line on stderr and returns
 // ExitCodeFor(status).
 int Fail(const std::string& command, const Status& status);
+
+// The scene options of issue 41 shared by eval and clear: --bin-offset
+// (each scene's bin off nominal, drawn from its seed) and --bin-detect
+// (the cell's bin.detect replaced).
+struct BinCliOptions {
+  bool offset = false;
+  std::string detect;  // "" = the cell's
+};
+void AddBinOptions(CLI::App& sub, BinCliOptions* opt);
+// Applies them to the cell: --bin-offset keeps the cell's source.bin_offset
+// when it has one, else +-50 mm, +-10 deg yaw and up to 2 deg of tilt.
+void ApplyBinOptions(const BinCliOptions& opt, Cell& cell);
 
 }  // namespace bp::cli

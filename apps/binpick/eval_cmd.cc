@@ -69,6 +69,7 @@ struct EvalCliOptions {
   double tol_deg = 5.0;
   int task_id = 0;    // the pick task whose grasps are judged; < 0: no grasps
   bool variety = false;
+  BinCliOptions bin;
   double normal_angle_deg = -1.0;
   double max_jump = -1.0;
   double context = -1.0;
@@ -491,12 +492,72 @@ void LogFrameDiagnostics(const Cell& cell, int i, const Frame& frame, const Perc
   LogDetections(i, frame, result, fe);
 }
 
+// Bin detection against the true bin pose (frames whose truth has one).
+struct BinFigures {
+  int frames = 0;                     // frames where the stage ran and the truth knows the bin
+  std::vector<double> mm, deg;        // pose error of each found bin
+  std::vector<std::string> failures;  // "seed S: reason" of each bin not found
+};
+
+// The figure of one frame (JSON) and its share of `figures`.
+nlohmann::ordered_json NoteBin(const PerceptionResult& result, const Frame& frame, const std::string& name,
+                               BinFigures& figures) {
+  nlohmann::ordered_json j;
+  if (!result.bin || !frame.truth || !frame.truth->X_BW) return j;
+  const BinDetection& bin = *result.bin;
+  ++figures.frames;
+  j["found"] = bin.found;
+  j["ms"] = bin.ms;
+  if (!bin.found) {
+    j["reason"] = bin.reason;
+    figures.failures.push_back(name + ": " + bin.reason);
+    return j;
+  }
+  const Pose d = frame.truth->X_BW->inverse() * bin.X_BW;
+  const double mm = 1e3 * d.translation().norm(), deg = Eigen::AngleAxisd(d.linear()).angle() * 180.0 / M_PI;
+  figures.mm.push_back(mm);
+  figures.deg.push_back(deg);
+  j["error_mm"] = mm;
+  j["error_deg"] = deg;
+  j["offset_mm"] = 1e3 * bin.offset;
+  j["offset_deg"] = bin.offset_deg;
+  j["rim_points"] = bin.rim_points;
+  return j;
+}
+
+// The q-quantile (nearest rank) of `v`; 0 when empty.
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5))];
+}
+
+nlohmann::ordered_json BinSummary(const BinFigures& f) {
+  nlohmann::ordered_json j;
+  j["frames"] = f.frames;
+  j["found"] = static_cast<int>(f.mm.size());
+  j["error_mm"] = {{"median", Quantile(f.mm, 0.5)}, {"p95", Quantile(f.mm, 0.95)}, {"max", Quantile(f.mm, 1.0)}};
+  j["error_deg"] = {{"median", Quantile(f.deg, 0.5)}, {"p95", Quantile(f.deg, 0.95)}, {"max", Quantile(f.deg, 1.0)}};
+  j["failures"] = f.failures;
+  return j;
+}
+
+void PrintBin(const BinFigures& f) {
+  if (f.frames == 0) return;
+  std::printf("bin detection: %d frames, %zu found; pose error vs truth median %.2f mm / %.3f deg, p95 %.2f mm / "
+              "%.3f deg, max %.2f mm / %.3f deg\n",
+              f.frames, f.mm.size(), Quantile(f.mm, 0.5), Quantile(f.deg, 0.5), Quantile(f.mm, 0.95),
+              Quantile(f.deg, 0.95), Quantile(f.mm, 1.0), Quantile(f.deg, 1.0));
+  for (const std::string& failure : f.failures) std::printf("  bin not found: %s\n", failure.c_str());
+}
+
 int Run(const EvalCliOptions& opt) {
   const std::string cmd = "eval";
   Result<Cell> cell = LoadCellOrDefault(opt.cell_path);
   if (!cell.ok()) return Fail(cmd, cell.status());
   if (opt.num_parts > 0) cell->source.num_parts = opt.num_parts;
   if (opt.variety && !cell->source.variety) cell->source.variety = VarietySpec{};
+  ApplyBinOptions(opt.bin, *cell);
   cell->source.simulate_picks = false;
 
   std::vector<std::string> files;
@@ -539,6 +600,7 @@ int Run(const EvalCliOptions& opt) {
   std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
+  BinFigures bin_figures;
   nlohmann::json frame_detections = nlohmann::json::array();
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
   Progress(0, total, 0.0);
@@ -550,6 +612,9 @@ int Run(const EvalCliOptions& opt) {
     arena.execute([&] { result = (*perception)->Run(*frame, {}, effort); });
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
+    const std::string frame_name = files.empty() ? "seed " + std::to_string(opt.seed + static_cast<uint64_t>(i))
+                                                 : files[static_cast<size_t>(i)];
+    nlohmann::ordered_json bin_json = NoteBin(*result, *frame, frame_name, bin_figures);
     evaluations.push_back(EvaluateFrame(*result, *frame->truth, *models, eval_options));
     if (task != nullptr) {
       FrameEvaluation& fe = evaluations.back();
@@ -568,6 +633,7 @@ int Run(const EvalCliOptions& opt) {
       const std::string name = files.empty() ? "seed " + std::to_string(opt.seed + static_cast<uint64_t>(i))
                                              : files[static_cast<size_t>(i)];
       frames_json.push_back(FrameJson(name, *frame, *result, evaluations.back(), eval_options));
+      if (!bin_json.is_null()) frames_json.back()["bin"] = std::move(bin_json);
     }
     if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
@@ -582,9 +648,12 @@ int Run(const EvalCliOptions& opt) {
   }
   const EvalReport report = Summarize(evaluations, *models);
   PrintTable(report, seg_total, opt);
+  PrintBin(bin_figures);
   if (!opt.json_path.empty()) {
     std::ofstream out(opt.json_path);
-    out << ToJson(report, seg_total, opt, std::move(frames_json)).dump(2) << "\n";
+    nlohmann::ordered_json j = ToJson(report, seg_total, opt, std::move(frames_json));
+    if (bin_figures.frames > 0) j["bin_detection"] = BinSummary(bin_figures);
+    out << j.dump(2) << "\n";
     if (!out) return Fail(cmd, Status::Internal("cannot write '" + opt.json_path + "'"));
   }
   if (!opt.detections_path.empty()) {
@@ -622,6 +691,7 @@ Command EvalCommand() {
                    sub.add_flag("--variety", opt->variety,
                                 "draw each scene's camera pose, intrinsics, noise and drop style from its seed "
                                 "(the cell's source.variety, else the defaults; docs/synthetic.md)");
+                   AddBinOptions(sub, &opt->bin);
                    sub.add_option("--task", opt->task_id,
                                   "pick task whose grasps are planned on the detections and judged against the "
                                   "truth (-1: none)")

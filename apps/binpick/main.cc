@@ -28,6 +28,26 @@ int Fail(const std::string& command, const Status& status) {
   return ExitCodeFor(status);
 }
 
+void AddBinOptions(CLI::App& sub, BinCliOptions* opt) {
+  sub.add_flag("--bin-offset", opt->offset,
+               "place each scene's bin off its nominal pose, drawn from the seed: the cell's source.bin_offset, "
+               "else within +-50 mm, +-10 deg yaw and up to 2 deg tilt (docs/synthetic.md)");
+  sub.add_option("--bin-detect", opt->detect, "bin detection mode instead of the cell's bin.detect")
+      ->check(CLI::IsMember({"off", "on", "required"}));
+}
+
+void ApplyBinOptions(const BinCliOptions& opt, Cell& cell) {
+  SourceSpec& s = cell.source;
+  if (opt.offset && s.bin_offset_translation <= 0 && s.bin_offset_yaw_deg <= 0 && s.bin_offset_tilt_deg <= 0) {
+    s.bin_offset_translation = 0.05;
+    s.bin_offset_yaw_deg = 10.0;
+    s.bin_offset_tilt_deg = 2.0;
+  }
+  if (opt.detect == "off") cell.bin.detect.mode = BinDetectSpec::Mode::kOff;
+  if (opt.detect == "on") cell.bin.detect.mode = BinDetectSpec::Mode::kOn;
+  if (opt.detect == "required") cell.bin.detect.mode = BinDetectSpec::Mode::kRequired;
+}
+
 }  // namespace bp::cli
 
 int main(int argc, char** argv) {

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <optional>
 #include <random>
 
@@ -43,6 +44,67 @@ std::unique_ptr<BinPickingPlanner> MakeOraclePlanner(const Cell& cell, const std
   auto planner = BinPickingPlanner::Create(cell, std::make_shared<TruthPerception>(cell), std::move(*source), options);
   EXPECT_TRUE(planner.ok()) << planner.status().ToString();
   return std::move(*planner);
+}
+
+// ---- bin detection (issue 41) ----------------------------------------------
+
+// A source whose frames show the default camera's view of a bare floor at
+// the bin's floor height: no bin.
+class NoBinSource final : public CaptureSource {
+ public:
+  explicit NoBinSource(const Cell& cell) : cell_(cell) {}
+  Result<Frame> Capture(const CaptureRequest&) override {
+    const CameraConfig& config = *cell_.camera.FindConfig(cell_.camera.default_config);
+    Frame f;
+    f.intrinsics = config.intrinsics;
+    f.X_BC = cell_.camera.X_BC;
+    f.depth = DepthImage(f.intrinsics.width, f.intrinsics.height, std::numeric_limits<float>::quiet_NaN());
+    const Pose X_WC = cell_.bin.X_BW.inverse() * f.X_BC;
+    for (int v = 0; v < f.depth.height; ++v) {
+      for (int u = 0; u < f.depth.width; ++u) {
+        const Vec3 ray_W =
+            X_WC.linear() * Vec3((u - f.intrinsics.cx) / f.intrinsics.fx, (v - f.intrinsics.cy) / f.intrinsics.fy, 1);
+        const double t = -X_WC.translation().z() / ray_W.z();
+        if (t > 0) f.depth.at(u, v) = static_cast<float>(t);
+      }
+    }
+    return f;
+  }
+  std::string Describe() const override { return "a floor without a bin"; }
+
+ private:
+  Cell cell_;
+};
+
+Result<CaptureHandle> CaptureWithBinDetect(BinDetectSpec::Mode mode, bool with_bin) {
+  Cell cell = SyntheticCell(5, 7);
+  cell.bin.detect.mode = mode;
+  std::unique_ptr<CaptureSource> source;
+  if (with_bin) {
+    auto made = MakeSyntheticSource(cell);
+    EXPECT_TRUE(made.ok()) << made.status().ToString();
+    source = std::move(*made);
+  } else {
+    source = std::make_unique<NoBinSource>(cell);
+  }
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  auto planner = BinPickingPlanner::Create(cell, std::make_shared<TruthPerception>(cell), std::move(source), options);
+  EXPECT_TRUE(planner.ok()) << planner.status().ToString();
+  PlanRequest request;
+  request.task = *cell.FindTask(0);
+  return (*planner)->Capture(request);
+}
+
+TEST(BinPickingPlanner, RefusesACaptureWithoutABinWhenTheBinIsRequired) {
+  const Result<CaptureHandle> refused = CaptureWithBinDetect(BinDetectSpec::Mode::kRequired, false);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), Status::Code::kUnavailable);
+  EXPECT_NE(refused.status().message().find("bin not found"), std::string::npos) << refused.status().ToString();
+  EXPECT_NE(refused.status().message().find("no rim"), std::string::npos) << refused.status().ToString();
+  // `on` keeps the nominal pose and captures; `required` with the bin in view captures.
+  EXPECT_TRUE(CaptureWithBinDetect(BinDetectSpec::Mode::kOn, false).ok());
+  EXPECT_TRUE(CaptureWithBinDetect(BinDetectSpec::Mode::kRequired, true).ok());
 }
 
 // ---- the empty-box rule ----------------------------------------------------

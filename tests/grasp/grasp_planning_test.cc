@@ -151,6 +151,50 @@ TEST(GraspFilter, RejectsAGraspWhoseApproachHitsTheWallAndAcceptsItAwayFromTheWa
   EXPECT_EQ(Count(Verdicts(near, 0, "hub_top@"), std::nullopt), 0);
 }
 
+TEST(GraspFilter, WallsAtTheMeasuredBinPoseRejectAGraspTheNominalWallsLetThrough) {
+  // A bushing tilted 30 deg toward the +x wall: its hub_top approach leans
+  // over the wall when the part stands close to it. x_clear: the farthest
+  // position (5 mm steps) where the nominal wall lets the grasp through.
+  TaskSpec task = PickTask();
+  GraspPlanningOptions options;
+  options.suction_compliance_deg = 0;  // judge the grasp as defined
+  auto model = GraspPlanningModel::Build(CellWithoutSeenContact(), options);
+  ASSERT_TRUE(model.ok());
+  const auto hub_verdict = [&](const PerceptionResult& scene) {
+    return Verdicts(PlanGrasps(**model, task, scene), 0, "hub_top@0")[0];
+  };
+  double x_clear = -1;
+  for (double x = 0.0; x < 0.25; x += 0.005) {
+    if (hub_verdict(Scene({Bushing(x, 0, 0.02, 30)})) != std::nullopt) break;
+    x_clear = x;
+  }
+  ASSERT_GE(x_clear, 0.0);
+  ASSERT_LT(x_clear, 0.245);
+  // The bin measured 20 mm toward -x of nominal: its +x wall stands 20 mm
+  // closer to the part than the nominal one.
+  PerceptionResult nominal = Scene({Bushing(x_clear, 0, 0.02, 30)});
+  PerceptionResult measured = nominal;
+  BinDetection bin;
+  bin.found = true;
+  bin.X_BW = DefaultCell().bin.X_BW * MakePose(Mat3::Identity(), Vec3(-0.02, 0.0, 0.0));
+  measured.bin = bin;
+  EXPECT_EQ(hub_verdict(nominal), std::nullopt);
+  EXPECT_EQ(hub_verdict(measured), RejectReason::kBin);
+  // A detection that did not find the bin keeps the nominal walls.
+  measured.bin->found = false;
+  EXPECT_EQ(hub_verdict(measured), std::nullopt);
+  // The judge's check takes the bin pose it is given (the true one in `binpick clear`).
+  const GraspPlan plan = PlanGrasps(**model, task, nominal);
+  const GraspCandidate* hub = nullptr;
+  for (const GraspCandidate& c : plan.candidates) {
+    if (c.name == "hub_top@0") hub = &c;
+  }
+  ASSERT_NE(hub, nullptr);
+  const Detection parts[] = {nominal.detections[0]};
+  EXPECT_EQ((*model)->CheckAgainstParts(task.gripper, hub->X_BT, parts, 0, DefaultCell().bin.X_BW), std::nullopt);
+  EXPECT_EQ((*model)->CheckAgainstParts(task.gripper, hub->X_BT, parts, 0, bin.X_BW), RejectReason::kBin);
+}
+
 // The default cell's L-bracket lying on its side (+y up) near the +x wall,
 // its base turned 40 deg toward the wall. The parallel jaw closes across a
 // plate, so its 90 mm palm spans the plate's normal: at the middle of either

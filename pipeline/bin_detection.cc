@@ -1,0 +1,400 @@
+#include "pipeline/bin_detection.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <vector>
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/sample_consensus/ransac.h>
+#include <pcl/sample_consensus/sac_model_perpendicular_plane.h>
+
+#include <Eigen/Eigenvalues>
+
+namespace bp {
+
+const char* ToString(BinDetectSpec::Mode mode) {
+  switch (mode) {
+    case BinDetectSpec::Mode::kOff: return "off";
+    case BinDetectSpec::Mode::kOn: return "on";
+    case BinDetectSpec::Mode::kRequired: return "required";
+  }
+  return "?";
+}
+
+namespace {
+
+constexpr double kDegToRad = M_PI / 180.0;
+constexpr int kWallPieces = 20;  // a wall's length in this many pieces for the seen share
+
+// Points of the frame near the rim and near the floor, in the nominal bin
+// frame (W0), sampled every `stride` pixels.
+struct SampledPoints {
+  std::vector<Eigen::Vector3f> band_W0;   // within the band about the rim height, in the search annulus
+  std::vector<Eigen::Vector3f> floor_W0;  // within 15 mm of the nominal floor, inside the walls
+};
+
+// The bin model's rim seen from above: centre lines of the walls at
+// x = +-a (running along y, |y| <= ly) and y = +-b (along x, |x| <= lx).
+struct RimModel {
+  double a = 0, b = 0;    // centre lines' distances from the centre
+  double lx = 0, ly = 0;  // half lengths of the walls (outer corners)
+  double half_width = 0;  // half the wall thickness
+};
+
+// The wall a point (in the bin frame, 2D) belongs to: its outward normal,
+// the signed distance to its centre line (> 0 outward) and the position
+// along it in [0, 1].
+struct WallHit {
+  int wall = 0;  // 0: +x, 1: -x, 2: +y, 3: -y
+  Eigen::Vector2d n_model;
+  double r = 0;
+  double along = 0;
+};
+
+WallHit NearestWall(const RimModel& rim, const Eigen::Vector2d& m) {
+  const double dx = std::abs(m.x()) - rim.a, dy = std::abs(m.y()) - rim.b;
+  WallHit h;
+  if (std::abs(dx) < std::abs(dy)) {
+    h.wall = m.x() >= 0 ? 0 : 1;
+    h.n_model = Eigen::Vector2d(m.x() >= 0 ? 1 : -1, 0);
+    h.r = dx;
+    h.along = (m.y() + rim.ly) / (2 * rim.ly);
+  } else {
+    h.wall = m.y() >= 0 ? 2 : 3;
+    h.n_model = Eigen::Vector2d(0, m.y() >= 0 ? 1 : -1);
+    h.r = dy;
+    h.along = (m.x() + rim.lx) / (2 * rim.lx);
+  }
+  return h;
+}
+
+Eigen::Matrix2d Rot2(double theta) {
+  Eigen::Matrix2d R;
+  R << std::cos(theta), -std::sin(theta), std::sin(theta), std::cos(theta);
+  return R;
+}
+
+// The rim's pose in its plane: centre c and yaw theta (the bin's x axis).
+struct RimPose {
+  Eigen::Vector2d c = Eigen::Vector2d::Zero();
+  double theta = 0;
+};
+
+// Point-to-line ICP of the rim model against the points q (in the plane's
+// 2D frame), Gauss-Newton on (c, theta), from `start`, with the gate on the
+// residuals shrinking from `first_gate` to the rim's half width + slack.
+RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, double first_gate, double slack,
+               RimPose pose) {
+  const double final_gate = rim.half_width + slack;
+  for (int it = 0; it < 30; ++it) {
+    const double gate = std::max(final_gate, first_gate * std::pow(0.5, it));
+    const Eigen::Matrix2d R = Rot2(pose.theta), Rt = R.transpose();
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d Jtr = Eigen::Vector3d::Zero();
+    int used = 0;
+    for (const Eigen::Vector2d& p : q) {
+      const Eigen::Vector2d d = p - pose.c;
+      const WallHit h = NearestWall(rim, Rt * d);
+      if (std::abs(h.r) > gate || h.along < -0.02 || h.along > 1.02) continue;
+      const Eigen::Vector2d n = R * h.n_model;
+      const Eigen::Vector3d J(-n.x(), -n.y(), -n.y() * d.x() + n.x() * d.y());
+      JtJ += J * J.transpose();
+      Jtr += J * h.r;
+      ++used;
+    }
+    if (used < 10) break;
+    const Eigen::Vector3d delta = JtJ.ldlt().solve(-Jtr);
+    if (!delta.allFinite()) break;
+    pose.c += delta.head<2>();
+    pose.theta += delta.z();
+    if (gate <= final_gate && delta.head<2>().norm() < 1e-6 && std::abs(delta.z()) < 1e-6) break;
+  }
+  return pose;
+}
+
+SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDetectOptions& o) {
+  SampledPoints out;
+  const Intrinsics& K = frame.intrinsics;
+  const Eigen::Affine3f X_W0C = (bin.X_BW.inverse() * frame.X_BC).cast<float>();
+  const double X = bin.inner_size.x() / 2, Y = bin.inner_size.y() / 2, H = bin.inner_size.z();
+  const double t = bin.wall_thickness;
+  // How far the rim may lie from nominal in the plane: the window's
+  // translation and its yaw at the outer corners.
+  const double reach = bin.detect.search_translation +
+                       std::hypot(X + t, Y + t) * std::sin(bin.detect.search_yaw_deg * kDegToRad) + 0.005;
+  const float outer_x = static_cast<float>(X + t + reach), outer_y = static_cast<float>(Y + t + reach);
+  const float inner_x = static_cast<float>(X - reach), inner_y = static_cast<float>(Y - reach);
+  const float floor_x = static_cast<float>(X - reach), floor_y = static_cast<float>(Y - reach);
+  const float rim_z = static_cast<float>(H), band = static_cast<float>(o.band);
+  // Pixel footprint at the nominal rim centre's depth sets the stride.
+  const Eigen::Vector3d rim_C = (frame.X_BC.inverse() * bin.X_BW) * Eigen::Vector3d(0, 0, H);
+  const double footprint = rim_C.z() > 0 ? rim_C.z() / K.fx : 0.0;
+  const int stride = footprint > 0 ? std::max(1, static_cast<int>(o.sample_spacing / footprint)) : 1;
+  const Eigen::Matrix3f R = X_W0C.linear();
+  const Eigen::Vector3f T = X_W0C.translation();
+  const float fy_inv = static_cast<float>(1.0 / K.fy), cy = static_cast<float>(K.cy);
+  // x / z of each sampled column, once per frame.
+  std::vector<float> ray_x;
+  for (int u = 0; u < K.width; u += stride) ray_x.push_back(static_cast<float>((u - K.cx) / K.fx));
+  // The floor check needs far fewer points: every fourth sampled row and column.
+  const int floor_every = 4;
+  for (int v = 0, row_index = 0; v < K.height; v += stride, ++row_index) {
+    const float* row = &frame.depth.data[static_cast<size_t>(v) * K.width];
+    const float ry = (static_cast<float>(v) - cy) * fy_inv;
+    // p = z * (R * (rx, ry, 1)) + T: the row's part of R * ray once.
+    const Eigen::Vector3f row_part = R.col(1) * ry + R.col(2);
+    const bool floor_row = row_index % floor_every == 0;
+    for (size_t i = 0; i < ray_x.size(); ++i) {
+      const float z = row[i * stride];
+      if (!(z > 0.0f)) continue;  // NaN and non-positive: no measurement
+      // Height first: most pixels (the bin's inside) fail the band test.
+      const float pz = z * (R(2, 0) * ray_x[i] + row_part.z()) + T.z();
+      const bool in_band = std::abs(pz - rim_z) < band;
+      const bool on_floor = floor_row && i % floor_every == 0 && std::abs(pz) < 0.015f;
+      if (!in_band && !on_floor) continue;
+      const Eigen::Vector3f p(z * (R(0, 0) * ray_x[i] + row_part.x()) + T.x(),
+                              z * (R(1, 0) * ray_x[i] + row_part.y()) + T.y(), pz);
+      const float ax = std::abs(p.x()), ay = std::abs(p.y());
+      if (in_band) {
+        if (ax < outer_x && ay < outer_y && (ax > inner_x || ay > inner_y)) out.band_W0.push_back(p);
+      } else if (ax < floor_x && ay < floor_y) {
+        out.floor_W0.push_back(p);
+      }
+    }
+  }
+  return out;
+}
+
+// The rim plane (n . x + d = 0, n.z > 0) by RANSAC over at most
+// max_points of the band points; false when none is found.
+bool FitRimPlane(const std::vector<Eigen::Vector3f>& band, const BinDetectOptions& o, Eigen::Vector3d* n,
+                 double* d) {
+  pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
+  const size_t step = std::max<size_t>(1, band.size() / static_cast<size_t>(std::max(1, o.plane_max_points)));
+  for (size_t i = 0; i < band.size(); i += step) cloud->push_back(pcl::PointXYZ(band[i].x(), band[i].y(), band[i].z()));
+  // Both seed their generators with a fixed value (random = false): reproducible.
+  auto model = std::make_shared<pcl::SampleConsensusModelPerpendicularPlane<pcl::PointXYZ>>(cloud);
+  model->setAxis(Eigen::Vector3f::UnitZ());
+  model->setEpsAngle(5.0 * kDegToRad);
+  pcl::RandomSampleConsensus<pcl::PointXYZ> ransac(model, o.plane_distance);
+  ransac.setMaxIterations(o.plane_iterations);
+  if (!ransac.computeModel()) return false;
+  pcl::Indices inliers;
+  ransac.getInliers(inliers);
+  Eigen::VectorXf coefficients;
+  ransac.getModelCoefficients(coefficients);
+  if (inliers.size() < 30 || coefficients.size() != 4) return false;
+  Eigen::Vector3d normal(coefficients[0], coefficients[1], coefficients[2]);
+  double offset = coefficients[3];
+  const double norm = normal.norm();
+  if (!(norm > 0)) return false;
+  normal /= norm;
+  offset /= norm;
+  if (normal.z() < 0) {
+    normal = -normal;
+    offset = -offset;
+  }
+  *n = normal;
+  *d = offset;
+  return true;
+}
+
+// Least-squares plane through `points`: unit normal with n.z > 0 (in the
+// frame of the points) and offset; false for fewer than 3 points.
+bool FitPlane(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, double* d) {
+  if (points.size() < 3) return false;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : points) mean += p;
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& p : points) cov += (p - mean) * (p - mean).transpose();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+  Eigen::Vector3d normal = eig.eigenvectors().col(0);
+  if (normal.z() < 0) normal = -normal;
+  *n = normal;
+  *d = -normal.dot(mean);
+  return true;
+}
+
+// The least-squares plane of the rim points, fitted again twice on the
+// points within 3 robust sigmas (1.4826 x the median residual, at least
+// 0.3 mm) of the last fit: points on the walls' inner faces just below the
+// rim (seen along its inner edge) drop out. *inliers: the points of the last
+// fit. False for fewer than 3 points.
+bool FitRimPlaneTight(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, double* d,
+                      std::vector<Eigen::Vector3d>* inliers) {
+  if (!FitPlane(points, n, d)) return false;
+  std::vector<double> r(points.size()), sorted;
+  for (int round = 0; round < 2; ++round) {
+    for (size_t i = 0; i < points.size(); ++i) r[i] = std::abs(n->dot(points[i]) + *d);
+    sorted = r;
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
+    const double gate = std::max(3.0 * 1.4826 * sorted[sorted.size() / 2], 0.0003);
+    inliers->clear();
+    for (size_t i = 0; i < points.size(); ++i) {
+      if (r[i] <= gate) inliers->push_back(points[i]);
+    }
+    if (!FitPlane(*inliers, n, d)) return false;
+  }
+  return true;
+}
+
+// A 2D frame in the plane (n, d): origin under (0, 0, H) of W0, x along W0's
+// x projected into the plane.
+struct PlaneFrame {
+  Eigen::Vector3d origin, ex, ey, n;
+  Eigen::Vector2d To2D(const Eigen::Vector3d& p) const { return {(p - origin).dot(ex), (p - origin).dot(ey)}; }
+};
+
+PlaneFrame MakePlaneFrame(const Eigen::Vector3d& n, double d, double H) {
+  PlaneFrame f;
+  f.n = n;
+  const Eigen::Vector3d above(0, 0, H);
+  f.origin = above - (n.dot(above) + d) * n;
+  f.ex = (Eigen::Vector3d::UnitX() - n.x() * n).normalized();
+  f.ey = n.cross(f.ex);
+  return f;
+}
+
+}  // namespace
+
+BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOptions& o) {
+  const auto started = std::chrono::steady_clock::now();
+  BinDetection det;
+  det.X_BW = bin.X_BW;
+  const auto finish = [&](std::string reason) {
+    det.reason = std::move(reason);
+    det.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started).count();
+    return det;
+  };
+  if (!frame.organized()) return finish("bin detection needs an organized frame");
+  if (!frame.X_BC.matrix().allFinite()) return finish("the frame has no valid camera pose");
+
+  const double H = bin.inner_size.z(), t = bin.wall_thickness;
+  const double X = bin.inner_size.x() / 2, Y = bin.inner_size.y() / 2;
+  const SampledPoints sampled = SamplePoints(frame, bin, o);
+  if (sampled.band_W0.size() < 50) {
+    return finish("no rim: " + std::to_string(sampled.band_W0.size()) +
+                  " points near the rim's height within the search window");
+  }
+  Eigen::Vector3d n;
+  double d = 0;
+  if (!FitRimPlane(sampled.band_W0, o, &n, &d)) return finish("no rim: no plane near the rim's height");
+
+  // The rim candidates: band points on the plane, in its 2D frame.
+  PlaneFrame plane = MakePlaneFrame(n, d, H);
+  std::vector<Eigen::Vector2d> q;
+  std::vector<Eigen::Vector3d> on_plane;
+  q.reserve(sampled.band_W0.size());
+  on_plane.reserve(sampled.band_W0.size());
+  for (const Eigen::Vector3f& pf : sampled.band_W0) {
+    const Eigen::Vector3d p = pf.cast<double>();
+    if (std::abs(n.dot(p) + d) > o.plane_distance) continue;
+    q.push_back(plane.To2D(p));
+    on_plane.push_back(p);
+  }
+  RimModel rim;
+  rim.half_width = t / 2;
+  rim.a = X + t / 2;
+  rim.b = Y + t / 2;
+  rim.lx = X + t;
+  rim.ly = Y + t;
+  const double reach = bin.detect.search_translation +
+                       std::hypot(X + t, Y + t) * std::sin(bin.detect.search_yaw_deg * kDegToRad);
+  RimPose pose = FitRim(q, rim, reach, o.rim_slack, RimPose{});
+
+  // What the fit explains: rim points per wall piece, points inward on the plane.
+  const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();
+  std::array<std::array<int, kWallPieces>, 4> pieces{};
+  int inward = 0;
+  std::vector<Eigen::Vector3d> rim_points;
+  for (size_t i = 0; i < q.size(); ++i) {
+    const WallHit h = NearestWall(rim, Rt * (q[i] - pose.c));
+    if (h.along < 0 || h.along > 1) continue;
+    if (std::abs(h.r) <= rim.half_width + o.rim_slack) {
+      ++pieces[h.wall][std::min(kWallPieces - 1, static_cast<int>(h.along * kWallPieces))];
+      rim_points.push_back(on_plane[i]);
+    } else if (h.r < -(rim.half_width + 0.006) && h.r > -(rim.half_width + 0.020)) {
+      ++inward;
+    }
+  }
+  det.rim_points = static_cast<int>(rim_points.size());
+  double least_seen = 1.0;
+  for (const auto& wall : pieces) {
+    const int seen = static_cast<int>(std::count_if(wall.begin(), wall.end(), [](int c) { return c >= 3; }));
+    least_seen = std::min(least_seen, static_cast<double>(seen) / kWallPieces);
+  }
+  det.rim_seen = least_seen;
+  if (least_seen < o.min_wall_seen) {
+    return finish("no rim: a wall's rim is seen along " + std::to_string(static_cast<int>(100 * least_seen)) +
+                  "% of its length (needs " + std::to_string(static_cast<int>(100 * o.min_wall_seen)) + "%)");
+  }
+  if (inward > o.max_inward_share * static_cast<double>(rim_points.size())) {
+    return finish("no rim: a surface continues inward at the rim's height (" + std::to_string(inward) +
+                  " points inside the rim on its plane, " + std::to_string(rim_points.size()) + " on the rim)");
+  }
+  // The rim plane again over the rim points alone (tightened to their
+  // noise), and the rim's pose in it again on those points.
+  std::vector<Eigen::Vector3d> tight;
+  if (FitRimPlaneTight(rim_points, &n, &d, &tight)) {
+    const PlaneFrame refined = MakePlaneFrame(n, d, H);
+    std::vector<Eigen::Vector2d> q_tight;
+    q_tight.reserve(tight.size());
+    for (const Eigen::Vector3d& p : tight) q_tight.push_back(refined.To2D(p));
+    // The pose so far, in the refined plane's 2D frame.
+    const Eigen::Vector3d c_3d = plane.origin + pose.c.x() * plane.ex + pose.c.y() * plane.ey;
+    const Eigen::Vector3d x_3d = std::cos(pose.theta) * plane.ex + std::sin(pose.theta) * plane.ey;
+    RimPose start;
+    start.c = refined.To2D(c_3d);
+    start.theta = std::atan2(x_3d.dot(refined.ey), x_3d.dot(refined.ex));
+    pose = FitRim(q_tight, rim, rim.half_width + o.rim_slack, o.rim_slack, start);
+    plane = refined;
+    rim_points = std::move(tight);
+  }
+  double sq = 0;
+  for (const auto& p : rim_points) sq += std::pow(n.dot(p) + d, 2);
+  det.rim_rms = std::sqrt(sq / std::max<size_t>(1, rim_points.size()));
+
+  // The measured bin frame in W0: z the rim's normal, x the fitted yaw, the
+  // origin inner height below the rim's centre.
+  const Eigen::Vector3d centre_on_rim = plane.origin + pose.c.x() * plane.ex + pose.c.y() * plane.ey;
+  const Eigen::Vector3d rim_centre = centre_on_rim - (n.dot(centre_on_rim) + d) * n;
+  const Eigen::Vector3d x_dir = std::cos(pose.theta) * plane.ex + std::sin(pose.theta) * plane.ey;
+  const Eigen::Vector3d ex = (x_dir - x_dir.dot(n) * n).normalized();
+  Pose X_W0W = Pose::Identity();
+  X_W0W.linear().col(0) = ex;
+  X_W0W.linear().col(1) = n.cross(ex);
+  X_W0W.linear().col(2) = n;
+  X_W0W.translation() = rim_centre - H * n;
+  // The window is a square in the floor plane (x and y each within
+  // +-search_translation) and a yaw range, with 5 mm / 0.5 deg of slack.
+  if (pose.c.cwiseAbs().maxCoeff() > bin.detect.search_translation + 0.005 ||
+      std::abs(pose.theta) > (bin.detect.search_yaw_deg + 0.5) * kDegToRad) {
+    char why[160];
+    std::snprintf(why, sizeof(why), "the rim fitted %.1f mm / %.1f deg from nominal, outside the search window",
+                  1e3 * pose.c.norm(), pose.theta / kDegToRad);
+    return finish(why);
+  }
+  det.found = true;
+  det.X_BW = bin.X_BW * X_W0W;
+  det.offset = X_W0W.translation().norm();
+  det.offset_deg = Eigen::AngleAxisd(X_W0W.linear()).angle() / kDegToRad;
+  det.warn = det.offset > bin.detect.warn_offset || det.offset_deg > bin.detect.warn_offset_deg;
+
+  // The floor where it shows, against the measured bin.
+  const Pose X_WW0 = X_W0W.inverse();
+  double floor_sum = 0;
+  for (const Eigen::Vector3f& p : sampled.floor_W0) {
+    const double z = (X_WW0 * p.cast<double>()).z();
+    if (std::abs(z) > 0.01) continue;
+    floor_sum += z;
+    ++det.floor_points;
+  }
+  if (det.floor_points > 0) det.floor_height = floor_sum / det.floor_points;
+  return finish("");
+}
+
+}  // namespace bp

@@ -1,0 +1,145 @@
+// Bin detection (issue 41) on the default cell's rendered frames against the
+// bin's true pose, and on frames without a bin.
+#include "pipeline/bin_detection.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+
+#include "pipeline/synthetic_source.h"
+
+namespace bp {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+Cell DefaultCell() {
+  Result<Cell> cell = LoadDefaultCell();
+  EXPECT_TRUE(cell.ok()) << cell.status().ToString();
+  return *cell;
+}
+
+// A frame of `cell`'s scene (seeded pile) and where its bin truly stands.
+struct Scene {
+  Frame frame;
+  Pose X_BW_true;
+};
+
+Scene Render(const Cell& cell) {
+  auto source = MakeSyntheticSource(cell);
+  EXPECT_TRUE(source.ok()) << source.status().ToString();
+  auto* synthetic = dynamic_cast<SyntheticSource*>(source->get());
+  EXPECT_NE(synthetic, nullptr);
+  Result<Frame> frame = (*source)->Capture({});
+  EXPECT_TRUE(frame.ok()) << frame.status().ToString();
+  return {std::move(*frame), synthetic->X_BW()};
+}
+
+// Translation (m) and rotation (deg) between two poses.
+std::pair<double, double> Error(const Pose& a, const Pose& b) {
+  const Pose d = a.inverse() * b;
+  return {d.translation().norm(), Eigen::AngleAxisd(d.linear()).angle() * kRadToDeg};
+}
+
+// A frame of the default camera seeing only a horizontal plane at height z_W
+// of the nominal bin frame (no bin).
+Frame PlaneFrame(const Cell& cell, double z_W) {
+  const CameraConfig& config = *cell.camera.FindConfig(cell.camera.default_config);
+  Frame f;
+  f.intrinsics = config.intrinsics;
+  f.X_BC = cell.camera.X_BC;
+  f.depth = DepthImage(f.intrinsics.width, f.intrinsics.height, std::numeric_limits<float>::quiet_NaN());
+  const Pose X_WC = cell.bin.X_BW.inverse() * f.X_BC;
+  for (int v = 0; v < f.depth.height; ++v) {
+    for (int u = 0; u < f.depth.width; ++u) {
+      const Vec3 ray_C((u - f.intrinsics.cx) / f.intrinsics.fx, (v - f.intrinsics.cy) / f.intrinsics.fy, 1.0);
+      const Vec3 ray_W = X_WC.linear() * ray_C;
+      const double t = (z_W - X_WC.translation().z()) / ray_W.z();
+      if (t > 0) f.depth.at(u, v) = static_cast<float>(t);  // depth along z_C: ray_C.z = 1
+    }
+  }
+  return f;
+}
+
+TEST(BinDetection, FindsTheBinAtItsNominalPose) {
+  Cell cell = DefaultCell();
+  cell.source.num_parts = 20;
+  const Scene scene = Render(cell);
+  const BinDetection bin = DetectBin(scene.frame, cell.bin);
+  ASSERT_TRUE(bin.found) << bin.reason;
+  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
+  EXPECT_LT(mm, 0.0001) << 1e3 * mm << " mm";
+  EXPECT_LT(deg, 0.02) << deg << " deg";
+  EXPECT_FALSE(bin.warn);
+  EXPECT_GT(bin.rim_seen, 0.8);
+}
+
+TEST(BinDetection, FindsABinShiftedAndTurnedWithinTolerance) {
+  // Seeded offsets within the window (+-50 mm, +-10 deg, tilt up to 2 deg),
+  // and the window's corner: the scene's bin placed there, nominal kept.
+  int far = 0;
+  for (uint64_t seed : {3, 11}) {
+    Cell cell = DefaultCell();
+    cell.source.seed = seed;
+    cell.source.bin_offset_translation = 0.05;
+    cell.source.bin_offset_yaw_deg = 10.0;
+    cell.source.bin_offset_tilt_deg = 2.0;
+    const Scene scene = Render(cell);
+    const auto [off_mm, off_deg] = Error(cell.bin.X_BW, scene.X_BW_true);
+    far += off_mm > 0.015 || off_deg > 3.0 ? 1 : 0;
+    const BinDetection bin = DetectBin(scene.frame, cell.bin);
+    ASSERT_TRUE(bin.found) << "seed " << seed << ": " << bin.reason;
+    const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
+    EXPECT_LT(mm, 0.0005) << "seed " << seed << ": " << 1e3 * mm << " mm, bin " << 1e3 * off_mm << " mm / "
+                          << off_deg << " deg off";
+    EXPECT_LT(deg, 0.1) << "seed " << seed << ": " << deg << " deg";
+    EXPECT_NEAR(bin.offset, off_mm, 0.002);
+  }
+  EXPECT_GT(far, 0) << "the seeded offsets should move the bin noticeably";
+
+  Cell truth = DefaultCell();
+  const Pose corner = MakePose(Mat3(Eigen::AngleAxisd(1.5 / kRadToDeg, Vec3(0.6, 0.8, 0).normalized()) *
+                                    Eigen::AngleAxisd(-9.5 / kRadToDeg, Vec3::UnitZ())),
+                               Vec3(0.048, -0.048, 0.0));
+  truth.bin.X_BW = truth.bin.X_BW * corner;
+  const Scene scene = Render(truth);
+  const Cell nominal = DefaultCell();
+  const BinDetection bin = DetectBin(scene.frame, nominal.bin);
+  ASSERT_TRUE(bin.found) << bin.reason;
+  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
+  EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
+  EXPECT_LT(deg, 0.1) << deg << " deg";
+  EXPECT_TRUE(bin.warn);  // 68 mm / 9.6 deg from nominal, beyond bin.detect_warn
+}
+
+TEST(BinDetection, FindsNoBinOnAFloorALidOrAnEmptyFrame) {
+  const Cell cell = DefaultCell();
+  const BinDetection floor = DetectBin(PlaneFrame(cell, 0.0), cell.bin);
+  EXPECT_FALSE(floor.found);
+  EXPECT_NE(floor.reason.find("no rim"), std::string::npos) << floor.reason;
+  // A plate over the bin at the rim's height: a surface, not a rim.
+  const BinDetection lid = DetectBin(PlaneFrame(cell, cell.bin.inner_size.z()), cell.bin);
+  EXPECT_FALSE(lid.found);
+  EXPECT_NE(lid.reason.find("inward"), std::string::npos) << lid.reason;
+  Frame empty = PlaneFrame(cell, 0.0);
+  for (float& z : empty.depth.data) z = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_FALSE(DetectBin(empty, cell.bin).found);
+  Frame unorganized;
+  unorganized.points_C = {Eigen::Vector3f(0, 0, 1)};
+  EXPECT_FALSE(DetectBin(unorganized, cell.bin).found);
+  EXPECT_EQ(DetectBin(unorganized, cell.bin).X_BW.matrix(), cell.bin.X_BW.matrix());
+}
+
+TEST(BinDetection, ABinBeyondTheSearchWindowIsNotFound) {
+  Cell truth = DefaultCell();
+  truth.bin.X_BW = truth.bin.X_BW * MakePose(Mat3::Identity(), Vec3(0.12, 0.0, 0.0));
+  const Scene scene = Render(truth);
+  const Cell nominal = DefaultCell();
+  const BinDetection bin = DetectBin(scene.frame, nominal.bin);
+  EXPECT_FALSE(bin.found) << 1e3 * Error(bin.X_BW, scene.X_BW_true).first << " mm";
+  EXPECT_EQ(bin.X_BW.matrix(), nominal.bin.X_BW.matrix());
+}
+
+}  // namespace
+}  // namespace bp
