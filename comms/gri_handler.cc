@@ -1,5 +1,8 @@
 #include "comms/gri_handler.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <spdlog/spdlog.h>
 
 #include <utility>
@@ -81,12 +84,31 @@ gri::Response Build(const gri::Request& req, Code code,
 // The answer handing out `g` with `remaining` grasps left including it, or
 // the reason it cannot be written in the request's format (every field
 // checked: gri::EncodeResponse).
-Result<gri::Response> PoseAnswer(const gri::Request& req, const Grasp& g, int remaining) {
+// binpick extension of the official format (docs/protocols.md "Fill level
+// over the GRI"): data_4..6 of a pose answer carry the fill level of the
+// detection the pose comes from, as rc_reason's overall filling level:
+// mean and max height in percent of the bin's inner height, and the
+// occupied share of the floor in percent, each x 100 (0..10000). v2 has no
+// room for them (data_1..5 hold the job's counts and status).
+void PutFillLevel(const gri::Request& req, const std::optional<FillLevel>& fill, double bin_height,
+                  gri::Response& r) {
+  if (req.format == Format::kV2 || !fill || !(bin_height > 0)) return;
+  const auto percent100 = [](double fraction) {
+    return static_cast<int32_t>(std::lround(std::clamp(fraction, 0.0, 1.0) * 10000.0));
+  };
+  r.data[3] = percent100(fill->mean_height / bin_height);
+  r.data[4] = percent100(fill->max_height / bin_height);
+  r.data[5] = percent100(fill->occupied_fraction);
+}
+
+Result<gri::Response> PoseAnswer(const gri::Request& req, const Grasp& g, int remaining,
+                                 const std::optional<FillLevel>& fill, double bin_height) {
   Result<std::array<double, 7>> wire = ToWire(g.X_BT, req.format, req.pose_format);
   if (!wire.ok()) return wire.status();
   // The related poses: the part's other grasps, then the part (NextPoseReply).
-  const gri::Response r = Build(req, Code::kOk, *wire, remaining - 1,
-                                static_cast<int32_t>(g.related_X_B.size() + 1));
+  gri::Response r = Build(req, Code::kOk, *wire, remaining - 1,
+                          static_cast<int32_t>(g.related_X_B.size() + 1));
+  PutFillLevel(req, fill, bin_height, r);
   if (Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(r); !bytes.ok()) return bytes.status();
   return r;
 }
@@ -174,7 +196,7 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
     Status refusal;
     const Result<GraspQueue::Popped> p =
         tasks_.PopGrasp(req.job_id, client, [&](const Grasp& g, int remaining) {
-          Result<gri::Response> r = PoseAnswer(req, g, remaining);
+          Result<gri::Response> r = PoseAnswer(req, g, remaining, s->fill, tasks_.cell().bin.inner_size.z());
           if (!r.ok()) {
             if (refusal.ok()) refusal = r.status();
             return false;

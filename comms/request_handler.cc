@@ -1045,7 +1045,17 @@ Response RequestHandler::Impl::EmptyBoxCheck(TaskState& t, const PlanRequest& pl
   spdlog::info("daoai: task {} empty-box check: {} points (threshold {} at {} pixels), {} "
                "detections: {}", t.spec.id, points, EffectiveThreshold(rule, plan->image_pixels),
                plan->image_pixels, plan->detections, empty ? "EMPTY" : "NOT EMPTY");
-  return Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, cell_.robot.protocol_version);
+  Response r = Base(empty ? daoai::kBoxEmpty : daoai::kBoxNotEmpty, cell_.robot.protocol_version);
+  // binpick extension (docs/protocols.md "Empty box (40)"): the fill level
+  // in payload_4..6 (x MULT): mean and max height over the floor (m) and
+  // the occupied share of the floor (0..1). The seeds read the status only.
+  if (const std::optional<FillLevel>& fill = plan->fill) {
+    const double fields[3] = {fill->mean_height, fill->max_height, fill->occupied_fraction};
+    for (int i = 0; i < 3; ++i) {
+      if (const Result<int32_t> v = ToFixed(fields[i]); v.ok()) r.payload[3 + i] = *v;
+    }
+  }
+  return r;
 }
 
 Response RequestHandler::Impl::PrecisionCheck(const PlanRequest& plan_request) {
@@ -1413,7 +1423,10 @@ Result<RequestHandler::TaskSnapshot> RequestHandler::Impl::Snapshot(int task_id)
     s.in_flight = (t->running ? 1 : 0) + (t->pending ? 1 : 0);
     s.finished = t->finished;
   }
-  if (std::optional<GraspQueue::Summary> last = t->queue.LastPlan()) s.outcome = last->outcome;
+  if (std::optional<GraspQueue::Summary> last = t->queue.LastPlan()) {
+    s.outcome = last->outcome;
+    s.fill = last->fill;
+  }
   s.grasps_left = t->queue.size();
   return s;
 }

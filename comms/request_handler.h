@@ -158,6 +158,8 @@ class RequestHandler {
     // Outcome of the last finished detection; nullopt while one runs or before the first.
     std::optional<PlanResult::Outcome> outcome;
     int grasps_left = 0;
+    // The last finished detection's fill level (issue 41; GRI data_4..6).
+    std::optional<FillLevel> fill;
   };
   Result<TaskSnapshot> Snapshot(int task_id) const;
   // Capture and detect in the background (as RC_DAOAI_CAPTURE_AND_PROCESS_ASYNC).

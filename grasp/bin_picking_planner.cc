@@ -204,6 +204,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   result.image_pixels = static_cast<int64_t>(frame.intrinsics.width) * frame.intrinsics.height;
   result.largest_region_points = per.largest_region_points;
   result.bin = per.bin;
+  result.fill = per.fill;
   result.detections = static_cast<int>(per.detections.size());
   for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
   for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});

@@ -16,6 +16,7 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
   s.total_grasps = static_cast<int>(result.grasps.size());
   s.roi_points = result.roi_points;
   s.largest_region_points = result.largest_region_points;
+  s.fill = result.fill;
   s.detections = result.detections;
   std::deque<Grasp> grasps(std::make_move_iterator(result.grasps.begin()),
                            std::make_move_iterator(result.grasps.end()));

@@ -64,6 +64,7 @@ class GraspQueue {
     int detections = 0;
     int withdrawn = 0;  // grasps withdrawn as stale since the plan was queued
     int screened = 0;   // grasps the screen took out (failed-pick feedback) since then
+    std::optional<FillLevel> fill;  // the plan's fill level (PlanResult::fill)
   };
 
   // Takes grasps out of the queue, under its lock, and returns them

@@ -28,6 +28,7 @@
 #include "core/status.h"
 #include "grasp/grasp.h"
 #include "pipeline/bin_detection.h"
+#include "pipeline/fill_level.h"
 
 namespace bp {
 
@@ -79,8 +80,10 @@ struct PlanResult {
   std::vector<StageTime> stages;      // per-stage latency of this plan, in order
   std::string message;                // human-readable detail for logs
   // Issue 41: where the plan's perception found the bin (nullopt: the stage
-  // did not run).
+  // did not run) and the bin's fill level (nullopt: not measured, e.g. a
+  // task looking elsewhere than the bin).
   std::optional<BinDetection> bin;
+  std::optional<FillLevel> fill;
 };
 std::string_view ToString(PlanResult::Outcome outcome);
 

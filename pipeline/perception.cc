@@ -330,6 +330,11 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
   internal::CropToRoi(used, X_BW, box, &roi);
   if (region && region->clear_mesh_R && !region->clear_mesh_R->empty()) ClearKnownGeometry(*region, &roi);
   clock.Lap("roi");
+  if (!region) {
+    // The fill level over the ROI's floor (the bin's inner floor less the wall margin).
+    const Eigen::Vector2d half = cell_.bin.inner_size.head<2>() / 2 - Eigen::Vector2d::Constant(cell_.roi.wall_margin);
+    result.fill = MeasureFillLevel(roi.points_B, X_BW, half);
+  }
   result.roi_point_count = static_cast<int64_t>(roi.points_B.size());
   if (roi.valid_points == 0 || roi.points_B.empty()) {
     result.segment_of_point.assign(roi.points_B.size(), -1);

@@ -22,6 +22,7 @@
 #include "core/pose.h"
 #include "core/status.h"
 #include "pipeline/bin_detection.h"
+#include "pipeline/fill_level.h"
 #include "pipeline/frame.h"
 #include "pipeline/pose_estimator.h"
 
@@ -80,6 +81,9 @@ struct PerceptionResult {
   // required); nullopt when it did not run (off, a task's own region). When
   // found, its X_BW is the bin pose the run cropped and took the floor from.
   std::optional<BinDetection> bin;
+  // The bin's fill level (pipeline/fill_level.h) from the ROI's points over
+  // the floor of the bin pose used; runs into the bin only.
+  std::optional<FillLevel> fill;
   double TotalMs() const;
 };
 

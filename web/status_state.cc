@@ -42,6 +42,21 @@ json PoseJson(const Pose& X) {
   return {{"position_m", {t.x(), t.y(), t.z()}}, {"quaternion_wxyz", {q.w(), q.x(), q.y(), q.z()}}};
 }
 
+// The plan's bin detection (issue 41): null when the stage did not run.
+json BinJson(const std::optional<BinDetection>& bin) {
+  if (!bin) return nullptr;
+  json j = {{"found", bin->found}, {"ms", bin->ms}};
+  if (bin->found) {
+    j["offset_mm"] = 1e3 * bin->offset;
+    j["offset_deg"] = bin->offset_deg;
+    j["warning"] = bin->warn;
+    j["pose"] = PoseJson(bin->X_BW);
+  } else {
+    j["reason"] = bin->reason;
+  }
+  return j;
+}
+
 // Calibration mode a response status reports (seed 000 DAOAI_MODE_*).
 const char* CalibrationModeOf(int32_t status) {
   switch (status) {
@@ -145,6 +160,7 @@ class StatusState::Impl {
         captures_failed_(metrics.GetCounter("binpick_captures_total", "Captures by result.",
                                             {{"result", "failed"}})) {
     cell_name_ = cell.name;
+    bin_ = cell.bin;
     for (const TaskSpec& t : cell.tasks) tasks_.emplace_back(t.id, t.name);
     for (const PartSpec& p : cell.parts) part_names_[p.class_id] = p.name;
     sink_ = std::make_shared<ErrorSink>(options.max_errors);
@@ -172,6 +188,7 @@ class StatusState::Impl {
       metrics_.GetCounter("binpick_grasps_planned_total", "Grasps queued by detections.",
                           {{"task", task}})
           .Inc(static_cast<double>(e.plan->grasps.size()));
+      CountBin(*e.plan, task);
     }
     const std::string outcome =
         !e.scene ? "capture_failed"
@@ -206,12 +223,53 @@ class StatusState::Impl {
       d.detections = e.plan->detections;
       d.roi_points = e.plan->roi_points;
       d.message = e.plan->message;
+      d.bin = e.plan->bin;
+      d.fill = e.plan->fill;
     } else {
+      d.bin.reset();
+      d.fill.reset();
       d.stages.clear();
       d.parts.clear();
       d.detections = 0;
       d.roi_points = 0;
       d.message.clear();
+    }
+  }
+
+  // Issue 41: the bin's measured offset and fill level of the task's last
+  // plan (gauges), bins not found and offset warnings (counters).
+  void CountBin(const PlanResult& plan, const std::string& task) {
+    if (const std::optional<BinDetection>& bin = plan.bin) {
+      metrics_.GetGauge("binpick_bin_found", "1 when the last plan found the bin, 0 when not.", {{"task", task}})
+          .Set(bin->found ? 1 : 0);
+      if (bin->found) {
+        metrics_.GetGauge("binpick_bin_offset_mm", "Measured bin pose from nominal, translation (mm).",
+                          {{"task", task}})
+            .Set(1e3 * bin->offset);
+        metrics_.GetGauge("binpick_bin_offset_deg", "Measured bin pose from nominal, rotation (deg).",
+                          {{"task", task}})
+            .Set(bin->offset_deg);
+      } else {
+        metrics_.GetCounter("binpick_bin_not_found_total", "Plans whose bin detection did not find the bin.",
+                            {{"task", task}})
+            .Inc();
+      }
+      if (bin->warn) {
+        metrics_.GetCounter("binpick_bin_offset_warnings_total",
+                            "Plans that found the bin beyond bin.detect_warn from nominal.", {{"task", task}})
+            .Inc();
+      }
+    }
+    if (const std::optional<FillLevel>& fill = plan.fill) {
+      metrics_.GetGauge("binpick_bin_fill_mean_height_m", "Fill level: mean height over the bin floor (m).",
+                        {{"task", task}})
+          .Set(fill->mean_height);
+      metrics_.GetGauge("binpick_bin_fill_max_height_m", "Fill level: highest point over the bin floor (m).",
+                        {{"task", task}})
+          .Set(fill->max_height);
+      metrics_.GetGauge("binpick_bin_fill_occupied_ratio", "Fill level: occupied share of the bin floor, 0..1.",
+                        {{"task", task}})
+          .Set(fill->occupied_fraction);
     }
   }
 
@@ -393,6 +451,11 @@ class StatusState::Impl {
         parts.push_back(pj);
       }
       det["parts"] = parts;
+      det["bin"] = BinJson(d.bin);
+      det["fill"] = d.fill ? json{{"mean_height_m", d.fill->mean_height},
+                                  {"max_height_m", d.fill->max_height},
+                                  {"occupied_fraction", d.fill->occupied_fraction}}
+                           : json(nullptr);
       j["detection"] = det;
     } else {
       j["detection"] = nullptr;
@@ -503,7 +566,12 @@ class StatusState::Impl {
     std::lock_guard cache_lock(png_mutex_);  // HTTP thread only: never contended by robots
     PngCache& cached = png_cache_[slot];
     if (cached.png && cached.seq == d.seq && cached.states == states) return cached.png;
-    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, grasps, states);
+    internal::BinOutline outline;
+    outline.X_BW_nominal = bin_.X_BW;
+    outline.measured = d.bin;
+    outline.inner_size = bin_.inner_size;
+    outline.wall_thickness = bin_.wall_thickness;
+    cached.png = internal::RenderOverlayPng(captured->frame(), which, d.parts, grasps, states, &outline);
     cached.seq = d.seq;
     cached.states = states;
     return cached.png;
@@ -522,6 +590,8 @@ class StatusState::Impl {
     bool queued = true;
     int detections = 0;
     int64_t roi_points = 0;
+    std::optional<BinDetection> bin;
+    std::optional<FillLevel> fill;
   };
   struct Queue {
     uint64_t seq = 0;  // the detection that refilled it; 0: none yet
@@ -551,6 +621,7 @@ class StatusState::Impl {
   Counter& captures_ok_;
   Counter& captures_failed_;
   std::string cell_name_;
+  BinSpec bin_;  // the cell's nominal bin, for the outline
   std::vector<std::pair<int, std::string>> tasks_;
   std::map<int, std::string> part_names_;
   std::shared_ptr<ErrorSink> sink_;

@@ -234,6 +234,34 @@ TEST_P(GriServerTest, SyncTriggerReturnsTheFirstPoseThenTheRestUntilExhaustedAnd
   EXPECT_EQ(scripted_->handed_out().size(), 3u);
 }
 
+TEST_P(GriServerTest, OfficialPoseAnswersCarryTheFillLevelInData4To6) {
+  const double H = handler_->cell().bin.inner_size.z();
+  ScriptedPlanner::Script s;
+  FillLevel fill;
+  fill.mean_height = 0.25 * H;
+  fill.max_height = 0.8 * H;
+  fill.occupied_fraction = 0.62;
+  s.fill = fill;
+  scripted_->SetScript(0, s);
+  auto robot = Connect();
+  const gri::Response trigger = Ask(*robot, gri::kTriggerJobSync, 0);
+  ASSERT_EQ(trigger.error_code, 0);
+  const gri::Response next = Ask(*robot, gri::kGetNextPose, 0);
+  ASSERT_EQ(next.error_code, 0);
+  for (const gri::Response& r : {trigger, next}) {
+    if (v2()) {
+      EXPECT_EQ(r.data[3], 0);  // v2: no room; data_4 / data_5 untouched
+      EXPECT_EQ(r.data[4], 0);
+    } else {
+      EXPECT_EQ(r.data[3], 2500);  // percent of the inner height x 100
+      EXPECT_EQ(r.data[4], 8000);
+      EXPECT_EQ(r.data[5], 6200);  // percent of the floor x 100
+    }
+  }
+  // Answers without a pose carry no fill level.
+  EXPECT_EQ(Ask(*robot, gri::kGetJobStatus, 0).data[3], 0);
+}
+
 TEST_P(GriServerTest, SyncTriggerCapturesWithTheRobotPoseSent) {
   auto robot = Connect();
   gri::Request req = Make(gri::kTriggerJobSync, 0, 1);

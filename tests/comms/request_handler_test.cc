@@ -169,6 +169,30 @@ TEST(RequestHandler, EmptyBoxRuleNeedsFewPointsAndNoDetections) {
   EXPECT_EQ(handler.Handle(Req(daoai::kCheckEmptyBox, 1), client)->status, daoai::kBoxNotEmpty);
 }
 
+TEST(RequestHandler, TheEmptyBoxAnswerCarriesTheFillLevelInPayload4To6) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  ScriptedPlanner::Script s;
+  s.grasps = 0;
+  s.detections = 2;
+  FillLevel fill;
+  fill.mean_height = 0.0312;
+  fill.max_height = 0.0941;
+  fill.occupied_fraction = 0.62;
+  s.fill = fill;
+  planner->SetScript(0, s);
+  const std::optional<daoai::Response> r = handler.Handle(Req(daoai::kCheckEmptyBox, 0), client);
+  ASSERT_TRUE(r.has_value());
+  EXPECT_EQ(r->status, daoai::kBoxNotEmpty);
+  // x MULT (10000); payload_1..3 stay 0 as before.
+  EXPECT_EQ(r->payload, (std::array<int32_t, 6>{0, 0, 0, 312, 941, 6200}));
+  // Without a measured fill level the answer is what it always was.
+  s.fill.reset();
+  planner->SetScript(0, s);
+  EXPECT_EQ(handler.Handle(Req(daoai::kCheckEmptyBox, 0), client)->payload, (std::array<int32_t, 6>{}));
+}
+
 TEST(RequestHandler, CapturesWithTheSelectedCameraConfig) {
   auto planner = std::make_shared<ScriptedPlanner>();
   RequestHandler handler(MakeTestCell(), planner, nullptr);

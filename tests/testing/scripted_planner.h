@@ -42,6 +42,7 @@ class ScriptedPlanner final : public GraspPlanner {
     // Grasp i -> the instance ids whose hand-out makes it stale
     // (Grasp::stale_after: parts touching it); GraspQueue withdraws it then.
     std::map<int, std::vector<int>> stale_after;
+    std::optional<FillLevel> fill;  // PlanResult::fill
   };
 
   void SetScript(int task_id, Script script) {
@@ -106,6 +107,7 @@ class ScriptedPlanner final : public GraspPlanner {
     r.detections = s.detections >= 0 ? s.detections : grasps;
     r.roi_points = roi_points;
     r.largest_region_points = largest;
+    r.fill = s.fill;
     if (r.outcome == PlanResult::Outcome::kGrasps) {
       for (int i = 0; i < grasps; ++i) {
         Grasp g;

@@ -517,6 +517,59 @@ TEST(StatusState, ExportsThePrecisionErrorAndCountsEmptyBoxFlipsPerTask) {
   EXPECT_EQ(m.count("binpick_empty_box_flips_total{task=\"1\"}"), 1u);
 }
 
+TEST(StatusState, ShowsTheMeasuredBinAndTheFillLevelInItsJsonAndMetrics) {
+  MetricsRegistry metrics;
+  StatusState state(testing::MakeTestCell(), metrics);
+  DetectionEvent e;
+  e.task_id = 0;
+  PlanResult plan;
+  BinDetection bin;
+  bin.found = true;
+  bin.offset = 0.0214;
+  bin.offset_deg = 4.0;
+  bin.warn = true;
+  plan.bin = bin;
+  FillLevel fill;
+  fill.mean_height = 0.031;
+  fill.max_height = 0.094;
+  fill.occupied_fraction = 0.62;
+  plan.fill = fill;
+  e.plan = plan;
+  state.OnDetection(e);
+  std::map<std::string, double> m;
+  std::vector<std::string> problems = webtest::CheckPrometheusText(metrics.Render(), &m);
+  EXPECT_TRUE(problems.empty()) << ::testing::PrintToString(problems);
+  EXPECT_EQ(m["binpick_bin_found{task=\"0\"}"], 1.0);
+  EXPECT_DOUBLE_EQ(m["binpick_bin_offset_mm{task=\"0\"}"], 21.4);
+  EXPECT_DOUBLE_EQ(m["binpick_bin_offset_deg{task=\"0\"}"], 4.0);
+  EXPECT_EQ(m["binpick_bin_offset_warnings_total{task=\"0\"}"], 1.0);
+  EXPECT_DOUBLE_EQ(m["binpick_bin_fill_mean_height_m{task=\"0\"}"], 0.031);
+  EXPECT_DOUBLE_EQ(m["binpick_bin_fill_max_height_m{task=\"0\"}"], 0.094);
+  EXPECT_DOUBLE_EQ(m["binpick_bin_fill_occupied_ratio{task=\"0\"}"], 0.62);
+  json j = json::parse(state.StatusJson());
+  EXPECT_EQ(j["detection"]["bin"]["found"], true);
+  EXPECT_DOUBLE_EQ(j["detection"]["bin"]["offset_mm"].get<double>(), 21.4);
+  EXPECT_EQ(j["detection"]["bin"]["warning"], true);
+  EXPECT_DOUBLE_EQ(j["detection"]["fill"]["occupied_fraction"].get<double>(), 0.62);
+
+  // The next plan did not find the bin: the gauge drops, the counter counts, the page says why.
+  bin = BinDetection{};
+  bin.reason = "no rim: 3 points near the rim's height within the search window";
+  e.plan->bin = bin;
+  e.plan->fill.reset();
+  state.OnDetection(e);
+  m.clear();
+  problems = webtest::CheckPrometheusText(metrics.Render(), &m);
+  EXPECT_TRUE(problems.empty()) << ::testing::PrintToString(problems);
+  EXPECT_EQ(m["binpick_bin_found{task=\"0\"}"], 0.0);
+  EXPECT_EQ(m["binpick_bin_not_found_total{task=\"0\"}"], 1.0);
+  EXPECT_EQ(m["binpick_bin_offset_warnings_total{task=\"0\"}"], 1.0);
+  j = json::parse(state.StatusJson());
+  EXPECT_EQ(j["detection"]["bin"]["found"], false);
+  EXPECT_EQ(j["detection"]["bin"]["reason"], bin.reason);
+  EXPECT_TRUE(j["detection"]["fill"].is_null());
+}
+
 // Issue 39: a robot sending distinct unknown command numbers must not grow
 // /metrics (each one used to become a series of binpick_responses_total).
 TEST(StatusServer, MetricsLabelsComeFromClosedSetsSoUnknownCommandsDoNotGrowThem) {

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <string>
 
@@ -55,12 +56,48 @@ cv::Mat DepthColour(const DepthImage& depth) {
   return colour;
 }
 
+// The outer edge of the bin's rim at X_BW as a closed polyline (corners
+// behind the camera dropped).
+void DrawRim(cv::Mat& canvas, const Frame& frame, const Pose& X_CB, const BinOutline& bin, const Pose& X_BW,
+             const cv::Scalar& colour, int thickness) {
+  const double x = bin.inner_size.x() / 2 + bin.wall_thickness, y = bin.inner_size.y() / 2 + bin.wall_thickness;
+  const double z = bin.inner_size.z();
+  std::vector<cv::Point> corners;
+  for (const Vec3& c : {Vec3(-x, -y, z), Vec3(x, -y, z), Vec3(x, y, z), Vec3(-x, y, z)}) {
+    if (const auto p = Project(frame, X_CB, X_BW * c)) corners.push_back(*p);
+  }
+  if (corners.size() == 4) cv::polylines(canvas, corners, true, colour, thickness, cv::LINE_AA);
+}
+
+void DrawBin(cv::Mat& canvas, const Frame& frame, const Pose& X_CB, const BinOutline& bin, int scale) {
+  const bool found = bin.measured && bin.measured->found;
+  if (!found) {
+    DrawRim(canvas, frame, X_CB, bin, bin.X_BW_nominal, cv::Scalar(160, 160, 160), scale);
+    if (bin.measured) {
+      cv::putText(canvas, "bin not found: nominal pose", cv::Point(4 * scale, 12 * scale), cv::FONT_HERSHEY_SIMPLEX,
+                  0.4 * scale, cv::Scalar(0, 0, 255), 1, cv::LINE_AA);
+    }
+    return;
+  }
+  const BinDetection& m = *bin.measured;
+  if (m.offset > 0.001 || m.offset_deg > 0.1) {
+    DrawRim(canvas, frame, X_CB, bin, bin.X_BW_nominal, cv::Scalar(160, 160, 160), scale);
+  }
+  DrawRim(canvas, frame, X_CB, bin, m.X_BW, cv::Scalar(255, 255, 0), scale);
+  char text[96];
+  std::snprintf(text, sizeof(text), "bin %.1f mm / %.2f deg off%s", 1e3 * m.offset, m.offset_deg,
+                m.warn ? " (warning)" : "");
+  cv::putText(canvas, text, cv::Point(4 * scale, 12 * scale), cv::FONT_HERSHEY_SIMPLEX, 0.4 * scale,
+              m.warn ? cv::Scalar(0, 165, 255) : cv::Scalar(255, 255, 0), 1, cv::LINE_AA);
+}
+
 }  // namespace
 
 std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, OverlayImage image,
                                                      const std::vector<DetectedPart>& parts,
                                                      const std::vector<Grasp>& grasps,
-                                                     const std::vector<GraspState>& states) {
+                                                     const std::vector<GraspState>& states,
+                                                     const BinOutline* bin) {
   if (!frame.organized()) return std::nullopt;
   cv::Mat canvas;
   if (image == OverlayImage::kDepth) {
@@ -74,6 +111,7 @@ std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, Overlay
   }
   const Pose X_CB = frame.X_BC.inverse();
   const int scale = std::max(1, canvas.cols / 320);
+  if (bin != nullptr) DrawBin(canvas, frame, X_CB, *bin, scale);
   for (const DetectedPart& part : parts) {
     const auto p = Project(frame, X_CB, part.X_BO.translation());
     if (!p) continue;

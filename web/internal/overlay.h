@@ -22,9 +22,20 @@ enum class GraspState { kServed, kNext, kQueued, kWithdrawn };
 // from the pre-grasp, by `states` (one per grasp): handed out in grey, the
 // next one in green, the rest in yellow, withdrawn as stale in red.
 // @returns nullopt when the frame is not organized or lacks the image.
+// The bin's outline (issue 41): the outer edge of its rim where the plan's
+// bin detection measured it (cyan) and, when that differs, where the cell
+// says it is (grey), with the offset written beside it.
+struct BinOutline {
+  Pose X_BW_nominal = Pose::Identity();
+  std::optional<BinDetection> measured;  // nullopt: the stage did not run
+  Vec3 inner_size = Vec3::Zero();        // bin.inner_size
+  double wall_thickness = 0.0;
+};
+
 std::optional<std::vector<uint8_t>> RenderOverlayPng(const Frame& frame, OverlayImage image,
                                                      const std::vector<DetectedPart>& parts,
                                                      const std::vector<Grasp>& grasps,
-                                                     const std::vector<GraspState>& states);
+                                                     const std::vector<GraspState>& states,
+                                                     const BinOutline* bin = nullptr);
 
 }  // namespace bp::internal

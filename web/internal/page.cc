@@ -107,6 +107,17 @@ function render(s) {
                    ["plan ms", Number(d.plan_ms).toFixed(1)],
                    ["capture status", d.capture_status || "ok"],
                    ["plan status", d.plan_status || "ok"], ["message", d.message]] : [];
+  if (d && d.bin) {
+    det.push(["bin", d.bin.found ? Number(d.bin.offset_mm).toFixed(1) + " mm / " +
+                                       Number(d.bin.offset_deg).toFixed(2) + " deg from nominal" +
+                                       (d.bin.warning ? " (WARNING: beyond bin.detect_warn)" : "")
+                                 : "not found (" + d.bin.reason + "): nominal pose used"]);
+  }
+  if (d && d.fill) {
+    det.push(["fill level", "mean " + (1000 * d.fill.mean_height_m).toFixed(0) + " mm, max " +
+                            (1000 * d.fill.max_height_m).toFixed(0) + " mm, " +
+                            (100 * d.fill.occupied_fraction).toFixed(0) + "% of the floor occupied"]);
+  }
   fill("detection", det.map(r => row([[r[0], "l"], [r[1], "l"]])));
   const stages = d ? d.stages.slice() : [];
   if (d) {
