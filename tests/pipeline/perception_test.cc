@@ -339,7 +339,8 @@ TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   for (int32_t i : d.support) ASSERT_LT(static_cast<size_t>(i), r.roi_points_B.size());
   std::vector<std::string> stages;
   for (const StageTiming& t : r.timings) stages.push_back(t.stage);
-  EXPECT_EQ(stages, (std::vector<std::string>{"roi", "regions", "segment", "pose", "verify", "second_look", "residual"}));
+  EXPECT_EQ(stages,
+            (std::vector<std::string>{"bin", "roi", "regions", "segment", "pose", "verify", "second_look", "residual"}));
 }
 
 // A clock for PerceptionBudget that advances 1 ms at every reading: an
