@@ -205,6 +205,10 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   result.largest_region_points = per.largest_region_points;
   result.bin = per.bin;
   result.fill = per.fill;
+  // The grasps stand in the measured bin (failed-pick spots are kept in its frame).
+  if (per.bin && per.bin->found) {
+    for (Grasp& g : result.grasps) g.X_BW = per.bin->X_BW;
+  }
   result.detections = static_cast<int>(per.detections.size());
   for (const Detection& d : per.detections) result.parts.push_back({d.class_id, d.X_BO, d.score});
   for (const StageTiming& st : first_timings) result.stages.push_back({st.stage, st.ms});

@@ -30,7 +30,10 @@ std::string BaseGraspName(const std::string& name) {
 
 FailedPicks::FailedPicks(FailedPickRule rule, Pose X_BW) : rule_(rule), X_WB_(X_BW.inverse()) {}
 
-Vec3 FailedPicks::InBin(const Grasp& grasp) const { return X_WB_ * grasp.X_BO.translation(); }
+Vec3 FailedPicks::InBin(const Grasp& grasp) const {
+  const Vec3& p_B = grasp.X_BO.translation();
+  return grasp.X_BW ? Vec3(grasp.X_BW->inverse() * p_B) : Vec3(X_WB_ * p_B);
+}
 
 FailedPicks::Recorded FailedPicks::Report(const Grasp& grasp, PickFailure reason) {
   const Vec3 p_W = InBin(grasp);

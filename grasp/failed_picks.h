@@ -3,7 +3,8 @@
 // binpick stops sending it to that spot for a while.
 //
 // A failed spot is where the part was, in the bin frame W (X_WB * the part's
-// origin in base), with its class, so it survives re-captures: a later
+// origin in base; W the bin its grasp's capture measured, Grasp::X_BW, else
+// the nominal bin), with its class, so it survives re-captures: a later
 // capture's detection of the same part lands on the same spot. One task's
 // rule (FailedPickRule, cell tasks[].failed_picks):
 //   - a report on a part within `radius` of a remembered spot of the same
@@ -52,7 +53,8 @@ bool PickFailureFromWire(int32_t value, PickFailure* out);
 
 class FailedPicks {
  public:
-  // `X_BW`: the bin frame in base the spots are kept in (the cell's bin pose).
+  // Spots are kept in the bin frame of each grasp (Grasp::X_BW, where bin
+  // detection measured the bin), else in `X_BW` (the cell's nominal bin pose).
   FailedPicks(FailedPickRule rule, Pose X_BW);
 
   // What a report did.

@@ -3,6 +3,7 @@
 // T tool centre point, O part. SI units.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -31,6 +32,10 @@ struct Grasp {
   // to, when the answer is not itself one (seed 003's place: tool_in_base
   // from place_area's offset). Checked like X_BT (grasp/robot_targets.h).
   std::vector<Pose> implied_X_BT;
+  // The bin pose in base the grasp was planned in, when bin detection
+  // measured it (PlanResult::bin found); nullopt: the cell's nominal
+  // bin.pose. The failed-pick memory keeps spots in this bin frame.
+  std::optional<Pose> X_BW;
 };
 
 }  // namespace bp

@@ -117,6 +117,34 @@ TEST(FailedPicks, SpotsAreInTheBinFrameAndCountedPerClassGraspAndReason) {
   EXPECT_EQ(counts[1].failures, 2u);
 }
 
+// Bin detection measured the bin (Grasp::X_BW): a spot is kept in that bin's
+// frame, not the nominal one, so it moves with the bin between captures.
+TEST(FailedPicks, SpotsAreInTheMeasuredBinWhenTheGraspCarriesIt) {
+  const Pose X_BW_nominal = MakePose(Mat3::Identity(), Vec3(0.5, 0.0, 0.0));
+  const Pose X_BW_1 = MakePose(Mat3(Eigen::AngleAxisd(0.1, Vec3::UnitZ())), Vec3(0.53, -0.02, 0.0));
+  const Pose X_BW_2 = MakePose(Mat3(Eigen::AngleAxisd(-0.05, Vec3::UnitZ())), Vec3(0.47, 0.03, 0.0));
+  FailedPicks f(Rule(0.01, 3, 3), X_BW_nominal);
+  const Vec3 p_W(0.1, 0.05, 0.03);  // the part in the bin
+  Grasp failed = GraspAt(0, 1, X_BW_1 * p_W);
+  failed.X_BW = X_BW_1;
+  f.Report(failed, PickFailure::kNoVacuum);
+  ASSERT_EQ(f.Spots().size(), 1u);
+  EXPECT_LT((f.Spots()[0].p_W - p_W).norm(), 1e-12);
+  // The next capture finds the bin moved: the same part, now elsewhere in
+  // base, is still on the spot; a grasp at the old base position is not
+  // (in the moved bin it lies 63 mm from the part).
+  Grasp same = GraspAt(1, 1, X_BW_2 * p_W);
+  same.X_BW = X_BW_2;
+  Grasp old_place = GraspAt(2, 1, X_BW_1 * p_W);
+  old_place.X_BW = X_BW_2;
+  ASSERT_GT((X_BW_2.inverse() * (X_BW_1 * p_W) - p_W).norm(), 0.01);
+  EXPECT_EQ(f.Judge(same), FailedPicks::Verdict::kWithheld);
+  EXPECT_EQ(f.Judge(old_place), FailedPicks::Verdict::kServe);
+  // A grasp without a measured bin is judged in the nominal bin.
+  EXPECT_EQ(f.Judge(GraspAt(3, 1, X_BW_nominal * p_W)), FailedPicks::Verdict::kWithheld);
+  EXPECT_EQ(f.Judge(GraspAt(4, 1, X_BW_2 * p_W)), FailedPicks::Verdict::kServe);
+}
+
 TEST(FailedPicks, OnlyTheThreeReasonsDecodeFromTheWire) {
   PickFailure r = PickFailure::kUnspecified;
   EXPECT_TRUE(PickFailureFromWire(2, &r));
