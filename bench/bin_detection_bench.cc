@@ -1,6 +1,7 @@
 // The bin detection stage (issue 41, pipeline/bin_detection.h) alone, on the
-// default cell's 20-part pile (seed 1) with the bin 50 mm / 10 deg off
-// nominal at the window's edge (source.bin_offset), per camera config:
+// default cell's 20-part pile (seed 1) with the bin off nominal as seed 1
+// draws it within +-50 mm / +-10 deg / 2 deg tilt (source.bin_offset; 6.9 mm
+// for seed 1, counter offset_mm), per camera config:
 // 1 = 640x480, 2 = 1920x1200. The frame is rendered once, outside the loop.
 //
 //   build/bin/bp_bench --benchmark_filter=BinDetection --benchmark_repetitions=5

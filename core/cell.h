@@ -148,7 +148,8 @@ struct BinDetectSpec {
     kRequired,  // a capture whose bin is not found fails (DaoAI: 9 CAPTURE_FAIL) with the reason
   };
   // Default on: a bin that sits where the cell says costs the stage's time
-  // (~1-3 ms) and nothing else; one that does not is found.
+  // (docs/tuning.md "Bin detection") and nothing else; one that does not is
+  // found.
   Mode mode = Mode::kOn;
   // Search window about the nominal pose: translation in the floor plane
   // (m) and yaw (deg). The rim fit converges from anywhere inside it.

@@ -162,7 +162,7 @@ Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
   if (!frame.ok()) return frame.status();
   // bin.detect: required: a capture into the bin whose bin is not found
   // fails, with the detection's reason (perception runs the stage again on
-  // the frame; ~1-3 ms).
+  // the frame).
   if (capture.view == CaptureRequest::View::kBin && cell_.bin.detect.mode == BinDetectSpec::Mode::kRequired) {
     const BinDetection bin = DetectBin(*frame, cell_.bin);
     if (!bin.found) return Status::Unavailable("bin not found (bin.detect: required): " + bin.reason);
