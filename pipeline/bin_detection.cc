@@ -369,13 +369,19 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
   X_W0W.linear().col(1) = n.cross(ex);
   X_W0W.linear().col(2) = n;
   X_W0W.translation() = rim_centre - H * n;
-  // The window is a square in the floor plane (x and y each within
-  // +-search_translation) and a yaw range, with 5 mm / 0.5 deg of slack.
-  if (pose.c.cwiseAbs().maxCoeff() > bin.detect.search_translation + 0.005 ||
+  // The window is a square in the nominal floor plane (the floor centre's x
+  // and y each within +-search_translation) and a yaw range, with 5 mm /
+  // 0.5 deg of slack. It is judged on the floor centre, not the rim's: a bin
+  // tilted by a few degrees about its floor moves its rim H * sin(tilt)
+  // sideways (7 mm at 2 deg for the default cell's 200 mm deep bin) while its
+  // floor stays put.
+  const Eigen::Vector2d floor_offset = X_W0W.translation().head<2>();
+  if (floor_offset.cwiseAbs().maxCoeff() > bin.detect.search_translation + 0.005 ||
       std::abs(pose.theta) > (bin.detect.search_yaw_deg + 0.5) * kDegToRad) {
-    char why[160];
-    std::snprintf(why, sizeof(why), "the rim fitted %.1f mm / %.1f deg from nominal, outside the search window",
-                  1e3 * pose.c.norm(), pose.theta / kDegToRad);
+    char why[192];
+    std::snprintf(why, sizeof(why),
+                  "the bin's floor fitted (%.1f, %.1f) mm / %.1f deg from nominal, outside the search window",
+                  1e3 * floor_offset.x(), 1e3 * floor_offset.y(), pose.theta / kDegToRad);
     return finish(why);
   }
   det.found = true;

@@ -131,6 +131,22 @@ TEST(BinDetection, FindsNoBinOnAFloorALidOrAnEmptyFrame) {
   EXPECT_EQ(DetectBin(unorganized, cell.bin).X_BW.matrix(), cell.bin.X_BW.matrix());
 }
 
+TEST(BinDetection, ABinTiltedAtTheWindowsEdgeIsFound) {
+  // The floor 50 mm off nominal (the window's edge) and the bin tilted 2 deg
+  // about its floor's y axis: its rim stands 7 mm further out, at 57 mm,
+  // beyond the window's 55 mm, while the bin itself is inside the window.
+  Cell truth = DefaultCell();
+  const Pose edge = MakePose(Mat3(Eigen::AngleAxisd(2.0 / kRadToDeg, Vec3::UnitY())), Vec3(0.05, 0.0, 0.0));
+  truth.bin.X_BW = truth.bin.X_BW * edge;
+  const Scene scene = Render(truth);
+  const Cell nominal = DefaultCell();
+  const BinDetection bin = DetectBin(scene.frame, nominal.bin);
+  ASSERT_TRUE(bin.found) << bin.reason;
+  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
+  EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
+  EXPECT_LT(deg, 0.1) << deg << " deg";
+}
+
 TEST(BinDetection, ABinBeyondTheSearchWindowIsNotFound) {
   Cell truth = DefaultCell();
   truth.bin.X_BW = truth.bin.X_BW * MakePose(Mat3::Identity(), Vec3(0.12, 0.0, 0.0));
