@@ -42,6 +42,22 @@ std::pair<double, double> Error(const Pose& a, const Pose& b) {
   return {d.translation().norm(), Eigen::AngleAxisd(d.linear()).angle() * kRadToDeg};
 }
 
+// Renders the default cell with its bin moved by `offset` (in the nominal
+// bin frame), detects it with the nominal cell and checks the measured pose
+// against the truth: within 0.5 mm and 0.1 deg.
+BinDetection ExpectFoundAt(const Pose& offset) {
+  Cell truth = DefaultCell();
+  truth.bin.X_BW = truth.bin.X_BW * offset;
+  const Scene scene = Render(truth);
+  const BinDetection bin = DetectBin(scene.frame, DefaultCell().bin);
+  EXPECT_TRUE(bin.found) << bin.reason;
+  if (!bin.found) return bin;
+  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
+  EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
+  EXPECT_LT(deg, 0.1) << deg << " deg";
+  return bin;
+}
+
 // A frame of the default camera seeing only a horizontal plane at height z_W
 // of the nominal bin frame (no bin).
 Frame PlaneFrame(const Cell& cell, double z_W) {
@@ -98,19 +114,10 @@ TEST(BinDetection, FindsABinShiftedAndTurnedWithinTolerance) {
   }
   EXPECT_GT(far, 0) << "the seeded offsets should move the bin noticeably";
 
-  Cell truth = DefaultCell();
   const Pose corner = MakePose(Mat3(Eigen::AngleAxisd(1.5 / kRadToDeg, Vec3(0.6, 0.8, 0).normalized()) *
                                     Eigen::AngleAxisd(-9.5 / kRadToDeg, Vec3::UnitZ())),
                                Vec3(0.048, -0.048, 0.0));
-  truth.bin.X_BW = truth.bin.X_BW * corner;
-  const Scene scene = Render(truth);
-  const Cell nominal = DefaultCell();
-  const BinDetection bin = DetectBin(scene.frame, nominal.bin);
-  ASSERT_TRUE(bin.found) << bin.reason;
-  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
-  EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
-  EXPECT_LT(deg, 0.1) << deg << " deg";
-  EXPECT_TRUE(bin.warn);  // 68 mm / 9.6 deg from nominal, beyond bin.detect_warn
+  EXPECT_TRUE(ExpectFoundAt(corner).warn);  // 68 mm / 9.6 deg from nominal, beyond bin.detect_warn
 }
 
 TEST(BinDetection, FindsNoBinOnAFloorALidOrAnEmptyFrame) {
@@ -135,16 +142,7 @@ TEST(BinDetection, ABinTiltedAtTheWindowsEdgeIsFound) {
   // The floor 50 mm off nominal (the window's edge) and the bin tilted 2 deg
   // about its floor's y axis: its rim stands 7 mm further out, at 57 mm,
   // beyond the window's 55 mm, while the bin itself is inside the window.
-  Cell truth = DefaultCell();
-  const Pose edge = MakePose(Mat3(Eigen::AngleAxisd(2.0 / kRadToDeg, Vec3::UnitY())), Vec3(0.05, 0.0, 0.0));
-  truth.bin.X_BW = truth.bin.X_BW * edge;
-  const Scene scene = Render(truth);
-  const Cell nominal = DefaultCell();
-  const BinDetection bin = DetectBin(scene.frame, nominal.bin);
-  ASSERT_TRUE(bin.found) << bin.reason;
-  const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
-  EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
-  EXPECT_LT(deg, 0.1) << deg << " deg";
+  ExpectFoundAt(MakePose(Mat3(Eigen::AngleAxisd(2.0 / kRadToDeg, Vec3::UnitY())), Vec3(0.05, 0.0, 0.0)));
 }
 
 TEST(BinDetection, ABinBeyondTheSearchWindowIsNotFound) {
