@@ -106,7 +106,10 @@ void ViewMatcher::RankClasses(const ViewIndices& view, bool region_view, const V
                             options_.rank_planar_share_weight * PlanarShareMismatch(planar_share, *models_[m]),
                         static_cast<int>(m));
   }
-  if (options_.early_exit_score > 0.0 && !thorough_) std::stable_sort(ranked.begin(), ranked.end());
+  // Ranked where the order decides what runs: early exit (normal runs) and
+  // a budget (it skips the estimates that would start last). A thorough run
+  // without one runs every class, in model order.
+  if ((options_.early_exit_score > 0.0 && !thorough_) || budget_) std::stable_sort(ranked.begin(), ranked.end());
   for (const auto& [wave, cost, m] : ranked) {
     order->push_back(m);
     *best_cost = std::min(*best_cost, cost);
@@ -119,7 +122,11 @@ void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms
   if (from >= to) return;
   const size_t base = jobs->size();
   jobs->resize(base + to - from);
-  tbb::parallel_for(from, to, [&](size_t r) {
+  // Each task takes the next class of ms: the classes start in ranking order
+  // whatever the partitioner does (a budget admits the first ones).
+  std::atomic<size_t> next{from};
+  tbb::parallel_for(from, to, [&](size_t) {
+    const size_t r = next++;
     Job& job = (*jobs)[base + r - from];
     job.model = ms[r];
     job.too_small = too_small;

@@ -98,8 +98,9 @@ class ViewMatcher {
  public:
   // Everything referenced must outlive the matcher. With a budget, views
   // start in order of their best class's ranking cost (the views most
-  // likely to hold a part first) and estimates the budget would not cover
-  // are skipped (MatchCounts::estimates_skipped).
+  // likely to hold a part first), a view's classes in ranking order, and
+  // estimates the budget would not cover are skipped
+  // (MatchCounts::estimates_skipped).
   ViewMatcher(const PerceptionOptions& options, std::span<const ClassModel* const> models, bool thorough,
               const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
               const FitRmsLimit& fit_limit, const PerceptionBudget* budget = nullptr);
@@ -118,8 +119,8 @@ class ViewMatcher {
 
  private:
   struct Job;
-  // The class ranking of one view: the classes that fit it (best first) and
-  // those too small for it. Empty for a region view no class fits.
+  // The class ranking of one view: the classes that fit it (best first;
+  // model order in a thorough run without a budget) and those too small for it. Empty for a region view no class fits.
   // *best_cost: the ranking cost of the best class that fits (+inf: none).
   void RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier, std::vector<int>* order,
                    std::vector<int>* too_small, double* best_cost) const;
