@@ -69,9 +69,14 @@ Status HandEyeCalibrationService::Start(CalibrationKind kind, const Pose& X_BF) 
   plan_.clear();
   plan_next_ = 0;
   planned_ = false;
-  state_->SetSession(KindName(kind), 0);
+  PublishSession(kind);
   spdlog::info("calib: {} hand-eye calibration started", KindName(kind));
   return Status::Ok();
+}
+
+void HandEyeCalibrationService::PublishSession(CalibrationKind kind) {
+  pose_count_.store(samples_.size(), std::memory_order_release);
+  state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
 }
 
 Result<HandEyeSample> HandEyeCalibrationService::Observe(const Pose& X_BF) {
@@ -137,7 +142,7 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
         return Status::NotFound("board not visible: " + sample.status().message());
       }
       samples_[next_slot_++] = std::move(*sample);
-      state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
+      PublishSession(kind);
       spdlog::info("calib: manual pose {} stored", samples_.size());
       return step;
 
@@ -153,7 +158,7 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
           planned_ = true;
         }
         samples_[next_slot_++] = std::move(*sample);
-        state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
+        PublishSession(kind);
         spdlog::info("calib: auto pose {} of {} stored", samples_.size(), wanted);
       } else {
         step.good = false;
@@ -189,7 +194,7 @@ Result<CalibrationStep> HandEyeCalibrationService::Accumulate(CalibrationKind ki
         }
       }
       samples_[next_slot_++] = std::move(*sample);
-      state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
+      PublishSession(kind);
       spdlog::info("calib: guidance pose GOOD ({} of {})", samples_.size(), wanted);
       step.done = static_cast<int>(samples_.size()) >= wanted;
       return step;
@@ -208,7 +213,7 @@ Result<CalibrationStep> HandEyeCalibrationService::AccumulateInSlot(CalibrationK
     return Status::NotFound("board not visible: " + sample.status().message());
   }
   samples_[slot] = std::move(*sample);
-  state_->SetSession(KindName(kind), static_cast<int>(samples_.size()));
+  PublishSession(kind);
   spdlog::info("calib: pose stored in slot {} ({} poses)", slot, samples_.size());
   return CalibrationStep{};
 }
@@ -241,7 +246,10 @@ Status HandEyeCalibrationService::Finish(CalibrationKind kind) {
   info.residual_max_deg = sol->residual_max_deg;
   info.reprojection_rms_px = sol->reprojection_rms_px;
   state_->SetResult(sol->X, std::move(info));
-  last_ = *sol;
+  {
+    std::lock_guard lock(last_mutex_);
+    last_ = *sol;
+  }
   spdlog::info("calib: {} calibration solved from {} poses ({} pairs, {}): residuals {:.3f} mm / {:.4f} deg RMS, "
                "{:.3f} mm / {:.4f} deg max, reprojection {:.3f} px",
                KindName(kind), sol->poses, sol->pairs, sol->method, sol->residual_rms_mm, sol->residual_rms_deg,

@@ -4,11 +4,15 @@
 // writes the result file atomically and makes the new camera pose current.
 //
 // Thread-safety: as CalibrationService (the request handler serializes the
-// calls); HandEyeState is shared with readers on other threads.
+// calls, on its calibration sequence's job thread); HandEyeState is shared
+// with readers on other threads, and last_solution() and poses() may be read
+// from any thread while steps run (tests, the CLI).
 #pragma once
 
+#include <atomic>
 #include <map>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -49,10 +53,16 @@ class HandEyeCalibrationService final : public CalibrationService {
   // GRI HEC_SET_POSE: the view at X_BF replaces the one in `slot`.
   Result<CalibrationStep> AccumulateInSlot(CalibrationKind kind, int slot, const Pose& X_BF) override;
 
-  // For tests and the CLI, read while no step runs (after RequestHandler::
-  // RunCalibration drained the sequence, or after Shutdown).
-  std::optional<HandEyeSolution> last_solution() const { return last_; }
-  size_t poses() const { return samples_.size(); }
+  // The last solve's result (a copy) and the poses the session keeps, for
+  // tests and the CLI. Any thread, also while a step runs on the handler's
+  // job thread: a test polls them while a robot process drives the
+  // calibration, an order only the socket between them makes, which TSan
+  // does not see.
+  std::optional<HandEyeSolution> last_solution() const {
+    std::lock_guard lock(last_mutex_);
+    return last_;
+  }
+  size_t poses() const { return pose_count_.load(std::memory_order_acquire); }
   // The poses an auto calibration plans around X_BF, given the board centre
   // p_B (base frame) and the camera position c_B: rotations of the robot
   // about p_B, about axes across and along the view.
@@ -62,6 +72,8 @@ class HandEyeCalibrationService final : public CalibrationService {
   // Captures and detects at X_BF; NotFound / OutOfRange when the board is not seen.
   Result<HandEyeSample> Observe(const Pose& X_BF);
   Status Persist(const HandEyeSolution& solution) const;
+  // After samples_ changed: poses() and the status page's session count.
+  void PublishSession(CalibrationKind kind);
 
   const Cell cell_;
   const CalibrationSpec spec_;
@@ -75,7 +87,9 @@ class HandEyeCalibrationService final : public CalibrationService {
   std::vector<Pose> plan_;  // auto: poses still to visit, next first
   size_t plan_next_ = 0;
   bool planned_ = false;
-  std::optional<HandEyeSolution> last_;
+  std::atomic<size_t> pose_count_{0};  // samples_.size(), published after each change
+  mutable std::mutex last_mutex_;
+  std::optional<HandEyeSolution> last_;  // GUARDED_BY(last_mutex_)
 };
 
 }  // namespace bp

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <filesystem>
 #include <future>
 #include <thread>
@@ -325,6 +326,46 @@ TEST(ResultFile, CellLoaderUsesTheSavedCalibration) {
   ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();
   EXPECT_LT(TranslationErrorMm(loaded->camera.X_BC, svc.last_solution()->X), 1e-6);
   EXPECT_LT(RotationErrorDeg(loaded->camera.X_BC, svc.last_solution()->X), 1e-6);
+}
+
+// last_solution() and poses() are read on another thread while the steps
+// run, as the calibration tests and binpick calib do with the request
+// handler's job thread (under TSan, RobotCommandCalibration.* reported the
+// read of last_ there as a race). Here a reader polls both while this thread
+// calibrates twice; every solution it sees is a whole one. Run under TSan
+// (scripts/test.sh's tsan stage builds bp_calib_tests only with the TSan
+// extension), this test is where an unguarded read shows.
+TEST(HandEyeServiceThreads, LastSolutionAndPosesAreReadWhileStepsRun) {
+  const Cell cell = testing::CalibCell(false);
+  auto camera = std::make_shared<SimulatedCalibrationCamera>(cell.camera, *cell.calibration);
+  auto state = std::make_shared<HandEyeState>(cell.camera.X_BC);
+  HandEyeCalibrationService svc(cell, camera, state);
+  constexpr int kPoses = 8;
+  std::atomic<bool> done{false};
+  int reads = 0, solutions = 0, bad_solutions = 0, bad_counts = 0;
+  std::thread reader([&] {
+    for (bool last = false; !last;) {
+      last = done.load();
+      const size_t n = svc.poses();
+      if (n > static_cast<size_t>(kPoses)) ++bad_counts;
+      if (const std::optional<HandEyeSolution> sol = svc.last_solution()) {
+        ++solutions;
+        if (sol->poses != kPoses || TranslationErrorMm(sol->X, cell.calibration->true_pose) > 0.5) ++bad_solutions;
+      }
+      ++reads;
+    }
+  });
+  for (int round = 0; round < 2; ++round) {
+    CalibrateOnce(svc, cell, *camera, kPoses);
+    EXPECT_EQ(svc.poses(), static_cast<size_t>(kPoses));
+    EXPECT_TRUE(svc.Finish(CalibrationKind::kManual).ok());
+  }
+  done = true;
+  reader.join();
+  EXPECT_GT(reads, 1);
+  EXPECT_GE(solutions, 1);  // at least the read after `done`
+  EXPECT_EQ(bad_solutions, 0);
+  EXPECT_EQ(bad_counts, 0);
 }
 
 TEST(Auto2D, ForwardedToTheGivenServiceElseUnavailable) {
