@@ -1,10 +1,11 @@
 // Serving under contention and abuse (issue 39, docs/reliability.md "Load"):
 // two measurements over loopback DaoAI connections.
 //
-//   build/bin/bp_soak --mode flood --seconds 30
+//   build/bin/bp_soak --mode flood --seconds 30 [--flood-task 0 --pick-task 1]
 //       One robot floods CAPTURE_AND_PROCESS_ASYNC (19) on task 0 at full
 //       speed; a second robot runs capture (19) + pick pose (21) cycles on
-//       task 1. Reports the second robot's pick-pose latency p50 / p99 under
+//       task 1 (against binpickd's default cell use --pick-task 5: its task 1
+//       is the in-hand check). Reports the second robot's pick-pose latency p50 / p99 under
 //       the flood against a single plan time: the same robot's pick latency
 //       measured alone first. Before issue 39 each 19 started a detection of
 //       its own and the second robot waited behind all of them.
@@ -74,6 +75,8 @@ struct Options {
   int grasps = 10;
   int plan_ms = 2;
   int seed = 39;
+  int flood_task = 0;  // flood: the task the flooding robot captures on
+  int pick_task = 1;   // flood: the second robot's task (a pick task)
 };
 
 // The scripted planner, its hand-outs counted per (task, instance) instead
@@ -155,18 +158,18 @@ Result<std::unique_ptr<RobotClient>> Connect(const Options& o, int port) {
 
 // ------------------------------------------------------------------ flood
 
-// Pick-pose latencies (ms) of `cycles` capture + pick cycles on task 1.
-std::vector<double> PickLatencies(RobotClient& robot, int cycles, const std::atomic<bool>* stop,
+// Pick-pose latencies (ms) of `cycles` capture + pick cycles on `task`.
+std::vector<double> PickLatencies(RobotClient& robot, int task, int cycles, const std::atomic<bool>* stop,
                                   std::string* error) {
   std::vector<double> out;
   for (int i = 0; i < cycles && !(stop && *stop); ++i) {
-    Result<RobotReply> cap = robot.Call(daoai::kCaptureAndProcessAsync, 1);
+    Result<RobotReply> cap = robot.Call(daoai::kCaptureAndProcessAsync, task);
     if (!cap.ok() || cap->status != daoai::kDetection) {
       *error = "capture: " + (cap.ok() ? "status " + std::to_string(cap->status) : cap.status().ToString());
       return out;
     }
     const auto t0 = Clock::now();
-    Result<RobotReply> pick = robot.Call(daoai::kPickPose, 1);
+    Result<RobotReply> pick = robot.Call(daoai::kPickPose, task);
     out.push_back(Ms(Clock::now() - t0));
     if (!pick.ok() || (pick->status != daoai::kObjectsFound && pick->status != daoai::kNoObjectFound &&
                        pick->status != daoai::kNoCollisionFreePose)) {
@@ -181,7 +184,7 @@ int Flood(const Options& o) {
   InProcess local;
   int port = o.port;
   if (port == 0) {
-    if (Status s = local.Start(o, 2); !s.ok()) {
+    if (Status s = local.Start(o, std::max(o.flood_task, o.pick_task) + 1); !s.ok()) {
       std::cerr << "bp_soak: " << s.ToString() << "\n";
       return 2;
     }
@@ -193,8 +196,10 @@ int Flood(const Options& o) {
     return 2;
   }
   std::string error;
-  // A single plan time: the second robot alone.
-  const std::vector<double> alone = PickLatencies(**second, 30, nullptr, &error);
+  // A single plan time: the second robot alone, after 10 cycles of warm-up
+  // (the first detections of a binpickd are slower).
+  (void)PickLatencies(**second, o.pick_task, 10, nullptr, &error);
+  const std::vector<double> alone = PickLatencies(**second, o.pick_task, 30, nullptr, &error);
   if (!error.empty()) {
     std::cerr << "bp_soak: alone: " << error << "\n";
     return 1;
@@ -211,7 +216,7 @@ int Flood(const Options& o) {
       return;
     }
     while (!stop) {
-      Result<RobotReply> r = (*robot)->Call(daoai::kCaptureAndProcessAsync, 0);
+      Result<RobotReply> r = (*robot)->Call(daoai::kCaptureAndProcessAsync, o.flood_task);
       if (!r.ok() || r->status != daoai::kDetection) {
         flood_error = r.ok() ? "status " + std::to_string(r->status) : r.status().ToString();
         return;
@@ -227,7 +232,7 @@ int Flood(const Options& o) {
     stop = true;
   });
   while (!stop && error.empty()) {
-    std::vector<double> some = PickLatencies(**second, 1, &stop, &error);
+    std::vector<double> some = PickLatencies(**second, o.pick_task, 1, &stop, &error);
     flooded.insert(flooded.end(), some.begin(), some.end());
   }
   stop = true;
@@ -469,6 +474,9 @@ int main(int argc, char** argv) {
   app.add_option("--grasps", o.grasps, "in-process: grasps per detection");
   app.add_option("--plan-ms", o.plan_ms, "in-process: detection time, ms");
   app.add_option("--seed", o.seed, "soak: the robots' random mix");
+  app.add_option("--flood-task", o.flood_task, "flood: the flooding robot's task")->check(CLI::Range(0, 99));
+  app.add_option("--pick-task", o.pick_task, "flood: the second robot's pick task (with --port, one of the "
+                 "cell's pick tasks: on the default cell task 1 is the in-hand check)")->check(CLI::Range(0, 99));
   std::string log_level = "error";
   app.add_option("--log-level", log_level, "in-process server log level");
   CLI11_PARSE(app, argc, argv);

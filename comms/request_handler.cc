@@ -1,12 +1,16 @@
 #include "comms/request_handler.h"
 
 #include <spdlog/spdlog.h>
+#include <sys/resource.h>
 #include <tbb/task_arena.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <cerrno>
 #include <condition_variable>
 #include <cmath>
+#include <cstring>
 #include <deque>
 #include <future>
 #include <map>
@@ -182,6 +186,68 @@ class SerialJobs {
   bool running_ = false;                    // GUARDED_BY(mutex_)
 };
 
+// Runs jobs one at a time, in order, on a thread of its own at a lower CPU
+// priority (the process's nice + kNice, at most 19) and without oneTBB
+// workers (a serial arena: the job's parallel loops run on this thread
+// alone). It plans the re-detections nobody waits for (a capture flood's,
+// docs/protocols.md "Capture floods"): a robot's detection on the arena then
+// gets the cores at the process's priority, and the flooded task's plan
+// what is left, instead of each getting half. Linux nice is per thread;
+// raising it needs no privilege and lowering it back would, so this thread
+// keeps it for life and runs nothing else. Started at the first Post.
+class BackgroundLane {
+ public:
+  // CFS weight 110 against 1024 at nice 0: against one busy thread of the
+  // process's priority this thread gets about a tenth of the core.
+  static constexpr int kNice = 10;
+  ~BackgroundLane() { Stop(); }
+  void Post(std::function<void()> job) {
+    std::lock_guard lock(mutex_);
+    if (!thread_.joinable()) thread_ = std::thread([this] { Run(); });
+    jobs_.push_back(std::move(job));
+    cv_.notify_one();
+  }
+  // Runs the jobs posted so far, then joins the thread. No Post after it.
+  void Stop() {
+    std::thread thread;
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+      thread.swap(thread_);
+    }
+    cv_.notify_one();
+    if (thread.joinable()) thread.join();
+  }
+
+ private:
+  void Run() {
+    const pid_t tid = gettid();
+    errno = 0;
+    const int nice = getpriority(PRIO_PROCESS, static_cast<id_t>(tid));
+    if (errno != 0 || setpriority(PRIO_PROCESS, static_cast<id_t>(tid), std::min(19, nice + kNice)) != 0) {
+      spdlog::warn("daoai: the background detection thread keeps the process's priority: {}",
+                   std::strerror(errno));
+    }
+    tbb::task_arena serial(1, /*reserved_for_masters=*/1);
+    for (;;) {
+      std::function<void()> job;
+      {
+        std::unique_lock lock(mutex_);
+        cv_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
+        if (jobs_.empty()) return;
+        job = std::move(jobs_.front());
+        jobs_.pop_front();
+      }
+      serial.execute(job);
+    }
+  }
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<std::function<void()>> jobs_;  // GUARDED_BY(mutex_)
+  bool stop_ = false;                       // GUARDED_BY(mutex_)
+  std::thread thread_;                      // GUARDED_BY(mutex_)
+};
+
 // A detection requested while the task's detection runs: it starts when
 // that one finishes. Capture requests that arrive meanwhile join it (the
 // latest robot pose wins), so a flood of captures costs one detection at a
@@ -194,6 +260,19 @@ struct PendingDetection {
   uint64_t seq = 0;  // the task's capture sequence number
   PlanRequest request;
   std::vector<std::function<void(bool)>> on_captured;  // RC 20 answers, in order
+  // Set when it starts after the task's previous detection with no RC 20 in
+  // on_captured and no pick waiting: its plan goes to the BackgroundLane
+  // unless a robot waits for it by the time the capture is done.
+  bool background = false;
+};
+
+// A detection whose capture is done, on its way to the plan.
+struct CapturedDetection {
+  uint64_t seq = 0;
+  PlanRequest request;
+  CaptureHandle scene;
+  DetectionEvent event;  // capture fields filled in
+  std::chrono::steady_clock::time_point t0;  // capture start
 };
 
 }  // namespace
@@ -219,6 +298,10 @@ class RequestHandler::Impl {
     // GUARDED_BY(mutex): pick poses (and GRI triggers) waiting, by the
     // sequence number of the detection they wait for.
     std::multimap<uint64_t, std::function<void()>> waiters;
+    // GUARDED_BY(mutex): a captured detection whose plan waits on the
+    // BackgroundLane, not started; the first pick that waits takes it to the
+    // arena (a plan already running on the lane finishes there).
+    std::shared_ptr<CapturedDetection> queued_background;
     CheckLane empty_box, precision;  // GUARDED_BY(mutex)
     // Pick tasks: the failed spots (internally locked; the queue's screen).
     std::unique_ptr<FailedPicks> failed;
@@ -258,6 +341,7 @@ class RequestHandler::Impl {
       std::unique_lock lock(pending_mutex_);
       pending_cv_.wait(lock, [this] { return pending_ == 0; });
     }
+    background_.Stop();
     for (auto& [id, t] : tasks_) {
       std::multimap<uint64_t, std::function<void()>> waiters;
       std::optional<PendingDetection> pending;
@@ -312,6 +396,7 @@ class RequestHandler::Impl {
   RequestHandlerStats stats() const {
     RequestHandlerStats s;
     s.captures_coalesced = captures_coalesced_.load(std::memory_order_relaxed);
+    s.background_detections = background_detections_.load(std::memory_order_relaxed);
     s.planner_failures = planner_failures_.load(std::memory_order_relaxed);
     s.observer_failures = observer_failures_.load(std::memory_order_relaxed);
     s.jobs_refused = jobs_refused_.load(std::memory_order_relaxed);
@@ -407,7 +492,13 @@ class RequestHandler::Impl {
   // one (docs/protocols.md "Capture floods"). @returns the sequence number of
   // the detection that serves this request.
   uint64_t RequestDetection(TaskState& t, PlanRequest request, std::function<void(bool)> on_captured);
+  // Captures (on the calling arena thread), then plans here, or on the
+  // BackgroundLane when d.background and nobody waits for it by then.
   void RunDetection(TaskState& t, const PendingDetection& d);
+  void PlanDetection(TaskState& t, const CapturedDetection& c);
+  // Queues `job`'s plan on the BackgroundLane; false (not queued) when a
+  // robot waits for the task already.
+  bool PostBackground(TaskState& t, const std::shared_ptr<CapturedDetection>& job);
   // Releases the picks waiting for detection `seq` and starts the pending one.
   void FinishDetection(TaskState& t, uint64_t seq);
   // Keeps `ready` (moved from) until the newest detection of `t` requested
@@ -509,8 +600,10 @@ class RequestHandler::Impl {
   int pending_ = 0;  // GUARDED_BY(pending_mutex_)
   tbb::task_arena arena_;
   SerialJobs serial_;  // calibration steps and teaching, in request order
+  BackgroundLane background_;  // plans of re-detections nobody waits for
   std::vector<std::shared_ptr<ServerObserver>> observers_;  // fixed before serving
   std::atomic<uint64_t> captures_coalesced_{0};
+  std::atomic<uint64_t> background_detections_{0};
   std::atomic<uint64_t> planner_failures_{0};
   mutable std::atomic<uint64_t> observer_failures_{0};
   std::atomic<uint64_t> jobs_refused_{0};
@@ -607,8 +700,11 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
   auto captured = [&d](bool ok) {
     for (const auto& answer : d.on_captured) answer(ok);
   };
-  const auto t0 = std::chrono::steady_clock::now();
-  DetectionEvent event;
+  CapturedDetection c;
+  c.seq = d.seq;
+  c.request = plan_request;
+  c.t0 = std::chrono::steady_clock::now();
+  DetectionEvent& event = c.event;
   event.task_id = t.spec.id;
   event.request = plan_request;
   event.time = std::chrono::system_clock::now();
@@ -617,8 +713,8 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
     std::lock_guard lock(capture_mutex_);
     scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
   }
-  const auto t1 = std::chrono::steady_clock::now();
-  event.capture_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+  event.capture_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - c.t0).count();
   if (!scene.ok() || !*scene) {
     spdlog::warn("daoai: task {} capture failed: {}", t.spec.id,
                  scene.ok() ? "planner returned no scene" : scene.status().ToString());
@@ -635,7 +731,55 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
   captured(true);
   // A capture of the task: failed spots age (released `captures` after their last failure).
   if (t.failed) t.failed->OnCapture();
-  Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, **scene); });
+  c.scene = std::move(*scene);
+  // The capture ran here, at the process's priority: it holds the camera,
+  // which a robot's detection may be waiting for.
+  auto job = std::make_shared<CapturedDetection>(std::move(c));
+  if (d.background && PostBackground(t, job)) return;
+  PlanDetection(t, *job);
+}
+
+bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<CapturedDetection>& job) {
+  {
+    std::lock_guard lock(t.mutex);
+    if (!t.waiters.empty()) return false;  // a robot waits for it already
+    t.queued_background = job;  // until the lane or a robot's WaitForDetection takes it
+  }
+  {
+    std::lock_guard lock(pending_mutex_);
+    ++pending_;  // taken while the posting job still counts: Shutdown waits for it
+  }
+  background_detections_.fetch_add(1, std::memory_order_relaxed);
+  background_.Post([this, &t, job] {
+    bool mine = false;
+    {
+      std::lock_guard lock(t.mutex);
+      if (t.queued_background == job) {
+        t.queued_background.reset();
+        mine = true;
+      }
+    }
+    // Not mine: a robot's pick took it to the arena. At shutdown it is
+    // dropped (nobody waits for it; Shutdown drops any later waiter).
+    if (mine && !stopping_) {
+      try {
+        PlanDetection(t, *job);
+      } catch (const std::exception& e) {
+        spdlog::error("daoai: background detection failed: {}", e.what());
+      }
+    }
+    std::lock_guard lock(pending_mutex_);
+    --pending_;
+    pending_cv_.notify_all();
+  });
+  return true;
+}
+
+void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& c) {
+  const PlanRequest& plan_request = c.request;
+  DetectionEvent event = c.event;
+  const auto t1 = std::chrono::steady_clock::now();
+  Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, *c.scene); });
   PlanResult result;
   if (plan.ok()) {
     result = std::move(*plan);
@@ -654,18 +798,19 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
   // at the pop: docs/protocols.md "Poses the robot moves to").
   DropUnreachable(cell_, t.spec, result);
   const auto t2 = std::chrono::steady_clock::now();
-  const auto ms = std::chrono::duration<double, std::milli>(t2 - t0);
+  const auto ms = std::chrono::duration<double, std::milli>(t2 - c.t0);
   spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
                t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
                ms.count());
   if (!observers_.empty()) {
-    event.scene = *scene;
+    event.scene = c.scene;
     event.plan_status = plan.status();
     if (plan.ok()) event.plan = result;
+    // The plan alone: a background plan's wait for the lane is not in it.
     event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
   }
   int discarded = 0;
-  t.queue.Replace(std::move(result), d.seq, &discarded);
+  t.queue.Replace(std::move(result), c.seq, &discarded);
   if (discarded > 0) {
     // The robots asked for a new capture with grasps left: by design, but
     // counted (binpick_grasps_discarded_total).
@@ -676,7 +821,7 @@ void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d)
   // After the refill (an observer reading the queue sees the new one),
   // before waiting picks are answered (their answers follow the detection).
   if (!observers_.empty()) NotifyDetection(event);
-  FinishDetection(t, d.seq);
+  FinishDetection(t, c.seq);
 }
 
 void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
@@ -691,6 +836,9 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
     t.waiters.erase(t.waiters.begin(), end);
     if (t.pending && !stopping_) {
       next.swap(t.pending);
+      // Requested while this one ran (a re-capture): nobody waits for it
+      // yet (the waiters for `seq` and before are released above).
+      next->background = next->on_captured.empty() && t.waiters.empty();
     } else {
       t.running = false;
     }
@@ -702,9 +850,16 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
 }
 
 bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready) {
-  std::lock_guard lock(t.mutex);
-  if (t.requested_seq <= t.finished_seq) return false;
-  t.waiters.emplace(t.requested_seq, std::move(ready));
+  std::shared_ptr<CapturedDetection> promoted;
+  {
+    std::lock_guard lock(t.mutex);
+    if (t.requested_seq <= t.finished_seq) return false;
+    t.waiters.emplace(t.requested_seq, std::move(ready));
+    promoted.swap(t.queued_background);
+  }
+  // A plan queued on the background lane (behind another task's) is now
+  // awaited: it runs on the arena at once, at the process's priority.
+  if (promoted) Spawn([this, &t, promoted] { PlanDetection(t, *promoted); });
   return true;
 }
 

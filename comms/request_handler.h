@@ -14,7 +14,10 @@
 // detection runs join the one pending after it (at most one; the latest
 // robot pose wins; every RC 20 is answered from the capture that serves it).
 // RC_DAOAI_PICK_POSE waits, without blocking, for the newest detection
-// requested before it: at most the one running and the one pending. Empty-box
+// requested before it: at most the one running and the one pending. A
+// pending detection that starts with nobody waiting for it (no pick, no RC
+// 20: a flood of 19s) is planned on a thread of lower CPU priority, so the
+// flood does not halve another robot's detection. Empty-box
 // (40) and precision checks (50) are batched the same way per task.
 //
 // The pop rule: a grasp leaves its task's queue only when the transport calls
@@ -96,6 +99,7 @@ struct RequestHandlerOptions {
 // Totals since start (docs/status_page.md "Metrics"); any thread.
 struct RequestHandlerStats {
   uint64_t captures_coalesced = 0;  // capture requests that joined a pending detection
+  uint64_t background_detections = 0;  // re-detections nobody waited for, planned at a lower priority
   uint64_t planner_failures = 0;    // plans that threw or returned an error
   uint64_t observer_failures = 0;   // exceptions an observer let escape (contained)
   uint64_t jobs_refused = 0;        // calibration steps and teach poses refused: queue full

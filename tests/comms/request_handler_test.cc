@@ -2,8 +2,14 @@
 // with the scripted test-double planner.
 #include "comms/request_handler.h"
 
+#include <sys/resource.h>
+#include <unistd.h>
+
 #include <atomic>
+#include <condition_variable>
 #include <functional>
+#include <map>
+#include <set>
 #include <future>
 #include <mutex>
 #include <optional>
@@ -466,6 +472,184 @@ TEST(RequestHandlerCoalescing, ARecaptureBeforeAReleasedPickIsAnsweredDoesNotEmp
   EXPECT_EQ(r->status, daoai::kObjectsFound);
   EXPECT_EQ(r->payload[0], 30000);
   planner->HoldPlans(false);
+}
+
+// The scripted planner, recording for each plan the nice value of the
+// thread it ran on, with a gate per task: plans of a held task block until
+// released (in arrival order).
+class PriorityPlanner final : public GraspPlanner {
+ public:
+  struct PlanRun {
+    int task = 0;
+    int nice = 0;
+  };
+  Result<CaptureHandle> Capture(const PlanRequest& request) override { return scripted.Capture(request); }
+  Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override {
+    {
+      std::unique_lock lock(mutex_);
+      runs_.push_back({request.task.id, getpriority(PRIO_PROCESS, static_cast<id_t>(gettid()))});
+      cv_.notify_all();
+      cv_.wait(lock, [&] { return held_.count(request.task.id) == 0 || permits_[request.task.id] > 0; });
+      if (held_.count(request.task.id)) --permits_[request.task.id];
+    }
+    return scripted.Plan(request, scene);
+  }
+  void Hold(int task) {
+    std::lock_guard lock(mutex_);
+    held_.insert(task);
+  }
+  void Release(int task, int plans) {
+    std::lock_guard lock(mutex_);
+    permits_[task] += plans;
+    cv_.notify_all();
+  }
+  void Open(int task) {
+    std::lock_guard lock(mutex_);
+    held_.erase(task);
+    cv_.notify_all();
+  }
+  // Waits until `n` plans have started (5 s); a copy of them.
+  std::vector<PlanRun> WaitForRuns(size_t n) {
+    std::unique_lock lock(mutex_);
+    cv_.wait_for(lock, 5s, [&] { return runs_.size() >= n; });
+    return runs_;
+  }
+  ScriptedPlanner scripted;
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::vector<PlanRun> runs_;     // GUARDED_BY(mutex_)
+  std::set<int> held_;            // GUARDED_BY(mutex_)
+  std::map<int, int> permits_;    // GUARDED_BY(mutex_)
+};
+
+int OwnNice() { return getpriority(PRIO_PROCESS, static_cast<id_t>(gettid())); }
+
+// Opens the gates of tasks 0-3 when a test ends (declared after the
+// handler: a failed assertion must not leave its Shutdown waiting for a
+// held plan).
+struct OpenAtExit {
+  PriorityPlanner& planner;
+  ~OpenAtExit() {
+    for (int task = 0; task < 4; ++task) planner.Open(task);
+  }
+};
+
+// Issue 39 (capture flood): the re-detection a flood of 19s leaves pending
+// is planned at a lower CPU priority, so it takes what another robot's
+// detection leaves of the cores instead of half of them; a pending
+// detection a robot waits for (a pick that arrived while the one before it
+// ran) keeps the process's priority.
+TEST(RequestHandlerBackground, ARedetectionNobodyWaitsForIsPlannedAtALowerPriority) {
+  const int base = OwnNice();
+  if (base >= 19) GTEST_SKIP() << "the test runs at nice 19 already";
+  auto planner = std::make_shared<PriorityPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  const OpenAtExit open_at_exit{*planner};
+  ClientContext flooder, robot;
+  planner->Hold(0);
+  for (int i = 0; i < 20; ++i) {
+    ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  }
+  planner->Open(0);
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  std::vector<PriorityPlanner::PlanRun> runs = planner->WaitForRuns(2);
+  ASSERT_EQ(runs.size(), 2u);
+  EXPECT_EQ(runs[0].nice, base);                     // the first 19 found the task idle
+  EXPECT_EQ(runs[1].nice, std::min(19, base + 10));  // the flood's re-detection
+  EXPECT_EQ(handler.stats().background_detections, 1u);
+  // A pick waits for the pending detection before it starts: it keeps the
+  // process's priority, and the pick is answered from it.
+  planner->Hold(0);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), robot)->status, daoai::kDetection);
+  ASSERT_EQ(planner->WaitForRuns(3).size(), 3u);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), robot)->status, daoai::kDetection);
+  Pending pick;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), robot, pick.Completion());
+  planner->Open(0);
+  ASSERT_TRUE(Eventually([&] { return pick.answered(); }));
+  EXPECT_EQ(pick.Run()->status, daoai::kObjectsFound);
+  runs = planner->WaitForRuns(4);
+  ASSERT_EQ(runs.size(), 4u);
+  EXPECT_EQ(runs[3].nice, base);
+  EXPECT_EQ(handler.stats().background_detections, 1u);
+  handler.Shutdown();
+}
+
+// While a flooded task's background plan runs (held here), another robot's
+// capture and pick on its own task are served; and a background plan
+// queued behind it (a second flooded task) that a pick starts waiting for
+// runs on the arena at once instead of waiting for the lane.
+TEST(RequestHandlerBackground, ABackgroundPlanHoldsUpNeitherAnotherRobotNorAPickThatWaitsForAQueuedOne) {
+  auto planner = std::make_shared<PriorityPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  const OpenAtExit open_at_exit{*planner};
+  ClientContext flooder, robot;
+  // Task 0: a detection, a flood's re-detection behind it, held in its plan
+  // on the background lane.
+  planner->Hold(0);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  ASSERT_EQ(planner->WaitForRuns(1).size(), 1u);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  planner->Release(0, 1);
+  ASSERT_EQ(planner->WaitForRuns(2).size(), 2u);
+  ASSERT_EQ(handler.stats().background_detections, 1u);
+  // Another robot on task 1: served meanwhile.
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 1), robot)->status, daoai::kDetection);
+  const std::optional<daoai::Response> pick = handler.Handle(Req(daoai::kPickPose, 1), robot);
+  ASSERT_TRUE(pick);
+  EXPECT_EQ(pick->status, daoai::kObjectsFound);
+  // Task 3 flooded too: its re-detection queues on the lane behind task 0's.
+  planner->Hold(3);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 3), flooder)->status, daoai::kDetection);
+  ASSERT_EQ(planner->WaitForRuns(4).size(), 4u);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 3), flooder)->status, daoai::kDetection);
+  planner->Open(3);
+  ASSERT_TRUE(Eventually([&] { return handler.stats().background_detections == 2; }));
+  // A pick on task 3 takes its queued plan to the arena: answered while
+  // task 0's background plan is still held.
+  Pending pick3;
+  handler.HandleAsync(Req(daoai::kPickPose, 3), robot, pick3.Completion());
+  ASSERT_TRUE(Eventually([&] { return pick3.answered(); }));
+  EXPECT_EQ(pick3.Run()->status, daoai::kObjectsFound);
+  const std::vector<PriorityPlanner::PlanRun> runs = planner->WaitForRuns(5);
+  ASSERT_EQ(runs.size(), 5u);
+  EXPECT_EQ(runs[4].task, 3);
+  EXPECT_EQ(runs[4].nice, OwnNice());
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 1);  // still held
+  planner->Open(0);
+  ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  handler.Shutdown();
+}
+
+// Shutdown with a background plan queued on the lane drops it and returns.
+TEST(RequestHandlerBackground, ShutdownWithABackgroundPlanQueuedReturns) {
+  auto planner = std::make_shared<PriorityPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  const OpenAtExit open_at_exit{*planner};
+  ClientContext flooder;
+  // Task 0's re-detection held on the lane, task 3's queued behind it.
+  size_t runs = 0;
+  for (int task : {0, 3}) {
+    planner->Hold(task);
+    ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, task), flooder)->status, daoai::kDetection);
+    ASSERT_EQ(planner->WaitForRuns(++runs).size(), runs);
+    ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, task), flooder)->status, daoai::kDetection);
+    planner->Release(task, 1);
+    ASSERT_TRUE(Eventually([&] { return handler.stats().background_detections == (task == 0 ? 1u : 2u); }));
+    if (task == 0) {
+      ASSERT_EQ(planner->WaitForRuns(++runs).size(), runs);
+    }
+  }
+  std::thread open([&] {
+    std::this_thread::sleep_for(100ms);
+    planner->Open(0);
+    planner->Open(3);
+  });
+  handler.Shutdown();
+  open.join();
+  EXPECT_EQ(planner->WaitForRuns(0).size(), 3u);  // task 3's queued plan never ran
 }
 
 // Empty-box checks of one task share one capture while one runs.
