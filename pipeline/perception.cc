@@ -390,6 +390,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   if (!(options.max_support_penetration >= 0.0) || !std::isfinite(options.max_support_penetration)) {
     return Status::InvalidArgument("perception: max_support_penetration must be finite and >= 0");
   }
+  if (!(options.ambiguity_net_gain >= 0.0) || !std::isfinite(options.ambiguity_net_gain)) {
+    return Status::InvalidArgument("perception: ambiguity_net_gain must be finite and >= 0");
+  }
   if (!(options.grid_spacing > 0.0)) return Status::InvalidArgument("perception: grid_spacing must be > 0");
   if (!(options.floor_band > 0.0)) return Status::InvalidArgument("perception: floor_band must be > 0");
   if (options.min_segment_points < 1) return Status::InvalidArgument("perception: min_segment_points must be >= 1");
@@ -404,6 +407,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   const internal::CameraFigures camera = internal::CameraFiguresOf(cell, options);
   PoseEstimatorOptions reference;
   reference.max_support_penetration = options.max_support_penetration;
+  reference.ambiguity_net_gain = options.ambiguity_net_gain;
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());

@@ -169,6 +169,9 @@ struct PerceptionOptions {
   // variety); a pipe tee standing on its branch and turned about its run
   // pushes the branch's rim 1-3 mm into it (docs/tuning.md).
   double max_support_penetration = 0.0015;
+  // PoseEstimatorOptions::ambiguity_net_gain, handed to every class's
+  // estimator (>= 0; 0 = off; docs/tuning.md).
+  double ambiguity_net_gain = PoseEstimatorOptions{}.ambiguity_net_gain;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

@@ -152,9 +152,9 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   }
   if (!(turn_step_deg >= 0 && turn_step_deg <= 180)) return fail("turn_step_deg must be in [0, 180]");
   if (!(ambiguity_translation > 0) || !(ambiguity_rotation_deg > 0) || !(ambiguity_slack >= 0 && ambiguity_slack < 1) ||
-      max_alternatives < 0) {
+      max_alternatives < 0 || !(ambiguity_net_gain >= 0) || !std::isfinite(ambiguity_net_gain)) {
     return fail("ambiguity_translation and ambiguity_rotation_deg must be > 0, ambiguity_slack in [0, 1), "
-                "max_alternatives >= 0");
+                "max_alternatives >= 0, ambiguity_net_gain finite and >= 0");
   }
   if (!(hole_margin > 0) || hole_min_visible < 1 || !(hole_max_filled >= 0)) {
     return fail("hole_margin must be > 0, hole_min_visible >= 1, hole_max_filled >= 0");

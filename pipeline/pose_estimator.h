@@ -139,6 +139,12 @@ struct PoseEstimatorOptions {
   double ambiguity_rotation_deg = 5.0;
   double ambiguity_slack = 0.05;
   int max_alternatives = 4;
+  // An alternative that explains more than (1 + ambiguity_net_gain) times
+  // what the hypothesis does (supported minus free-space samples, verified
+  // in full) and passes verification becomes the hypothesis, the hypothesis
+  // an alternative (>= 0; 0 = off): the hypothesis won on score, which a
+  // turn hiding more of the part (a tee's branch behind its run) raises.
+  double ambiguity_net_gain = 0.06;
   // Filled holes (depth image only): points of a large face's plane that the
   // face encloses, at least hole_margin (> 0) from it, are holes; with >=
   // hole_min_visible in view and more than hole_max_filled of them showing

@@ -82,6 +82,7 @@ struct EvalCliOptions {
   double fit_rms = PerceptionOptions{}.max_fit_rms_sigmas;
   double max_free_space = PerceptionOptions{}.max_free_space_fraction;
   double max_penetration = PerceptionOptions{}.max_support_penetration;
+  double ambiguity_net_gain = PerceptionOptions{}.ambiguity_net_gain;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
 };
@@ -281,6 +282,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.max_fit_rms_sigmas = opt.fit_rms;
   popt.max_free_space_fraction = opt.max_free_space;
   popt.max_support_penetration = opt.max_penetration;
+  popt.ambiguity_net_gain = opt.ambiguity_net_gain;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   return popt;
@@ -717,6 +719,11 @@ Command EvalCommand() {
                                   "deepest a detection may sink below the bin floor, metres "
                                   "(PerceptionOptions::max_support_penetration; tuning)")
                        ->check(CLI::Range(0.0, 0.05))
+                       ->capture_default_str();
+                   sub.add_option("--ambiguity-gain", opt->ambiguity_net_gain,
+                                  "an alternative pose explaining this fraction more of the view replaces the "
+                                  "detection's (PerceptionOptions::ambiguity_net_gain; 0 = off, tuning)")
+                       ->check(CLI::Range(0.0, 10.0))
                        ->capture_default_str();
                    sub.add_option("--max-free-space", opt->max_free_space,
                                   "largest fraction of a detection's seen surface in free space "

@@ -173,6 +173,10 @@ class SearchRun {
            SymmetricRotationError(a, b, m_.symmetry) > opt_.ambiguity_rotation_deg * M_PI / 180.0;
   }
   std::vector<Pose> Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates);
+  // The view's points (PreparedView::index) within the support tolerance
+  // of the part's surface at X_BO.
+  std::vector<int> ViewPointsOn(const Pose& X_BO) const;
+  void PreferMoreExplained(PoseHypothesis& h);
   void Keep(std::vector<Candidate> finals);
 
   const PoseModel& m_;
@@ -502,6 +506,57 @@ std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<
   return out;
 }
 
+std::vector<int> SearchRun::ViewPointsOn(const Pose& X_BO) const {
+  std::vector<int> on;
+  const float sup = m_.SupportTolerance();
+  const Pose X_OB = X_BO.inverse();
+  const Eigen::Matrix3f R = X_OB.linear().cast<float>();
+  const Eigen::Vector3f t = X_OB.translation().cast<float>();
+  for (size_t i = 0; i < p_.pts.size(); ++i) {
+    if (m_.OnSurface(R * p_.pts[i] + t, sup)) on.push_back(p_.index[i]);
+  }
+  return on;
+}
+
+// An alternative that explains more of the view than the hypothesis (Net,
+// verified in full) by more than ambiguity_net_gain becomes the hypothesis,
+// the hypothesis an alternative. The hypothesis won on score, whose
+// denominator is the samples in view: a turn that hides more of the part
+// (a tee's branch behind its run) scores higher while explaining less of
+// what the camera saw. rms_residual stays the refined hypothesis's (an
+// alternative may be unrefined).
+void SearchRun::PreferMoreExplained(PoseHypothesis& h) {
+  const double gain = opt_.ambiguity_net_gain;
+  if (!(gain > 0.0) || h.alternatives.empty()) return;
+  double best_net = (1.0 + gain) * (h.supported_points - h.free_space_points);
+  size_t best = h.alternatives.size();
+  VerifyStats st;
+  for (size_t k = 0; k < h.alternatives.size(); ++k) {
+    const VerifyStats sk = VerifyAt(h.alternatives[k], 1);
+    if (Passes(sk, min_score_) && Net(sk) > best_net) {
+      best = k;
+      best_net = Net(sk);
+      st = sk;
+    }
+  }
+  if (best == h.alternatives.size()) return;
+  std::pair<int, int> holes{0, 0};
+  if (opt_.hole_max_filled < 1 && have_depth_) {
+    holes = HoleStats(m_, h.alternatives[best], view_);
+    if (holes.first >= opt_.hole_min_visible && holes.second > opt_.hole_max_filled * holes.first) return;
+  }
+  std::swap(h.X_BO, h.alternatives[best]);
+  h.score = st.score;
+  h.visible_points = st.visible;
+  h.occluded_points = st.occluded;
+  h.supported_points = st.supported;
+  h.free_space_points = st.free_space;
+  h.unmeasured_points = st.unmeasured;
+  h.hole_points = holes.first;
+  h.filled_hole_points = holes.second;
+  h.supporting_indices = ViewPointsOn(h.X_BO);
+}
+
 // The fine pass's poses best first, one per part, as hypotheses with their
 // supporting scene points; the reason when there is none.
 void SearchRun::Keep(std::vector<Candidate> finals) {
@@ -540,15 +595,13 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     out_.hypotheses.push_back(std::move(h));
   }
   const auto t3 = Clock::now();
-  const float sup = m_.SupportTolerance();
   for (PoseHypothesis& h : out_.hypotheses) {
-    const Pose X_OB = h.X_BO.inverse();
-    const Eigen::Matrix3f R = X_OB.linear().cast<float>();
-    const Eigen::Vector3f t = X_OB.translation().cast<float>();
-    for (size_t i = 0; i < p_.pts.size(); ++i) {
-      if (m_.OnSurface(R * p_.pts[i] + t, sup)) h.supporting_indices.push_back(p_.index[i]);
-    }
+    h.supporting_indices = ViewPointsOn(h.X_BO);
+    PreferMoreExplained(h);
   }
+  // Best first again: a pose preferred for what it explains may score lower.
+  std::stable_sort(out_.hypotheses.begin(), out_.hypotheses.end(),
+                   [](const PoseHypothesis& a, const PoseHypothesis& b) { return a.score > b.score; });
   verify_ms_ += Ms(t3, Clock::now());
   out_.timings.refine_ms = refine_ms_;
   out_.timings.verify_ms = verify_ms_;
