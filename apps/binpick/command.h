@@ -36,6 +36,7 @@ Command PlaceCommand();  // place_cmd.cc
 Command CalibCommand();  // calib_cmd.cc
 Command ReplayCommand();  // replay_cmd.cc
 Command ReplayMergeCommand();  // replay_merge_cmd.cc
+Command BenchCellCommand();  // bench_cell_cmd.cc
 
 // kExitBadInput for errors in what the user gave us (InvalidArgument,
 // NotFound, Corruption, OutOfRange), kExitFailure otherwise.

@@ -63,7 +63,7 @@ int main(int argc, char** argv) {
 
   const std::vector<Command> commands = {RenderCommand(), InfoCommand(),  EvalCommand(),   ClearCommand(),
                                          PlaceCommand(),  RobotCommand(), CalibCommand(),  ReplayCommand(),
-                                         ReplayMergeCommand()};
+                                         ReplayMergeCommand(), BenchCellCommand()};
   std::function<int()> action;
   for (const Command& command : commands) {
     CLI::App* sub = app.add_subcommand(command.name, command.help);

@@ -236,5 +236,55 @@ TEST(BinpickCli, InfoSaysHowACloudIsReadAndHowPerceptionTakesIt) {
   EXPECT_THAT(r.out, HasSubstr("not used: rgba normal_x normal_y normal_z curvature"));
 }
 
+// `binpick bench-cell` (issue 40 item 5) at config 1 for 2 cycles: binpickd
+// started and stopped by it, a report with every step, percentiles in order,
+// and binpickd's own capture and plan times inside the robot's capture ->
+// first pose. Timing values are not checked (bench figures, not tests).
+TEST(BinpickCli, BenchCellReportsEveryStepConsistently) {
+  const std::string dir = FreshDir();
+  const std::string path = dir + "/bench.json";
+  const test::CommandRun r = RunBinpick("bench-cell --config 1 --cycles 2 --json " + path);
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_THAT(r.out, HasSubstr("config 1: 2 cycles"));
+  EXPECT_THAT(r.out, HasSubstr("capture -> first pose (21)"));
+  EXPECT_THAT(r.out, HasSubstr("synthetic capture (render)"));
+  EXPECT_THAT(r.out, HasSubstr("load average (1 min)"));
+  std::ifstream in(path);
+  const nlohmann::json report = nlohmann::json::parse(in, nullptr, false);
+  ASSERT_FALSE(report.is_discarded()) << r.out;
+  EXPECT_GE(report["load_average_1min_before"].get<double>(), 0.0);
+  ASSERT_EQ(report["configs"].size(), 1u);
+  const nlohmann::json& c = report["configs"][0];
+  EXPECT_EQ(c["config"], 1);
+  EXPECT_EQ(c["cycles"], 2);
+  ASSERT_EQ(c["per_cycle"].size(), 2u);
+  for (const char* step : {"capture_ack", "first_pose", "further_pose", "synthetic_capture", "product", "plan",
+                           "serving", "stage:pose", "stage:grasps"}) {
+    SCOPED_TRACE(step);
+    ASSERT_TRUE(c["steps"].contains(step));
+  }
+  for (const auto& [name, s] : c["steps"].items()) {
+    SCOPED_TRACE(name);
+    if (name != "further_pose") {
+      EXPECT_EQ(s["n"], 2);
+    }
+    EXPECT_LE(s["p50"].get<double>(), s["p90"].get<double>());
+    EXPECT_LE(s["p90"].get<double>(), s["p99"].get<double>());
+  }
+  for (const nlohmann::json& cycle : c["per_cycle"]) {
+    const double ack = cycle["capture_ack"], first = cycle["first_pose"];
+    const double capture = cycle["synthetic_capture"], plan = cycle["plan"];
+    EXPECT_GT(capture, 0.0);
+    EXPECT_GT(plan, 0.0);
+    EXPECT_LE(ack, first);
+    // binpickd's times lie inside the robot's round trips: 20 is answered
+    // once the capture is done, the first 21 once the plan is.
+    EXPECT_LE(capture, ack);
+    EXPECT_LE(capture + plan, first);
+    EXPECT_NEAR(capture + cycle["product"].get<double>(), first, 1e-6);
+    EXPECT_NEAR(capture + plan + cycle["serving"].get<double>(), first, 1e-6);
+  }
+}
+
 }  // namespace
 }  // namespace bp
