@@ -10,8 +10,9 @@
 // rest of capture -> first pose: protocol, queues, the robot's socket).
 //
 // Every pose handed out takes its part out of the synthetic bin. When a
-// capture finds nothing to pick (the bin emptied), binpickd is restarted on
-// the same full bin; that cycle is not timed and is done again.
+// capture finds nothing to pick (the bin emptied, or no collision-free grasp
+// on the parts left), binpickd is restarted on the same full bin; that cycle
+// is not timed and is done again (the report counts the refills).
 //
 //   binpick bench-cell --cycles 12                  (configs 1 and 2)
 //   binpick bench-cell --config 2 --cycles 12 --json report.json
@@ -138,7 +139,8 @@ class Daemon {
 double Ms(Clock::time_point from) { return std::chrono::duration<double, std::milli>(Clock::now() - from).count(); }
 
 // One cycle: capture, first pose, the rest. nullopt (no error) when the first
-// pose found nothing: the bin is empty for this task.
+// pose found nothing to pick (NO_OBJECT_FOUND, or NO_COLLISION_FREE_POSE for
+// the parts left): the bin is done for this task.
 Result<std::optional<Cycle>> RunCycle(Daemon& d, const BenchOptions& o, uint64_t* seq) {
   Cycle c;
   const auto t0 = Clock::now();
@@ -149,13 +151,16 @@ Result<std::optional<Cycle>> RunCycle(Daemon& d, const BenchOptions& o, uint64_t
   Result<RobotReply> first = d.robot().Call(daoai::kPickPose, o.task);
   c.first_pose = Ms(t0);
   if (!first.ok()) return first.status();
-  if (first->status == daoai::kNoObjectFound) return std::optional<Cycle>();
+  // Nothing left, or parts left but no collision-free grasp (the bin's last parts).
+  if (first->status == daoai::kNoObjectFound || first->status == daoai::kNoCollisionFreePose) {
+    return std::optional<Cycle>();
+  }
   if (first->status != daoai::kObjectsFound) return Status::Internal("pick pose answered status " + std::to_string(first->status));
   while (o.poses == 0 || static_cast<int>(c.further.size()) < o.poses) {
     const auto t1 = Clock::now();
     Result<RobotReply> next = d.robot().Call(daoai::kPickPose, o.task);
     if (!next.ok()) return next.status();
-    if (next->status == daoai::kNoObjectFound) break;
+    if (next->status == daoai::kNoObjectFound || next->status == daoai::kNoCollisionFreePose) break;
     if (next->status != daoai::kObjectsFound) return Status::Internal("pick pose answered status " + std::to_string(next->status));
     c.further.push_back(Ms(t1));
   }
