@@ -239,11 +239,17 @@ int Flood(const Options& o) {
   timer.join();
   flooder.join();
   const RequestHandlerStats hs = local.handler ? local.handler->stats() : RequestHandlerStats{};
+  std::string in_process;
+  if (local.handler) {
+    const Result<RequestHandler::TaskSnapshot> flooded = local.handler->Snapshot(o.flood_task);
+    in_process = ", " + std::to_string(hs.captures_coalesced) + " coalesced, " +
+                 std::to_string(flooded.ok() ? flooded->finished : 0) + " detections of the flooded task (" +
+                 std::to_string(hs.background_detections) + " planned in the background)";
+  }
   local.Stop();
   std::printf("bp_soak flood: %.0f s, flooding robot sent %lld captures (%.0f/s)%s\n", o.seconds,
               static_cast<long long>(flood_requests.load()),
-              static_cast<double>(flood_requests.load()) / o.seconds,
-              local.handler ? (", " + std::to_string(hs.captures_coalesced) + " coalesced").c_str() : "");
+              static_cast<double>(flood_requests.load()) / o.seconds, in_process.c_str());
   std::printf("bp_soak flood: single plan time (second robot alone, pick p50 of %zu): %.2f ms\n",
               alone.size(), single);
   std::printf("bp_soak flood: second robot under the flood: %zu picks, p50 %.2f ms, p99 %.2f ms, "
