@@ -64,6 +64,12 @@ struct BinDetectOptions {
   double plane_distance = 0.003;
   int plane_iterations = 100;
   int plane_max_points = 1500;  // RANSAC runs on at most this many band points
+  // The rim's least-squares planes and its point-to-line ICP run on at most
+  // this many points, an even subsample in scan order (a 640x480 frame has
+  // about 20k rim points; every one of them still counts for the walls'
+  // seen shares). The fits' noise grows as 1 / sqrt(points): at 4000, a few
+  // micrometres.
+  int fit_max_points = 4000;
   // Beyond its half width, a rim point may lie this far from a wall's centre
   // line (depth noise and pixel footprint at the edges).
   double rim_slack = 0.002;
