@@ -683,8 +683,23 @@ void Parser::ParseBin(const YAML::Node& n, Cell& cell) const {
                                         {"required", BinDetectSpec::Mode::kRequired}});
   }
   if (const YAML::Node v = n["detect_search"]; v.IsDefined()) {
-    std::tie(d.search_translation, d.search_yaw_deg) =
-        ParseOffsetRange(v, "bin.detect_search", {d.search_translation, d.search_yaw_deg});
+    // A free-standing bin may stand at any yaw: rotation_deg up to 180, or
+    // "any" (180); the detection finds yaw modulo the rim's symmetry.
+    const std::string path = "bin.detect_search";
+    YAML::Node ranged = YAML::Clone(v);
+    const YAML::Node r = v.IsMap() ? v["rotation_deg"] : YAML::Node();
+    double yaw = d.search_yaw_deg;
+    if (r.IsDefined()) {
+      if (r.IsScalar() && r.Scalar() == "any") {
+        yaw = 180.0;
+      } else {
+        yaw = Number(r, Join(path, "rotation_deg"));
+        Check(yaw >= 0 && yaw <= 180, r, Join(path, "rotation_deg"), "must be in [0, 180] deg or \"any\"");
+      }
+      ranged.remove("rotation_deg");
+    }
+    d.search_translation = ParseOffsetRange(ranged, path, {d.search_translation, 0.0}).first;
+    d.search_yaw_deg = yaw;
   }
   if (const YAML::Node v = n["detect_warn"]; v.IsDefined()) {
     std::tie(d.warn_offset, d.warn_offset_deg) =

@@ -115,6 +115,26 @@ RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, doubl
   return pose;
 }
 
+// The rim's yaw period (rad): a rectangular rim looks the same turned by
+// 180 deg, a square one by 90 deg.
+double YawPeriod(const BinSpec& bin) {
+  return std::abs(bin.inner_size.x() - bin.inner_size.y()) < 1e-3 ? M_PI / 2 : M_PI;
+}
+
+// The yaw half range the search covers (rad): the window's, at most half
+// the period (a window that wide takes any yaw).
+double SearchYaw(const BinSpec& bin) {
+  return std::min(bin.detect.search_yaw_deg * kDegToRad, YawPeriod(bin) / 2);
+}
+
+// How far a rim point may move in the rim's plane turned by up to `yaw`
+// (rad) about the centre and shifted by the window's translation (m).
+double RimReach(const BinSpec& bin, double yaw) {
+  const double corner = std::hypot(bin.inner_size.x() / 2 + bin.wall_thickness,
+                                   bin.inner_size.y() / 2 + bin.wall_thickness);
+  return bin.detect.search_translation + 2 * corner * std::sin(yaw / 2);
+}
+
 SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDetectOptions& o) {
   SampledPoints out;
   const Intrinsics& K = frame.intrinsics;
@@ -122,12 +142,18 @@ SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDete
   const double X = bin.inner_size.x() / 2, Y = bin.inner_size.y() / 2, H = bin.inner_size.z();
   const double t = bin.wall_thickness;
   // How far the rim may lie from nominal in the plane: the window's
-  // translation and its yaw at the outer corners.
-  const double reach = bin.detect.search_translation +
-                       std::hypot(X + t, Y + t) * std::sin(bin.detect.search_yaw_deg * kDegToRad) + 0.005;
+  // translation and its yaw at the outer corners. Whatever the yaw, the rim
+  // lies within the outer corners' circle about a centre that moved at most
+  // sqrt(2) x translation (15 mm of slack: tilt), and everything inside the
+  // inner walls' inscribed circle about it is inside the bin.
+  const double reach = RimReach(bin, SearchYaw(bin)) + 0.005;
+  const double shift = std::sqrt(2.0) * bin.detect.search_translation;
   const float outer_x = static_cast<float>(X + t + reach), outer_y = static_cast<float>(Y + t + reach);
   const float inner_x = static_cast<float>(X - reach), inner_y = static_cast<float>(Y - reach);
   const float floor_x = static_cast<float>(X - reach), floor_y = static_cast<float>(Y - reach);
+  const float outer_r = static_cast<float>(std::hypot(X + t, Y + t) + shift + 0.015);
+  const float inner_r = static_cast<float>(std::max(0.0, std::min(X, Y) - shift - 0.005));
+  const float outer_r2 = outer_r * outer_r, inner_r2 = inner_r * inner_r;
   const float rim_z = static_cast<float>(H), band = static_cast<float>(o.band);
   // Pixel footprint at the nominal rim centre's depth sets the stride.
   const Eigen::Vector3d rim_C = (frame.X_BC.inverse() * bin.X_BW) * Eigen::Vector3d(0, 0, H);
@@ -157,10 +183,11 @@ SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDete
       if (!in_band && !on_floor) continue;
       const Eigen::Vector3f p(z * (R(0, 0) * ray_x[i] + row_part.x()) + T.x(),
                               z * (R(1, 0) * ray_x[i] + row_part.y()) + T.y(), pz);
-      const float ax = std::abs(p.x()), ay = std::abs(p.y());
+      const float ax = std::abs(p.x()), ay = std::abs(p.y()), r2 = ax * ax + ay * ay;
+      const bool inside = (ax < inner_x && ay < inner_y) || r2 < inner_r2;
       if (in_band) {
-        if (ax < outer_x && ay < outer_y && (ax > inner_x || ay > inner_y)) out.band_W0.push_back(p);
-      } else if (ax < floor_x && ay < floor_y) {
+        if (ax < outer_x && ay < outer_y && r2 < outer_r2 && !inside) out.band_W0.push_back(p);
+      } else if ((ax < floor_x && ay < floor_y) || r2 < inner_r2) {
         out.floor_W0.push_back(p);
       }
     }
@@ -256,6 +283,48 @@ std::vector<T> EvenSubsample(const std::vector<T>& points, int max_points) {
   return out;
 }
 
+// The rim's pose from anywhere in the search window, on an even subsample
+// of the candidates q: one ICP from the nominal pose for windows up to
+// kBasinYaw, else ICPs started every kBasinYaw across the window's yaw
+// range (on a sparser subsample), the one explaining the most points
+// refined. The yaw comes back within half the rim's period of nominal.
+RimPose CoarseRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, const BinSpec& bin,
+                      const BinDetectOptions& o) {
+  // The ICP converges from yaws this far off (rad).
+  constexpr double kBasinYaw = 10.0 * kDegToRad;
+  const std::vector<Eigen::Vector2d> sub = EvenSubsample(q, o.fit_max_points);
+  const double yaw = SearchYaw(bin), period = YawPeriod(bin);
+  RimPose best;
+  if (yaw <= kBasinYaw + 1e-9) {
+    best = FitRim(sub, rim, RimReach(bin, yaw), o.rim_slack, RimPose{});
+  } else {
+    const std::vector<Eigen::Vector2d> sparse = EvenSubsample(q, o.fit_max_points / 4);
+    // Starts every kBasinYaw in [-yaw, yaw]; a window of any yaw drops the
+    // start at -period / 2, the same rim as +period / 2.
+    const int starts = static_cast<int>(std::ceil(yaw / kBasinYaw - 1e-9));
+    int best_count = -1;
+    for (int k = -starts; k <= starts; ++k) {
+      RimPose start;
+      start.theta = std::clamp(k * kBasinYaw, -yaw, yaw);
+      if (yaw >= period / 2 - 1e-9 && k == -starts) continue;
+      const RimPose fit = FitRim(sparse, rim, RimReach(bin, kBasinYaw), o.rim_slack, start);
+      const Eigen::Matrix2d Rt = Rot2(fit.theta).transpose();
+      int count = 0;
+      for (const Eigen::Vector2d& p : sparse) {
+        const WallHit h = NearestWall(rim, Rt * (p - fit.c));
+        count += std::abs(h.r) <= rim.half_width + o.rim_slack && h.along >= 0 && h.along <= 1 ? 1 : 0;
+      }
+      if (count > best_count) {
+        best_count = count;
+        best = fit;
+      }
+    }
+    best = FitRim(sub, rim, rim.half_width + o.rim_slack + 0.01, o.rim_slack, best);
+  }
+  best.theta = std::remainder(best.theta, period);
+  return best;
+}
+
 // A 2D frame in the plane (n, d): origin under (0, 0, H) of W0, x along W0's
 // x projected into the plane.
 struct PlaneFrame {
@@ -316,9 +385,7 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
   rim.b = Y + t / 2;
   rim.lx = X + t;
   rim.ly = Y + t;
-  const double reach = bin.detect.search_translation +
-                       std::hypot(X + t, Y + t) * std::sin(bin.detect.search_yaw_deg * kDegToRad);
-  RimPose pose = FitRim(EvenSubsample(q, o.fit_max_points), rim, reach, o.rim_slack, RimPose{});
+  RimPose pose = CoarseRimPose(q, rim, bin, o);
 
   // What the fit explains: rim points per wall piece, points inward on the plane.
   const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();
@@ -374,6 +441,7 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
     start.c = refined.To2D(c_3d);
     start.theta = std::atan2(x_3d.dot(refined.ey), x_3d.dot(refined.ex));
     pose = FitRim(q_tight, rim, rim.half_width + o.rim_slack, o.rim_slack, start);
+    pose.theta = std::remainder(pose.theta, YawPeriod(bin));
     plane = refined;
     rim_points = std::move(tight);
   }
@@ -400,7 +468,7 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
   // floor stays put.
   const Eigen::Vector2d floor_offset = X_W0W.translation().head<2>();
   if (floor_offset.cwiseAbs().maxCoeff() > bin.detect.search_translation + 0.005 ||
-      std::abs(pose.theta) > (bin.detect.search_yaw_deg + 0.5) * kDegToRad) {
+      (SearchYaw(bin) < YawPeriod(bin) / 2 && std::abs(pose.theta) > SearchYaw(bin) + 0.5 * kDegToRad)) {
     char why[192];
     std::snprintf(why, sizeof(why),
                   "the bin's floor fitted (%.1f, %.1f) mm / %.1f deg from nominal, outside the search window",

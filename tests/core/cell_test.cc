@@ -955,6 +955,23 @@ TEST(DefaultCell, MissingAssetsAreReportedAsNotFound) {
   EXPECT_THAT(cell.status().message(), HasSubstr("grippers/suction_cup.ply' does not exist"));
 }
 
+TEST_F(CellFileTest, BinDetectSearchTakesAnyYaw) {
+  auto with = [](const std::string& search) {
+    return Mutate(kBaseCell, "  wall_thickness: 0.01", "  wall_thickness: 0.01\n  detect_search: " + search);
+  };
+  Result<Cell> any = ParseCell(with("{translation: 0.03, rotation_deg: any}"), (tmp_ / "a.yaml").string());
+  ASSERT_TRUE(any.ok()) << any.status().ToString();
+  EXPECT_DOUBLE_EQ(any->bin.detect.search_yaw_deg, 180.0);
+  EXPECT_DOUBLE_EQ(any->bin.detect.search_translation, 0.03);
+  Result<Cell> wide = ParseCell(with("{rotation_deg: 120}"), (tmp_ / "w.yaml").string());
+  ASSERT_TRUE(wide.ok()) << wide.status().ToString();
+  EXPECT_DOUBLE_EQ(wide->bin.detect.search_yaw_deg, 120.0);
+  EXPECT_DOUBLE_EQ(wide->bin.detect.search_translation, BinDetectSpec{}.search_translation);
+  for (const char* bad : {"{rotation_deg: 181}", "{rotation_deg: some}", "{translation: 0.2}", "{yaw: 3}"}) {
+    EXPECT_FALSE(ParseCell(with(bad), (tmp_ / "b.yaml").string()).ok()) << bad;
+  }
+}
+
 }  // namespace
 
 }  // namespace bp

@@ -45,11 +45,13 @@ std::pair<double, double> Error(const Pose& a, const Pose& b) {
 // Renders the default cell with its bin moved by `offset` (in the nominal
 // bin frame), detects it with the nominal cell and checks the measured pose
 // against the truth: within 0.5 mm and 0.1 deg.
-BinDetection ExpectFoundAt(const Pose& offset) {
+BinDetection ExpectFoundAt(const Pose& offset, const BinDetectSpec& detect = {}) {
   Cell truth = DefaultCell();
   truth.bin.X_BW = truth.bin.X_BW * offset;
   const Scene scene = Render(truth);
-  const BinDetection bin = DetectBin(scene.frame, DefaultCell().bin);
+  BinSpec nominal = DefaultCell().bin;
+  nominal.detect = detect;
+  const BinDetection bin = DetectBin(scene.frame, nominal);
   EXPECT_TRUE(bin.found) << bin.reason;
   if (!bin.found) return bin;
   const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
@@ -143,6 +145,35 @@ TEST(BinDetection, ABinTiltedAtTheWindowsEdgeIsFound) {
   // about its floor's y axis: its rim stands 7 mm further out, at 57 mm,
   // beyond the window's 55 mm, while the bin itself is inside the window.
   ExpectFoundAt(MakePose(Mat3(Eigen::AngleAxisd(2.0 / kRadToDeg, Vec3::UnitY())), Vec3(0.05, 0.0, 0.0)));
+}
+
+TEST(BinDetection, AFreeStandingBinIsFoundAtAnyYawModuloItsSymmetry) {
+  // bin.detect_search rotation_deg: any. The default bin (500 x 360 mm) is
+  // the same rim turned by 180 deg: the bin frame found is the one within
+  // 90 deg of nominal. The default camera sees the bin's nominal footprint
+  // with 60 mm to spare; turned, it needs the camera 0.4 m higher.
+  Cell cell = DefaultCell();
+  cell.camera.X_BC.translation().z() += 0.4;
+  BinSpec nominal = cell.bin;
+  nominal.detect.search_yaw_deg = 180.0;
+  for (double yaw_deg : {73.0, -128.0}) {
+    const Pose turned = MakePose(Mat3(Eigen::AngleAxisd(yaw_deg / kRadToDeg, Vec3::UnitZ())), Vec3(0.02, -0.03, 0));
+    Cell truth = cell;
+    truth.bin.X_BW = truth.bin.X_BW * turned;
+    const Scene scene = Render(truth);
+    const BinDetection bin = DetectBin(scene.frame, nominal);
+    ASSERT_TRUE(bin.found) << yaw_deg << " deg: " << bin.reason;
+    // The truth turned by 180 deg about its floor's centre is the same bin.
+    const Pose flipped = scene.X_BW_true * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitZ())), Vec3::Zero());
+    const Pose& expected = std::abs(yaw_deg) <= 90 ? scene.X_BW_true : flipped;
+    const auto [mm, deg] = Error(bin.X_BW, expected);
+    EXPECT_LT(mm, 0.0005) << yaw_deg << " deg: " << 1e3 * mm << " mm";
+    EXPECT_LT(deg, 0.1) << yaw_deg << " deg: " << deg << " deg";
+  }
+  // The default window (10 deg) refuses the bin turned 73 deg.
+  Cell truth = cell;
+  truth.bin.X_BW = truth.bin.X_BW * MakePose(Mat3(Eigen::AngleAxisd(73.0 / kRadToDeg, Vec3::UnitZ())), Vec3::Zero());
+  EXPECT_FALSE(DetectBin(Render(truth).frame, cell.bin).found);
 }
 
 TEST(BinDetection, ABinBeyondTheSearchWindowIsNotFound) {
