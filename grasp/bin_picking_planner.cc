@@ -161,11 +161,12 @@ Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
   }
   if (!frame.ok()) return frame.status();
   // bin.detect: required: a capture into the bin whose bin is not found
-  // fails, with the detection's reason (perception runs the stage again on
-  // the frame).
+  // fails, with the detection's reason. The frame keeps the detection:
+  // perception (and a thorough retry) report it instead of measuring again.
   if (capture.view == CaptureRequest::View::kBin && cell_.bin.detect.mode == BinDetectSpec::Mode::kRequired) {
-    const BinDetection bin = DetectBin(*frame, cell_.bin);
-    if (!bin.found) return Status::Unavailable("bin not found (bin.detect: required): " + bin.reason);
+    auto bin = std::make_shared<const BinDetection>(DetectBin(*frame, cell_.bin));
+    if (!bin->found) return Status::Unavailable("bin not found (bin.detect: required): " + bin->reason);
+    frame->bin = std::move(bin);
   }
   return CaptureHandle(std::make_shared<const CapturedFrame>(std::move(*frame)));
 }

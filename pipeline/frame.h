@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -39,6 +40,8 @@ struct GroundTruth {
   std::optional<Pose> X_BW;
 };
 
+struct BinDetection;  // pipeline/bin_detection.h
+
 struct Frame {
   // Organized frames: depth (metres, NaN = invalid) with its intrinsics.
   DepthImage depth;
@@ -50,6 +53,10 @@ struct Frame {
   int64_t timestamp_ns = 0;       // system clock, ns since epoch
   std::string source;             // e.g. "synthetic seed=3 capture=2", or a file path
   std::optional<GroundTruth> truth;
+  // The bin as measured when the frame was captured (a `bin.detect:
+  // required` capture checks it there); perception reports this one instead
+  // of running the stage again. Null: not measured yet.
+  std::shared_ptr<const BinDetection> bin;
 
   bool organized() const { return intrinsics.valid() && !depth.empty(); }
   // Valid 3D points in C: deprojected depth for organized frames, else points_C.

@@ -313,9 +313,10 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
 
   // Bin detection (pipeline/bin_detection.h) for runs into the bin; a bin
   // not found leaves the nominal pose (the planner refuses the capture
-  // first under `required`).
+  // first under `required`, measuring on the raw frame, and hands its
+  // detection on with the frame: reported here, not measured again).
   if (!region && cell_.bin.detect.mode != BinDetectSpec::Mode::kOff) {
-    result.bin = DetectBin(used, cell_.bin);
+    result.bin = frame.bin ? *frame.bin : DetectBin(used, cell_.bin);
     result.timings.push_back({"bin", result.bin->ms});
     clock.Restart();
     NoteBin(*result.bin);

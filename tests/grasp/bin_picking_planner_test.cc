@@ -103,8 +103,17 @@ TEST(BinPickingPlanner, RefusesACaptureWithoutABinWhenTheBinIsRequired) {
   EXPECT_NE(refused.status().message().find("bin not found"), std::string::npos) << refused.status().ToString();
   EXPECT_NE(refused.status().message().find("no rim"), std::string::npos) << refused.status().ToString();
   // `on` keeps the nominal pose and captures; `required` with the bin in view captures.
-  EXPECT_TRUE(CaptureWithBinDetect(BinDetectSpec::Mode::kOn, false).ok());
-  EXPECT_TRUE(CaptureWithBinDetect(BinDetectSpec::Mode::kRequired, true).ok());
+  const Result<CaptureHandle> on = CaptureWithBinDetect(BinDetectSpec::Mode::kOn, false);
+  ASSERT_TRUE(on.ok());
+  const Result<CaptureHandle> found = CaptureWithBinDetect(BinDetectSpec::Mode::kRequired, true);
+  ASSERT_TRUE(found.ok());
+  // The capture's detection travels with the frame (perception reports it,
+  // not a second run); `on` leaves the stage to perception.
+  const auto* captured = dynamic_cast<const CapturedFrame*>(found->get());
+  ASSERT_NE(captured, nullptr);
+  ASSERT_NE(captured->frame().bin, nullptr);
+  EXPECT_TRUE(captured->frame().bin->found);
+  EXPECT_EQ(dynamic_cast<const CapturedFrame&>(**on).frame().bin, nullptr);
 }
 
 // ---- the empty-box rule ----------------------------------------------------

@@ -321,6 +321,29 @@ TEST(PerceptionEvaluation, OutcomesAreInScoreOrderAndNameTheirDetection) {
   EXPECT_EQ(fe.detections[2].truth_instance, -1);
 }
 
+TEST_F(PerceptionTest, ReportsTheBinMeasuredAtCaptureInsteadOfMeasuringAgain) {
+  // A `required` capture measured the bin already (grasp/bin_picking_planner.cc):
+  // perception reports that detection, here marked 4 mm off the true bin.
+  Frame frame = fx().Render({});
+  BinDetection at_capture;
+  at_capture.found = true;
+  at_capture.X_BW = fx().cell.bin.X_BW * MakePose(Mat3::Identity(), Vec3(0.004, 0, 0));
+  at_capture.ms = 1.25;
+  frame.bin = std::make_shared<const BinDetection>(at_capture);
+  const PerceptionResult r = fx().Run(frame);
+  ASSERT_TRUE(r.bin.has_value());
+  EXPECT_EQ(r.bin->X_BW.matrix(), at_capture.X_BW.matrix());
+  ASSERT_FALSE(r.timings.empty());
+  EXPECT_EQ(r.timings[0].stage, "bin");
+  EXPECT_EQ(r.timings[0].ms, 1.25);
+  // Without it, the stage measures the bin where it truly is.
+  frame.bin = nullptr;
+  const PerceptionResult measured = fx().Run(frame);
+  ASSERT_TRUE(measured.bin.has_value());
+  ASSERT_TRUE(measured.bin->found) << measured.bin->reason;
+  EXPECT_LT((measured.bin->X_BW.translation() - fx().cell.bin.X_BW.translation()).norm(), 0.0005);
+}
+
 TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   // Tilted so that every face constrains the pose (a flat-lying bracket shows
   // its upright only edge-on).
