@@ -16,9 +16,6 @@
 //
 //   binpick bench-cell --cycles 12                  (configs 1 and 2)
 //   binpick bench-cell --config 2 --cycles 12 --json report.json
-#include <sys/socket.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -32,6 +29,9 @@
 #include <string>
 #include <vector>
 
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/beast/core/flat_buffer.hpp>
+#include <boost/beast/http.hpp>
 #include <nlohmann/json.hpp>
 
 #include "apps/binpick/command.h"
@@ -75,22 +75,28 @@ double Percentile(std::vector<double> v, double p) {
   return v[std::clamp<size_t>(rank, 1, v.size()) - 1];
 }
 
-// GET `target` from the status page on 127.0.0.1:port: the body, or the error.
+// GET `target` from the status page on 127.0.0.1:port (Boost.Beast, HTTP/1.1,
+// connection closed after the reply): the body of a 200 reply, or the error.
 Result<std::string> HttpGet(int port, const std::string& target) {
-  Result<int> fd = ConnectTcp("127.0.0.1", port);
-  if (!fd.ok()) return fd.status();
-  const std::string request = "GET " + target + " HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n";
-  std::string reply;
-  if (::send(*fd, request.data(), request.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(request.size())) {
-    char buf[8192];
-    for (ssize_t n; (n = ::recv(*fd, buf, sizeof(buf), 0)) > 0;) reply.append(buf, static_cast<size_t>(n));
+  namespace http = boost::beast::http;
+  try {
+    boost::asio::io_context io;
+    boost::asio::ip::tcp::socket socket(io);
+    socket.connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<uint16_t>(port)});
+    http::request<http::empty_body> request(http::verb::get, target, 11);
+    request.set(http::field::host, "127.0.0.1");
+    request.keep_alive(false);
+    http::write(socket, request);
+    boost::beast::flat_buffer buffer;
+    http::response<http::string_body> reply;
+    http::read(socket, buffer, reply);
+    if (reply.result() != http::status::ok) {
+      return Status::Unavailable("status page " + target + ": HTTP " + std::to_string(reply.result_int()));
+    }
+    return std::move(reply.body());
+  } catch (const std::exception& e) {
+    return Status::Unavailable("status page " + target + ": " + e.what());
   }
-  ::close(*fd);
-  const size_t body = reply.find("\r\n\r\n");
-  if (reply.compare(0, 5, "HTTP/") != 0 || reply.find(" 200 ") != 8 || body == std::string::npos) {
-    return Status::Unavailable("status page " + target + ": " + reply.substr(0, reply.find('\r')));
-  }
-  return reply.substr(body + 4);
 }
 
 // binpickd on its own loopback ports, switched to one camera config.
