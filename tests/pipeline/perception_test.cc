@@ -1057,20 +1057,25 @@ TEST(PerceptionEval, FitsWorseThanTheDepthNoiseAreRejected) {
 // those fits. Piles of the tuning range (--variety) where that happened
 // (fits hidden by the tee and its neighbours leave no free space: not
 // refused by this rule).
+// Pile `seed` of `cell` with scene variety on (binpick eval --variety),
+// rendered with its truth.
+Result<Frame> VariedPile(Cell cell, uint64_t seed) {
+  cell.source.variety = VarietySpec{};
+  cell.source.seed = seed;
+  Result<std::unique_ptr<CaptureSource>> source = MakeSyntheticSource(cell);
+  if (!source.ok()) return source.status();
+  return (*source)->Capture({});
+}
+
 TEST(PerceptionEval, ABushingFittedIntoATeeIsRefusedByTheFreeSpaceItLeaves) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
   PerceptionOptions off;
   off.max_free_space_fraction = 1.0;
   const std::unique_ptr<Perception> loose = Perception::Build(f.cell, off).value();
-  Cell varied = f.cell;
-  varied.source.variety = VarietySpec{};
   int in_a_tee_off = 0;
   for (uint64_t seed : {1015u, 1021u, 1062u}) {
-    varied.source.seed = seed;
-    auto source = MakeSyntheticSource(varied);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    auto frame = (*source)->Capture({});
+    Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
     // Bushings that match no bushing but lie within 15 mm of a tee's origin
     // (on its run axis); and the true positives.
@@ -1111,8 +1116,6 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   PerceptionOptions old_limit;
   old_limit.max_support_penetration = 0.003;
   const std::unique_ptr<Perception> loose = Perception::Build(f.cell, old_limit).value();
-  Cell varied = f.cell;
-  varied.source.variety = VarietySpec{};
   const Pose& X_BW = f.cell.bin.X_BW;
   const Eigen::Vector3d up_B = X_BW.linear().col(2);
   // How far the detection's mesh reaches below the floor (metres, >= 0).
@@ -1125,10 +1128,7 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   };
   int sunk_gross_tees_loose = 0;
   for (uint64_t seed : {1004u, 1034u}) {
-    varied.source.seed = seed;
-    auto source = MakeSyntheticSource(varied);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    auto frame = (*source)->Capture({});
+    Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
     // True positives, gross tees, and gross tees sunk below the new limit.
     struct Counts {
@@ -1169,13 +1169,8 @@ TEST(PerceptionEval, ATurnThatExplainsMoreOfTheViewIsPreferred) {
   PerceptionOptions off;
   off.ambiguity_net_gain = 0.0;
   const std::unique_ptr<Perception> by_score = Perception::Build(f.cell, off).value();
-  Cell varied = f.cell;
-  varied.source.variety = VarietySpec{};
   for (uint64_t seed : {1010u, 1068u}) {
-    varied.source.seed = seed;
-    auto source = MakeSyntheticSource(varied);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    auto frame = (*source)->Capture({});
+    Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
     struct Counts {
       int true_tees = 0, gross_tees = 0, true_tees_with_alternatives = 0;
