@@ -506,6 +506,16 @@ std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<
   return out;
 }
 
+// h's verification figures (score and point counts) from st.
+void SetVerifyFigures(const VerifyStats& st, PoseHypothesis& h) {
+  h.score = st.score;
+  h.visible_points = st.visible;
+  h.occluded_points = st.occluded;
+  h.supported_points = st.supported;
+  h.free_space_points = st.free_space;
+  h.unmeasured_points = st.unmeasured;
+}
+
 std::vector<int> SearchRun::ViewPointsOn(const Pose& X_BO) const {
   std::vector<int> on;
   const float sup = m_.SupportTolerance();
@@ -546,12 +556,7 @@ void SearchRun::PreferMoreExplained(PoseHypothesis& h) {
     if (holes.first >= opt_.hole_min_visible && holes.second > opt_.hole_max_filled * holes.first) return;
   }
   std::swap(h.X_BO, h.alternatives[best]);
-  h.score = st.score;
-  h.visible_points = st.visible;
-  h.occluded_points = st.occluded;
-  h.supported_points = st.supported;
-  h.free_space_points = st.free_space;
-  h.unmeasured_points = st.unmeasured;
+  SetVerifyFigures(st, h);
   h.hole_points = holes.first;
   h.filled_hole_points = holes.second;
   h.supporting_indices = ViewPointsOn(h.X_BO);
@@ -581,12 +586,7 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     const Candidate& c = kept[i];
     PoseHypothesis h;
     h.X_BO = c.X_BO;
-    h.score = c.stats.score;
-    h.visible_points = c.stats.visible;
-    h.occluded_points = c.stats.occluded;
-    h.supported_points = c.stats.supported;
-    h.free_space_points = c.stats.free_space;
-    h.unmeasured_points = c.stats.unmeasured;
+    SetVerifyFigures(c.stats, h);
     h.hole_points = c.holes.first;
     h.filled_hole_points = c.holes.second;
     h.rms_residual = c.icp.rms;
