@@ -45,10 +45,12 @@ struct HandEyeSolution {
   std::string method;              // "park" or "park+refine"
 };
 
-// cv::calibrateHandEye (PARK; OpenCV 4.6's TSAI is unstable for small
-// rotations, HORAUD / DANIILIDIS have a quaternion-sign bug) over the sample
-// pairs with enough relative rotation, then (options.refine) Gauss-Newton on
-// the corner reprojection of all samples jointly.
+// Park & Martin's closed form over the view pairs whose relative robot
+// rotation is at least options.min_pair_rotation_deg (the same closed form as
+// cv::calibrateHandEye(PARK), which has no such pair filter; OpenCV 4.6's
+// TSAI is unstable for small rotations, HORAUD / DANIILIDIS have a
+// quaternion-sign bug), then (options.refine) Levenberg-Marquardt on the
+// corner reprojection of all views jointly over X and Y.
 // @returns InvalidArgument when fewer than 3 samples or fewer than 2
 // pairs with enough rotation (rotations about one axis only also fail: the
 // problem has no unique answer).
