@@ -207,6 +207,38 @@ TEST(BinpickCli, EvalScoresCloudsFromOtherTools) {
   EXPECT_GE(all.at("precision").get<double>(), 0.9);
 }
 
+// `eval --bin-only` runs the bin detection stage alone on bins moved off
+// their taught pose (--bin-offset) and scores it against the true bin; with
+// more parts (--parts) the measured fill level rises.
+TEST(BinpickCli, EvalBinOnlyScoresTheMeasuredBinAgainstTheTrueOne) {
+  const std::string dir = FreshDir();
+  const auto eval = [&](const std::string& args, const std::string& out) {
+    const test::CommandRun r =
+        RunBinpick("eval --scenes 2 --seed 9001 --bin-offset --bin-only " + args + " --json " + dir + "/" + out);
+    EXPECT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_THAT(r.out, HasSubstr("bin detection: 2 frames, 2 found"));
+    return nlohmann::json::parse(std::ifstream(dir + "/" + out));
+  };
+  const nlohmann::json few = eval("", "few.json");
+  EXPECT_EQ(few.at("bin_detection").at("found").get<int>(), 2);
+  EXPECT_LT(few.at("bin_detection").at("error_mm").at("max").get<double>(), 1.0);
+  EXPECT_LT(few.at("bin_detection").at("error_deg").at("max").get<double>(), 0.2);
+  ASSERT_EQ(few.at("frames").size(), 2u);
+  for (const nlohmann::json& f : few.at("frames")) {
+    EXPECT_TRUE(f.at("found").get<bool>());
+    // The bin really was moved, by more than the error the stage is allowed.
+    EXPECT_GT(f.at("offset_mm").get<double>(), 5.0);
+    EXPECT_EQ(f.at("parts").get<int>(), 20);
+  }
+  const nlohmann::json many = eval("--parts 60", "many.json");
+  ASSERT_EQ(many.at("frames").size(), 2u);
+  for (size_t i = 0; i < 2; ++i) {
+    // The truth lists the parts that came to rest inside the bin.
+    EXPECT_GT(many["frames"][i].at("parts").get<int>(), 50);
+    EXPECT_GT(many["frames"][i].at("fill_mean_mm").get<double>(), few["frames"][i].at("fill_mean_mm").get<double>());
+  }
+}
+
 TEST(BinpickCli, InfoSaysHowACloudIsReadAndHowPerceptionTakesIt) {
   const std::string data = std::string(BINPICK_SOURCE_DIR) + "/tests/pipeline/data/clouds";
   test::CommandRun r = RunBinpick("info " + data + "/s4601_open3d_cloud.ply");
