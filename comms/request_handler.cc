@@ -74,6 +74,14 @@ bool ChangesTheCell(int32_t command) {
          command == daoai::kSwitchConfig;
 }
 
+// The robot reads an answer to `command` (false: it reads none, and one
+// written anyway would shift every later answer): teach (30), and seed
+// 000's guidance accumulate (10) and stop manual calibration (2).
+bool ReadsAnAnswer(int32_t command, bool v1) {
+  return !(command == daoai::kSendPose ||
+           (!v1 && (command == daoai::kGuidanceCalibration || command == daoai::kStopManualCalibration)));
+}
+
 // How one request is read and answered: the pose encoding (the convention
 // meta_1 names, the cell's position unit), the cell's dialect, and the
 // request's meta_2, which every answer echoes.
@@ -144,6 +152,18 @@ Status EncodePose(const Pose& X, const WireFormat& f, Response& out) {
   return Status::Ok();
 }
 
+// The text of the exception being handled (call inside a catch block only;
+// the pointer lives as long as the exception). Never throws.
+const char* ExceptionText() noexcept {
+  try {
+    throw;
+  } catch (const std::exception& e) {
+    return e.what();
+  } catch (...) {
+    return "an exception that is not a std::exception";
+  }
+}
+
 // Runs jobs one after another, in submission order, on the arena. At most
 // kMaxSerialJobs wait: a robot that floods teach poses (answered at once,
 // stored later) cannot grow the queue without bound.
@@ -177,7 +197,13 @@ class SerialJobs {
         job = std::move(jobs_.front());
         jobs_.pop_front();
       }
-      job();
+      // A job that throws (it must not: each answers its own errors) must
+      // not end the sequence with running_ set: every later job would wait.
+      try {
+        job();
+      } catch (...) {
+        spdlog::error("daoai: a calibration or teach job threw: {}", ExceptionText());
+      }
     }
   }
   std::function<void(std::function<void()>)> spawn_;
@@ -238,7 +264,13 @@ class BackgroundLane {
         job = std::move(jobs_.front());
         jobs_.pop_front();
       }
-      serial.execute(job);
+      // Jobs contain their own exceptions; one that escapes must not end the
+      // thread (std::terminate) or the jobs behind it.
+      try {
+        serial.execute(job);
+      } catch (...) {
+        spdlog::error("daoai: a background detection job threw: {}", ExceptionText());
+      }
     }
   }
   std::mutex mutex_;
@@ -399,6 +431,7 @@ class RequestHandler::Impl {
     s.background_detections = background_detections_.load(std::memory_order_relaxed);
     s.planner_failures = planner_failures_.load(std::memory_order_relaxed);
     s.observer_failures = observer_failures_.load(std::memory_order_relaxed);
+    s.answer_failures = answer_failures_.load(std::memory_order_relaxed);
     s.jobs_refused = jobs_refused_.load(std::memory_order_relaxed);
     s.changes_refused = changes_refused_.load(std::memory_order_relaxed);
     s.grasps_requeued = grasps_requeued_.load(std::memory_order_relaxed);
@@ -417,47 +450,54 @@ class RequestHandler::Impl {
   // Runs a planner call, turning an exception into Internal: a detection
   // that throws must still finish (answer the capture, release waiting
   // picks), never leave the task in flight forever.
+  // `threw` (optional) tells an exception from an error the call returned.
   template <typename F>
-  static auto Guard(const char* what, F&& f) -> decltype(f()) {
+  static auto Guard(const char* what, F&& f, bool* threw = nullptr) -> decltype(f()) {
     try {
       return f();
-    } catch (const std::exception& e) {
-      return Status::Internal(std::string(what) + " threw: " + e.what());
     } catch (...) {
-      return Status::Internal(std::string(what) + " threw");
+      if (threw) *threw = true;
+      return Status::Internal(std::string(what) + " threw: " + ExceptionText());
     }
   }
 
   // Runs f on the arena (never on the caller's thread). Exceptions must not
-  // escape f: they are caught and logged here as a last resort.
+  // escape f: they are caught and logged here as a last resort. Throws
+  // (std::bad_alloc, std::system_error) when the job cannot be queued; then
+  // f never runs and nothing is left counted.
   void Spawn(std::function<void()> f) {
-    {
-      std::lock_guard lock(pending_mutex_);
-      ++pending_;
-    }
     auto job = std::make_shared<std::function<void()>>(std::move(f));
     auto run = [this, job] {
       try {
         (*job)();
-      } catch (const std::exception& e) {
-        spdlog::error("daoai: detection worker failed: {}", e.what());
       } catch (...) {
-        spdlog::error("daoai: detection worker failed");
+        spdlog::error("daoai: detection worker failed: {}", ExceptionText());
       }
       *job = nullptr;  // release captures before Shutdown may return
       std::lock_guard lock(pending_mutex_);
       --pending_;
       pending_cv_.notify_all();
     };
+    {
+      std::lock_guard lock(pending_mutex_);
+      ++pending_;
+    }
+    try {
 #if BP_UNDER_TSAN
-    // The system's libtbb is not instrumented, so ThreadSanitizer cannot see
-    // the hand-off through the arena and reports every task as a race. Under
-    // TSan, run each job on its own thread instead (same ordering guarantees:
-    // none beyond the mutexes above).
-    std::thread(run).detach();
+      // The system's libtbb is not instrumented, so ThreadSanitizer cannot see
+      // the hand-off through the arena and reports every task as a race. Under
+      // TSan, run each job on its own thread instead (same ordering guarantees:
+      // none beyond the mutexes above).
+      std::thread(run).detach();
 #else
-    arena_.enqueue(run);
+      arena_.enqueue(run);
 #endif
+    } catch (...) {
+      std::lock_guard lock(pending_mutex_);
+      --pending_;
+      pending_cv_.notify_all();
+      throw;
+    }
   }
 
   // A status-only answer: meta_1 is the cell's robot type, meta_2 the
@@ -494,22 +534,59 @@ class RequestHandler::Impl {
   uint64_t RequestDetection(TaskState& t, PlanRequest request, std::function<void(bool)> on_captured);
   // Captures (on the calling arena thread), then plans here, or on the
   // BackgroundLane when d.background and nobody waits for it by then.
+  // RunDetection and PlanDetection never throw: whatever throws in a
+  // detection's path ends it through FailDetection.
   void RunDetection(TaskState& t, const PendingDetection& d);
   void PlanDetection(TaskState& t, const CapturedDetection& c);
   // Queues `job`'s plan on the BackgroundLane; false (not queued) when a
-  // robot waits for the task already.
+  // robot waits for the task already, or the lane cannot take it. Never throws.
   bool PostBackground(TaskState& t, const std::shared_ptr<CapturedDetection>& job);
-  // Releases the picks waiting for detection `seq` and starts the pending one.
-  void FinishDetection(TaskState& t, uint64_t seq);
+  // Releases the picks waiting for detection `seq` and starts the pending
+  // one. Never throws: a robot waiting for a detection is always answered.
+  void FinishDetection(TaskState& t, uint64_t seq) noexcept;
+  // Spawns RunDetection(d), or fails d (FailDetection) when it cannot be queued.
+  void StartDetectionJob(TaskState& t, PendingDetection d);
+  // What a detection had done when something in its path threw.
+  struct DetectionProgress {
+    bool answered = false;  // its RC 20s were answered
+    bool queued = false;    // its result replaced the task's queue
+  };
+  // Ends detection `seq` of `t` after an exception in its path (`stage`:
+  // where; `error`: what): its picks are answered as a failed plan
+  // (UNKNOWN_COMMAND, never "no objects"), its RC 20s CAPTURE_FAIL unless
+  // answered, observers get `event` with the error and `scene` (the
+  // recorder keeps the frame for replay), logged and counted
+  // (planner_failures). Never throws.
+  void FailDetection(TaskState& t, uint64_t seq, const DetectionEvent* event, CaptureHandle scene,
+                     const std::vector<std::function<void(bool)>>* on_captured, DetectionProgress progress,
+                     const char* stage, const char* error) noexcept;
+  // Calls each RC 20 answer; one that throws does not stop the others.
+  static void AnswerCaptured(const std::vector<std::function<void(bool)>>& answers, bool ok) noexcept;
   // Keeps `ready` (moved from) until the newest detection of `t` requested
   // so far has finished; @returns false, `ready` untouched, when it has.
   bool WaitForDetection(TaskState& t, std::function<void()>& ready);
   // Runs `check` for a batch of 40s or 50s of one task (CheckLane).
-  using Check = std::function<Response(const PlanRequest&)>;
+  struct Check {
+    const char* what = "";  // for the log: "empty-box check"
+    // Answered when the check throws (never "empty": no evidence).
+    int32_t failed = daoai::kUnknownCommand;
+    std::function<Response(const PlanRequest&)> run;
+  };
+  struct CheckJob {
+    PlanRequest request;
+    std::vector<Completion> done;
+    Check check;
+  };
   void PostCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request, Completion done,
                  Check check);
-  void RunCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
-                std::vector<Completion> done, Check check);
+  // Spawns RunCheck; when it cannot be queued, answers the batch
+  // check.failed (logged) and goes on with the lane's next batch.
+  void StartCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
+                  std::vector<Completion> done, Check check);
+  void RunCheck(TaskState& t, CheckLane TaskState::*lane, const CheckJob& job);
+  // Answers `done` with `reply` and starts the lane's pending batch.
+  void FinishCheck(TaskState& t, CheckLane TaskState::*lane, const Check& check, const Reply& reply,
+                   const std::vector<Completion>& done);
   // A check answers a batch of requests with one response (built with the
   // cell's protocol version); each requester's completion gives it its own
   // request's meta_2 back.
@@ -538,8 +615,12 @@ class RequestHandler::Impl {
   // transport settles it (ClientContext::settle).
   void HandOut(TaskState& t, const GraspQueue::Popped& p, ClientContext* client);
   // A reserved grasp's answer was written (handed out) or not (put back
-  // with the grasps withdrawn with it: GraspQueue::Restore).
-  void Settle(TaskState& t, const GraspQueue::Popped& p, bool written);
+  // with the grasps withdrawn with it: GraspQueue::Restore). Never throws
+  // (it runs on a transport's thread).
+  void Settle(TaskState& t, const GraspQueue::Popped& p, bool written) noexcept;
+  // GraspPlanner::NotifyHandedOut; an exception is logged and counted, and
+  // the grasp counts as handed out (the robot has it).
+  void TellHandedOut(const TaskState& t, const Grasp& g) noexcept;
   // Teach (30): the pick task payload_1 names, unless payload_1 is only what
   // the last answer left in the script's daoai_payload_1 (seed 000's
   // daoai_teach_pose never sets it: often a remaining count) and the
@@ -557,6 +638,28 @@ class RequestHandler::Impl {
   // answer that does not fit becomes UNKNOWN_COMMAND (with the robot's own
   // pose where it moves to), logged. Observers see what the robot reads.
   Completion InRange(const Request& req, const WireFormat& f, Completion done) const;
+  // Every Reply `done` is given is run inside a catch: one that throws (a
+  // bug, no memory) is answered UNKNOWN_COMMAND (the robot's own pose where
+  // it moves to), logged and counted (answer_failures), instead of escaping
+  // into the transport's thread. Observers see that answer.
+  Completion Contained(const Request& req, const WireFormat& f, Completion done) const {
+    return [this, command = req.command, f, done = std::move(done)](Reply reply) {
+      if (!reply) {
+        done(std::move(reply));
+        return;
+      }
+      done([this, command, f, reply = std::move(reply)]() -> std::optional<Response> {
+        try {
+          return reply();
+        } catch (...) {
+          const uint64_t n = answer_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+          spdlog::error("daoai: building the answer to command {} threw ({}); answering UNKNOWN_COMMAND "
+                        "({} since start)", command, ExceptionText(), n);
+          return Base(daoai::kUnknownCommand, f);
+        }
+      });
+    };
+  }
   // One view of an auto calibration (7, or 12 for 2D), on the calibration
   // sequence: the mode status with the next planned pose (a failed view is
   // skipped), DONE (33 / 34) when the plan is complete or after
@@ -581,6 +684,8 @@ class RequestHandler::Impl {
   }
   void Calibrate(const Request& req, const std::optional<Pose>& X_BF, const WireFormat& f,
                  Completion done);
+  // One calibration command on the calibration sequence (Calibrate's job).
+  void RunCalibrationCommand(int32_t command, const Pose& X_BF, const WireFormat& f, const Completion& done);
 
   Cell cell_;
   std::shared_ptr<GraspPlanner> planner_;
@@ -606,6 +711,7 @@ class RequestHandler::Impl {
   std::atomic<uint64_t> background_detections_{0};
   std::atomic<uint64_t> planner_failures_{0};
   mutable std::atomic<uint64_t> observer_failures_{0};
+  mutable std::atomic<uint64_t> answer_failures_{0};
   std::atomic<uint64_t> jobs_refused_{0};
   std::atomic<uint64_t> changes_refused_{0};
   std::atomic<uint64_t> grasps_requeued_{0};
@@ -691,50 +797,92 @@ uint64_t RequestHandler::Impl::RequestDetection(TaskState& t, PlanRequest reques
   start.request = std::move(request);
   if (on_captured) start.on_captured.push_back(std::move(on_captured));
   const uint64_t seq = start.seq;
-  Spawn([this, &t, start = std::move(start)] { RunDetection(t, start); });
+  StartDetectionJob(t, std::move(start));
   return seq;
 }
 
-void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d) {
-  const PlanRequest& plan_request = d.request;
-  auto captured = [&d](bool ok) {
-    for (const auto& answer : d.on_captured) answer(ok);
-  };
-  CapturedDetection c;
-  c.seq = d.seq;
-  c.request = plan_request;
-  c.t0 = std::chrono::steady_clock::now();
-  DetectionEvent& event = c.event;
-  event.task_id = t.spec.id;
-  event.request = plan_request;
-  event.time = std::chrono::system_clock::now();
-  Result<CaptureHandle> scene = Status::Unavailable("not captured");
-  {
-    std::lock_guard lock(capture_mutex_);
-    scene = Guard("capture", [&] { return planner_->Capture(plan_request); });
+void RequestHandler::Impl::StartDetectionJob(TaskState& t, PendingDetection d) {
+  std::shared_ptr<PendingDetection> job;
+  try {
+    job = std::make_shared<PendingDetection>(std::move(d));
+    Spawn([this, &t, job] { RunDetection(t, *job); });
+  } catch (...) {
+    // Not started (no memory, no thread): it fails as a whole, so that the
+    // task is not left running forever.
+    const PendingDetection& failed = job ? *job : d;
+    FailDetection(t, failed.seq, nullptr, nullptr, &failed.on_captured, {}, "start", ExceptionText());
   }
-  event.capture_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - c.t0).count();
-  if (!scene.ok() || !*scene) {
-    spdlog::warn("daoai: task {} capture failed: {}", t.spec.id,
-                 scene.ok() ? "planner returned no scene" : scene.status().ToString());
-    event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
-    event.plan_status = event.capture_status;
-    PlanResult failed;
-    failed.outcome = PlanResult::Outcome::kCaptureFailed;
-    t.queue.Replace(std::move(failed), d.seq);
-    NotifyDetection(event);
-    captured(false);
-    FinishDetection(t, d.seq);
+}
+
+void RequestHandler::Impl::AnswerCaptured(const std::vector<std::function<void(bool)>>& answers,
+                                          bool ok) noexcept {
+  for (const auto& answer : answers) {
+    try {
+      answer(ok);
+    } catch (...) {
+      spdlog::error("daoai: answering a capture request threw: {}", ExceptionText());
+    }
+  }
+}
+
+void RequestHandler::Impl::RunDetection(TaskState& t, const PendingDetection& d) {
+  DetectionProgress progress;
+  std::shared_ptr<CapturedDetection> job;
+  try {
+    job = std::make_shared<CapturedDetection>();
+    CapturedDetection& c = *job;
+    c.seq = d.seq;
+    c.request = d.request;
+    c.t0 = std::chrono::steady_clock::now();
+    DetectionEvent& event = c.event;
+    event.task_id = t.spec.id;
+    event.request = d.request;
+    event.time = std::chrono::system_clock::now();
+    Result<CaptureHandle> scene = Status::Unavailable("not captured");
+    bool threw = false;
+    {
+      std::lock_guard lock(capture_mutex_);
+      scene = Guard("capture", [&] { return planner_->Capture(d.request); }, &threw);
+    }
+    event.capture_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - c.t0).count();
+    if (!scene.ok() || !*scene) {
+      event.capture_status = scene.ok() ? Status::Internal("planner returned no scene") : scene.status();
+      event.plan_status = event.capture_status;
+      PlanResult failed;
+      failed.outcome = PlanResult::Outcome::kCaptureFailed;
+      if (threw) {
+        // Not a camera that answered "no image": an error, so the task's
+        // picks are answered as a failed plan, not as an empty bin.
+        failed.outcome = PlanResult::Outcome::kPlannerFailed;
+        const uint64_t n = planner_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+        spdlog::error("daoai: task {} capture failed: {}; answering its picks UNKNOWN_COMMAND until the "
+                      "next detection ({} failed detections since start)",
+                      t.spec.id, event.capture_status.ToString(), n);
+      } else {
+        spdlog::warn("daoai: task {} capture failed: {}", t.spec.id, event.capture_status.ToString());
+      }
+      t.queue.Replace(std::move(failed), d.seq);
+      progress.queued = true;
+      NotifyDetection(event);
+      progress.answered = true;
+      AnswerCaptured(d.on_captured, false);
+      FinishDetection(t, d.seq);
+      return;
+    }
+    c.scene = std::move(*scene);
+    progress.answered = true;
+    AnswerCaptured(d.on_captured, true);
+    // A capture of the task: failed spots age (released `captures` after their last failure).
+    if (t.failed) t.failed->OnCapture();
+  } catch (...) {
+    // The event with the frame, when there is one (the recorder keeps it for replay).
+    FailDetection(t, d.seq, job ? &job->event : nullptr, job ? job->scene : nullptr, &d.on_captured,
+                  progress, "capture", ExceptionText());
     return;
   }
-  captured(true);
-  // A capture of the task: failed spots age (released `captures` after their last failure).
-  if (t.failed) t.failed->OnCapture();
-  c.scene = std::move(*scene);
   // The capture ran here, at the process's priority: it holds the camera,
-  // which a robot's detection may be waiting for.
-  auto job = std::make_shared<CapturedDetection>(std::move(c));
+  // which a robot's detection may be waiting for. Neither call throws.
   if (d.background && PostBackground(t, job)) return;
   PlanDetection(t, *job);
 }
@@ -749,8 +897,7 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
     std::lock_guard lock(pending_mutex_);
     ++pending_;  // taken while the posting job still counts: Shutdown waits for it
   }
-  background_detections_.fetch_add(1, std::memory_order_relaxed);
-  background_.Post([this, &t, job] {
+  auto plan = [this, &t, job] {
     bool mine = false;
     {
       std::lock_guard lock(t.mutex);
@@ -761,79 +908,145 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
     }
     // Not mine: a robot's pick took it to the arena. At shutdown it is
     // dropped (nobody waits for it; Shutdown drops any later waiter).
-    if (mine && !stopping_) {
-      try {
-        PlanDetection(t, *job);
-      } catch (const std::exception& e) {
-        spdlog::error("daoai: background detection failed: {}", e.what());
-      }
-    }
+    if (mine && !stopping_) PlanDetection(t, *job);  // never throws
     std::lock_guard lock(pending_mutex_);
     --pending_;
     pending_cv_.notify_all();
-  });
+  };
+  try {
+    background_.Post(std::move(plan));
+  } catch (...) {
+    // The lane cannot take it (no thread, no memory): planned here, unless
+    // a robot's pick took it to the arena meanwhile.
+    spdlog::error("daoai: task {}: the background lane refused a plan ({}); planning it at once",
+                  t.spec.id, ExceptionText());
+    bool mine = false;
+    {
+      std::lock_guard lock(t.mutex);
+      if (t.queued_background == job) {
+        t.queued_background.reset();
+        mine = true;
+      }
+    }
+    {
+      std::lock_guard lock(pending_mutex_);
+      --pending_;
+      pending_cv_.notify_all();
+    }
+    return !mine;  // true: taken by a robot, nothing left to do here
+  }
+  background_detections_.fetch_add(1, std::memory_order_relaxed);
   return true;
 }
 
 void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& c) {
-  const PlanRequest& plan_request = c.request;
-  DetectionEvent event = c.event;
-  const auto t1 = std::chrono::steady_clock::now();
-  Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, *c.scene); });
-  PlanResult result;
-  if (plan.ok()) {
-    result = std::move(*plan);
-  } else {
-    // Not "no objects": the robot must not conclude the bin is empty. The
-    // observers get the capture with the error (the recorder keeps the
-    // frame for `binpick replay`).
-    planner_failures_.fetch_add(1, std::memory_order_relaxed);
-    spdlog::error("daoai: task {} planning failed ({}); answering its picks UNKNOWN_COMMAND until "
-                  "the next detection; the capture goes to the recorder for replay",
-                  t.spec.id, plan.status().ToString());
-    result.outcome = PlanResult::Outcome::kPlannerFailed;
+  DetectionProgress progress;
+  progress.answered = true;
+  try {
+    DetectionEvent event = c.event;
+    const PlanRequest& plan_request = c.request;
+    const auto t1 = std::chrono::steady_clock::now();
+    Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, *c.scene); });
+    PlanResult result;
+    if (plan.ok()) {
+      result = std::move(*plan);
+    } else {
+      // Not "no objects": the robot must not conclude the bin is empty. The
+      // observers get the capture with the error (the recorder keeps the
+      // frame for `binpick replay`).
+      planner_failures_.fetch_add(1, std::memory_order_relaxed);
+      spdlog::error("daoai: task {} planning failed ({}); answering its picks UNKNOWN_COMMAND until "
+                    "the next detection; the capture goes to the recorder for replay",
+                    t.spec.id, plan.status().ToString());
+      result.outcome = PlanResult::Outcome::kPlannerFailed;
+    }
+    // A grasp that would send the robot outside its workspace never enters
+    // the queue (grasp/robot_targets.h; the link's range is checked later,
+    // at the pop: docs/protocols.md "Poses the robot moves to").
+    DropUnreachable(cell_, t.spec, result);
+    const auto t2 = std::chrono::steady_clock::now();
+    const auto ms = std::chrono::duration<double, std::milli>(t2 - c.t0);
+    spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
+                 t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
+                 ms.count());
+    if (!observers_.empty()) {
+      event.scene = c.scene;
+      event.plan_status = plan.status();
+      if (plan.ok()) event.plan = result;
+      // The plan alone: a background plan's wait for the lane is not in it.
+      event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+    }
+    int discarded = 0;
+    t.queue.Replace(std::move(result), c.seq, &discarded);
+    progress.queued = true;
+    if (discarded > 0) {
+      // The robots asked for a new capture with grasps left: by design, but
+      // counted (binpick_grasps_discarded_total).
+      grasps_discarded_.fetch_add(static_cast<uint64_t>(discarded), std::memory_order_relaxed);
+      spdlog::debug("daoai: task {}: {} grasps of the previous detection were never handed out",
+                    t.spec.id, discarded);
+    }
+    // After the refill (an observer reading the queue sees the new one),
+    // before waiting picks are answered (their answers follow the detection).
+    if (!observers_.empty()) NotifyDetection(event);
+  } catch (...) {
+    if (!progress.queued) {
+      FailDetection(t, c.seq, &c.event, c.scene, nullptr, progress, "plan", ExceptionText());
+      return;
+    }
+    // Queued: the robots get the plan; only its notice was lost.
+    spdlog::error("daoai: task {} detection: {} after the refill", t.spec.id, ExceptionText());
   }
-  // A grasp that would send the robot outside its workspace never enters
-  // the queue (grasp/robot_targets.h; the link's range is checked later,
-  // at the pop: docs/protocols.md "Poses the robot moves to").
-  DropUnreachable(cell_, t.spec, result);
-  const auto t2 = std::chrono::steady_clock::now();
-  const auto ms = std::chrono::duration<double, std::milli>(t2 - c.t0);
-  spdlog::info("daoai: task {} detection: {} grasps, {} detections, outcome {} in {:.1f} ms",
-               t.spec.id, result.grasps.size(), result.detections, ToString(result.outcome),
-               ms.count());
-  if (!observers_.empty()) {
-    event.scene = c.scene;
-    event.plan_status = plan.status();
-    if (plan.ok()) event.plan = result;
-    // The plan alone: a background plan's wait for the lane is not in it.
-    event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
-  }
-  int discarded = 0;
-  t.queue.Replace(std::move(result), c.seq, &discarded);
-  if (discarded > 0) {
-    // The robots asked for a new capture with grasps left: by design, but
-    // counted (binpick_grasps_discarded_total).
-    grasps_discarded_.fetch_add(static_cast<uint64_t>(discarded), std::memory_order_relaxed);
-    spdlog::debug("daoai: task {}: {} grasps of the previous detection were never handed out",
-                  t.spec.id, discarded);
-  }
-  // After the refill (an observer reading the queue sees the new one),
-  // before waiting picks are answered (their answers follow the detection).
-  if (!observers_.empty()) NotifyDetection(event);
   FinishDetection(t, c.seq);
 }
 
-void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
-  std::vector<std::function<void()>> ready;
+void RequestHandler::Impl::FailDetection(TaskState& t, uint64_t seq, const DetectionEvent* event,
+                                         CaptureHandle scene,
+                                         const std::vector<std::function<void(bool)>>* on_captured,
+                                         DetectionProgress progress, const char* stage,
+                                         const char* error) noexcept {
+  const uint64_t n = planner_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+  spdlog::error("daoai: task {} detection failed at its {} ({}); answering its picks UNKNOWN_COMMAND "
+                "until the next detection{} ({} failed detections since start)", t.spec.id, stage,
+                error, scene ? "; the capture goes to the recorder for replay" : "", n);
+  try {
+    if (!progress.queued) {
+      PlanResult failed;
+      failed.outcome = PlanResult::Outcome::kPlannerFailed;
+      t.queue.Replace(std::move(failed), seq);
+    }
+  } catch (...) {
+    spdlog::error("daoai: task {}: its queue keeps the previous detection's grasps: {}", t.spec.id,
+                  ExceptionText());
+  }
+  if (event && !observers_.empty()) {
+    try {
+      DetectionEvent e = *event;
+      e.scene = scene;
+      e.plan.reset();
+      e.plan_status = Status::Internal(std::string(stage) + " threw: " + error);
+      if (e.capture_status.ok() && !e.scene) e.capture_status = e.plan_status;
+      NotifyDetection(e);
+    } catch (...) {
+      spdlog::error("daoai: task {}: the failed detection's event is lost: {}", t.spec.id, ExceptionText());
+    }
+  }
+  if (!progress.answered && on_captured) AnswerCaptured(*on_captured, false);
+  FinishDetection(t, seq);
+}
+
+void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) noexcept {
+  // The released waiters are moved node by node (no allocation: nothing
+  // here throws between marking the detection finished and answering them).
+  std::multimap<uint64_t, std::function<void()>> ready;
   std::optional<PendingDetection> next;
   {
     std::lock_guard lock(t.mutex);
     ++t.finished;
     t.finished_seq = seq;
-    const auto end = t.waiters.upper_bound(seq);
-    for (auto it = t.waiters.begin(); it != end; ++it) ready.push_back(std::move(it->second));
-    t.waiters.erase(t.waiters.begin(), end);
+    while (!t.waiters.empty() && t.waiters.begin()->first <= seq) {
+      ready.insert(t.waiters.extract(t.waiters.begin()));
+    }
     if (t.pending && !stopping_) {
       next.swap(t.pending);
       // Requested while this one ran (a re-capture): nobody waits for it
@@ -845,8 +1058,15 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) {
   }
   // The next detection goes onto the arena before the answers are sent, so
   // it starts as early as it can.
-  if (next) Spawn([this, &t, next = std::move(*next)] { RunDetection(t, next); });
-  for (auto& w : ready) w();
+  if (next) StartDetectionJob(t, std::move(*next));
+  for (auto& [waited_for, answer] : ready) {
+    try {
+      answer();
+    } catch (...) {
+      spdlog::error("daoai: task {}: answering a robot waiting for detection {} threw: {}", t.spec.id,
+                    waited_for, ExceptionText());
+    }
+  }
 }
 
 bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready) {
@@ -859,7 +1079,16 @@ bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>&
   }
   // A plan queued on the background lane (behind another task's) is now
   // awaited: it runs on the arena at once, at the process's priority.
-  if (promoted) Spawn([this, &t, promoted] { PlanDetection(t, *promoted); });
+  if (promoted) {
+    try {
+      Spawn([this, &t, promoted] { PlanDetection(t, *promoted); });
+    } catch (...) {
+      DetectionProgress progress;
+      progress.answered = true;
+      FailDetection(t, promoted->seq, &promoted->event, promoted->scene, nullptr, progress, "plan",
+                    ExceptionText());
+    }
+  }
   return true;
 }
 
@@ -867,24 +1096,49 @@ void RequestHandler::Impl::HandOut(TaskState& t, const GraspQueue::Popped& p,
                                    ClientContext* client) {
   if (client == nullptr || !client->settle_after_write) {
     Received(t, *p.grasp, client);
-    planner_->NotifyHandedOut(t.spec, *p.grasp);
+    TellHandedOut(t, *p.grasp);
     return;
   }
   if (client->settle) std::exchange(client->settle, nullptr)(true);  // left unsettled
   client->settle = [this, &t, p, client](bool written) {
-    if (written) Received(t, *p.grasp, client);
+    // Runs on the transport's thread (a write's completion): nothing may
+    // escape it.
+    try {
+      if (written) Received(t, *p.grasp, client);
+    } catch (...) {
+      spdlog::error("daoai: task {}: remembering the grasp handed out threw: {}", t.spec.id,
+                    ExceptionText());
+    }
     Settle(t, p, written);
   };
 }
 
-void RequestHandler::Impl::Settle(TaskState& t, const GraspQueue::Popped& p, bool written) {
+void RequestHandler::Impl::TellHandedOut(const TaskState& t, const Grasp& g) noexcept {
+  try {
+    planner_->NotifyHandedOut(t.spec, g);
+  } catch (...) {
+    // The robot has the grasp whatever the planner's bookkeeping did.
+    const uint64_t n = planner_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::error("daoai: task {}: the planner threw when told of the grasp on instance {} handed out "
+                  "({}); it counts as handed out ({} planner failures since start)", t.spec.id,
+                  g.instance_id, ExceptionText(), n);
+  }
+}
+
+void RequestHandler::Impl::Settle(TaskState& t, const GraspQueue::Popped& p, bool written) noexcept {
   if (written) {
-    planner_->NotifyHandedOut(t.spec, *p.grasp);
+    TellHandedOut(t, *p.grasp);
     return;
   }
   const int instance = p.grasp->instance_id;
   const size_t withdrawn = p.withdrawn.size();
-  if (t.queue.Restore(p)) {
+  bool restored = false;
+  try {
+    restored = t.queue.Restore(p);
+  } catch (...) {
+    spdlog::error("daoai: task {}: putting the grasp back threw: {}", t.spec.id, ExceptionText());
+  }
+  if (restored) {
     const uint64_t n = grasps_requeued_.fetch_add(1, std::memory_order_relaxed) + 1;
     spdlog::warn("daoai: task {}: the answer carrying the grasp on instance {} was not written; "
                  "the grasp (and the {} withdrawn with it) is back in the queue where it was ({} "
@@ -922,7 +1176,10 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f, ClientContext*
     std::optional<Response> answer;
     Status refusal;
     const GraspQueue::Popped p = t.queue.PopFirst([&](const Grasp& g, int remaining) {
-      Result<Response> r = answer_for(g, remaining);
+      // An encoder or range check that throws refuses the grasp like one
+      // that does not fit: it stays queued (the queue is untouched until
+      // this returns true).
+      Result<Response> r = Guard("encoding the answer", [&] { return answer_for(g, remaining); });
       if (!r.ok()) {
         if (refusal.ok()) refusal = r.status();
         return false;
@@ -935,7 +1192,15 @@ Reply RequestHandler::Impl::PickReply(TaskState& t, WireFormat f, ClientContext*
                     t.spec.id, p.refused, refusal.ToString());
     }
     if (p.grasp) {
-      HandOut(t, p, client);
+      try {
+        HandOut(t, p, client);
+      } catch (...) {
+        // Popped, not handed out (no memory for its reservation): back in
+        // the queue, and the robot is answered with an error.
+        spdlog::error("daoai: task {}: handing out a grasp threw: {}", t.spec.id, ExceptionText());
+        Settle(t, p, /*written=*/false);
+        return Base(daoai::kUnknownCommand, f);
+      }
       return answer;
     }
     if (p.refused > 0) return Base(daoai::kUnknownCommand, f);  // every seed program stops on it
@@ -966,7 +1231,7 @@ RequestHandler::Completion RequestHandler::Impl::InRange(const Request& req, con
     done([this, command, f, reply = std::move(reply)]() -> std::optional<Response> {
       std::optional<Response> r = reply();
       if (!r) return r;
-      Result<Response> sent = f.range(*r);
+      Result<Response> sent = Guard("the link's range check", [&] { return f.range(*r); });
       if (sent.ok()) return *sent;
       spdlog::error("daoai: the answer to command {} does not fit this robot's link ({}); "
                     "answering UNKNOWN_COMMAND", command, sent.status().ToString());
@@ -974,7 +1239,7 @@ RequestHandler::Completion RequestHandler::Impl::InRange(const Request& req, con
       refused.meta_2 = r->meta_2;
       // Its fields came from the robot through this link, so they fit; but
       // never leave the robot without an answer.
-      Result<Response> fallback = f.range(refused);
+      Result<Response> fallback = Guard("the link's range check", [&] { return f.range(refused); });
       return fallback.ok() ? *fallback : Base(daoai::kUnknownCommand, r->meta_2);
     });
   };
@@ -1038,113 +1303,21 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
   const Pose X_BF = pose.value_or(Pose::Identity());
   auto shared_done = std::make_shared<Completion>(std::move(done));
   const bool posted = serial_.Post([this, command, X_BF, f, shared_done] {
-    const Completion& done = *shared_done;
-    // A planned pose, or (none given, or it does not fit the link) the
-    // robot's own where the robot moves to the answer (Base).
-    auto answer = [&](int32_t status, const std::optional<Pose>& planned = std::nullopt) {
-      Response r = Base(status, f);
-      if (planned) {
-        Response with = r;
-        Status s = EncodePose(*planned, f, with);
-        if (s.ok() && f.range) s = f.range(with).status();
-        if (s.ok()) {
-          r = with;
-        } else {
-          spdlog::error("daoai: planned calibration pose does not fit the link ({}); answering the "
-                        "robot's own pose", s.ToString());
-        }
-      }
-      done(Respond(r));
+    // Called at most once: a step that throws after answering is not
+    // answered twice.
+    const Completion done = [shared_done](Reply reply) {
+      if (Completion d = std::exchange(*shared_done, nullptr)) d(std::move(reply));
     };
-    auto start = [&](CalibrationKind kind) -> bool {
-      failed_views_in_a_row_ = 0;
-      const Status s = calibration_->Start(kind, X_BF);
-      if (!s.ok()) {
-        spdlog::error("daoai: calibration start failed: {}", s.ToString());
-        calibration_mode_.reset();
-        return false;
-      }
-      calibration_mode_ = kind;
-      return true;
-    };
-    // Accumulates in `kind`; @returns the step or nullopt (logged) on failure.
-    auto accumulate = [&](CalibrationKind kind) -> std::optional<CalibrationStep> {
-      Result<CalibrationStep> step = calibration_->Accumulate(kind, X_BF);
-      if (!step.ok()) {
-        spdlog::warn("daoai: calibration pose not accumulated: {}", step.status().ToString());
-        return std::nullopt;
-      }
-      if (step->done) {
-        const Status s = calibration_->Finish(kind);
-        if (!s.ok()) spdlog::error("daoai: calibration failed: {}", s.ToString());
-        calibration_mode_.reset();
-      }
-      return *step;
-    };
-    switch (command) {
-      case daoai::kStartManualCalibration:
-        answer(start(CalibrationKind::kManual) ? daoai::kModeCalibration : daoai::kUnknownCommand);
-        return;
-      case daoai::kManualAccumulatePose: {
-        // Not in manual mode: the robot restarts the handshake on any other status.
-        if (calibration_mode_ != CalibrationKind::kManual) {
-          spdlog::warn("daoai: manual accumulate outside manual calibration");
-          answer(daoai::kUnknownCommand);
-          return;
-        }
-        const auto step = accumulate(CalibrationKind::kManual);
-        answer(!step ? daoai::kUnknownCommand
-                     : step->done ? daoai::kDoneCalibration : daoai::kModeCalibration);
-        return;
-      }
-      case daoai::kStopManualCalibration: {
-        if (calibration_mode_ == CalibrationKind::kManual) {
-          const Status s = calibration_->Finish(CalibrationKind::kManual);
-          if (!s.ok()) spdlog::error("daoai: manual calibration failed: {}", s.ToString());
-        } else {
-          spdlog::warn("daoai: stop manual calibration outside manual calibration");
-        }
-        calibration_mode_.reset();
-        // Seed 004 acknowledges with UNKNOWN_COMMAND; seed 000's
-        // daoai_stop_manual_calibration reads no answer.
-        if (f.v1()) {
-          answer(daoai::kUnknownCommand);
-        } else {
-          done(NoResponse());
-        }
-        return;
-      }
-      case daoai::kStartAutoCalibration:
-        // The robot stays where it is (its own pose) for the first view.
-        answer(start(CalibrationKind::kAuto) ? daoai::kModeAutoCalibration : daoai::kUnknownCommand);
-        return;
-      case daoai::kAutoAccumulatePose:
-        AutoView(CalibrationKind::kAuto, X_BF, answer);
-        return;
-      case daoai::kGuidanceCalibration: {
-        // Each request is one pose; the first starts a guidance calibration.
-        if (calibration_mode_ != CalibrationKind::kGuidance && !start(CalibrationKind::kGuidance)) {
-          if (f.v1()) answer(daoai::kGuidanceBad); else done(NoResponse());
-          return;
-        }
-        const auto step = accumulate(CalibrationKind::kGuidance);
-        if (!f.v1()) {
-          done(NoResponse());  // seed 000: daoai_guidance_accumulate_calibration reads no answer
-          return;
-        }
-        answer(!step || !step->good ? daoai::kGuidanceBad
-               : step->done         ? daoai::kDoneGuidanceCalibration
-                                    : daoai::kGuidanceGood);
-        return;
-      }
-      case daoai::kStart2DAutoCalibration:
-        answer(start(CalibrationKind::kAuto2D) ? daoai::kMode2DAutoCalibration : daoai::kUnknownCommand);
-        return;
-      case daoai::kAutoAccumulate2DPose:
-        AutoView(CalibrationKind::kAuto2D, X_BF, answer);
-        return;
-      default:
-        answer(daoai::kUnknownCommand);
+    try {
+      RunCalibrationCommand(command, X_BF, f, done);
+    } catch (...) {
+      // The calibration service threw (it must not): the calibration ends;
+      // the robot restarts the handshake on the error.
+      const uint64_t n = answer_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+      spdlog::error("daoai: calibration command {} threw ({}); the calibration ends ({} answers failed "
+                    "since start)", command, ExceptionText(), n);
+      calibration_mode_.reset();
+      done(ReadsAnAnswer(command, f.v1()) ? Respond(Base(daoai::kUnknownCommand, f)) : NoResponse());
     }
   });
   if (!posted) {
@@ -1152,6 +1325,116 @@ void RequestHandler::Impl::Calibrate(const Request& req, const std::optional<Pos
     (*shared_done)(Respond(Base(daoai::kUnknownCommand, f)));
   }
 }
+
+void RequestHandler::Impl::RunCalibrationCommand(int32_t command, const Pose& X_BF, const WireFormat& f,
+                                           const Completion& done) {
+  // A planned pose, or (none given, or it does not fit the link) the
+  // robot's own where the robot moves to the answer (Base).
+  auto answer = [&](int32_t status, const std::optional<Pose>& planned = std::nullopt) {
+    Response r = Base(status, f);
+    if (planned) {
+      Response with = r;
+      Status s = EncodePose(*planned, f, with);
+      if (s.ok() && f.range) s = f.range(with).status();
+      if (s.ok()) {
+        r = with;
+      } else {
+        spdlog::error("daoai: planned calibration pose does not fit the link ({}); answering the "
+                      "robot's own pose", s.ToString());
+      }
+    }
+    done(Respond(r));
+  };
+  auto start = [&](CalibrationKind kind) -> bool {
+    failed_views_in_a_row_ = 0;
+    const Status s = calibration_->Start(kind, X_BF);
+    if (!s.ok()) {
+      spdlog::error("daoai: calibration start failed: {}", s.ToString());
+      calibration_mode_.reset();
+      return false;
+    }
+    calibration_mode_ = kind;
+    return true;
+  };
+  // Accumulates in `kind`; @returns the step or nullopt (logged) on failure.
+  auto accumulate = [&](CalibrationKind kind) -> std::optional<CalibrationStep> {
+    Result<CalibrationStep> step = calibration_->Accumulate(kind, X_BF);
+    if (!step.ok()) {
+      spdlog::warn("daoai: calibration pose not accumulated: {}", step.status().ToString());
+      return std::nullopt;
+    }
+    if (step->done) {
+      const Status s = calibration_->Finish(kind);
+      if (!s.ok()) spdlog::error("daoai: calibration failed: {}", s.ToString());
+      calibration_mode_.reset();
+    }
+    return *step;
+  };
+  switch (command) {
+    case daoai::kStartManualCalibration:
+      answer(start(CalibrationKind::kManual) ? daoai::kModeCalibration : daoai::kUnknownCommand);
+      return;
+    case daoai::kManualAccumulatePose: {
+      // Not in manual mode: the robot restarts the handshake on any other status.
+      if (calibration_mode_ != CalibrationKind::kManual) {
+        spdlog::warn("daoai: manual accumulate outside manual calibration");
+        answer(daoai::kUnknownCommand);
+        return;
+      }
+      const auto step = accumulate(CalibrationKind::kManual);
+      answer(!step ? daoai::kUnknownCommand
+                   : step->done ? daoai::kDoneCalibration : daoai::kModeCalibration);
+      return;
+    }
+    case daoai::kStopManualCalibration: {
+      if (calibration_mode_ == CalibrationKind::kManual) {
+        const Status s = calibration_->Finish(CalibrationKind::kManual);
+        if (!s.ok()) spdlog::error("daoai: manual calibration failed: {}", s.ToString());
+      } else {
+        spdlog::warn("daoai: stop manual calibration outside manual calibration");
+      }
+      calibration_mode_.reset();
+      // Seed 004 acknowledges with UNKNOWN_COMMAND; seed 000's
+      // daoai_stop_manual_calibration reads no answer.
+      if (f.v1()) {
+        answer(daoai::kUnknownCommand);
+      } else {
+        done(NoResponse());
+      }
+      return;
+    }
+    case daoai::kStartAutoCalibration:
+      // The robot stays where it is (its own pose) for the first view.
+      answer(start(CalibrationKind::kAuto) ? daoai::kModeAutoCalibration : daoai::kUnknownCommand);
+      return;
+    case daoai::kAutoAccumulatePose:
+      AutoView(CalibrationKind::kAuto, X_BF, answer);
+      return;
+    case daoai::kGuidanceCalibration: {
+      // Each request is one pose; the first starts a guidance calibration.
+      if (calibration_mode_ != CalibrationKind::kGuidance && !start(CalibrationKind::kGuidance)) {
+        if (f.v1()) answer(daoai::kGuidanceBad); else done(NoResponse());
+        return;
+      }
+      const auto step = accumulate(CalibrationKind::kGuidance);
+      if (!f.v1()) {
+        done(NoResponse());  // seed 000: daoai_guidance_accumulate_calibration reads no answer
+        return;
+      }
+      answer(!step || !step->good ? daoai::kGuidanceBad
+             : step->done         ? daoai::kDoneGuidanceCalibration
+                                  : daoai::kGuidanceGood);
+      return;
+    }
+    case daoai::kStart2DAutoCalibration:
+      answer(start(CalibrationKind::kAuto2D) ? daoai::kMode2DAutoCalibration : daoai::kUnknownCommand);
+      return;
+    case daoai::kAutoAccumulate2DPose:
+      AutoView(CalibrationKind::kAuto2D, X_BF, answer);
+      return;
+    default:
+      answer(daoai::kUnknownCommand);
+  }}
 
 Response RequestHandler::Impl::EmptyBoxCheck(TaskState& t, const PlanRequest& plan_request) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -1244,13 +1527,42 @@ void RequestHandler::Impl::PostCheck(TaskState& t, CheckLane TaskState::*lane, P
   }
   std::vector<Completion> batch;
   batch.push_back(std::move(done));
-  Spawn([this, &t, lane, request = std::move(request), batch = std::move(batch),
-         check = std::move(check)] { RunCheck(t, lane, request, batch, check); });
+  StartCheck(t, lane, std::move(request), std::move(batch), std::move(check));
 }
 
-void RequestHandler::Impl::RunCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
-                                    std::vector<Completion> done, Check check) {
-  const Reply reply = Respond(check(request));
+void RequestHandler::Impl::StartCheck(TaskState& t, CheckLane TaskState::*lane, PlanRequest request,
+                                      std::vector<Completion> done, Check check) {
+  std::shared_ptr<CheckJob> job;
+  try {
+    job = std::make_shared<CheckJob>();
+    job->request = std::move(request);
+    job->done = std::move(done);
+    job->check = check;
+    Spawn([this, &t, lane, job] { RunCheck(t, lane, *job); });
+  } catch (...) {
+    planner_failures_.fetch_add(1, std::memory_order_relaxed);
+    spdlog::error("daoai: task {}: the {} could not be started ({}); answering {}", t.spec.id, check.what,
+                  ExceptionText(), check.failed);
+    FinishCheck(t, lane, check, Respond(Base(check.failed, cell_.robot.protocol_version)),
+                job ? job->done : done);
+  }
+}
+
+void RequestHandler::Impl::RunCheck(TaskState& t, CheckLane TaskState::*lane, const CheckJob& job) {
+  Reply reply;
+  try {
+    reply = Respond(job.check.run(job.request));
+  } catch (...) {
+    const uint64_t n = planner_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::error("daoai: task {}: the {} threw ({}); answering {} ({} failed detections since start)",
+                  t.spec.id, job.check.what, ExceptionText(), job.check.failed, n);
+    reply = Respond(Base(job.check.failed, cell_.robot.protocol_version));
+  }
+  FinishCheck(t, lane, job.check, reply, job.done);
+}
+
+void RequestHandler::Impl::FinishCheck(TaskState& t, CheckLane TaskState::*lane, const Check& check,
+                                       const Reply& reply, const std::vector<Completion>& done) {
   std::optional<PlanRequest> next;
   std::vector<Completion> next_done;  // dropped unanswered when shutting down
   {
@@ -1263,12 +1575,14 @@ void RequestHandler::Impl::RunCheck(TaskState& t, CheckLane TaskState::*lane, Pl
       next.reset();
     }
   }
-  if (next) {
-    Spawn([this, &t, lane, request = std::move(*next), batch = std::move(next_done), check] {
-      RunCheck(t, lane, request, batch, check);
-    });
+  if (next) StartCheck(t, lane, std::move(*next), std::move(next_done), check);
+  for (const Completion& d : done) {
+    try {
+      d(reply);
+    } catch (...) {
+      spdlog::error("daoai: task {}: answering a {} threw: {}", t.spec.id, check.what, ExceptionText());
+    }
   }
-  for (const Completion& d : done) d(reply);
 }
 
 void RequestHandler::Impl::RefuseChange(const Request& req, const ClientContext& client,
@@ -1276,9 +1590,7 @@ void RequestHandler::Impl::RefuseChange(const Request& req, const ClientContext&
   changes_refused_.fetch_add(1, std::memory_order_relaxed);
   // The command's own failure where it has one; no answer where the robot
   // reads none (a reply it does not read would shift every later one).
-  const bool answered = !(req.command == daoai::kSendPose ||
-                          (!f.v1() && (req.command == daoai::kGuidanceCalibration ||
-                                              req.command == daoai::kStopManualCalibration)));
+  const bool answered = ReadsAnAnswer(req.command, f.v1());
   const int32_t status = req.command == daoai::kSwitchConfig        ? daoai::kSwitchConfigFail
                          : req.command == daoai::kGuidanceCalibration ? daoai::kGuidanceBad
                                                                       : daoai::kUnknownCommand;
@@ -1303,6 +1615,7 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
   f.range = client.wire_range;
   if (MovesTo(req.command)) f.own_pose.emplace(req.position, req.orientation);
   done = InRange(req, f, std::move(done));
+  done = Contained(req, f, std::move(done));
 
   if (!ReadHeader(req, client, f, done)) return;
   const std::optional<Pose> X_BF = RecordPose(req, f, client, answer_event.get());
@@ -1533,12 +1846,14 @@ void RequestHandler::Impl::Dispatch(const Request& req, ClientContext& client, c
 
     case daoai::kCheckEmptyBox:
       PostCheck(*task, &TaskState::empty_box, MakePlanRequest(*task, X_BF), EchoMeta2(f, std::move(done)),
-                [this, task](const PlanRequest& r) { return EmptyBoxCheck(*task, r); });
+                {"empty-box check", daoai::kBoxNotEmpty,
+                 [this, task](const PlanRequest& r) { return EmptyBoxCheck(*task, r); }});
       return;
 
     case daoai::kPrecisionCheck:
       PostCheck(*task, &TaskState::precision, MakePlanRequest(*task, X_BF), EchoMeta2(f, std::move(done)),
-                [this](const PlanRequest& r) { return PrecisionCheck(r); });
+                {"precision check", daoai::kPrecisionCheckFail,
+                 [this](const PlanRequest& r) { return PrecisionCheck(r); }});
       return;
 
     case daoai::kReportPickFailure:

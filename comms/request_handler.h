@@ -100,8 +100,13 @@ struct RequestHandlerOptions {
 struct RequestHandlerStats {
   uint64_t captures_coalesced = 0;  // capture requests that joined a pending detection
   uint64_t background_detections = 0;  // re-detections nobody waited for, planned at a lower priority
-  uint64_t planner_failures = 0;    // plans that threw or returned an error
+  // Detections that failed with an error (their picks are answered
+  // UNKNOWN_COMMAND, never "no objects"): the planner's plan returned one, or
+  // anything in the detection's path threw (capture, plan, queue, start);
+  // and planner exceptions when told of a grasp handed out.
+  uint64_t planner_failures = 0;
   uint64_t observer_failures = 0;   // exceptions an observer let escape (contained)
+  uint64_t answer_failures = 0;     // answers whose building threw: answered UNKNOWN_COMMAND
   uint64_t jobs_refused = 0;        // calibration steps and teach poses refused: queue full
   uint64_t changes_refused = 0;     // state-changing requests from peers not allowed to
   uint64_t grasps_requeued = 0;     // popped, their answer not written: back in the queue

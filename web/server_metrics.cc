@@ -41,8 +41,13 @@ void AddHandlerMetrics(MetricsRegistry& metrics, const RequestHandler& handler) 
       "in flight per task).",
       {}, [h] { return static_cast<double>(h->stats().captures_coalesced); });
   metrics.AddCounterCallback("binpick_planner_failures_total",
-                             "Plans that threw or returned an error (answered as errors).", {},
-                             [h] { return static_cast<double>(h->stats().planner_failures); });
+                             "Detections that failed with an error: the plan returned one, or "
+                             "anything in the detection's path threw (answered as errors, never as "
+                             "an empty bin); planner exceptions when told of a grasp handed out.",
+                             {}, [h] { return static_cast<double>(h->stats().planner_failures); });
+  metrics.AddCounterCallback("binpick_answer_failures_total",
+                             "Answers whose building threw: answered UNKNOWN_COMMAND.", {},
+                             [h] { return static_cast<double>(h->stats().answer_failures); });
   metrics.AddCounterCallback("binpick_observer_failures_total",
                              "Exceptions an observer (recorder, status page) let escape; contained.",
                              {}, [h] { return static_cast<double>(h->stats().observer_failures); });

@@ -23,7 +23,8 @@ void AddTransportMetrics(MetricsRegistry& metrics, const std::string& server,
 // binpick_modbus_* {robot="host:port"}.
 void AddModbusMetrics(MetricsRegistry& metrics, const ModbusMaster& master);
 // binpick_captures_coalesced_total, binpick_planner_failures_total,
-// binpick_observer_failures_total, binpick_requests_refused_total {reason}.
+// binpick_observer_failures_total, binpick_answer_failures_total,
+// binpick_requests_refused_total {reason}.
 void AddHandlerMetrics(MetricsRegistry& metrics, const RequestHandler& handler);
 // binpick_queue_grasps {task=...} for each of the cell's tasks.
 void AddQueueMetrics(MetricsRegistry& metrics, const RequestHandler& handler);

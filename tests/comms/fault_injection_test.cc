@@ -11,12 +11,16 @@
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
+#include <pcl/exceptions.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <array>
 #include <atomic>
 #include <functional>
+#include <mutex>
+#include <new>
+#include <opencv2/core.hpp>
 #include <random>
 #include <set>
 #include <thread>
@@ -106,7 +110,8 @@ class FaultTest : public ::testing::Test {
     many.grasps = 6;
     planner_->SetScript(0, many);
     planner_->SetScript(1, many);
-    handler_ = std::make_unique<RequestHandler>(MakeTestCell(), planner_, nullptr);
+    handler_ = std::make_unique<RequestHandler>(MakeTestCell(), planner_, std::move(calibration_));
+    if (observer_) handler_->AddObserver(observer_);
     options.port = 0;
     // Robots that idle through a fault (the bystander between its calls, a
     // robot waiting on another's fault) must never be closed as idle, however
@@ -199,6 +204,10 @@ class FaultTest : public ::testing::Test {
   }
 
   std::shared_ptr<ScriptedPlanner> planner_;
+  // Set before Start(): the handler's calibration service (null: counting)
+  // and an observer.
+  std::unique_ptr<CalibrationService> calibration_;
+  std::shared_ptr<ServerObserver> observer_;
   std::unique_ptr<RequestHandler> handler_;
   std::unique_ptr<DaoaiServer> server_;
   std::unique_ptr<RobotClient> bystander_;
@@ -484,6 +493,177 @@ TEST_F(FaultTest, FailingCaptureAndThrowingDetectionAreAnsweredAndRecovered) {
   EXPECT_TRUE(planner_->WaitForHandedOut(1));
 
   EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0}));
+  ExpectBystanderServed();
+  c.reset();
+  ExpectBaseline();
+}
+
+// The exceptions a planner's libraries throw (issue 39 "no hangs"): the
+// standard ones, OpenCV's and PCL's (both std::exceptions), and one that is
+// not a std::exception at all.
+struct Injected {
+  const char* name;
+  std::function<void()> raise;
+};
+std::vector<Injected> InjectedExceptions() {
+  return {
+      {"std::runtime_error", [] { throw std::runtime_error("injected"); }},
+      {"std::bad_alloc", [] { throw std::bad_alloc(); }},
+      {"cv::Exception", [] { throw cv::Exception(cv::Error::StsNoMem, "injected", "Capture", __FILE__, __LINE__); }},
+      {"pcl::PCLException", [] { throw pcl::PCLException("injected"); }},
+      {"an int", [] { throw 42; }},
+  };
+}
+
+class DetectionLog final : public ServerObserver {
+ public:
+  void OnDetection(const DetectionEvent& e) override {
+    std::lock_guard lock(mutex_);
+    events_.push_back(e);
+  }
+  std::optional<DetectionEvent> last() const {
+    std::lock_guard lock(mutex_);
+    if (events_.empty()) return std::nullopt;
+    return events_.back();
+  }
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<DetectionEvent> events_;
+};
+
+// A failed detection's pick: an error the seed programs stop on, never "no
+// objects" (a robot would take the bin for empty).
+void ExpectPickError(RobotClient& c) {
+  Result<RobotReply> pick = c.Call(daoai::kPickPose, 0);
+  ASSERT_TRUE(pick.ok()) << pick.status().ToString();
+  EXPECT_EQ(pick->status, daoai::kUnknownCommand);
+  EXPECT_EQ(pick->payload[0], 0);
+}
+
+TEST_F(FaultTest, AnExceptionOfAnyKindInTheCaptureOrThePlanIsAnsweredAsAnError) {
+  auto log = std::make_shared<DetectionLog>();
+  observer_ = log;
+  Start();
+  auto c = Connect();
+  ASSERT_TRUE(c);
+  uint64_t failures = 0;
+  size_t handed = 0;
+  for (const Injected& e : InjectedExceptions()) {
+    SCOPED_TRACE(e.name);
+    ScriptedPlanner::Script s;
+    s.grasps = 6;
+    // The capture throws: RC 20 is answered CAPTURE_FAIL, and so is the
+    // pick that waits for an RC 19's detection: as an error.
+    s.in_capture = e.raise;
+    planner_->SetScript(0, s);
+    EXPECT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kCaptureFail);
+    ExpectPickError(*c);
+    EXPECT_EQ(c->Call(daoai::kCaptureAndProcessAsync, 0)->status, daoai::kDetection);
+    ExpectPickError(*c);
+    failures += 2;
+    // The plan throws after the capture: the waiting pick gets an error and
+    // the observers (the recorder) the frame with the error, for replay.
+    s.in_capture = nullptr;
+    s.in_plan = e.raise;
+    planner_->SetScript(0, s);
+    EXPECT_EQ(c->Call(daoai::kCaptureAndProcessAsync, 0)->status, daoai::kDetection);
+    ExpectPickError(*c);
+    failures += 1;
+    const std::optional<DetectionEvent> failed = log->last();
+    ASSERT_TRUE(failed);
+    EXPECT_TRUE(failed->scene);
+    EXPECT_FALSE(failed->plan);
+    EXPECT_FALSE(failed->plan_status.ok());
+    EXPECT_EQ(handler_->stats().planner_failures, failures);
+    EXPECT_EQ(handler_->Snapshot(0)->in_flight, 0);
+    // Served again once the planner stops throwing.
+    s.in_plan = nullptr;
+    planner_->SetScript(0, s);
+    EXPECT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+    Result<RobotReply> ok = c->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(ok.ok()) << ok.status().ToString();
+    EXPECT_EQ(ok->status, daoai::kObjectsFound);
+    ASSERT_TRUE(planner_->WaitForHandedOut(++handed));
+  }
+  // One grasp per good detection, each the first: none lost, none twice.
+  EXPECT_EQ(Task0HandedOut(), std::vector<int>(handed, 0));
+  ExpectBystanderServed();
+  c.reset();
+  ExpectBaseline();
+}
+
+// The planner throwing when told of a hand-out (on the network thread, as
+// the answer's write completes) once ended that thread and the process. The
+// robot has the grasp: it counts as handed out, once.
+TEST_F(FaultTest, ThePlannerThrowingWhenToldOfAHandOutLosesNoGraspAndRepeatsNone) {
+  Start();
+  auto c = Connect();
+  ASSERT_TRUE(c);
+  ScriptedPlanner::Script s;
+  s.grasps = 6;
+  planner_->SetScript(0, s);
+  EXPECT_EQ(c->Call(daoai::kCaptureAndProcess, 0)->status, daoai::kDetection);
+  const std::vector<Injected> kinds = InjectedExceptions();
+  for (size_t i = 0; i < kinds.size(); ++i) {
+    SCOPED_TRACE(kinds[i].name);
+    s.in_handed_out = kinds[i].raise;
+    planner_->SetScript(0, s);
+    Result<RobotReply> pick = c->Call(daoai::kPickPose, 0);
+    ASSERT_TRUE(pick.ok()) << pick.status().ToString();
+    EXPECT_EQ(pick->status, daoai::kObjectsFound);
+    ASSERT_TRUE(pick->X_BT);
+    EXPECT_NEAR(pick->X_BT->translation().x(), ScriptedPlanner::GraspPose(0, static_cast<int>(i)).translation().x(),
+                1e-4);
+    ASSERT_TRUE(planner_->WaitForHandedOut(i + 1));
+  }
+  EXPECT_TRUE(WaitUntil([&] { return handler_->stats().planner_failures == kinds.size(); }));
+  EXPECT_EQ(Task0HandedOut(), (std::vector<int>{0, 1, 2, 3, 4}));
+  EXPECT_EQ(handler_->QueueSize(0), 1);
+  ExpectBystanderServed();
+  c.reset();
+  ExpectBaseline();
+}
+
+// A calibration service that throws (it must not) once stopped the
+// calibration sequence for good: the step was never answered, every later
+// calibration step and teach pose waited forever.
+class ThrowingCalibration final : public CalibrationService {
+ public:
+  explicit ThrowingCalibration(std::shared_ptr<std::atomic<bool>> throws) : throws_(std::move(throws)) {}
+  Status Start(CalibrationKind, const Pose&) override {
+    MaybeThrow();
+    return Status::Ok();
+  }
+  Result<CalibrationStep> Accumulate(CalibrationKind, const Pose&) override {
+    MaybeThrow();
+    return CalibrationStep{};
+  }
+  Status Finish(CalibrationKind) override {
+    MaybeThrow();
+    return Status::Ok();
+  }
+
+ private:
+  void MaybeThrow() const {
+    if (*throws_) throw std::bad_alloc();
+  }
+  std::shared_ptr<std::atomic<bool>> throws_;
+};
+
+TEST_F(FaultTest, ACalibrationServiceThatThrowsIsAnsweredAndTheNextStepIsServed) {
+  auto throws = std::make_shared<std::atomic<bool>>(true);
+  calibration_ = std::make_unique<ThrowingCalibration>(throws);
+  Start();
+  auto c = Connect();
+  ASSERT_TRUE(c);
+  Result<RobotReply> refused = c->Call(daoai::kStartManualCalibration, 0);
+  ASSERT_TRUE(refused.ok()) << refused.status().ToString();
+  EXPECT_EQ(refused->status, daoai::kUnknownCommand);
+  EXPECT_EQ(handler_->stats().answer_failures, 1u);
+  *throws = false;
+  EXPECT_EQ(c->Call(daoai::kStartManualCalibration, 0)->status, daoai::kModeCalibration);
+  EXPECT_EQ(c->Call(daoai::kManualAccumulatePose, 0)->status, daoai::kModeCalibration);
   ExpectBystanderServed();
   c.reset();
   ExpectBaseline();

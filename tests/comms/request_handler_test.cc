@@ -20,6 +20,7 @@
 
 #include <gtest/gtest.h>
 
+#include "tests/testing/process_stats.h"
 #include "tests/testing/scripted_planner.h"
 
 namespace bp {
@@ -729,6 +730,54 @@ TEST(RequestHandler, APlannerErrorIsAnsweredAsAnErrorAndTheCaptureIsObserved) {
   EXPECT_FALSE(failed.plan);
   EXPECT_NE(failed.plan_status.message().find("scripted detection exception"), std::string::npos)
       << failed.plan_status.ToString();
+}
+
+// Issue 39: the robots waiting for a detection are answered however the
+// others' answers fail: a waiter that throws (a transport's completion out
+// of memory) neither leaves the ones after it waiting nor the task in flight.
+TEST(RequestHandler, RobotsWaitingForADetectionAreAnsweredWhenAnotherWaiterThrows) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  planner->HoldPlans(true);
+  ASSERT_TRUE(handler.StartDetection(0, std::nullopt).ok());
+  std::atomic<int> answered{0};
+  ASSERT_TRUE(handler.WhenDetected(0, [] { throw std::bad_alloc(); }).ok());
+  ASSERT_TRUE(handler.WhenDetected(0, [&] { ++answered; }).ok());
+  planner->HoldPlans(false);
+  EXPECT_TRUE(testing::WaitUntil([&] { return answered == 1; }));
+  EXPECT_TRUE(testing::WaitUntil([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  // The task detects and answers again.
+  ASSERT_TRUE(handler.StartDetection(0, std::nullopt).ok());
+  ASSERT_TRUE(handler.WhenDetected(0, [&] { ++answered; }).ok());
+  EXPECT_TRUE(testing::WaitUntil([&] { return answered == 2; }));
+  EXPECT_EQ(handler.QueueSize(0), 3);
+}
+
+// Issue 39: an answer whose encoding or range check throws is an error to
+// the robot, and its grasp stays queued (nothing popped, nothing lost); the
+// next answer that can be built is served.
+TEST(RequestHandler, AnAnswerWhoseRangeCheckThrowsIsAnErrorAndItsGraspStaysQueued) {
+  auto planner = std::make_shared<ScriptedPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  bool throws = false;
+  client.wire_range = [&throws](const daoai::Response& r) -> Result<daoai::Response> {
+    if (throws) throw std::runtime_error("injected range check exception");
+    return r;
+  };
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  throws = true;
+  const auto refused = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(refused);
+  EXPECT_EQ(refused->status, daoai::kUnknownCommand);
+  EXPECT_EQ(handler.QueueSize(0), 3);
+  EXPECT_TRUE(planner->handed_out().empty());
+  throws = false;
+  const auto pick = handler.Handle(Req(daoai::kPickPose, 0), client);
+  ASSERT_TRUE(pick);
+  EXPECT_EQ(pick->status, daoai::kObjectsFound);
+  EXPECT_EQ(handler.QueueSize(0), 2);
+  EXPECT_EQ(planner->handed_out(), (std::vector<std::pair<int, int>>{{0, 0}}));
 }
 
 // Issue 39: Handle() always returns: when its caller gives up (the Modbus

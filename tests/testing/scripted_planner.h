@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -43,6 +44,10 @@ class ScriptedPlanner final : public GraspPlanner {
     // (Grasp::stale_after: parts touching it); GraspQueue withdraws it then.
     std::map<int, std::vector<int>> stale_after;
     std::optional<FillLevel> fill;  // PlanResult::fill
+    // Called inside Capture() (before it returns a scene), Plan() (before it
+    // builds the result) and NotifyHandedOut() (after the hand-out is
+    // recorded): a test makes them throw whatever it wants to inject.
+    std::function<void()> in_capture, in_plan, in_handed_out;
   };
 
   void SetScript(int task_id, Script script) {
@@ -81,6 +86,7 @@ class ScriptedPlanner final : public GraspPlanner {
       last_X_BF_ = request.X_BF;
     }
     if (s.capture_throws) throw std::runtime_error("scripted capture exception");
+    if (s.in_capture) s.in_capture();
     if (s.capture_fails) return Status::Unavailable("scripted capture failure");
     return CaptureHandle(std::make_shared<Scene>());
   }
@@ -94,6 +100,7 @@ class ScriptedPlanner final : public GraspPlanner {
     }
     std::this_thread::sleep_for(s.plan_delay);
     if (s.plan_throws) throw std::runtime_error("scripted detection exception");
+    if (s.in_plan) s.in_plan();
     int grasps = s.grasps;
     int64_t roi_points = s.roi_points, largest = s.largest_region_points;
     if (s.pile >= 0) {
@@ -132,6 +139,7 @@ class ScriptedPlanner final : public GraspPlanner {
       handed_out_.emplace_back(task.id, grasp.instance_id);
     }
     cv_.notify_all();
+    if (const Script s = ScriptFor(task.id); s.in_handed_out) s.in_handed_out();
   }
   // A grasp counts as handed out once its answer is written, which a
   // transport learns a moment after the robot may have read it (the pop
