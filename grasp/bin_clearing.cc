@@ -307,6 +307,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   BinPickingPlannerOptions planner_options;
   planner_options.teach_file = "-";  // clearing never teaches
   planner_options.thorough_retry_ms = options.thorough_retry_ms;
+  planner_options.thorough_retry_estimates = options.thorough_retry_estimates;
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
   if (!planner.ok()) return planner.status();
   BinPickingPlanner& p = **planner;

@@ -24,6 +24,7 @@
 
 #include "core/cell.h"
 #include "core/status.h"
+#include "grasp/bin_picking_planner.h"
 #include "grasp/grasp_judge.h"
 #include "pipeline/perception.h"
 
@@ -53,9 +54,11 @@ struct ClearOptions {
   // are served and judged (to measure what the withdrawal saves).
   bool withdraw_stale = true;
   // The planner's thorough retry budget (BinPickingPlannerOptions::
-  // thorough_retry_ms). A time budget makes a clear depend on the machine's
-  // speed and load; a large one makes it repeatable.
-  double thorough_retry_ms = 150.0;
+  // thorough_retry_estimates, thorough_retry_ms): a count of estimates, the
+  // same at any load, under a time cap (hit only on a slow or loaded
+  // machine; a large one makes a clear repeatable whatever the load).
+  int thorough_retry_estimates = BinPickingPlannerOptions{}.thorough_retry_estimates;
+  double thorough_retry_ms = BinPickingPlannerOptions{}.thorough_retry_ms;
   GraspJudgeOptions judge;
   // Fraction in [0, 1] of the picks the judge lets succeed that the
   // simulated robot fails anyway, at random (`--slip`: the vacuum breaks, the

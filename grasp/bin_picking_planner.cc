@@ -52,10 +52,12 @@ Pose NearestToHeld(const Pose& X_BT, const Detection& det, const Pose& X_TO_held
 // instance most of the detection's support points show in the label image
 // (robust to a wrong pose estimate), else the nearest true part of its class.
 // Says in the plan whether its thorough retry ran out of budget.
-void NoteRetryBudget(double budget_ms, PlanDetail& detail) {
+void NoteRetryBudget(int budget_estimates, double budget_ms, PlanDetail& detail) {
   if (detail.retry_estimates_skipped == 0) return;
-  detail.result.message += " (thorough retry stopped at its " + std::to_string(std::lround(budget_ms)) +
-                           " ms budget, " + std::to_string(detail.retry_estimates_skipped) + " estimates not run)";
+  const std::string count = budget_estimates > 0 ? std::to_string(budget_estimates) + " estimates / " : "";
+  detail.result.message += " (thorough retry stopped at its budget of " + count +
+                           std::to_string(std::lround(budget_ms)) + " ms, " +
+                           std::to_string(detail.retry_estimates_skipped) + " estimates not run)";
 }
 
 std::vector<int> MatchTruth(const Frame& frame, const PerceptionResult& per) {
@@ -116,6 +118,9 @@ Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell&
   if (!perception || !source) return Status::InvalidArgument("grasp planner: perception and source are required");
   if (!(options.thorough_retry_ms > 0) || !std::isfinite(options.thorough_retry_ms)) {
     return Status::InvalidArgument("grasp planner: thorough_retry_ms must be a finite number of milliseconds > 0");
+  }
+  if (options.thorough_retry_estimates < 0) {
+    return Status::InvalidArgument("grasp planner: thorough_retry_estimates must be >= 0 (0: no count)");
   }
   auto model = GraspPlanningModel::Build(cell, options.planning);
   if (!model.ok()) return model.status();
@@ -197,7 +202,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
     first_timings = detail.perception.timings;
     PlanPick(request, frame, detail, &grasps_ms, &retry_ms);
   }
-  NoteRetryBudget(options_.thorough_retry_ms, detail);
+  NoteRetryBudget(options_.thorough_retry_estimates, options_.thorough_retry_ms, detail);
 
   // The perception the plan is made from (a thorough retry may replace it).
   const PerceptionResult& per = detail.perception;
@@ -261,8 +266,11 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
     if (again.ok()) {
       detail.retry_estimates_skipped = again->estimates_skipped;
       GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
-      spdlog::debug("task {}: thorough retry: {} -> {} detections, {}", task.id, detail.plan.stats.Describe(),
-                    again->detections.size(), plan.stats.Describe());
+      spdlog::debug("task {}: thorough retry: {} -> {} detections ({} estimates run, {} not, {:.0f} ms), {}", task.id,
+                    detail.plan.stats.Describe(), again->detections.size(), again->estimator_calls,
+                    again->estimates_skipped,
+                    std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
+                    plan.stats.Describe());
       // Adopted when it gives grasps, and also when it finds parts where
       // the normal run found none: the answer is then "no collision-free
       // grasp" for the parts it found, not "no object".
@@ -289,6 +297,7 @@ PerceptionBudget BinPickingPlanner::RetryBudget(double started_ms, double reserv
   PerceptionBudget budget;
   budget.deadline_ms = started_ms + options_.thorough_retry_ms - std::max(0.0, reserve_ms);
   budget.now_ms = options_.retry_clock_ms;
+  budget.max_estimates = options_.thorough_retry_estimates;
   return budget;
 }
 

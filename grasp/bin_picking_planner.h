@@ -71,15 +71,20 @@ struct BinPickingPlannerOptions {
   // PerceptionEffort::kThorough and plan from that if it gives grasps. Costs
   // time only on the answers that would otherwise stop the robot.
   bool thorough_retry = true;
-  // Time budget of a thorough retry, ms > 0, the retry's grasp stage
-  // included for picks (that stage is assumed to take what the normal
-  // plan's took). Estimates the budget would not cover are not started,
+  // Budget of a thorough retry in work units: the first
+  // thorough_retry_estimates (view, class) pose estimates in start order,
   // the views most likely to hold a part going first
-  // (Perception::RunThorough); a plan whose retry ran out says so
-  // (PlanDetail::retry_estimates_skipped, the message). 150 ms: one normal
-  // plan at 1920 x 1200 (issue 40's frame -> full queue target; docs/tuning.md,
-  // thorough_retry_ms).
-  double thorough_retry_ms = 150.0;
+  // (Perception::RunThorough, PerceptionBudget::max_estimates), the same
+  // ones on any machine at any load. 0: no count (the time cap alone).
+  // docs/tuning.md, thorough_retry_estimates.
+  int thorough_retry_estimates = 6;
+  // Time cap of a thorough retry, ms > 0, a safety on top of the count, the
+  // retry's grasp stage included for picks (that stage is assumed to take
+  // what the normal plan's took): estimates it would not cover are not
+  // started either. A plan whose retry left estimates out says so
+  // (PlanDetail::retry_estimates_skipped, the message). docs/tuning.md,
+  // thorough_retry_ms.
+  double thorough_retry_ms = 1000.0;
   // The clock the retry's budget is read on, ms; empty: the steady clock.
   // Tests inject a deterministic one.
   std::function<double()> retry_clock_ms;

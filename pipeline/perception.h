@@ -236,11 +236,21 @@ enum class PerceptionEffort {
 // (PerceptionResult::estimates_skipped). Estimates already running finish,
 // so a run overshoots by less than its longest estimate at worst. The
 // stages before the pose search (crop, segmentation) always run.
+//
+// max_estimates > 0 is a budget in work units as well: the run's (view,
+// class) estimates are numbered in the order they start (waves, and within
+// a wave the views and each view's classes in ranking order) and only the
+// first max_estimates are started, whatever the clock; a view's fallback
+// classes too small for it (run when its ranked classes find nothing) start
+// only when all its ranked ones were within the count. Which estimates run
+// is then the same on every machine and at any load; the deadline stays a
+// safety cap on top.
 struct PerceptionBudget {
   double deadline_ms = 0.0;  // on now_ms's scale
   // Milliseconds since any fixed origin, thread-safe; called twice per
   // estimate. Empty: SteadyClockMs. Tests inject a deterministic clock.
   std::function<double()> now_ms;
+  int max_estimates = 0;  // > 0: at most that many estimates start; 0: no count
 };
 // The steady clock in milliseconds (PerceptionBudget's default clock).
 double SteadyClockMs();

@@ -38,6 +38,7 @@ struct ClearCliOptions {
   std::vector<int> fallback_task_ids;
   std::string save_left_dir;
   double thorough_retry_ms = ClearOptions{}.thorough_retry_ms;
+  int thorough_retry_estimates = ClearOptions{}.thorough_retry_estimates;
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
@@ -136,6 +137,7 @@ int Run(const ClearCliOptions& opt) {
   options.serve_queue = !opt.capture_every_pick;
   options.withdraw_stale = !opt.keep_stale;
   options.thorough_retry_ms = opt.thorough_retry_ms;
+  options.thorough_retry_estimates = opt.thorough_retry_estimates;
   options.slip_rate = opt.slip;
   options.slip_seed = opt.slip_seed;
   options.feedback = !opt.no_feedback;
@@ -205,10 +207,15 @@ Command ClearCommand() {
                    "write the last frame of every scene that ends with parts left to this directory (depth PNG, "
                    "intrinsics, ground truth), for `binpick eval --source files:DIR`");
     sub.add_option("--thorough-retry-ms", opt->thorough_retry_ms,
-                   "time budget of the planner's thorough perception retry, ms (a large one makes the run "
-                   "repeatable: the budget depends on the machine's speed and load)")
+                   "time cap of the planner's thorough perception retry, ms (hit only on a slow or loaded "
+                   "machine: a large one makes the run repeatable whatever the load)")
         ->capture_default_str()
         ->check(CLI::PositiveNumber);
+    sub.add_option("--thorough-retry-estimates", opt->thorough_retry_estimates,
+                   "budget of the planner's thorough perception retry in pose estimates, the same at any load "
+                   "(0: no count, the time cap alone)")
+        ->capture_default_str()
+        ->check(CLI::NonNegativeNumber);
     sub.add_flag("--variety", opt->variety,
                  "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "
                  "source.variety, else the defaults; docs/synthetic.md)");

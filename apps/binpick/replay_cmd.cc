@@ -113,17 +113,25 @@ Command ReplayCommand() {
             sub.add_option("--tol-deg", options->tolerance_deg, "rotation tolerance for parts and grasps (deg)");
             auto retry_ms = std::make_shared<double>(BinPickingPlannerOptions{}.thorough_retry_ms);
             sub.add_option("--thorough-retry-ms", *retry_ms,
-                           "time budget of the planner's thorough perception retry, ms "
+                           "time cap of the planner's thorough perception retry, ms "
                            "(BinPickingPlannerOptions::thorough_retry_ms)")
                 ->capture_default_str()
                 ->check(CLI::PositiveNumber);
-            return [dir, json_out, manifest, shard, options, retry_ms]() -> int {
-              options->make_planner = [retry_ms](const Cell& cell, std::unique_ptr<CaptureSource> source)
+            auto retry_estimates = std::make_shared<int>(BinPickingPlannerOptions{}.thorough_retry_estimates);
+            sub.add_option("--thorough-retry-estimates", *retry_estimates,
+                           "budget of the planner's thorough perception retry in pose estimates, 0: no count "
+                           "(BinPickingPlannerOptions::thorough_retry_estimates)")
+                ->capture_default_str()
+                ->check(CLI::NonNegativeNumber);
+            return [dir, json_out, manifest, shard, options, retry_ms, retry_estimates]() -> int {
+              options->make_planner = [retry_ms, retry_estimates](const Cell& cell,
+                                                                   std::unique_ptr<CaptureSource> source)
                   -> Result<std::unique_ptr<GraspPlanner>> {
                 Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
                 if (!perception.ok()) return perception.status();
                 BinPickingPlannerOptions planner_options;
                 planner_options.thorough_retry_ms = *retry_ms;
+                planner_options.thorough_retry_estimates = *retry_estimates;
                 auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
                                                          std::move(source), planner_options);
                 if (!planner.ok()) return planner.status();

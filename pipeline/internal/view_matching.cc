@@ -117,7 +117,8 @@ void ViewMatcher::RankClasses(const ViewIndices& view, bool region_view, const V
 }
 
 void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms, size_t from, size_t to,
-                             bool too_small, const ViewTrace* earlier, ViewTrace* trace, std::vector<Job>* jobs) {
+                             bool too_small, int rank0, const ViewTrace* earlier, ViewTrace* trace,
+                             std::vector<Job>* jobs) {
   to = std::min(to, ms.size());
   if (from >= to) return;
   const size_t base = jobs->size();
@@ -135,6 +136,11 @@ void ViewMatcher::RunClasses(const SegmentView& view, const std::vector<int>& ms
     const WaveTrace* skip = earlier != nullptr && mi < earlier->size() ? &(*earlier)[mi] : nullptr;
     std::optional<double> started;
     if (budget_) {
+      if (rank0 != kUncounted && !budget_->Counted(rank0 + static_cast<int>(r))) {
+        job.skipped = true;
+        ++counts_.estimates_skipped;
+        return;
+      }
       started = budget_->Admit();
       if (!started) {
         job.skipped = true;
@@ -187,6 +193,16 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     std::stable_sort(start_order.begin(), start_order.end(),
                      [&](size_t a, size_t b) { return best_cost[a] < best_cost[b]; });
   }
+  // The budget's count (PerceptionBudget::max_estimates): each view's
+  // ranked classes numbered in start order, on from the previous Match.
+  const bool counted = budget_ && budget_->counts();
+  std::vector<int> rank0(n_views, kUncounted);
+  if (counted) {
+    for (size_t v : start_order) {
+      rank0[v] = next_rank_;
+      next_rank_ += static_cast<int>(order[v].size());
+    }
+  }
   std::atomic<size_t> next_view{0};
   MatchOutcome out;
   std::vector<std::vector<Job>> per_view(n_views);
@@ -216,14 +232,14 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     ViewTrace* trace = keep_traces ? &out.traces[v] : nullptr;
     std::vector<Job>& jobs = per_view[v];
     if (early_exit && !order[v].empty()) {
-      RunClasses(view, order[v], 0, 1, false, view_earlier, trace, &jobs);
+      RunClasses(view, order[v], 0, 1, false, rank0[v], view_earlier, trace, &jobs);
       const auto& hs = jobs.front().estimate.hypotheses;
       const bool confident = !hs.empty() && hs.front().score >= options_.early_exit_score &&
                              static_cast<double>(hs.front().support.size()) >=
                                  options_.early_exit_support * static_cast<double>(index.size());
-      if (!confident) RunClasses(view, order[v], 1, order[v].size(), false, view_earlier, trace, &jobs);
+      if (!confident) RunClasses(view, order[v], 1, order[v].size(), false, rank0[v], view_earlier, trace, &jobs);
     } else {
-      RunClasses(view, order[v], 0, order[v].size(), false, view_earlier, trace, &jobs);
+      RunClasses(view, order[v], 0, order[v].size(), false, rank0[v], view_earlier, trace, &jobs);
     }
     bool found = false;
     double best = -1.0;
@@ -234,7 +250,14 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
       }
     }
     out.best[v] = best;
-    if (!found) RunClasses(view, too_small[v], 0, too_small[v].size(), true, view_earlier, trace, &jobs);
+    // The fallback classes of a view the count cut are not run either.
+    const bool within_count =
+        !counted || budget_->Counted(rank0[v] + std::max(0, static_cast<int>(order[v].size()) - 1));
+    if (!found && within_count) {
+      RunClasses(view, too_small[v], 0, too_small[v].size(), true, kUncounted, view_earlier, trace, &jobs);
+    } else if (!found) {
+      counts_.estimates_skipped += static_cast<int>(too_small[v].size());
+    }
   });
   counts_.views += static_cast<int>(n_views);
   for (const std::vector<Job>& jobs : per_view) {

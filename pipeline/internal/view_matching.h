@@ -84,6 +84,10 @@ class BudgetGate {
   std::optional<double> Admit() const;
   // An admitted estimate that started at `started_ms` has finished.
   void Finished(double started_ms);
+  // Whether the estimate numbered `rank` (from 0, in start order) is within
+  // PerceptionBudget::max_estimates (always, without a count).
+  bool Counted(int rank) const { return budget_.max_estimates <= 0 || rank < budget_.max_estimates; }
+  bool counts() const { return budget_.max_estimates > 0; }
 
  private:
   double Now() const;
@@ -125,8 +129,11 @@ class ViewMatcher {
   void RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier, std::vector<int>* order,
                    std::vector<int>* too_small, double* best_cost) const;
   // Runs the classes ms[from, to) on one view in parallel, appending to jobs.
+  // rank0: the number of ms[0] in the budget's count (class r is rank0 + r;
+  // PerceptionBudget::max_estimates), or kUncounted.
+  static constexpr int kUncounted = -1;
   void RunClasses(const SegmentView& view, const std::vector<int>& ms, size_t from, size_t to, bool too_small,
-                  const ViewTrace* earlier, ViewTrace* trace, std::vector<Job>* jobs);
+                  int rank0, const ViewTrace* earlier, ViewTrace* trace, std::vector<Job>* jobs);
   // The jobs' hypotheses that pass the detection bar, as candidates.
   void CollectCandidates(const ViewSet& views, std::vector<std::vector<Job>>& per_view,
                          std::vector<Candidate>* out);
@@ -139,6 +146,7 @@ class ViewMatcher {
   const Segments& segments_;
   const FitRmsLimit& fit_limit_;
   std::optional<BudgetGate> budget_;
+  int next_rank_ = 0;  // the budget's count: the number the next Match's first estimate gets
   MatchCounts counts_;
 };
 

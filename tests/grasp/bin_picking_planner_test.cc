@@ -286,20 +286,23 @@ class RunsOutOfItsRetryBudget final : public Perception {
                                        const PerceptionBudget& budget,
                                        const std::optional<PerceptionRegion>& region) const override {
     deadline_ms = budget.deadline_ms;
+    max_estimates = budget.max_estimates;
     now_at_start_ms = budget.now_ms ? budget.now_ms() : -1.0;
     Result<PerceptionResult> r = Run(frame, classes, PerceptionEffort::kThorough, region);
     if (r.ok()) r->estimates_skipped = 7;
     return r;
   }
   mutable double deadline_ms = 0.0, now_at_start_ms = 0.0;
+  mutable int max_estimates = -1;
 
  private:
   TruthPerception truth_;
 };
 
-// The retry's deadline is its budget from the retry's start, less
-// what the normal grasp stage took (the retry's grasp stage comes after
-// it), on the planner's clock; a retry that ran out says so.
+// The retry's budget is a count of estimates (thorough_retry_estimates)
+// under a deadline: its time cap from the retry's start, less what the
+// normal grasp stage took (the retry's grasp stage comes after it), on the
+// planner's clock; a retry that ran out says so.
 TEST(BinPickingPlanner, TheThoroughRetryGetsItsBudgetAndThePlanSaysWhenItRanOut) {
   Cell cell = SyntheticCell(3, 5);
   auto perception = std::make_shared<RunsOutOfItsRetryBudget>(cell);
@@ -308,6 +311,7 @@ TEST(BinPickingPlanner, TheThoroughRetryGetsItsBudgetAndThePlanSaysWhenItRanOut)
   BinPickingPlannerOptions options;
   options.teach_file = "-";
   options.thorough_retry_ms = 80.0;
+  options.thorough_retry_estimates = 4;
   auto ticks = std::make_shared<int>(1000);  // read by one thread: the plan's
   options.retry_clock_ms = [ticks] { return static_cast<double>((*ticks)++); };
   auto planner = BinPickingPlanner::Create(cell, perception, std::move(*source), options);
@@ -324,7 +328,9 @@ TEST(BinPickingPlanner, TheThoroughRetryGetsItsBudgetAndThePlanSaysWhenItRanOut)
   ASSERT_NE(grasps, plan->stages.end());
   EXPECT_DOUBLE_EQ(perception->now_at_start_ms, 1001.0);  // the clock read once at the retry's start
   EXPECT_NEAR(perception->deadline_ms, 1000.0 + 80.0 - grasps->ms, 1e-9);
-  EXPECT_NE(plan->message.find("thorough retry stopped at its 80 ms budget, 7 estimates not run"), std::string::npos)
+  EXPECT_EQ(perception->max_estimates, 4);
+  EXPECT_NE(plan->message.find("thorough retry stopped at its budget of 4 estimates / 80 ms, 7 estimates not run"),
+            std::string::npos)
       << plan->message;
 }
 

@@ -425,6 +425,38 @@ TEST_F(PerceptionTest, AThoroughRunWithinItsBudgetFindsWhatAnUnboundedOneFinds) 
   }
 }
 
+// A budget in work units (PerceptionBudget::max_estimates): the first N
+// estimates in start order run, whatever the clock says (under a far
+// deadline) and however many threads run them, so which parts a retry finds
+// does not depend on the machine's load.
+TEST_F(PerceptionTest, ACountBudgetStartsTheSameEstimatesWhateverTheClockAndTheThreads) {
+  const Frame frame = fx().Pile(3);
+  const PerceptionResult unbounded = fx().Run(frame, {}, PerceptionEffort::kThorough);
+  auto run = [&](int threads, double ms_per_reading) {
+    auto ticks = std::make_shared<std::atomic<int>>(0);
+    PerceptionBudget budget{1e9, [ticks, ms_per_reading] { return ms_per_reading * (*ticks)++; }, 5};
+    tbb::task_arena arena(threads);
+    Result<PerceptionResult> r = Status::Internal("not run");
+    arena.execute([&] { r = fx().perception->RunThorough(frame, {}, budget); });
+    EXPECT_TRUE(r.ok()) << r.status().ToString();
+    return r.ok() ? *r : PerceptionResult{};
+  };
+  const PerceptionResult fast = run(1, 1.0), slow = run(2, 1e5);
+  // The first 5 ranked estimates, and the fallback classes of views all of
+  // whose ranked ones were within the count; the rest is skipped.
+  EXPECT_GE(fast.estimator_calls, 5);
+  EXPECT_LT(fast.estimator_calls, unbounded.estimator_calls);
+  EXPECT_GT(fast.estimates_skipped, 0);
+  EXPECT_FALSE(fast.detections.empty()) << fast.reason;
+  EXPECT_EQ(slow.estimator_calls, fast.estimator_calls);
+  EXPECT_EQ(slow.estimates_skipped, fast.estimates_skipped);
+  ASSERT_EQ(slow.detections.size(), fast.detections.size());
+  for (size_t i = 0; i < fast.detections.size(); ++i) {
+    EXPECT_EQ(slow.detections[i].class_id, fast.detections[i].class_id);
+    EXPECT_LT((slow.detections[i].X_BO.translation() - fast.detections[i].X_BO.translation()).norm(), 1e-6);
+  }
+}
+
 // The last part of seed 000's and seed 003's default bin (scene 1): a pipe
 // tee standing on its branch, alone on the floor. From above its branch is
 // hidden under its run: a half cylinder 5 cm over the floor. In the run's
