@@ -1483,6 +1483,11 @@ std::string Describe(const Cell& cell) {
   }
   os << "\n  tasks:";
   for (const TaskSpec& t : cell.tasks) os << " " << t.id << "=" << t.name;
+  // The pick tasks that hand out only grasps their part can be placed with
+  // (place_on: seed 003's pick is one on a seed-003 cell).
+  for (const TaskSpec& t : cell.tasks) {
+    if (!t.place_on.empty()) os << "\n  task " << t.id << " places on " << t.place_on << " (placeable grasps only)";
+  }
   // The empty-box threshold each camera config applies (EffectiveThreshold).
   for (const TaskSpec& t : cell.tasks) {
     if (t.kind != TaskSpec::Kind::kPick && t.kind != TaskSpec::Kind::kPick2D) continue;

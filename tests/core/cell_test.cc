@@ -20,6 +20,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
+using ::testing::Not;
 
 // A valid cell exercising every section; the table-driven tests below mutate
 // one line of it at a time.
@@ -445,6 +446,8 @@ TEST_F(CellFileTest, FixturesAndTheirTasksAreParsed) {
                                                "{id: 0, name: pick, kind: pick, gripper: suction, place_on: nest}")));
   ASSERT_TRUE(placing.ok()) << placing.status().ToString();
   EXPECT_EQ(placing->FindTask(0)->place_on, "nest");
+  EXPECT_THAT(Describe(*placing), HasSubstr("task 0 places on nest (placeable grasps only)"));
+  EXPECT_THAT(Describe(*cell), Not(HasSubstr("places on")));
   EXPECT_DOUBLE_EQ(cell->source.slip_translation, 0.01);
   EXPECT_DOUBLE_EQ(cell->source.slip_rotation_deg, 10.0);
   EXPECT_DOUBLE_EQ(cell->source.fixture_offset_translation, SourceSpec{}.fixture_offset_translation);
