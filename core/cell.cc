@@ -503,10 +503,11 @@ void Parser::ParseCamera(const YAML::Node& n, Cell& cell) const {
     cam.plane_calibration_file = Resolve(Name(f, "camera.plane_calibration_file"));
   }
   const YAML::Node given = n["hand_eye_file"];
-  // With a calibration section, the result file defaults to "<cell file>.calibration.yaml".
+  // With a calibration section, the result file defaults to "<cell file>.calibration.yaml",
+  // next to the cell file (its name alone: Resolve puts it in the cell's directory).
   const YAML::Node h = given.IsDefined() || !cell.calibration || file_ == kEmbeddedPath
                            ? given
-                           : YAML::Node(file_ + ".calibration.yaml");
+                           : YAML::Node(fs::path(file_).filename().string() + ".calibration.yaml");
   if (h.IsDefined()) {
     cam.hand_eye_file = Resolve(Name(h, "camera.hand_eye_file"));
     std::error_code ec;

@@ -948,6 +948,21 @@ TEST(DefaultCell, ShippedFileLoadsFromDiskLikeTheEmbeddedCopy) {
   EXPECT_EQ(on_disk->camera.configs.size(), embedded->camera.configs.size());
 }
 
+// A cell given by a path relative to the working directory (`binpickd
+// --cell assets/cells/default.yaml`) keeps its calibration result next to
+// it: the default "<cell file>.calibration.yaml" was resolved against the
+// cell's directory a second time (assets/cells/assets/cells/...).
+TEST(DefaultCell, TheCalibrationFileOfACellGivenByARelativePathIsNextToIt) {
+  const fs::path source = fs::path(BINPICK_SOURCE_DIR);
+  const fs::path cwd = fs::current_path();
+  fs::current_path(source);
+  Result<Cell> cell = LoadCell("assets/cells/default.yaml");
+  fs::current_path(cwd);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_EQ(cell->camera.hand_eye_file,
+            (fs::absolute(source) / "assets/cells/default.yaml.calibration.yaml").lexically_normal().string());
+}
+
 TEST(DefaultCell, MissingAssetsAreReportedAsNotFound) {
   const fs::path assets = testing::FreshDir("assets");  // empty
   ScopedEnv env("BINPICK_ASSETS", assets.string());
