@@ -165,8 +165,9 @@ class PerceptionImpl final : public Perception {
   // (none without `floor`).
   internal::Segments Segment(const internal::RoiCloud& roi, const Frame& frame, const Pose& X_BW, bool floor,
                              StageClock& clock) const;
-  // Stages "pose", "verify", "second_look" and "residual": the views matched
-  // and accepted. Fills the result's detections and counts.
+  // Stages "pose", "verify", "second_look", "residual" and
+  // "residual_regions": the views matched and accepted. Fills the result's
+  // detections and counts.
   void MatchViews(const internal::Segments& segments, const Frame& frame, std::span<const ClassModel* const> models,
                   bool thorough, const internal::FitRmsLimit& fit_limit,
                   const std::optional<Eigen::Vector4d>& floor_plane_B, const PerceptionBudget* budget,
@@ -254,6 +255,15 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   residual.first_region = residual.views.size();
   if (!residual.views.empty()) acceptance.Accept(matcher.Match(residual, internal::MatchPass::kWave).candidates);
   clock.Lap("residual");
+  if (options_.residual_regions) {
+    // Region views (skipped when no class fits), with the waves' search (the
+    // second look's wider one added more wrong detections than right ones:
+    // docs/tuning.md, "residual_regions").
+    internal::ViewSet regions;
+    regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points);
+    if (!regions.views.empty()) acceptance.Accept(matcher.Match(regions, internal::MatchPass::kWave).candidates);
+    clock.Lap("residual_regions");
+  }
 
   const internal::MatchCounts& counts = matcher.counts();
   result.views = counts.views + waves.views_explained;

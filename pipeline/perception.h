@@ -194,6 +194,12 @@ struct PerceptionOptions {
   // The second look tries a view's classes in the order of their best score
   // in its wave.
   bool second_look_rank_by_wave = true;
+  // After the residual pass, the samples no detection explains (of segments
+  // and of pieces too small to be one) are grouped by grid connectivity and
+  // each group of >= min_segment_points is matched as a view: a part split
+  // over segments, or left in pieces, once its neighbours are found
+  // (internal::ResidualRegionViews; stage "residual_regions").
+  bool residual_regions = true;
   // A thorough run (PerceptionEffort::kThorough) tries every class on every
   // view with this wider search; the planner retries with it when a normal
   // run leaves nothing to pick.

@@ -89,6 +89,7 @@ struct EvalCliOptions {
   double ambiguity_net_gain = PerceptionOptions{}.ambiguity_net_gain;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
+  bool residual_regions = PerceptionOptions{}.residual_regions;
 };
 
 // FNV-1a over the values: a fingerprint of a long label vector.
@@ -289,6 +290,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.ambiguity_net_gain = opt.ambiguity_net_gain;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
+  popt.residual_regions = opt.residual_regions;
   return popt;
 }
 
@@ -795,6 +797,10 @@ Command EvalCommand() {
                    sub.add_option("--second-look-skip", opt->second_look_skip_tried,
                                   "1: the second look does not refine again the coarse poses the waves refined "
                                   "(PerceptionOptions::second_look_skip_tried; tuning)")
+                       ->capture_default_str();
+                   sub.add_option("--residual-regions", opt->residual_regions,
+                                  "1: match the samples no detection explains, grouped by grid connectivity, "
+                                  "after the residual pass (PerceptionOptions::residual_regions; tuning)")
                        ->capture_default_str();
                    sub.add_flag("--bin-only", opt->bin_only,
                                 "run the bin detection stage alone on each frame and score it against the "

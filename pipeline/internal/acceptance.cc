@@ -170,6 +170,39 @@ double Acceptance::ExplainedFraction(const Segments& segments, const ViewIndices
   return static_cast<double>(std::count(on.begin(), on.end(), uint8_t{1})) / static_cast<double>(on.size());
 }
 
+std::vector<uint8_t> Acceptance::UnexplainedSamples(const Segments& segments) const {
+  const size_t n = segments.points.size();
+  std::vector<uint8_t> on(n, 0);
+  for (size_t k = 0; k < n; ++k) on[k] = claims_[static_cast<size_t>(segments.roi_index[k])] > 0 ? 1 : 0;
+  // Per live detection, the samples within its diameter of its surface
+  // centroid (the part lies there) that no earlier one explained.
+  std::vector<size_t> live;
+  for (size_t d = 0; d < detections_.size(); ++d) {
+    if (!accepted_[d].dropped && ModelOf(detections_[d].class_id) != nullptr) live.push_back(d);
+  }
+  std::vector<std::vector<uint8_t>> marks(live.size());
+  std::vector<std::vector<size_t>> near(live.size());
+  tbb::parallel_for(size_t{0}, live.size(), [&](size_t j) {
+    const Accepted& a = accepted_[live[j]];
+    const Eigen::Vector3f centre = a.centre_B.cast<float>();
+    const float r2 = static_cast<float>(a.diameter * a.diameter);
+    std::vector<Eigen::Vector3f> points;
+    for (size_t k = 0; k < n; ++k) {
+      if (on[k] || (segments.points[k] - centre).squaredNorm() > r2) continue;
+      near[j].push_back(k);
+      points.push_back(segments.points[k]);
+    }
+    marks[j].assign(points.size(), 0);
+    ModelOf(detections_[live[j]].class_id)->MarkOnSurface(detections_[live[j]].X_BO, points, kExplainedDistance,
+                                                          &marks[j]);
+  });
+  for (size_t j = 0; j < live.size(); ++j) {
+    for (size_t i = 0; i < near[j].size(); ++i) on[near[j][i]] |= marks[j][i];
+  }
+  for (uint8_t& u : on) u = u ? 0 : 1;
+  return on;
+}
+
 std::vector<Detection> Acceptance::TakeDetections() {
   std::vector<Detection> live;
   for (size_t k = 0; k < detections_.size(); ++k) {

@@ -40,6 +40,11 @@ class Acceptance {
   // already found.
   double ExplainedFraction(const Segments& segments, const ViewIndices& view, double min_score = 0.0) const;
 
+  // Per sample of segments.points: 1 when no live detection explains it
+  // (in no live detection's support and farther than 2.5 mm from every live
+  // detection's surface), else 0.
+  std::vector<uint8_t> UnexplainedSamples(const Segments& segments) const;
+
   // True when no candidate was ever accepted (dropped ones included).
   bool never_accepted() const { return detections_.empty(); }
   // How many live detections' support holds the ROI point.

@@ -262,6 +262,23 @@ void BuildRegionViews(const RoiCloud& roi, const GridLabels& labels, const std::
   }
 }
 
+// Appends the samples of the pieces below min_segment_points that no region
+// view holds (their connected region is not `multi`), in cell order: views
+// never name them; the residual regions' pass (ResidualRegionViews) does.
+void AppendOtherPieces(const RoiCloud& roi, const GridLabels& labels, const KeptCells& cells,
+                       std::vector<int32_t>& cell_of_sample, Segments& out) {
+  const std::vector<uint8_t>& multi = cells.region_counts.multi;
+  for (size_t c = 0; c < labels.segment_of_cell.size(); ++c) {
+    const int32_t r = labels.region_of_cell[c];
+    if (!cells.fragment_cell[c] || (r >= 0 && multi[static_cast<size_t>(r)])) continue;
+    const int32_t i = labels.grid.point_of_cell[c];
+    out.points.push_back(roi.points_B[static_cast<size_t>(i)]);
+    out.normals.push_back(labels.normals[c]);
+    out.roi_index.push_back(i);
+    cell_of_sample.push_back(static_cast<int32_t>(c));
+  }
+}
+
 }  // namespace
 
 GridLabels LabelGrid(const RoiCloud& roi, const Frame& frame, const Pose& X_BW, const SegmentationOptions& options) {
@@ -325,7 +342,11 @@ Segments GroupGridSegments(const RoiCloud& roi, GridLabels labels, const Segment
   GroupSamples(roi, labels, start, cells, ranges, out, cell_of_sample);
   if (options.match_regions) {
     BuildRegionViews(roi, labels, renumber, sizes.region, start, cells, cell_of_sample, out);
+    AppendOtherPieces(roi, labels, cells, cell_of_sample, out);
   }
+  out.cell_of_sample = std::move(cell_of_sample);
+  out.grid_width = labels.grid.width;
+  out.grid_jump = labels.grid_jump;
   // One pass gives every ROI point its segment and its connected region.
   SpreadLabels(roi, labels.grid, labels.segment_of_cell, labels.region_of_cell, labels.grid_jump,
                &out.segment_of_point, &out.region_of_point);

@@ -55,8 +55,10 @@ struct GridLabels {
 // Segmentation's result, the pose stage's input.
 struct Segments {
   // Samples of the kept segments grouped by segment, largest first: segment
-  // s is [range[s].first, range[s].second). After them, the pieces below
-  // min_segment_points that region views hold (in no range).
+  // s is [range[s].first, range[s].second). After them (organized frames,
+  // match_regions), the samples of the pieces below min_segment_points (in
+  // no range): first those region views hold, then the others (the residual
+  // regions' pass groups them).
   std::vector<Eigen::Vector3f> points;
   std::vector<Eigen::Vector3f> normals;  // one per point; empty for unorganized clouds
   std::vector<int32_t> roi_index;        // ROI point index of each sample
@@ -65,6 +67,13 @@ struct Segments {
   std::vector<ViewIndices> region_views;
   std::vector<int32_t> segment_of_point;  // per ROI point: kept segment, -1: none
   std::vector<int32_t> region_of_point;   // per ROI point: connected region, -1: none
+  // Organized frames: each sample's grid cell (row-major, grid_width cells
+  // across) and the grid's neighbour distance (GridLabels::grid_jump):
+  // samples of 4-neighbour cells within grid_jump are connected. Empty /
+  // 0 for unorganized clouds.
+  std::vector<int32_t> cell_of_sample;
+  int grid_width = 0;
+  float grid_jump = 0.f;
 };
 
 // Normals, connected regions and grown segments on the grid whose spacing on

@@ -34,6 +34,37 @@ std::vector<uint8_t> Explained(const std::vector<ViewIndices>& views, const std:
   return explained;
 }
 
+// A residual region with at least this fraction of one kept segment's
+// samples, and samples of no other segment or piece, repeats that segment's
+// match.
+constexpr double kSameSegmentFraction = 0.9;
+
+// Union-find root with path halving.
+int32_t Root(std::vector<int32_t>& parent, int32_t a) {
+  while (parent[static_cast<size_t>(a)] != a) {
+    parent[static_cast<size_t>(a)] = parent[static_cast<size_t>(parent[static_cast<size_t>(a)])];
+    a = parent[static_cast<size_t>(a)];
+  }
+  return a;
+}
+
+// The kept segment holding sample k, -1 for a piece's sample.
+int32_t SegmentOfSample(const Segments& segments, int32_t k) {
+  const auto it = std::upper_bound(segments.range.begin(), segments.range.end(), k,
+                                   [](int32_t v, const std::pair<int32_t, int32_t>& r) { return v < r.second; });
+  return it != segments.range.end() && k >= it->first ? static_cast<int32_t>(it - segments.range.begin()) : -1;
+}
+
+// Whether the group repeats one kept segment's match (kSameSegmentFraction).
+bool RepeatsASegment(const Segments& segments, const ViewIndices& group) {
+  const int32_t s = SegmentOfSample(segments, group.front());
+  if (s < 0 || SegmentOfSample(segments, group.back()) != s) return false;
+  // Sample order: a group whose first and last samples lie in segment s
+  // holds only s's samples.
+  const auto [b, e] = segments.range[static_cast<size_t>(s)];
+  return static_cast<double>(group.size()) >= kSameSegmentFraction * (e - b);
+}
+
 }  // namespace
 
 WaveResult MatchInWaves(ViewSet views, const PerceptionOptions& options, bool thorough, const Segments& segments,
@@ -125,6 +156,53 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
     if (n < e - b && n >= min_segment_points && n >= kResidualFraction * (e - b)) residual.push_back(std::move(left));
   }
   return residual;
+}
+
+std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
+                                             int min_segment_points) {
+  std::vector<ViewIndices> out;
+  const size_t n = segments.points.size();
+  if (segments.grid_width <= 0 || segments.cell_of_sample.size() != n) return out;
+  const std::vector<uint8_t> left = acceptance.UnexplainedSamples(segments);
+  // The unexplained samples by grid cell, then joined with their right and
+  // lower neighbours.
+  int32_t max_cell = -1;
+  for (int32_t c : segments.cell_of_sample) max_cell = std::max(max_cell, c);
+  std::vector<int32_t> sample_of_cell(static_cast<size_t>(max_cell) + 1, -1);
+  std::vector<int32_t> parent(n);
+  std::iota(parent.begin(), parent.end(), 0);
+  for (size_t k = 0; k < n; ++k) {
+    if (left[k]) sample_of_cell[static_cast<size_t>(segments.cell_of_sample[k])] = static_cast<int32_t>(k);
+  }
+  const int32_t w = segments.grid_width;
+  const float jump2 = segments.grid_jump * segments.grid_jump;
+  for (size_t k = 0; k < n; ++k) {
+    if (!left[k]) continue;
+    const int32_t c = segments.cell_of_sample[k];
+    for (const int32_t d : {c % w + 1 < w ? c + 1 : -1, c + w}) {
+      if (d < 0 || d > max_cell) continue;
+      const int32_t j = sample_of_cell[static_cast<size_t>(d)];
+      if (j < 0 || (segments.points[k] - segments.points[static_cast<size_t>(j)]).squaredNorm() > jump2) continue;
+      const int32_t a = Root(parent, static_cast<int32_t>(k)), b = Root(parent, j);
+      if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+    }
+  }
+  // Groups in order of their first sample, each in sample order.
+  std::vector<int32_t> group_of_root(n, -1);
+  std::vector<ViewIndices> groups;
+  for (size_t k = 0; k < n; ++k) {
+    if (!left[k]) continue;
+    int32_t& g = group_of_root[static_cast<size_t>(Root(parent, static_cast<int32_t>(k)))];
+    if (g < 0) {
+      g = static_cast<int32_t>(groups.size());
+      groups.emplace_back();
+    }
+    groups[static_cast<size_t>(g)].push_back(static_cast<int32_t>(k));
+  }
+  for (ViewIndices& g : groups) {
+    if (static_cast<int>(g.size()) >= min_segment_points && !RepeatsASegment(segments, g)) out.push_back(std::move(g));
+  }
+  return out;
 }
 
 }  // namespace bp::internal

@@ -49,4 +49,16 @@ int SecondLook(WeakViews weak, const PerceptionOptions& options, const Segments&
 std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptance& acceptance,
                                        int min_segment_points);
 
+// Residual regions (PerceptionOptions::residual_regions): the samples no
+// live detection explains (Acceptance::UnexplainedSamples), of kept segments
+// and of pieces below min_segment_points alike, grouped like the connected
+// regions (4-neighbour grid cells within Segments::grid_jump). Each group of
+// at least min_segment_points samples is a view, unless it is nearly one
+// kept segment that the waves matched already (90% of its samples and none
+// from elsewhere). Joins the pieces of a part the segmentation split or left
+// unsegmented once its neighbours are found. Organized frames only (none
+// otherwise).
+std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
+                                             int min_segment_points);
+
 }  // namespace bp::internal

@@ -331,6 +331,70 @@ TEST(ViewPasses, AResidualViewIsTheUnclaimedPartOfASegmentWhenEnoughIsLeft) {
   EXPECT_EQ(residual[0], Range(400, 600));
 }
 
+TEST(Acceptance, ASampleIsUnexplainedOffEveryLiveDetectionsSurfaceAndOutOfItsSupport) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  Acceptance acceptance(10, models);
+  acceptance.Accept({SphereAt(sphere, Vec3(0, 0, 0), 0.8, {2})});
+  Segments segments;
+  // On the surface; 2 mm off it; in the support, far off; neither.
+  segments.points = {{0.02f, 0.f, 0.f}, {0.f, 0.022f, 0.f}, {0.f, 0.f, 0.05f}, {0.f, 0.f, 0.03f}};
+  segments.roi_index = {0, 1, 2, 3};
+  EXPECT_EQ(acceptance.UnexplainedSamples(segments), (std::vector<uint8_t>{0, 0, 0, 1}));
+}
+
+// Grid of 40 x 30 cells, 1 mm apart: segments 0 and 1 side by side (rows
+// 0-9), pieces below min_segment_points under them (rows 10-14, the last two
+// 10 mm higher: a depth jump), segment 2 apart (rows 20-29).
+Segments ResidualRegionsGrid() {
+  Segments s;
+  const auto add = [&](int row, int col, float z) {
+    s.points.emplace_back(0.001f * static_cast<float>(col), 0.001f * static_cast<float>(row), z);
+    s.cell_of_sample.push_back(row * 40 + col);
+  };
+  for (const auto& [row0, col0] : {std::pair{0, 0}, std::pair{0, 20}, std::pair{20, 0}}) {
+    const auto begin = static_cast<int32_t>(s.points.size());
+    for (int row = row0; row < row0 + 10; ++row) {
+      for (int col = col0; col < col0 + 20; ++col) add(row, col, 0.f);
+    }
+    s.range.emplace_back(begin, static_cast<int32_t>(s.points.size()));
+  }
+  for (int row = 10; row < 15; ++row) {
+    for (int col = 0; col < 40; ++col) add(row, col, row < 13 ? 0.f : 0.01f);
+  }
+  s.roi_index = Range(0, static_cast<int32_t>(s.points.size()));
+  s.grid_width = 40;
+  s.grid_jump = 0.003f;
+  return s;
+}
+
+TEST(ViewPasses, AResidualRegionJoinsTheUnexplainedSamplesOfSegmentsAndPiecesItTouches) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  const Segments segments = ResidualRegionsGrid();
+  std::vector<int32_t> expected = Range(0, 200);  // segment 0, then the pieces' rows 10-12
+  for (int32_t k : Range(600, 720)) expected.push_back(k);
+  // Segment 1 claimed by a detection far away: segment 0 and the pieces
+  // beside it are one group; the pieces beyond the depth jump (80 samples)
+  // are too few, and segment 2 alone repeats its own match.
+  Acceptance claimed(1000, models);
+  claimed.Accept({SphereAt(sphere, Vec3(1, 1, 1), 0.9, Range(200, 400))});
+  const std::vector<ViewIndices> groups = ResidualRegionViews(segments, claimed, 150);
+  ASSERT_EQ(groups.size(), 1u);
+  EXPECT_EQ(groups[0], expected);
+  // Nothing explained: segments 0 and 1 (side by side) and those pieces are one group.
+  Acceptance none(1000, models);
+  const std::vector<ViewIndices> all = ResidualRegionViews(segments, none, 150);
+  ASSERT_EQ(all.size(), 1u);
+  std::vector<int32_t> both = Range(0, 400);
+  for (int32_t k : Range(600, 720)) both.push_back(k);
+  EXPECT_EQ(all[0], both);
+  // No grid (an unorganized cloud): no groups.
+  Segments cloud = segments;
+  cloud.grid_width = 0;
+  EXPECT_TRUE(ResidualRegionViews(cloud, none, 150).empty());
+}
+
 TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   std::mt19937 rng{11};
   for (const double sigma : {0.0003, 0.001, 0.0025}) {  // 0.0025: past the fixed 4 mm edge limit
