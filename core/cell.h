@@ -436,7 +436,12 @@ struct Endpoints {
   // Connections one peer address may hold at once per listener, so one host
   // cannot take every slot (issue 39). 0: unlimited.
   int max_connections_per_peer = 16;
-  double max_message_rate = 0;        // requests per second per connection
+  // Requests per second per connection (one second of burst); above it the
+  // connection is read no faster (TCP back-pressure, nothing dropped). On by
+  // default: no robot sends 1000 requests/s, a flooding one costs the
+  // network thread and the cores the detections need (docs/reliability.md
+  // "Capture flood and soak"). 0: unlimited.
+  double max_message_rate = 1000;
   // Addresses or ADDR/PREFIX networks (core/address_list.h).
   std::vector<std::string> allowlist;  // robots that may connect
   // Robots that may change the cell: calibration (DaoAI 1-12, GRI HEC),

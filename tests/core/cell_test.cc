@@ -803,7 +803,7 @@ TEST_F(CellFileTest, EndpointLimitsAndAllowlistAreReadAndValidated) {
   Result<Cell> defaults = ParseCell(kBaseCell, (tmp_ / "d.yaml").string());
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(defaults->endpoints.max_connections, 64);
-  EXPECT_EQ(defaults->endpoints.max_message_rate, 0);
+  EXPECT_EQ(defaults->endpoints.max_message_rate, 1000);
   EXPECT_TRUE(defaults->endpoints.allowlist.empty());
   EXPECT_TRUE(defaults->endpoints.config_allowlist.empty());
   EXPECT_EQ(defaults->endpoints.max_connections_per_peer, 16);
