@@ -913,9 +913,13 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
     --pending_;
     pending_cv_.notify_all();
   };
+  // Counted before the lane can run it (a reader that sees its plan done
+  // sees it counted).
+  background_detections_.fetch_add(1, std::memory_order_relaxed);
   try {
     background_.Post(std::move(plan));
   } catch (...) {
+    background_detections_.fetch_sub(1, std::memory_order_relaxed);
     // The lane cannot take it (no thread, no memory): planned here, unless
     // a robot's pick took it to the arena meanwhile.
     spdlog::error("daoai: task {}: the background lane refused a plan ({}); planning it at once",
@@ -935,7 +939,6 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
     }
     return !mine;  // true: taken by a robot, nothing left to do here
   }
-  background_detections_.fetch_add(1, std::memory_order_relaxed);
   return true;
 }
 
