@@ -94,9 +94,9 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
     if (!spdlog::should_log(spdlog::level::debug)) return;
     for (const GraspCandidate& c : plan.plan.candidates) {
-      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}", seed, report.cycles,
+      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}{}", seed, report.cycles,
                     t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
-                    c.rejected ? ToString(*c.rejected) : "ok");
+                    c.rejected ? ToString(*c.rejected) : "ok", c.seal_only ? " (seal only)" : "");
     }
   };
   CyclePlan out;
@@ -197,6 +197,16 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
   return v;
 }
 
+// The parts the resettling after a pick moved, and how far (debug log).
+void LogResettled(const std::vector<PartTruth>& before, const std::vector<PartTruth>& after) {
+  for (const PartTruth& a : after) {
+    const PartTruth* b = FindInstance(before, a.instance_id);
+    if (b == nullptr) continue;
+    const double moved = (a.X_BO.translation() - b->X_BO.translation()).norm();
+    if (moved > 1e-4) spdlog::debug("  resettled: instance {} ({}) dropped {:.1f} mm", a.instance_id, a.class_name, 1000 * moved);
+  }
+}
+
 // What serving one capture's queue needs besides the queue.
 struct Serving {
   BinPickingPlanner& planner;
@@ -229,10 +239,15 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
                "): slipped off instance " + std::to_string(v.landed) + " (--slip); it stays";
       ++report.slipped;
     }
+    spdlog::debug("seed {} cycle {}: task {} grasp {} on detection {} (stale after {} parts) lands on instance {}: {}",
+                  report.seed, report.cycles, s.used.id, popped.grasp->name, popped.grasp->instance_id,
+                  popped.grasp->stale_after.size(), v.landed, v.success ? "picked" : v.cause);
     if (v.success) {
       ++report.picks;
       if (s.fallback) ++report.fallback_picks;
+      const std::vector<PartTruth> before = PileTruth(s.pile);
       s.pile.NotifyPicked(v.landed);  // removes it and lets the rest resettle
+      if (spdlog::should_log(spdlog::level::debug)) LogResettled(before, PileTruth(s.pile));
     } else {
       ++report.failed_picks;
       report.stale_failures += v.cause == "stale_queue" ? 1 : 0;
