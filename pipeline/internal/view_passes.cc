@@ -34,6 +34,11 @@ std::vector<uint8_t> Explained(const std::vector<ViewIndices>& views, const std:
   return explained;
 }
 
+// Unexplained samples join across gaps of up to this many grid cells less
+// one (within the grid's neighbour distance in space): grazing dropout and
+// mixed pixels leave holes along a part's creases that split its samples
+// into groups (1: the 8 neighbours).
+constexpr int32_t kResidualReach = 3;
 // A residual region with at least this fraction of one kept segment's
 // samples, and samples of no other segment or piece, repeats that segment's
 // match.
@@ -164,8 +169,7 @@ std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acc
   const size_t n = segments.points.size();
   if (segments.grid_width <= 0 || segments.cell_of_sample.size() != n) return out;
   const std::vector<uint8_t> left = acceptance.UnexplainedSamples(segments);
-  // The unexplained samples by grid cell, then joined with their right and
-  // lower neighbours.
+  // The unexplained samples by grid cell.
   int32_t max_cell = -1;
   for (int32_t c : segments.cell_of_sample) max_cell = std::max(max_cell, c);
   std::vector<int32_t> sample_of_cell(static_cast<size_t>(max_cell) + 1, -1);
@@ -176,15 +180,22 @@ std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acc
   }
   const int32_t w = segments.grid_width;
   const float jump2 = segments.grid_jump * segments.grid_jump;
+  // Each unexplained sample joins those of the cells up to kResidualReach
+  // cells below it or beside it (the cells above, and to its left on its
+  // row, joined it before) within the grid's neighbour distance.
   for (size_t k = 0; k < n; ++k) {
     if (!left[k]) continue;
     const int32_t c = segments.cell_of_sample[k];
-    for (const int32_t d : {c % w + 1 < w ? c + 1 : -1, c + w}) {
-      if (d < 0 || d > max_cell) continue;
-      const int32_t j = sample_of_cell[static_cast<size_t>(d)];
-      if (j < 0 || (segments.points[k] - segments.points[static_cast<size_t>(j)]).squaredNorm() > jump2) continue;
-      const int32_t a = Root(parent, static_cast<int32_t>(k)), b = Root(parent, j);
-      if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+    const int32_t cu = c % w, cv = c / w;
+    for (int32_t dv = 0; dv <= kResidualReach; ++dv) {
+      for (int32_t du = dv == 0 ? 1 : -kResidualReach; du <= kResidualReach; ++du) {
+        const int32_t u = cu + du, d = (cv + dv) * w + u;
+        if (u < 0 || u >= w || d > max_cell) continue;
+        const int32_t j = sample_of_cell[static_cast<size_t>(d)];
+        if (j < 0 || (segments.points[k] - segments.points[static_cast<size_t>(j)]).squaredNorm() > jump2) continue;
+        const int32_t a = Root(parent, static_cast<int32_t>(k)), b = Root(parent, j);
+        if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+      }
     }
   }
   // Groups in order of their first sample, each in sample order.

@@ -51,8 +51,9 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
 
 // Residual regions (PerceptionOptions::residual_regions): the samples no
 // live detection explains (Acceptance::UnexplainedSamples), of kept segments
-// and of pieces below min_segment_points alike, grouped like the connected
-// regions (4-neighbour grid cells within Segments::grid_jump). Each group of
+// and of pieces below min_segment_points alike, grouped by grid
+// connectivity: samples of cells up to 3 cells apart (across holes in the
+// depth) within Segments::grid_jump join. Each group of
 // at least min_segment_points samples is a view, unless it is nearly one
 // kept segment that the waves matched already (90% of its samples and none
 // from elsewhere). Joins the pieces of a part the segmentation split or left

@@ -395,6 +395,29 @@ TEST(ViewPasses, AResidualRegionJoinsTheUnexplainedSamplesOfSegmentsAndPiecesItT
   EXPECT_TRUE(ResidualRegionViews(cloud, none, 150).empty());
 }
 
+// Two 10 x 10 patches of one plane, 1 mm cells, `gap` empty columns between
+// them (grazing dropout along a crease): joined across up to 2 empty cells.
+TEST(ViewPasses, AResidualRegionBridgesAHoleOfUpToTwoCells) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  for (const int gap : {0, 1, 2, 3}) {
+    Segments s;
+    for (const int col0 : {0, 10 + gap}) {
+      for (int row = 0; row < 10; ++row) {
+        for (int col = col0; col < col0 + 10; ++col) {
+          s.points.emplace_back(0.001f * static_cast<float>(col), 0.001f * static_cast<float>(row), 0.f);
+          s.cell_of_sample.push_back(row * 40 + col);
+        }
+      }
+    }
+    s.roi_index = Range(0, 200);
+    s.grid_width = 40;
+    s.grid_jump = 0.006f;
+    Acceptance none(200, models);
+    EXPECT_EQ(ResidualRegionViews(s, none, 100).size(), gap <= 2 ? 1u : 2u) << "gap " << gap;
+  }
+}
+
 TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   std::mt19937 rng{11};
   for (const double sigma : {0.0003, 0.001, 0.0025}) {  // 0.0025: past the fixed 4 mm edge limit
