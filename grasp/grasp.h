@@ -14,10 +14,7 @@ namespace bp {
 struct Grasp {
   Pose X_BT = Pose::Identity();      // tool centre point in base at the grasp
   Pose X_BT_pre = Pose::Identity();  // pre-grasp (approach) pose of the tool in base
-  // The part instance in base the grasp was planned on: as detected, or for
-  // a grasp on an ambiguous detection planned halfway between two of its
-  // poses ("~m", grasp/grasp_planning.h) that middle pose; X_BT = X_BO * X_OG.
-  Pose X_BO = Pose::Identity();
+  Pose X_BO = Pose::Identity();      // the part instance in base, as detected
   int instance_id = -1;              // detected part instance (per capture)
   int class_id = 0;                  // part class (cell parts[].class_id)
   double score = 0.0;                // planner's ranking score, higher is better

@@ -6,14 +6,11 @@ namespace bp {
 
 namespace {
 
-// The grasp in the part frame as the cell defines it (the "~v" turn undone,
-// "~m": planned at a middle pose, Grasp::X_BO),
+// The grasp in the part frame as the cell defines it (the "~v" turn undone),
 // or as planned when the name is not a cell grasp (taught grasps).
 Pose NominalGraspInPart(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp) {
   std::string name = grasp.name;
-  for (const char* suffix : {"~v", "~m"}) {  // turned, planned at a middle pose (grasp_planning.h)
-    if (name.size() > 2 && name.compare(name.size() - 2, 2, suffix) == 0) name.resize(name.size() - 2);
-  }
+  if (name.size() > 2 && name.compare(name.size() - 2, 2, "~v") == 0) name.resize(name.size() - 2);
   for (const TaughtGrasp& g : model.CellGrasps(grasp.class_id, gripper)) {
     if (g.name == name) return g.X_OG;
   }

@@ -365,23 +365,24 @@ struct FrameObstacles {
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
 
-// Whether a tool at X_BT, planned as the grasp X_OG_nominal on the part at
-// X_BP (det.X_BO, or a middle pose: MiddlePose), lands on the part at the
-// detection's pose and at each of its alternative poses: tool centre within max_position of the grasp's
+// Whether a tool at X_BT, planned as the grasp X_OG_nominal
+// on `det` at det.X_BO, lands on the part at each of the detection's
+// alternative poses too: tool centre within max_position of the grasp's
 // contact point there and approach within max_approach of its approach,
 // both modulo the part's symmetry (LandOnTruth, the strict grasp judge's
 // rule): the jaws close where they were planned to, whichever pose is true.
-bool LandsUnderEveryAlternative(const Detection& det, const Symmetry& symmetry, const Pose& X_BT, const Pose& X_BP,
+bool LandsUnderEveryAlternative(const Detection& det, const Symmetry& symmetry, const Pose& X_BT,
                                 const Pose& X_OG_nominal, double max_position, double max_approach) {
-  const Vec3 p_O = X_BP.inverse() * X_BT.translation();
+  const Vec3 p_O = det.X_BO.inverse() * X_BT.translation();
   const Vec3 a_O = X_OG_nominal.linear().col(2);
-  auto lands = [&](const Pose& X_BO) {
+  for (const Pose& X_BO : det.alternatives_X_BO) {
     const PartTruth at{0, det.class_id, {}, X_BO, 0, 0, 0.0};
     const GraspLanding l = LandOnTruth(X_BT, p_O, a_O, det.class_id, symmetry, std::span<const PartTruth>(&at, 1));
-    return l.truth_instance >= 0 && l.position_error <= max_position && l.approach_error <= max_approach + 1e-9;
-  };
-  if (!lands(det.X_BO)) return false;
-  return std::all_of(det.alternatives_X_BO.begin(), det.alternatives_X_BO.end(), lands);
+    if (l.truth_instance < 0 || l.position_error > max_position || l.approach_error > max_approach + 1e-9) {
+      return false;
+    }
+  }
+  return true;
 }
 
 // Suction: whether a cup at X_BT seals on the part at each of the
@@ -445,53 +446,6 @@ bool NeedsSeenContact(const SeenContactRule& rule, const Detection& d) {
   return false;
 }
 
-// Pose ambiguity: the part pose halfway between the two of a detection's
-// poses (its own and its alternatives) under which grasp X_OG lands
-// furthest apart (translation halfway, rotation slerped halfway). A tool
-// planned there lands about half that spread from the grasp point under
-// each of the two, where one planned at the detection's pose may land the
-// whole spread off: a tee turned 9 deg about its run puts a grasp on the
-// run 3.1 mm off, the middle 1.6 mm. The spread is the landing error of one
-// pose's tool on the part at the other, modulo symmetry (LandOnTruth).
-// nullopt without alternatives, or when the grasp planned at the
-// detection's pose lands within max_position / max_approach under every
-// alternative already.
-std::optional<Pose> MiddlePose(const Detection& det, const Symmetry& symmetry, const Pose& X_OG, double max_position,
-                               double max_approach) {
-  if (det.alternatives_X_BO.empty()) return std::nullopt;
-  std::vector<const Pose*> poses{&det.X_BO};
-  for (const Pose& X : det.alternatives_X_BO) poses.push_back(&X);
-  const Vec3 p_O = X_OG.translation(), a_O = X_OG.linear().col(2);
-  const auto landing = [&](const Pose& from, const Pose& on) {
-    const PartTruth at{0, det.class_id, {}, on, 0, 0, 0.0};
-    return LandOnTruth(from * X_OG, p_O, a_O, det.class_id, symmetry, std::span<const PartTruth>(&at, 1));
-  };
-  bool lands = true;
-  for (size_t j = 1; j < poses.size() && lands; ++j) {
-    const GraspLanding l = landing(det.X_BO, *poses[j]);
-    lands = l.truth_instance >= 0 && l.position_error <= max_position && l.approach_error <= max_approach + 1e-9;
-  }
-  if (lands) return std::nullopt;
-  double spread = -1.0;
-  const Pose *a = nullptr, *b = nullptr;
-  for (size_t i = 0; i < poses.size(); ++i) {
-    for (size_t j = i + 1; j < poses.size(); ++j) {
-      const GraspLanding l = landing(*poses[i], *poses[j]);
-      const double d = l.truth_instance >= 0 ? l.position_error : std::numeric_limits<double>::infinity();
-      if (d > spread) {
-        spread = d;
-        a = poses[i];
-        b = poses[j];
-      }
-    }
-  }
-  const Pose X_BT_a = *a * X_OG, X_BT_b = *b * X_OG;
-  Pose X_BT = Pose::Identity();
-  X_BT.linear() = Eigen::Quaterniond(X_BT_a.linear()).slerp(0.5, Eigen::Quaterniond(X_BT_b.linear())).toRotationMatrix();
-  X_BT.translation() = 0.5 * (X_BT_a.translation() + X_BT_b.translation());
-  return Pose(X_BT * X_OG.inverse());
-}
-
 // Stage 1: every cell and taught grasp of the task's gripper on every wanted
 // detection, plus the suction compliance variants.
 std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, const Gripper& gripper,
@@ -514,27 +468,17 @@ std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, cons
       gripper.spec->kind == GripperSpec::Kind::kSuction
           ? std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0
           : 0.0;
-  // The ambiguity check's approach limit (FilterCandidates).
-  const double land_approach = gripper.spec->kind == GripperSpec::Kind::kSuction
-                                   ? m.options.suction_compliance_deg * M_PI / 180.0
-                                   : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
   std::vector<GraspCandidate> candidates;
   for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
     const Detection& det = detections[d];
     if (!wanted(det.class_id)) continue;
-    const PartSpec* part = m.cell.FindPart(det.class_id);
-    const Symmetry symmetry = part != nullptr ? part->symmetry : Symmetry{};
-    // g planned on the part at X_BP (the detection's pose, or a "~m"
-    // middle pose), with its "~v" variant.
-    auto add_at = [&](const TaughtGrasp& g, const Pose& X_BP, const char* suffix) {
+    auto add = [&](const TaughtGrasp& g) {
       GraspCandidate c;
       c.detection = d;
       c.class_id = det.class_id;
-      c.name = g.name + suffix;
-      c.X_BP = X_BP;
-      c.middle = suffix[0] != '\0';
+      c.name = g.name;
       c.X_OG = g.X_OG;
-      c.X_BT = X_BP * g.X_OG;
+      c.X_BT = det.X_BO * g.X_OG;
       c.X_BT_pre = c.X_BT * TranslateZ(-gripper.spec->approach_distance);
       c.tilt_rad = TiltRad(c.X_BT);
       c.X_BG = c.X_BT;
@@ -549,19 +493,12 @@ std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, cons
         const double angle = std::min(c.tilt_rad, compliance);
         turned.X_BT.linear() = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix() * c.X_BT.linear();
         turned.X_BT_pre = turned.X_BT * TranslateZ(-gripper.spec->approach_distance);
-        turned.X_OG = X_BP.inverse() * turned.X_BT;
+        turned.X_OG = det.X_BO.inverse() * turned.X_BT;
         turned.tilt_rad = TiltRad(turned.X_BT);
         turned.name += "~v";
       }
       candidates.push_back(std::move(c));
       if (turn) candidates.push_back(std::move(turned));
-    };
-    auto add = [&](const TaughtGrasp& g) {
-      add_at(g, det.X_BO, "");
-      if (const std::optional<Pose> X_BM =
-              MiddlePose(det, symmetry, g.X_OG, m.options.ambiguity_max_position, land_approach)) {
-        add_at(g, *X_BM, "~m");
-      }
     };
     for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
     if (auto it = taught_by_class.find(det.class_id); it != taught_by_class.end()) {
@@ -768,17 +705,15 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
       if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
         return RejectReason::kWorkspace;
       }
-      if (place && !Placeable(*place, c.X_BP, c.X_BT, gripper.spec->approach_distance, X_TF, workspace)) {
+      if (place && !Placeable(*place, det.X_BO, c.X_BT, gripper.spec->approach_distance, X_TF, workspace)) {
         return RejectReason::kUnplaceable;
       }
       // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
       if (!det.alternatives_X_BO.empty() &&
-          !LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, c.X_BP, c.X_BP.inverse() * c.X_BG,
+          !LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
                                       m.options.ambiguity_max_position, land_approach)) {
         auto part = m.parts.find(det.class_id);
-        // A middle pose's candidate is there to land under every pose; the
-        // seal-only rule is the detection's own candidates'.
-        if (!suction || part == m.parts.end() || c.middle ||
+        if (!suction || part == m.parts.end() ||
             !SealsUnderEveryAlternative(det, *part->second, c.X_BT, m.options.ambiguity_max_position, seal_angle)) {
           return RejectReason::kAmbiguous;
         }
@@ -849,8 +784,8 @@ void RankCandidates(const Cell& cell, const TaskSpec& task, const Pose& X_BW, st
 }
 
 // Stage 5: one primary grasp per part, parts ordered by their best grasp,
-// the part's other accepted grasps as related_X_B; X_BO the pose it was planned on.
-std::vector<Grasp> QueueByPart(const std::vector<GraspCandidate>& candidates) {
+// the part's other accepted grasps as related_X_B.
+std::vector<Grasp> QueueByPart(std::span<const Detection> detections, const std::vector<GraspCandidate>& candidates) {
   std::map<int, std::vector<const GraspCandidate*>> by_part;
   for (const GraspCandidate& c : candidates) {
     if (!c.rejected) by_part[c.detection].push_back(&c);
@@ -867,7 +802,7 @@ std::vector<Grasp> QueueByPart(const std::vector<GraspCandidate>& candidates) {
     Grasp g;
     g.X_BT = best.X_BT;
     g.X_BT_pre = best.X_BT_pre;
-    g.X_BO = best.X_BP;
+    g.X_BO = detections[best.detection].X_BO;
     g.instance_id = best.detection;
     g.class_id = best.class_id;
     g.score = best.score;
@@ -987,7 +922,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   FilterCandidates(m, gripper, task, X_BW, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
   KeepSealOnlyAsLastResort(plan.candidates);
   RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
-  plan.queue = QueueByPart(plan.candidates);
+  plan.queue = QueueByPart(detections, plan.candidates);
   const auto t_neighbours = std::chrono::steady_clock::now();
   MarkStaleNeighbours(m, gripper, plan.queue);
   plan.stats.neighbours_ms =

@@ -32,13 +32,6 @@
 // bin), else refused as kAmbiguous. A part with none is left for the next
 // capture; when no part has one, the plan is kNoCollisionFree, which the
 // robot hears as "no collision-free grasp" (docs/protocols.md, pick pose).
-// A grasp that, planned on the detection's pose, misses under one of them
-// is also planned on the part pose halfway between the two of its poses
-// under which it lands furthest apart ("~m", Grasp::X_BO that middle pose):
-// off the grasp point by about half the spread under each, it lands under
-// every pose when the spread is within twice ambiguity_max_position (a tee
-// turned up to ~11 deg about its run, for a grasp on the run). It goes
-// through the same checks (no seal-only rule for it).
 //
 // Seen contact (issue 37 item 2). A grasp is kept only when this frame's
 // depth shows its contact region, by the rule of the task's gripper
@@ -176,13 +169,8 @@ struct TaughtGrasp {
 struct GraspCandidate {
   int detection = -1;       // index into the detections
   int class_id = 0;
-  std::string name;         // grasp name (+ "@<symmetry index>" when expanded, "~m" at a middle pose, "~v" turned)
-  // The part pose the candidate was planned on (Grasp::X_BO): the
-  // detection's, or for a "~m" candidate the middle of an ambiguous
-  // detection's poses (see the header comment, pose ambiguity).
-  Pose X_BP = Pose::Identity();
-  bool middle = false;           // planned at a middle pose ("~m")
-  Pose X_OG = Pose::Identity();  // the tool in the part at X_BP
+  std::string name;         // grasp name (+ "@<symmetry index>" when expanded)
+  Pose X_OG = Pose::Identity();
   Pose X_BT = Pose::Identity();
   Pose X_BT_pre = Pose::Identity();
   double tilt_rad = 0.0;    // approach direction from straight down

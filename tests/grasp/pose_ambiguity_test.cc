@@ -318,10 +318,7 @@ TEST(PoseAmbiguity, ASealOnlySuctionGraspWaitsWhileAnotherPartHasAGraspThatLands
 // across the run: its surface 12 mm from the tool centre), or the run
 // sloping 30 deg under the cup (the tee tipped 30 deg across the run about
 // the top of the run at one grasp: the cup stays on the surface, 30 deg from
-// square): no suction grasp planned on the detection's pose is offered on
-// it. Aside, none at all; sloped, only one planned halfway between the
-// upright and the sloped pose ("~m": 15 deg from square under either, within
-// the cup's compliance), and it lands under every pose.
+// square): no suction grasp is offered on it.
 TEST(PoseAmbiguity, ASuctionGraspIsRefusedWhenAnAlternativePoseLeavesTheCupOverAirOrOnASteepSlope) {
   const Pose truth = TeeStandingOnItsBranch();
   const View v = Look(truth, /*hide_branch=*/false);
@@ -332,67 +329,17 @@ TEST(PoseAmbiguity, ASuctionGraspIsRefusedWhenAnAlternativePoseLeavesTheCupOverA
                       MakePose(Mat3::Identity(), -top_O);
   for (const Pose& alternative : {aside, sloped}) {
     SCOPED_TRACE(alternative.translation().transpose());
-    const Pose turned = TurnedAboutTheRun(truth, 6.8);
-    const GraspPlan plan = Plan(v, AtTruth(v, truth, {turned, alternative}));
-    if (&alternative == &aside) {
-      EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoCollisionFree) << plan.stats.Describe();
-      EXPECT_TRUE(plan.queue.empty());
-    }
-    for (const Grasp& g : plan.queue) {
-      EXPECT_NE(g.name.find("~m"), std::string::npos) << g.name;
-      for (const Pose& X_BO : {truth, turned, alternative}) {
-        const PartTruth part{0, kTee, {}, X_BO, 0, 0, 0.0};
-        EXPECT_TRUE(JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1)).on_part) << g.name;
-      }
-    }
+    const GraspPlan plan = Plan(v, AtTruth(v, truth, {TurnedAboutTheRun(truth, 6.8), alternative}));
+    EXPECT_EQ(plan.outcome, PlanResult::Outcome::kNoCollisionFree) << plan.stats.Describe();
+    EXPECT_TRUE(plan.queue.empty());
     int straight_down = 0;
     for (const GraspCandidate& c : plan.candidates) {
-      if (c.name.rfind("run_bottom", 0) != 0 || c.name.ends_with("~v") || c.middle) continue;
+      if (c.name.rfind("run_bottom", 0) != 0 || c.name.ends_with("~v")) continue;
       ++straight_down;
       EXPECT_EQ(c.rejected, RejectReason::kAmbiguous) << c.name;
     }
     EXPECT_EQ(straight_down, 2);  // the run's two halves (symmetry order 2)
   }
-}
-
-// A tee standing on its branch whose view also allows it turned 9 deg
-// about its run: under the turn, a straight-down grasp planned on the
-// detection's pose meets the run 3.1 mm from its grasp point (past the
-// judge's 2 mm), and was offered only as a seal-only last resort. Planned
-// on the pose halfway between the two ("~m"), it lands 1.6 mm from its
-// grasp point whichever is true: that grasp is offered, landing for sure.
-TEST(PoseAmbiguity, AGraspPlannedHalfwayBetweenTwoPosesTheViewAllowsLandsWhicheverIsTrue) {
-  const Pose truth = TeeStandingOnItsBranch();
-  const Pose turned = TurnedAboutTheRun(truth, 9.0);
-  const View v = Look(truth, /*hide_branch=*/false);
-  const GraspPlan plan = Plan(v, AtTruth(v, truth, {turned}));
-  ASSERT_EQ(plan.outcome, PlanResult::Outcome::kGrasps) << plan.stats.Describe();
-  ASSERT_EQ(plan.queue.size(), 1u);
-  const Grasp& g = plan.queue.front();
-  EXPECT_TRUE(g.name.starts_with("run_bottom") && g.name.find("~m") != std::string::npos) << g.name;
-  EXPECT_FALSE(g.X_BO.isApprox(truth, 1e-6)) << "X_BO is the pose the grasp was planned on";
-  int seal_only = 0, middle = 0;
-  for (const GraspCandidate& c : plan.candidates) {
-    if (c.rejected) continue;
-    seal_only += c.seal_only ? 1 : 0;
-    middle += c.middle ? 1 : 0;
-  }
-  EXPECT_EQ(seal_only, 0) << "a grasp that lands under both is offered: the seal-only ones wait";
-  EXPECT_GT(middle, 0);
-  for (const Pose& X_BO : {truth, turned}) {
-    const PartTruth part{0, kTee, {}, X_BO, 0, 0, 0.0};
-    const GraspOutcome o = JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1));
-    EXPECT_TRUE(o.on_part) << g.name << ": " << o.failure << " " << 1000 * o.position_error << " mm";
-    EXPECT_LT(o.position_error, 0.0017);
-  }
-  // The same grasp planned on the detection's pose misses under the turn.
-  Grasp at_detection = g;
-  at_detection.X_BO = truth;
-  at_detection.X_BT = truth * g.X_BO.inverse() * g.X_BT;
-  const PartTruth turned_part{0, kTee, {}, turned, 0, 0, 0.0};
-  const GraspOutcome missed = JudgeGrasp(Model(), "suction", at_detection, std::span<const PartTruth>(&turned_part, 1));
-  EXPECT_FALSE(missed.on_part);
-  EXPECT_GT(missed.position_error, 0.003);
 }
 
 }  // namespace
