@@ -1249,7 +1249,11 @@ TEST(PerceptionEval, TheSamplesNoDetectionExplainsAreMatchedAsRegions) {
   PerceptionOptions off;
   off.residual_regions = false;
   const std::unique_ptr<Perception> without = Perception::Build(f.cell, off).value();
-  for (const auto& [seed, instance] : {std::pair{1001u, 13}, std::pair{1026u, 13}}) {
+  for (const std::pair<unsigned, int>& pile : {std::pair{1001u, 13}, std::pair{1026u, 13}}) {
+    // Named copies, not structured bindings: clang 14 (the sanitizer trees)
+    // does not let the lambda below capture a structured binding.
+    const unsigned seed = pile.first;
+    const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
     struct Counts {
