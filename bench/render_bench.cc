@@ -1,11 +1,13 @@
 // Synthetic capture costs on the default cell (20 parts):
-//   ./build/bin/bp_bench --benchmark_filter='Pile|Capture|RenderOnly'
+//   ./build/bin/bp_bench --benchmark_filter='Pile|Capture|RenderOnly|DepthNoise'
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
 #include <cstdlib>
+#include <string>
 
 #include "core/mesh_gen.h"
+#include "pipeline/internal/depth_noise.h"
 #include "pipeline/renderer.h"
 #include "pipeline/synthetic_source.h"
 
@@ -52,7 +54,10 @@ void BM_PileGeneration20(benchmark::State& state) {
 }
 BENCHMARK(BM_PileGeneration20)->Unit(benchmark::kMillisecond);
 
-// Full capture: render + projector render + noise + ground truth (solo renders).
+// Full capture: render + projector render + noise + ground truth (solo
+// renders). Arg 2: 1 = every capture renders everything (ForgetRenders: a
+// pile where everything moved), 0 = the same untouched pile again (the
+// renders kept between captures: noise and truth only).
 void BM_Capture(benchmark::State& state) {
   const Cell cell = BenchCell();
   auto source = MakeSyntheticSource(cell);
@@ -62,13 +67,26 @@ void BM_Capture(benchmark::State& state) {
   }
   CaptureRequest r;
   r.config_id = static_cast<int>(state.range(0));
+  const bool fresh = state.range(1) != 0;
+  if (!(*source)->Capture(r).ok()) {  // the first capture renders in either mode
+    state.SkipWithError("capture failed");
+    return;
+  }
   for (auto _ : state) {
+    if (fresh) AsSynthetic(*source)->ForgetRenders();
     auto f = (*source)->Capture(r);
     benchmark::DoNotOptimize(f.ok());
   }
-  state.SetLabel(r.config_id == 1 ? "640x480" : "1920x1200");
+  state.SetLabel(std::string(r.config_id == 1 ? "640x480" : "1920x1200") + (fresh ? " fresh" : " unchanged pile"));
 }
-BENCHMARK(BM_Capture)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Capture)
+    ->Args({1, 1})
+    ->Args({2, 1})
+    ->Args({1, 0})
+    ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
 
 // One scene render (depth + labels + intensity), no noise, no ground truth.
 void BM_RenderOnly(benchmark::State& state) {
@@ -98,7 +116,59 @@ void BM_RenderOnly(benchmark::State& state) {
   }
   state.SetLabel(state.range(0) == 1 ? "640x480" : "1920x1200");
 }
-BENCHMARK(BM_RenderOnly)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_RenderOnly)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+// The structured-light noise of one capture (grazing dropout, projector
+// shadow, axial noise, range) on the scene of BM_RenderOnly: the clean and
+// projector renders are made once, outside the loop.
+void BM_DepthNoise(benchmark::State& state) {
+  const Cell cell = BenchCell();
+  auto source = MakeSyntheticSource(cell);
+  auto renderer = MakeOsMesaRenderer();
+  if (!source.ok() || !renderer.ok()) {
+    state.SkipWithError("setup failed");
+    return;
+  }
+  const SyntheticPile& pile = AsSynthetic(*source)->pile();
+  RenderScene scene;
+  scene.meshes.push_back(std::make_shared<TriangleMesh>(MakeBinMesh(cell.bin)));
+  for (const auto& c : pile.classes()) scene.meshes.push_back(c.mesh);
+  scene.instances.push_back({0, Pose::Identity(), GroundTruth::kBinLabel});
+  for (const auto& p : pile.parts()) {
+    scene.instances.push_back({1 + p.class_index, p.X_WO, static_cast<uint16_t>(p.instance_id)});
+  }
+  const CameraConfig* config = nullptr;
+  for (const auto& c : cell.camera.configs) {
+    if (c.id == state.range(0)) config = &c;
+  }
+  const Pose X_WC = cell.bin.X_BW.inverse() * cell.camera.X_BC;
+  const Intrinsics& K = config->intrinsics;
+  const NoiseModel& noise = config->noise;
+  const Intrinsics K_P = internal::ProjectorIntrinsics(K, noise.projector_offset, config->min_depth);
+  Pose X_CP = Pose::Identity();
+  X_CP.translation() = noise.projector_offset;
+  RenderOutput clean, projector;
+  if (!(*renderer)->RenderInto(scene, K, X_WC, clean).ok() ||
+      !(*renderer)->RenderInto(scene, K_P, X_WC * X_CP, projector).ok()) {
+    state.SkipWithError("render failed");
+    return;
+  }
+  internal::NoiseInputs in;
+  in.K = &K;
+  in.min_depth = config->min_depth;
+  in.max_depth = config->max_depth;
+  in.projector_depth = &projector.depth;
+  in.K_projector = &K_P;
+  in.projector_offset = noise.projector_offset;
+  DepthImage noisy;
+  uint64_t seed = 1;
+  for (auto _ : state) {
+    internal::ApplyDepthNoise(noise, in, seed++, clean.depth, noisy);
+    benchmark::DoNotOptimize(noisy.data.data());
+  }
+  state.SetLabel(state.range(0) == 1 ? "640x480" : "1920x1200");
+}
+BENCHMARK(BM_DepthNoise)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 }  // namespace
 }  // namespace bp

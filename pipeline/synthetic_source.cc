@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <map>
 #include <mutex>
 #include <numbers>
 #include <random>
@@ -105,6 +107,58 @@ TriangleMesh TableSlab(const Eigen::Vector2d& lo, const Eigen::Vector2d& hi) {
   return m;
 }
 
+bool SameBits(const Pose& a, const Pose& b) {
+  return std::memcmp(a.matrix().data(), b.matrix().data(), sizeof(double) * 16) == 0;
+}
+
+bool SameIntrinsics(const Intrinsics& a, const Intrinsics& b) {
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
+         a.cy == b.cy;
+}
+
+// Everything a render reads: the scene (meshes by identity, instances with
+// their pose bits and labels, clip planes, light), the intrinsics and the
+// camera pose. Holding the meshes keeps their addresses from being reused.
+struct RenderKey {
+  RenderScene scene;
+  Intrinsics K;
+  Pose X_WC = Pose::Identity();
+
+  bool Matches(const RenderScene& s, const Intrinsics& k, const Pose& x_wc) const {
+    if (!SameIntrinsics(K, k) || !SameBits(X_WC, x_wc) || scene.z_near != s.z_near || scene.z_far != s.z_far ||
+        scene.light_C != s.light_C || scene.ambient != s.ambient || scene.meshes != s.meshes ||
+        scene.instances.size() != s.instances.size()) {
+      return false;
+    }
+    for (size_t i = 0; i < s.instances.size(); ++i) {
+      const RenderInstance &a = scene.instances[i], &b = s.instances[i];
+      if (a.mesh_index != b.mesh_index || a.label != b.label || !SameBits(a.X_WO, b.X_WO)) return false;
+    }
+    return true;
+  }
+};
+
+// A solo render's pixel count and what it was rendered from (the view is
+// RenderCache::solo_view's).
+struct SoloCount {
+  std::shared_ptr<const TriangleMesh> mesh;
+  Pose X_WO = Pose::Identity();
+  int pixels = 0;
+};
+
+// What the last captures rendered, reused while the inputs are bit for bit
+// the same: the pile untouched since the last capture (no pick, no resettle)
+// and the same view. A hit returns the very bytes a new render would give
+// (the renderer is a deterministic function of these inputs), so frames of
+// a seed do not depend on the cache (test SyntheticSource.CachedRendersGive
+// TheFramesOfFreshOnes).
+struct RenderCache {
+  std::optional<RenderKey> full, projector;  // of Impl::full / Impl::projector
+  // Solo counts by label, valid for solo_view (intrinsics, X_WC, clip planes).
+  std::optional<RenderKey> solo_view;  // scene holds the clip planes only
+  std::map<uint16_t, SoloCount> solo;
+};
+
 }  // namespace
 
 class SyntheticSource::Impl {
@@ -118,6 +172,7 @@ class SyntheticSource::Impl {
   std::shared_ptr<const TriangleMesh> bin_mesh;
   int captures = 0;
   RenderOutput full, solo, projector;  // buffers reused between captures
+  RenderCache cache;                   // what full / projector / the solo counts were rendered from
   SceneMeshes scene_meshes;
   int picks = 0;  // NotifyPicked calls with a tool pose (the slip's draw)
 
@@ -210,6 +265,38 @@ class SyntheticSource::Impl {
       extras->push_back({{meshes->size() - 1, X_WB * t.X_BO, static_cast<uint16_t>(t.instance_id)}, t});
     }
     return Status::Ok();
+  }
+
+  // Renders `scene` into `out` unless `key` says `out` already holds that
+  // render; `key` is updated (cleared while `out` is being overwritten).
+  Status RenderCached(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, RenderOutput& out,
+                      std::optional<RenderKey>& key) {
+    if (key && key->Matches(scene, K, X_WC)) return Status::Ok();
+    key.reset();
+    if (Status s = renderer->RenderInto(scene, K, X_WC, out); !s.ok()) return s;
+    key = RenderKey{scene, K, X_WC};
+    return Status::Ok();
+  }
+
+  // UnoccludedPixels, reusing the count of the same mesh at the same pose
+  // bits seen through the same view.
+  Result<int> UnoccludedPixelsCached(const RenderScene& scene, const RenderInstance& instance,
+                                     const Intrinsics& K, const Pose& X_WC) {
+    RenderScene planes;
+    planes.z_near = scene.z_near;
+    planes.z_far = scene.z_far;
+    if (!cache.solo_view || !cache.solo_view->Matches(planes, K, X_WC)) {
+      cache.solo.clear();
+      cache.solo_view = RenderKey{planes, K, X_WC};
+    }
+    const auto& mesh = scene.meshes[instance.mesh_index];
+    const auto hit = cache.solo.find(instance.label);
+    if (hit != cache.solo.end() && hit->second.mesh == mesh && SameBits(hit->second.X_WO, instance.X_WO)) {
+      return hit->second.pixels;
+    }
+    auto pixels = UnoccludedPixels(scene, instance, K, X_WC);
+    if (pixels.ok()) cache.solo[instance.label] = SoloCount{mesh, instance.X_WO, *pixels};
+    return pixels;
   }
 
   // Pixels of `instance` rendered alone: rendered through intrinsics cropped
@@ -333,12 +420,11 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   std::vector<std::shared_ptr<const TriangleMesh>> extra_meshes;
   if (Status s = m.Extras(request, &extras, &extra_meshes); !s.ok()) return s;
   const RenderScene scene = m.Scene(*config, &extras, std::move(extra_meshes));
-  if (Status s = m.renderer->RenderInto(scene, K, X_WC, m.full); !s.ok()) return s;
+  if (Status s = m.RenderCached(scene, K, X_WC, m.full, m.cache.full); !s.ok()) return s;
 
   Frame frame;
   frame.intrinsics = K;
   frame.X_BC = X_BC;
-  frame.depth = m.full.depth;
   frame.intensity = m.full.intensity;
 
   // Ground truth from the clean label image.
@@ -356,7 +442,7 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     t.class_name = m.pile->classes()[p.class_index].name;
     t.X_BO = m.X_BW * p.X_WO;
     t.visible_pixels = histogram[static_cast<uint16_t>(p.instance_id)];
-    auto unoccluded = m.UnoccludedPixels(scene, scene.instances[i + 1], K, X_WC);
+    auto unoccluded = m.UnoccludedPixelsCached(scene, scene.instances[i + 1], K, X_WC);
     if (!unoccluded.ok()) return unoccluded.status();
     // The solo render samples the same pixel centres, so visible <= unoccluded;
     // the clamp only guards against a float rounding flip on an edge pixel.
@@ -371,7 +457,7 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     if (!extras[i].truth) continue;
     PartTruth t = *extras[i].truth;
     t.visible_pixels = histogram[static_cast<uint16_t>(t.instance_id)];
-    auto unoccluded = m.UnoccludedPixels(scene, scene.instances[first_extra + i], K, X_WC);
+    auto unoccluded = m.UnoccludedPixelsCached(scene, scene.instances[first_extra + i], K, X_WC);
     if (!unoccluded.ok()) return unoccluded.status();
     t.unoccluded_pixels = *unoccluded;
     t.visible_fraction =
@@ -390,13 +476,13 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     K_P = internal::ProjectorIntrinsics(K, noise.projector_offset, config->min_depth);
     Pose X_CP = Pose::Identity();
     X_CP.translation() = noise.projector_offset;
-    if (Status s = m.renderer->RenderInto(scene, K_P, X_WC * X_CP, m.projector); !s.ok()) return s;
+    if (Status s = m.RenderCached(scene, K_P, X_WC * X_CP, m.projector, m.cache.projector); !s.ok()) return s;
     in.projector_depth = &m.projector.depth;
     in.K_projector = &K_P;
     in.projector_offset = noise.projector_offset;
   }
   const uint64_t noise_seed = Mix(m.cell.source.seed ^ Mix(static_cast<uint64_t>(m.captures)));
-  internal::ApplyDepthNoise(noise, in, noise_seed, frame.depth);
+  internal::ApplyDepthNoise(noise, in, noise_seed, m.full.depth, frame.depth);
 
   frame.source = "synthetic seed=" + std::to_string(m.cell.source.seed) +
                  " capture=" + std::to_string(m.captures);
@@ -427,6 +513,8 @@ void SyntheticSource::NotifyPicked(int instance_id, const std::optional<Pose>& X
   std::lock_guard lock(m.world_mutex);
   if (taken) m.held = taken;
 }
+
+void SyntheticSource::ForgetRenders() { impl_->cache = {}; }
 
 void SyntheticSource::NotifyReleased() {
   std::lock_guard lock(impl_->world_mutex);

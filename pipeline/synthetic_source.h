@@ -12,6 +12,9 @@
 // source "synthetic seed=S capture=N" and truth (labels before noise, per-part
 // class, X_BO, visible / unoccluded pixels). A seed reproduces every frame
 // exactly: noise uses its own RNG seeded from (seed, capture index).
+// Renders are reused between captures while their inputs are bit for bit the
+// same (ForgetRenders): a capture without a pick in between renders nothing,
+// and after a pick only the parts that moved get a new solo render.
 //
 // Variety (cell.source.variety, docs/synthetic.md "Variety"): the scene's
 // camera pose, configs (intrinsics, resolution, noise) and drop style are
@@ -88,6 +91,11 @@ class SyntheticSource final : public CaptureSource {
   void NotifyPicked(int instance_id, const std::optional<Pose>& X_BT = std::nullopt) override;
   // The held part is gone (placed); the fixtures move to their next offset.
   void NotifyReleased() override;
+  // Drops the renders kept between captures (the full and projector renders
+  // while the scene is bit for bit unchanged, each part's solo pixel count
+  // while its pose is): the next capture renders everything again. Frames do
+  // not depend on it; tests compare the two paths.
+  void ForgetRenders();
   std::string Describe() const override;
 
   // The current pile, poses in the bin frame W (X_BO = X_BW() * X_WO).

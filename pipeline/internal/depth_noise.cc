@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <utility>
 #include <vector>
 
 namespace bp::internal {
@@ -46,7 +47,11 @@ Eigen::Vector3d Point(const Pinhole& K, int u, int v, double z) {
 // Cosine between the surface normal (from the clean depth) and the viewing
 // ray at (u, v); NaN if no neighbour is valid in one direction. Uses the
 // neighbour with the smaller depth step so that edges do not bend the normal.
-double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v) {
+// Returns 1 instead when the cosine is certainly above the cosine whose
+// square (times 1 + 1e-9) is `above_sq` (no square root or division: the
+// margin is far wider than the few ulps between the two ways of computing
+// it, so callers that only compare with that cosine decide the same).
+double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v, double above_sq) {
   const double z = d.at(u, v);
   const Eigen::Vector3d P = Point(K, u, v, z);
   auto tangent = [&](int du, int dv, Eigen::Vector3d& t) {
@@ -64,9 +69,11 @@ double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v) {
   Eigen::Vector3d tx, ty;
   if (!tangent(1, 0, tx) || !tangent(0, 1, ty)) return std::numeric_limits<double>::quiet_NaN();
   const Eigen::Vector3d n = tx.cross(ty);
+  const double dot = n.dot(P);
+  if (dot * dot > n.squaredNorm() * P.squaredNorm() * above_sq) return 1.0;
   const double nn = n.norm() * P.norm();
   if (nn <= 0) return std::numeric_limits<double>::quiet_NaN();
-  return std::abs(n.dot(P)) / nn;
+  return std::abs(dot) / nn;
 }
 
 // The clean depth of the 4-neighbour of (u, v) farthest in depth from z when
@@ -86,6 +93,13 @@ double EdgeNeighbourDepth(const DepthImage& d, int u, int v, double z, double ju
   return far;
 }
 
+// std::floor for |x| < 2^30, as an int: without SSE4.1 (the baseline x86-64
+// build) std::floor is a slow sequence, and this is the noise's hot loop.
+int FloorInt(double x) {
+  const int t = static_cast<int>(x);  // rounds towards zero
+  return t - (x < t ? 1 : 0);
+}
+
 // True if the projector sees the camera point P_C (depth test against the
 // projector's depth map; the 2x2 neighbourhood tolerates steep slopes).
 bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
@@ -94,7 +108,8 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
   const Intrinsics& K = *in.K_projector;
   const double iz = 1.0 / P.z();
   const double x = K.fx * P.x() * iz + K.cx, y = K.fy * P.y() * iz + K.cy;
-  const int u0 = static_cast<int>(std::floor(x)), v0 = static_cast<int>(std::floor(y));
+  if (!(std::abs(x) < 0x1p30 && std::abs(y) < 0x1p30)) return true;  // far outside the map: lit
+  const int u0 = FloorInt(x), v0 = FloorInt(y);
   if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height)
     return true;  // outside the map: lit
   double far_z = -1;
@@ -110,54 +125,64 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
 
 }  // namespace
 
-void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
-                     DepthImage& depth) {
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, const DepthImage& depth,
+                     DepthImage& noisy) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const int w = depth.width, h = depth.height;
-  if (model.enabled) {
-    const Pinhole K(*in.K);
-    const double cos_start = std::cos(model.grazing_start_deg * M_PI / 180.0);
-    const double cos_full = std::cos(model.grazing_full_deg * M_PI / 180.0);
-    const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
-    std::vector<float> out(depth.data.size(), nan);
-    // Rows in parallel; each row has its own RNG stream (seed, row), so the
-    // result does not depend on the schedule.
-    tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-      std::uniform_real_distribution<double> U(0.0, 1.0);
-      std::normal_distribution<double> N(0.0, 1.0);
-      for (int v = rows.begin(); v < rows.end(); ++v) {
-        std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
-        N.reset();
-        for (int u = 0; u < w; ++u) {
-          const double z = depth.at(u, v);
-          if (!std::isfinite(z)) continue;
-          // Grazing dropout: probability ramps linearly in angle from start to full.
-          const double c = ViewCosine(depth, K, u, v);
-          if (std::isfinite(c) && c < cos_start) {
-            if (c <= cos_full) continue;
-            const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
-            const double span = model.grazing_full_deg - model.grazing_start_deg;
-            if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
-          }
-          if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
-          if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
-          const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
-          double noisy = z + sigma * N(rng);
-          // Draws only when a model is on: frames without them stay bit for bit.
-          if (model.mixed_pixels > 0) {
-            const double far = EdgeNeighbourDepth(depth, u, v, z, model.mixed_pixel_jump);
-            if (std::isfinite(far) && U(rng) < model.mixed_pixels) noisy = z + U(rng) * (far - z);
-          }
-          if (model.speckle > 0 && U(rng) < model.speckle) noisy += model.speckle_sigma * N(rng);
-          out[static_cast<size_t>(v) * w + u] = static_cast<float>(noisy);
+  if (noisy.width != w || noisy.height != h) noisy = DepthImage(w, h);
+  // The depth range, applied last to what the noise left.
+  const auto in_range = [&](float z) { return std::isfinite(z) && (z < in.min_depth || z > in.max_depth) ? nan : z; };
+  if (!model.enabled) {
+    for (size_t i = 0; i < depth.data.size(); ++i) noisy.data[i] = in_range(depth.data[i]);
+    return;
+  }
+  const Pinhole K(*in.K);
+  const double cos_start = std::cos(model.grazing_start_deg * M_PI / 180.0);
+  const double cos_full = std::cos(model.grazing_full_deg * M_PI / 180.0);
+  const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
+  const double above_sq =
+      cos_start > 0 ? cos_start * cos_start * (1 + 1e-9) : std::numeric_limits<double>::infinity();
+  // Rows in parallel; each row has its own RNG stream (seed, row), so the
+  // result does not depend on the schedule.
+  tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
+    std::uniform_real_distribution<double> U(0.0, 1.0);
+    std::normal_distribution<double> N(0.0, 1.0);
+    for (int v = rows.begin(); v < rows.end(); ++v) {
+      std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
+      N.reset();
+      float* row = &noisy.at(0, v);
+      for (int u = 0; u < w; ++u) {
+        row[u] = nan;
+        const double z = depth.at(u, v);
+        if (!std::isfinite(z)) continue;
+        // Grazing dropout: probability ramps linearly in angle from start to full.
+        const double c = ViewCosine(depth, K, u, v, above_sq);
+        if (std::isfinite(c) && c < cos_start) {
+          if (c <= cos_full) continue;
+          const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
+          const double span = model.grazing_full_deg - model.grazing_start_deg;
+          if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
         }
+        if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
+        if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
+        const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
+        double value = z + sigma * N(rng);
+        // Draws only when a model is on: frames without them stay bit for bit.
+        if (model.mixed_pixels > 0) {
+          const double far = EdgeNeighbourDepth(depth, u, v, z, model.mixed_pixel_jump);
+          if (std::isfinite(far) && U(rng) < model.mixed_pixels) value = z + U(rng) * (far - z);
+        }
+        if (model.speckle > 0 && U(rng) < model.speckle) value += model.speckle_sigma * N(rng);
+        row[u] = in_range(static_cast<float>(value));
       }
-    });
-    depth.data.swap(out);
-  }
-  for (float& z : depth.data) {
-    if (std::isfinite(z) && (z < in.min_depth || z > in.max_depth)) z = nan;
-  }
+    }
+  });
+}
+
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, DepthImage& depth) {
+  DepthImage noisy;
+  ApplyDepthNoise(model, in, seed, depth, noisy);
+  depth = std::move(noisy);
 }
 
 }  // namespace bp::internal

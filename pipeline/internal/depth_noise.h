@@ -26,7 +26,11 @@ struct NoiseInputs {
 // depth), projector shadow, random dropout, axial Gaussian noise, mixed pixels
 // at depth edges, speckle, then the depth range. Deterministic for a given seed. With !model.enabled only the
 // depth range is applied.
-void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed,
-                     DepthImage& depth);
+// Writes the noisy image of the clean `depth` into `noisy` (resized; its
+// buffer is reused when the size fits; must not be `depth`).
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, const DepthImage& depth,
+                     DepthImage& noisy);
+// In place.
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, DepthImage& depth);
 
 }  // namespace bp::internal

@@ -4,6 +4,8 @@
 // the Lambertian intensity into blue (a single light, blue only), and depth.
 #include <GL/osmesa.h>
 #include <spdlog/spdlog.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>
@@ -126,29 +128,33 @@ class OsMesaRenderer final : public DepthRenderer {
       out.labels = LabelImage(w, h);
       out.intensity = IntensityImage(w, h);
     }
+    // Rows in parallel bands (oneTBB): each output pixel depends on its own
+    // buffer pixel only, so the result does not depend on the schedule.
     const double n = scene.z_near, f = scene.z_far;
     const float nan = std::numeric_limits<float>::quiet_NaN();
-    for (int r = 0; r < h; ++r) {
-      const int v = h - 1 - r;  // GL rows are bottom-up
-      const float* drow = depth_.data() + static_cast<size_t>(r) * w;
-      const uint8_t* crow = color_.data() + static_cast<size_t>(r) * w * 4;
-      float* zo = &out.depth.at(0, v);
-      uint16_t* lo = &out.labels.at(0, v);
-      uint8_t* io = &out.intensity.at(0, v);
-      for (int u = 0; u < w; ++u) {
-        const double d = drow[u];
-        if (d >= 1.0) {
-          zo[u] = nan;
-          lo[u] = 0;
-          io[u] = 0;
-          continue;
+    tbb::parallel_for(tbb::blocked_range<int>(0, h, 64), [&](const tbb::blocked_range<int>& rows) {
+      for (int r = rows.begin(); r < rows.end(); ++r) {
+        const int v = h - 1 - r;  // GL rows are bottom-up
+        const float* drow = depth_.data() + static_cast<size_t>(r) * w;
+        const uint8_t* crow = color_.data() + static_cast<size_t>(r) * w * 4;
+        float* zo = &out.depth.at(0, v);
+        uint16_t* lo = &out.labels.at(0, v);
+        uint8_t* io = &out.intensity.at(0, v);
+        for (int u = 0; u < w; ++u) {
+          const double d = drow[u];
+          if (d >= 1.0) {
+            zo[u] = nan;
+            lo[u] = 0;
+            io[u] = 0;
+            continue;
+          }
+          const double z_ndc = 2.0 * d - 1.0;
+          zo[u] = static_cast<float>(2.0 * f * n / ((f + n) - z_ndc * (f - n)));
+          lo[u] = static_cast<uint16_t>(crow[4 * u] | (crow[4 * u + 1] << 8));
+          io[u] = crow[4 * u + 2];
         }
-        const double z_ndc = 2.0 * d - 1.0;
-        zo[u] = static_cast<float>(2.0 * f * n / ((f + n) - z_ndc * (f - n)));
-        lo[u] = static_cast<uint16_t>(crow[4 * u] | (crow[4 * u + 1] << 8));
-        io[u] = crow[4 * u + 2];
       }
-    }
+    });
     return Status::Ok();
   }
 
