@@ -1,13 +1,16 @@
 #include "comms/gri_handler.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 #include <spdlog/spdlog.h>
 
 #include <utility>
 
+#include "comms/internal/exception_text.h"
 #include "core/conventions.h"
+#include "core/fault_points.h"
 
 namespace bp {
 namespace {
@@ -15,6 +18,8 @@ namespace {
 using gri::Code;
 using gri::Format;
 using gri::JobStatus;
+
+using internal::ExceptionText;
 
 bool ValidPoseFormat(uint8_t pose_format) {
   return pose_format >= 1 && pose_format <= gri::kMaxPoseFormat;
@@ -130,6 +135,7 @@ gri::Response GriHandler::ErrorResponse(const gri::Request& request, gri::Code c
 }
 
 std::vector<uint8_t> GriHandler::Serialize(const gri::Response& response, bool* replaced) {
+  fault::Hit("gri.serialize");  // tests: the encoding throws (no memory)
   Result<std::vector<uint8_t>> bytes = gri::EncodeResponse(response);
   if (replaced) *replaced = !bytes.ok();
   if (bytes.ok()) return std::move(*bytes);
@@ -225,7 +231,29 @@ GriHandler::Reply GriHandler::NextPoseReply(const gri::Request& req, bool after_
   };
 }
 
-void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Completion done) {
+void GriHandler::HandleAsync(const gri::Request& req, ClientContext& client, Completion done) noexcept {
+  std::shared_ptr<std::atomic<bool>> answered;
+  try {
+    answered = std::make_shared<std::atomic<bool>>(false);
+    Handle(req, client, [answered, done](Reply reply) {
+      if (!answered->exchange(true)) done(std::move(reply));
+    });
+    return;
+  } catch (...) {
+    tasks_.CountAnswerFailure();
+    spdlog::error("gri: handling action {} job {} from {} threw ({}); {}", req.action, req.job_id, client.peer,
+                  ExceptionText(), answered && answered->load() ? "it was answered already" : "answering INTERNAL_ERROR");
+  }
+  if (answered && answered->exchange(true)) return;  // answered before it threw
+  try {
+    done([r = ErrorResponse(req, Code::kInternalError)] { return r; });
+  } catch (...) {
+    spdlog::error("gri: answering action {} after its handling threw threw too: {}", req.action, ExceptionText());
+  }
+}
+
+void GriHandler::Handle(const gri::Request& req, ClientContext& client, Completion done) {
+  fault::Hit("gri.handle");  // tests: throws inside HandleAsync
   ++client.requests;
   auto answer = [&done, &req](Code code) { done([r = Build(req, code)] { return r; }); };
 

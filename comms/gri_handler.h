@@ -44,7 +44,13 @@ class GriHandler {
   GriHandler(const GriHandler&) = delete;
   GriHandler& operator=(const GriHandler&) = delete;
 
-  void HandleAsync(const gri::Request& request, ClientContext& client, Completion done);
+  // Never throws: an exception in the request's handling is answered
+  // INTERNAL_ERROR, logged and counted (RequestHandler::CountAnswerFailure),
+  // unless the request was answered before it; the first answer given wins.
+  void HandleAsync(const gri::Request& request, ClientContext& client, Completion done) noexcept;
+  // An answer the transport had to replace because building or serializing
+  // it threw (logged by the transport).
+  void CountAnswerFailure() { tasks_.CountAnswerFailure(); }
 
   // The job status the GRI reports for `job_id`; nullopt for an unknown job.
   std::optional<gri::JobStatus> JobStatusOf(int job_id) const;
@@ -62,6 +68,7 @@ class GriHandler {
     std::vector<Pose> related;  // of the last primary handed out, in order
     size_t next_related = 0;
   };
+  void Handle(const gri::Request& request, ClientContext& client, Completion done);  // HandleAsync's body
   gri::JobStatus StatusLocked(const RequestHandler::TaskSnapshot& s, const Job& job) const;
   // `client` (the connection's, alive while its Reply can run) holds the
   // popped grasp until the transport settles it (ClientContext::settle).

@@ -10,12 +10,14 @@
 #include <vector>
 
 #include "comms/gri_message.h"
+#include "comms/internal/exception_text.h"
 #include "comms/internal/tcp_server.h"
 
 namespace bp {
 namespace {
 
 namespace asio = internal::asio;
+using internal::ExceptionText;
 using internal::Session;
 using internal::SessionArgs;
 
@@ -159,8 +161,9 @@ class Connection final : public Session {
     if (item.error) {
       busy_ = true;
       answered_ = true;
-      Write(GriHandler::Serialize(GriHandler::ErrorResponse(item.request, *item.error)),
-            item.close_reason);
+      const gri::Code code = *item.error;
+      WriteAnswer(item.request, [&] { return GriHandler::ErrorResponse(item.request, code); },
+                  item.close_reason);
       return;
     }
     current_ = item.request;
@@ -176,15 +179,48 @@ class Connection final : public Session {
     if (seq != seq_ || answered_) return;  // timed out: its result is dropped, nothing popped
     answered_ = true;
     processing_timer_.cancel();
+    WriteAnswer(current_, reply, nullptr);
+  }
+
+  // Builds the answer to `request` (a handler's Reply, an error response),
+  // serializes it and writes it. Nothing thrown here reaches Asio (issue
+  // 39: it would end the process): building or serializing that throws is
+  // answered INTERNAL_ERROR echoing the request, logged and counted
+  // (GriHandler::CountAnswerFailure), and a grasp the answer carried goes
+  // back to its queue; when not even that can be written the connection is
+  // closed.
+  void WriteAnswer(const gri::Request& request, const std::function<gri::Response()>& build,
+                   const char* close_reason) {
     bool replaced = false;
-    std::vector<uint8_t> bytes = GriHandler::Serialize(reply(), &replaced);
+    std::vector<uint8_t> bytes;
+    try {
+      bytes = GriHandler::Serialize(build(), &replaced);
+    } catch (...) {
+      replaced = true;
+      handler_.CountAnswerFailure();
+      spdlog::error("gri: {}: building the answer to action {} job {} threw ({}); answering INTERNAL_ERROR",
+                    client_.peer, request.action, request.job_id, ExceptionText());
+      try {
+        bytes = GriHandler::Serialize(GriHandler::ErrorResponse(request, gri::Code::kInternalError));
+      } catch (...) {
+        bytes.clear();
+      }
+    }
+    // Set by the Reply when it popped a grasp (GriHandler::NextPoseReply).
     std::function<void(bool)> settle = TakeSettle();
     // A response that did not fit was replaced by INTERNAL_ERROR: a grasp it
     // carried was not sent and goes back to its queue. Not reached for pose
-    // answers: their grasp is popped only when the answer encodes
-    // (GriHandler::NextPoseReply).
+    // answers that do not fit: their grasp is popped only when the answer
+    // encodes (GriHandler::NextPoseReply); reached when the pose answer's
+    // serialization throws.
     if (replaced && settle) std::exchange(settle, nullptr)(false);
-    Write(std::move(bytes), nullptr, std::move(settle));
+    if (bytes.empty()) {
+      spdlog::error("gri: {}: not even INTERNAL_ERROR could be written; closing", client_.peer);
+      if (settle) std::exchange(settle, nullptr)(false);
+      DoClose("answer failed");
+      return;
+    }
+    Write(std::move(bytes), close_reason, std::move(settle));
   }
 
   void ArmProcessingTimer(uint64_t seq) {
@@ -197,8 +233,9 @@ class Connection final : public Session {
           "PROCESSING_TIMEOUT",
           self->client_.peer, self->current_.job_id, self->current_.action,
           self->options_.processing_timeout.count());
-      self->Write(GriHandler::Serialize(
-          GriHandler::ErrorResponse(self->current_, gri::Code::kProcessingTimeout)));
+      const gri::Request& current = self->current_;
+      self->WriteAnswer(current, [&] { return GriHandler::ErrorResponse(current, gri::Code::kProcessingTimeout); },
+                        nullptr);
     });
   }
 

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "core/conventions.h"
+#include "core/fault_points.h"
 #include "core/sanitizers.h"
 #include "grasp/empty_box.h"
 #include "grasp/grasp_queue.h"
@@ -228,6 +229,7 @@ class BackgroundLane {
   static constexpr int kNice = 10;
   ~BackgroundLane() { Stop(); }
   void Post(std::function<void()> job) {
+    fault::Hit("background_lane.post");  // tests: the lane cannot take a job (no thread, no memory)
     std::lock_guard lock(mutex_);
     if (!thread_.joinable()) thread_ = std::thread([this] { Run(); });
     jobs_.push_back(std::move(job));
@@ -386,7 +388,26 @@ class RequestHandler::Impl {
     }
   }
 
+  // HandleAsync with nothing escaping into the caller's (the transport's
+  // network) thread (issue 39): an exception HandleAsync lets out (no
+  // memory, a bug) is logged, counted (answer_failures) and answered
+  // UNKNOWN_COMMAND with payload_1 0 and, where the robot moves to the
+  // answer, its own pose (nothing where it reads no answer), unless the
+  // request was answered before the exception. The first answer given
+  // wins: one the request left to come later (an RC 20's capture, a
+  // waiting pick's Reply) is then dropped, so a dropped pick pops nothing.
+  void HandleContained(const Request& req, ClientContext& client, Completion done) noexcept;
   void HandleAsync(const Request& req, ClientContext& client, Completion done);
+  // The answer HandleContained gives a request whose handling threw.
+  Response ErrorAnswer(const Request& req) const {
+    Response r = Base(daoai::kUnknownCommand, req.meta_2);
+    if (MovesTo(req.command)) {
+      r.position = req.position;
+      r.orientation = req.orientation;
+    }
+    return r;
+  }
+  void CountAnswerFailure() const { answer_failures_.fetch_add(1, std::memory_order_relaxed); }
   // The steps of HandleAsync.
   bool ReadHeader(const Request& req, ClientContext& client, WireFormat& f, const Completion& done) const;
   std::optional<Pose> RecordPose(const Request& req, const WireFormat& f, ClientContext& client,
@@ -899,16 +920,33 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
   }
   auto plan = [this, &t, job] {
     bool mine = false;
-    {
-      std::lock_guard lock(t.mutex);
-      if (t.queued_background == job) {
-        t.queued_background.reset();
-        mine = true;
+    try {
+      {
+        std::lock_guard lock(t.mutex);
+        if (t.queued_background == job) {
+          t.queued_background.reset();
+          mine = true;
+        }
+      }
+      // Not mine: a robot's pick took it to the arena. At shutdown it is
+      // dropped (nobody waits for it; Shutdown drops any later waiter).
+      if (mine && !stopping_) {
+        fault::Hit("background_lane.plan");  // tests: the lane's job throws before its plan
+        PlanDetection(t, *job);  // never throws
+      }
+    } catch (...) {
+      // Whatever threw here must not leave the task in flight (its pending
+      // detection never started, every later pick waiting) nor Shutdown
+      // waiting for this job: the detection fails as a whole.
+      if (mine) {
+        DetectionProgress progress;
+        progress.answered = true;  // its RC 20s were answered at the capture
+        FailDetection(t, job->seq, &job->event, job->scene, nullptr, progress, "background plan",
+                      ExceptionText());
+      } else {
+        spdlog::error("daoai: task {}: the background lane's job threw: {}", t.spec.id, ExceptionText());
       }
     }
-    // Not mine: a robot's pick took it to the arena. At shutdown it is
-    // dropped (nobody waits for it; Shutdown drops any later waiter).
-    if (mine && !stopping_) PlanDetection(t, *job);  // never throws
     std::lock_guard lock(pending_mutex_);
     --pending_;
     pending_cv_.notify_all();
@@ -1603,6 +1641,32 @@ void RequestHandler::Impl::RefuseChange(const Request& req, const ClientContext&
   done(answered ? Respond(Base(status, f)) : NoResponse());
 }
 
+void RequestHandler::Impl::HandleContained(const Request& req, ClientContext& client,
+                                           Completion done) noexcept {
+  std::shared_ptr<std::atomic<bool>> answered;
+  try {
+    answered = std::make_shared<std::atomic<bool>>(false);
+    HandleAsync(req, client, [answered, done](Reply reply) {
+      if (!answered->exchange(true)) done(std::move(reply));
+    });
+    return;
+  } catch (...) {
+    const uint64_t n = answer_failures_.fetch_add(1, std::memory_order_relaxed) + 1;
+    spdlog::error("daoai: handling command {} from {} threw ({}); {} ({} answer failures since start)",
+                  req.command, client.peer, ExceptionText(),
+                  answered && answered->load() ? "it was answered already" : "answering UNKNOWN_COMMAND", n);
+  }
+  if (answered && answered->exchange(true)) return;  // answered before it threw
+  try {
+    done(ReadsAnAnswer(req.command, cell_.robot.dialect == DaoaiDialect::kSocketV1)
+             ? Respond(ErrorAnswer(req))
+             : NoResponse());
+  } catch (...) {
+    spdlog::error("daoai: answering command {} from {} after its handling threw threw too: {}", req.command,
+                  client.peer, ExceptionText());
+  }
+}
+
 void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client,
                                        Completion done) {
   ++client.requests;
@@ -1629,7 +1693,9 @@ void RequestHandler::Impl::HandleAsync(const Request& req, ClientContext& client
     return;
   }
 
+  fault::Hit("daoai.handle");  // tests: throws inside HandleAsync, its answer not given yet
   Dispatch(req, client, f, X_BF, task, std::move(done));
+  fault::Hit("daoai.handled");  // tests: throws after the request was answered or its work started
 }
 
 std::optional<Grasp> RequestHandler::Impl::TakeLastGrasp(ClientContext& client, TaskState& t) {
@@ -1941,8 +2007,10 @@ void RequestHandler::AddObserver(std::shared_ptr<ServerObserver> observer) {
 }
 
 void RequestHandler::HandleAsync(const Request& request, ClientContext& client, Completion done) {
-  impl_->HandleAsync(request, client, std::move(done));
+  impl_->HandleContained(request, client, std::move(done));
 }
+
+void RequestHandler::CountAnswerFailure() { impl_->CountAnswerFailure(); }
 
 std::optional<Response> RequestHandler::Handle(const Request& request, ClientContext& client,
                                                const std::function<bool()>& abandon) {
@@ -1952,7 +2020,7 @@ std::optional<Response> RequestHandler::Handle(const Request& request, ClientCon
   // longer exists.
   auto promise = std::make_shared<std::promise<Reply>>();
   std::future<Reply> future = promise->get_future();
-  impl_->HandleAsync(request, client, [promise = std::move(promise)](Reply reply) {
+  impl_->HandleContained(request, client, [promise = std::move(promise)](Reply reply) {
     promise->set_value(std::move(reply));
   });
   if (abandon) {

@@ -106,7 +106,10 @@ struct RequestHandlerStats {
   // and planner exceptions when told of a grasp handed out.
   uint64_t planner_failures = 0;
   uint64_t observer_failures = 0;   // exceptions an observer let escape (contained)
-  uint64_t answer_failures = 0;     // answers whose building threw: answered UNKNOWN_COMMAND
+  // Answers whose building threw, and requests whose handling threw
+  // (HandleAsync; a GRI request or answer: CountAnswerFailure), answered
+  // with the protocol's error instead.
+  uint64_t answer_failures = 0;
   uint64_t jobs_refused = 0;        // calibration steps and teach poses refused: queue full
   uint64_t changes_refused = 0;     // state-changing requests from peers not allowed to
   uint64_t grasps_requeued = 0;     // popped, their answer not written: back in the queue
@@ -139,6 +142,11 @@ class RequestHandler {
   // Add them before the first request; they live as long as the handler.
   void AddObserver(std::shared_ptr<ServerObserver> observer);
 
+  // Never throws: an exception in the request's handling is answered
+  // UNKNOWN_COMMAND (payload_1 0, the robot's own pose where it moves to
+  // the answer; nothing where it reads none), logged and counted
+  // (answer_failures), unless the request was answered before it; the first
+  // answer given wins (docs/reliability.md "Faults").
   void HandleAsync(const daoai::Request& request, ClientContext& client, Completion done);
   // Blocking convenience for transports with their own threads (Modbus) and
   // tests: HandleAsync, wait, call the Reply. Always returns: with the
@@ -196,6 +204,9 @@ class RequestHandler {
   [[nodiscard]] bool RunCalibration(std::function<void(CalibrationService&)> job);
 
   RequestHandlerStats stats() const;
+  // Counts an answer another protocol's handler (the GRI's) had to replace
+  // with an error because building it threw (answer_failures). Any thread.
+  void CountAnswerFailure();
   // The failed spots a pick task remembers now (grasp/failed_picks.h);
   // empty for other tasks and unknown ones. Any thread.
   std::vector<FailedPicks::Spot> FailedSpots(int task_id) const;

@@ -7,6 +7,8 @@
 #include <string>
 #include <utility>
 
+#include "core/fault_points.h"
+
 namespace bp {
 
 bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded) {
@@ -22,6 +24,7 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
                            std::make_move_iterator(result.grasps.end()));
   const bool stale_listed =
       std::any_of(grasps.begin(), grasps.end(), [](const Grasp& g) { return !g.stale_after.empty(); });
+  fault::Hit("grasp_queue.replace");  // tests: the refill's copy fails (no memory); nothing changed
   std::lock_guard lock(mutex_);
   if (capture_seq != 0 && capture_seq < capture_seq_) return false;
   if (capture_seq != 0) capture_seq_ = capture_seq;

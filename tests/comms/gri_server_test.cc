@@ -14,6 +14,7 @@
 
 #include "comms/daoai_server.h"
 #include "comms/robot_client.h"
+#include "core/fault_points.h"
 #include "tests/testing/hex.h"
 #include "tests/testing/scripted_planner.h"
 
@@ -92,6 +93,7 @@ class GriServerTest : public ::testing::TestWithParam<Format> {
   }
 
   void TearDown() override {
+    fault::DisarmAll();  // a failed fault test leaves nothing armed for the next
     server_.reset();
     handler_->Shutdown();
   }
@@ -546,6 +548,42 @@ TEST_P(GriServerTest, APoseThatDoesNotFitTheFormatStaysQueuedAndTheNextOneThatFi
   std::multiset<int> instances;
   for (const auto& [task, instance] : scripted_->handed_out()) instances.insert(instance);
   EXPECT_EQ(instances, (std::multiset<int>{0, 1, 2}));  // each once
+}
+
+// Issue 39: an exception inside the GRI handler (HandleAsync) or while an
+// answer is built and serialized, on the network thread, once reached Asio
+// and ended the process. Now answered INTERNAL_ERROR, logged and counted;
+// a pose whose serialization threw goes back to the front of its queue
+// (the next GET_NEXT_POSE gets it), the connection stays open and in step,
+// and another robot is served. Injected with core/fault_points.h.
+TEST_P(GriServerTest, AnExceptionHandlingARequestOrSerializingItsAnswerIsAnsweredInternalErrorAndLosesNoPose) {
+  auto robot = Connect();
+  auto other = Connect();
+  fault::Arm("gri.handle");
+  EXPECT_EQ(Ask(*robot, gri::kTriggerJobSync, 0).error_code, Code(gri::Code::kInternalError));
+  EXPECT_EQ(handler_->stats().answer_failures, 1u);
+  EXPECT_EQ(Primary(Ask(*other, gri::kStatus, 0, 0)), 1);
+  gri::Response r = Ask(*robot, gri::kTriggerJobSync, 0);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 500, 1e-3);
+  fault::Arm("gri.serialize");
+  r = Ask(*robot, gri::kGetNextPose, 0);
+  EXPECT_EQ(r.error_code, Code(gri::Code::kInternalError));
+  EXPECT_EQ(r.action, gri::kGetNextPose);
+  EXPECT_EQ(handler_->stats().answer_failures, 2u);
+  EXPECT_EQ(Primary(Ask(*other, gri::kStatus, 0, 0)), 1);
+  r = Ask(*robot, gri::kGetNextPose, 0);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 510, 1e-3);  // the pose whose answer failed, again
+  r = Ask(*robot, gri::kGetNextPose, 0);
+  ASSERT_EQ(r.error_code, 0);
+  EXPECT_NEAR(r.pose[0], 520, 1e-3);
+  ASSERT_TRUE(scripted_->WaitForHandedOut(3));
+  std::set<int> instances;
+  for (const auto& [task, instance] : scripted_->handed_out()) instances.insert(instance);
+  EXPECT_EQ(instances, (std::set<int>{0, 1, 2}));
+  EXPECT_EQ(scripted_->handed_out().size(), 3u);
+  EXPECT_EQ(handler_->stats().grasps_requeued, 1u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Formats, GriServerTest, ::testing::Values(Format::kV2, Format::kOfficial),
