@@ -336,6 +336,15 @@ class RequestHandler::Impl {
     // BackgroundLane, not started; the first pick that waits takes it to the
     // arena (a plan already running on the lane finishes there).
     std::shared_ptr<CapturedDetection> queued_background;
+    // GUARDED_BY(mutex): the detection whose plan runs on the BackgroundLane
+    // now (0: none), and one a robot's wait abandoned (0: none): a pick that
+    // waits for the detection pending after it starts that one at once on
+    // the arena instead of waiting for the lane's plan at nice +10 (docs/
+    // reliability.md "Capture flood and soak"). An abandoned plan finishes
+    // on the lane and its result is dropped: it neither refills the queue
+    // nor counts as finished; the detection after it releases its waiters.
+    uint64_t lane_seq = 0;
+    uint64_t abandoned_seq = 0;
     CheckLane empty_box, precision;  // GUARDED_BY(mutex)
     // Pick tasks: the failed spots (internally locked; the queue's screen).
     std::unique_ptr<FailedPicks> failed;
@@ -925,6 +934,7 @@ bool RequestHandler::Impl::PostBackground(TaskState& t, const std::shared_ptr<Ca
         std::lock_guard lock(t.mutex);
         if (t.queued_background == job) {
           t.queued_background.reset();
+          t.lane_seq = job->seq;
           mine = true;
         }
       }
@@ -1017,6 +1027,17 @@ void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& 
       // The plan alone: a background plan's wait for the lane is not in it.
       event.plan_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
     }
+    {
+      std::lock_guard lock(t.mutex);
+      if (t.abandoned_seq == c.seq) {
+        // A robot's wait started the detection after it: that one refills.
+        t.abandoned_seq = 0;
+        if (t.lane_seq == c.seq) t.lane_seq = 0;
+        spdlog::info("daoai: task {}: the background plan of detection {} was abandoned for the one after "
+                     "it (a robot waits for that); its result is dropped", t.spec.id, c.seq);
+        return;
+      }
+    }
     int discarded = 0;
     t.queue.Replace(std::move(result), c.seq, &discarded);
     progress.queued = true;
@@ -1083,6 +1104,13 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) noexcept 
   std::optional<PendingDetection> next;
   {
     std::lock_guard lock(t.mutex);
+    if (t.lane_seq == seq) t.lane_seq = 0;
+    if (t.abandoned_seq == seq) {
+      // Abandoned while it refilled or failed: the detection after it runs
+      // and finishes the task's sequence (running, pending, waiters).
+      t.abandoned_seq = 0;
+      return;
+    }
     ++t.finished;
     t.finished_seq = seq;
     while (!t.waiters.empty() && t.waiters.begin()->first <= seq) {
@@ -1112,11 +1140,25 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) noexcept 
 
 bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready) {
   std::shared_ptr<CapturedDetection> promoted;
+  std::optional<PendingDetection> next;
+  uint64_t abandoned = 0;
   {
     std::lock_guard lock(t.mutex);
     if (t.requested_seq <= t.finished_seq) return false;
     t.waiters.emplace(t.requested_seq, std::move(ready));
     promoted.swap(t.queued_background);
+    // The running detection's plan is on the lane (nice +10) and the robot
+    // waits for the one pending after it: that one starts now, at the
+    // process's priority, and the lane's plan is abandoned (TaskState).
+    if (t.lane_seq != 0 && t.abandoned_seq == 0 && t.pending && !stopping_) {
+      t.abandoned_seq = abandoned = t.lane_seq;
+      next.swap(t.pending);
+    }
+  }
+  if (next) {
+    spdlog::info("daoai: task {}: a robot waits for detection {}: started at once instead of after the "
+                 "background plan of detection {}", t.spec.id, next->seq, abandoned);
+    StartDetectionJob(t, std::move(*next));  // never throws
   }
   // A plan queued on the background lane (behind another task's) is now
   // awaited: it runs on the arena at once, at the process's priority.

@@ -17,7 +17,9 @@
 // requested before it: at most the one running and the one pending. A
 // pending detection that starts with nobody waiting for it (no pick, no RC
 // 20: a flood of 19s) is planned on a thread of lower CPU priority, so the
-// flood does not halve another robot's detection. Empty-box
+// flood does not halve another robot's detection; a pick that starts
+// waiting while such a plan runs starts the detection pending after it at
+// once (the lower-priority plan is abandoned). Empty-box
 // (40) and precision checks (50) are batched the same way per task.
 //
 // The pop rule: a grasp leaves its task's queue only when the transport calls

@@ -491,7 +491,11 @@ class PriorityPlanner final : public GraspPlanner {
       std::unique_lock lock(mutex_);
       runs_.push_back({request.task.id, getpriority(PRIO_PROCESS, static_cast<id_t>(gettid()))});
       cv_.notify_all();
-      cv_.wait(lock, [&] { return held_.count(request.task.id) == 0 || permits_[request.task.id] > 0; });
+      const int nice = runs_.back().nice;
+      cv_.wait(lock, [&] {
+        return (held_.count(request.task.id) == 0 || permits_[request.task.id] > 0) &&
+               !(hold_above_nice_ && nice > *hold_above_nice_);
+      });
       if (held_.count(request.task.id)) --permits_[request.task.id];
     }
     return scripted.Plan(request, scene);
@@ -510,6 +514,17 @@ class PriorityPlanner final : public GraspPlanner {
     held_.erase(task);
     cv_.notify_all();
   }
+  // Holds every plan that runs at a nice above `nice` (the background
+  // lane's), whatever its task, until OpenAboveNice().
+  void HoldAboveNice(int nice) {
+    std::lock_guard lock(mutex_);
+    hold_above_nice_ = nice;
+  }
+  void OpenAboveNice() {
+    std::lock_guard lock(mutex_);
+    hold_above_nice_.reset();
+    cv_.notify_all();
+  }
   // Waits until `n` plans have started (5 s); a copy of them.
   std::vector<PlanRun> WaitForRuns(size_t n) {
     std::unique_lock lock(mutex_);
@@ -524,6 +539,7 @@ class PriorityPlanner final : public GraspPlanner {
   std::vector<PlanRun> runs_;     // GUARDED_BY(mutex_)
   std::set<int> held_;            // GUARDED_BY(mutex_)
   std::map<int, int> permits_;    // GUARDED_BY(mutex_)
+  std::optional<int> hold_above_nice_;  // GUARDED_BY(mutex_)
 };
 
 int OwnNice() { return getpriority(PRIO_PROCESS, static_cast<id_t>(gettid())); }
@@ -535,6 +551,7 @@ struct OpenAtExit {
   PriorityPlanner& planner;
   ~OpenAtExit() {
     for (int task = 0; task < 4; ++task) planner.Open(task);
+    planner.OpenAboveNice();
   }
 };
 
@@ -622,6 +639,53 @@ TEST(RequestHandlerBackground, ABackgroundPlanHoldsUpNeitherAnotherRobotNorAPick
   EXPECT_EQ(handler.Snapshot(0)->in_flight, 1);  // still held
   planner->Open(0);
   ASSERT_TRUE(Eventually([&] { return handler.Snapshot(0)->in_flight == 0; }));
+  handler.Shutdown();
+}
+
+// Issue 39 item 4: a pick on the flooded task that arrives while the task's
+// re-detection is planned on the background lane (nice +10), with the
+// flood's next detection pending after it, waited for that plan at nice +10
+// and then for its own detection. Now the pending detection it waits for
+// starts at once at the process's priority and the lane's plan is
+// abandoned: the pick is answered while the lane's plan is still held, and
+// that plan's result, when it comes, does not refill the queue.
+TEST(RequestHandlerBackground, APickWaitingBehindABackgroundPlanStartsItsDetectionAtOnce) {
+  const int base = OwnNice();
+  if (base >= 19) GTEST_SKIP() << "the test runs at nice 19 already";
+  auto planner = std::make_shared<PriorityPlanner>();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  const OpenAtExit open_at_exit{*planner};
+  ClientContext flooder, robot;
+  planner->Hold(0);
+  planner->HoldAboveNice(base);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  ASSERT_EQ(planner->WaitForRuns(1).size(), 1u);
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  planner->Open(0);  // the first plan ends; the flood's re-detection goes to the lane, held there
+  std::vector<PriorityPlanner::PlanRun> runs = planner->WaitForRuns(2);
+  ASSERT_EQ(runs.size(), 2u);
+  EXPECT_EQ(runs[1].nice, std::min(19, base + 10));
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcessAsync, 0), flooder)->status, daoai::kDetection);
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 2);  // the lane's plan and the flood's next one
+  Pending pick;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), robot, pick.Completion());
+  ASSERT_TRUE(Eventually([&] { return pick.answered(); }));
+  EXPECT_EQ(pick.Run()->status, daoai::kObjectsFound);
+  runs = planner->WaitForRuns(3);
+  ASSERT_EQ(runs.size(), 3u);
+  EXPECT_EQ(runs[2].nice, base);
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 0);  // the abandoned plan no longer counts
+  const int left = handler.QueueSize(0);
+  planner->OpenAboveNice();
+  EXPECT_TRUE(Eventually([&] { return handler.Snapshot(0)->finished == 2; }));  // the first and the pick's
+  std::this_thread::sleep_for(50ms);  // the abandoned plan's result, had it been kept, would be in by now
+  EXPECT_EQ(handler.QueueSize(0), left);
+  EXPECT_EQ(handler.Snapshot(0)->finished, 2u);
+  // The task serves on: a capture and a pick.
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), robot)->status, daoai::kDetection);
+  const std::optional<daoai::Response> next = handler.Handle(Req(daoai::kPickPose, 0), robot);
+  ASSERT_TRUE(next);
+  EXPECT_EQ(next->status, daoai::kObjectsFound);
   handler.Shutdown();
 }
 
