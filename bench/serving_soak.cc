@@ -45,6 +45,7 @@
 #include "comms/daoai_server.h"
 #include "comms/request_handler.h"
 #include "comms/robot_client.h"
+#include "core/cell.h"
 #include "tests/testing/process_stats.h"
 #include "tests/testing/scripted_planner.h"
 #include "web/metrics.h"
@@ -77,6 +78,9 @@ struct Options {
   int seed = 39;
   int flood_task = 0;  // flood: the task the flooding robot captures on
   int pick_task = 1;   // flood: the second robot's task (a pick task)
+  // In-process: requests/s per connection (DaoaiServerOptions), binpickd's
+  // default (the cell's endpoints.max_message_rate); 0: off.
+  double max_message_rate = Endpoints{}.max_message_rate;
 };
 
 // The scripted planner, its hand-outs counted per (task, instance) instead
@@ -134,6 +138,7 @@ struct InProcess {
     so.port = 0;
     so.max_connections = 0;
     so.max_connections_per_peer = 0;  // every robot is 127.0.0.1
+    so.max_message_rate = o.max_message_rate;
     auto started = DaoaiServer::Start(*handler, so);
     if (!started.ok()) return started.status();
     server = std::move(*started);
@@ -442,9 +447,9 @@ int Soak(const Options& o) {
   }
   const double rss_growth = 100.0 * static_cast<double>(after.rss_bytes - before.rss_bytes) /
                             static_cast<double>(before.rss_bytes);
-  std::printf("bp_soak: %d robots, %lld requests (+%lld warm-up) in %.1f s (%.0f/s), %lld "
-              "reconnects, %lld grasps handed out, %llu captures coalesced\n",
-              o.robots, static_cast<long long>(o.requests), static_cast<long long>(warm_requests),
+  std::printf("bp_soak: %d robots, max_message_rate %g/s per connection, %lld requests (+%lld warm-up) in "
+              "%.1f s (%.0f/s), %lld reconnects, %lld grasps handed out, %llu captures coalesced\n",
+              o.robots, o.max_message_rate, static_cast<long long>(o.requests), static_cast<long long>(warm_requests),
               seconds, static_cast<double>(o.requests) / seconds, static_cast<long long>(reconnects),
               static_cast<long long>(grasps), static_cast<unsigned long long>(hs.captures_coalesced));
   std::printf("bp_soak: %lld requests sent by the robots (a pick cycle counts each pick), "
@@ -478,6 +483,10 @@ int main(int argc, char** argv) {
   app.add_option("--host", o.host, "server address with --port");
   app.add_option("--port", o.port, "flood: a running binpickd's DaoAI port (default: in-process)");
   app.add_option("--grasps", o.grasps, "in-process: grasps per detection");
+  app.add_option("--max-message-rate", o.max_message_rate,
+                 "in-process: requests/s per connection (default binpickd's, the cell's "
+                 "endpoints.max_message_rate; 0: off)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--plan-ms", o.plan_ms, "in-process: detection time, ms");
   app.add_option("--seed", o.seed, "soak: the robots' random mix");
   app.add_option("--flood-task", o.flood_task, "flood: the flooding robot's task")->check(CLI::Range(0, 99));
