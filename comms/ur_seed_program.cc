@@ -266,6 +266,8 @@ void UrSeedProgram::send_robot_data() {
 }
 
 void UrSeedProgram::SendFields(const std::array<double, 12>& robot_data) {
+  sent_at_ = Clock::now();
+  sent_command_ = static_cast<int>(robot_data[7]);
   if (modbus_) {
     modbustcp_send_robot_data(robot_data);
   } else {
@@ -306,6 +308,7 @@ std::vector<double> UrSeedProgram::ReceiveFields() {
     }
     if (daoai_data[0] == 16) wait_for_data = false;
   }
+  answer_times_.push_back({sent_command_, std::chrono::duration<double, std::milli>(Clock::now() - sent_at_).count()});
   if (daoai_data[15] != DAOAI_ROBOT_TYPE) {
     popup("Pick-it is not configured to communicate with a UR robot.", /*failure=*/true);
   }

@@ -198,6 +198,14 @@ class UrSeedProgram {
   const UrPose& tcp_pose() const { return daoai_tcp_pose_; }
   const UrPose& pick_pose() const { return pick_pose_; }
   int requests_sent() const { return requests_sent_; }
+  // Each answered request: its command and the time from sending its first
+  // field to reading its last (the robot's wait for binpick's answer), in
+  // order. Where a slow run's time went (docs/protocols.md "Seed programs").
+  struct AnswerTime {
+    int command = 0;
+    double ms = 0;
+  };
+  const std::vector<AnswerTime>& answer_times() const { return answer_times_; }
 
   // Seed 000 "全局常量" (the ones the functions use).
   static constexpr int mult = 10000;
@@ -231,6 +239,9 @@ class UrSeedProgram {
   std::vector<UrPose> moves_;
   int requests_sent_ = 0;
   std::chrono::steady_clock::time_point answer_deadline_{};
+  std::chrono::steady_clock::time_point sent_at_{};  // the last request's first field
+  int sent_command_ = 0;                             // the last request's command
+  std::vector<AnswerTime> answer_times_;
 
   // Seed 000 "Global Variables".
   UrPose daoai_tcp_pose_{};

@@ -14,6 +14,7 @@
 // scores a session's frames against their truth.json).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -127,11 +128,13 @@ class Rig {
       port_ = testing::FreeLoopbackTcpPort();
       args.insert(args.end(), {"--daoai-port", std::to_string(port_)});
     }
+    const auto t0 = std::chrono::steady_clock::now();
     daemon_ = std::make_unique<testing::BinpickdProcess>(args, dir_ + "/binpickd.log");
     // About a second normally; the model tables take far longer under ASan
     // with other test binaries on the two cores.
     ready_ = daemon_->ReadyLine(300000).find("binpickd ready") != std::string::npos;
     if (ready_ && robot_) ready_ = robot_->WaitForMaster(30s);
+    ready_s_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
   ~Rig() {
     if (daemon_) daemon_->Stop();
@@ -139,6 +142,7 @@ class Rig {
   }
 
   bool ready() const { return ready_; }
+  double ready_seconds() const { return ready_s_; }  // from starting binpickd to its ready line
   std::string log() const { return testing::ReadBytes(dir_ + "/binpickd.log"); }
   const std::string& cell_path() const { return cell_path_; }
   std::string Sibling(const std::string& extension) const {
@@ -179,11 +183,35 @@ class Rig {
   std::unique_ptr<ModbusRobotSim> robot_;
   std::unique_ptr<testing::BinpickdProcess> daemon_;
   bool ready_ = false;
+  double ready_s_ = 0;
 };
 
 class SeedPrograms : public ::testing::TestWithParam<Link> {};
 
 const char* LinkName(Link link) { return link == Link::kSocket ? "socket" : "Modbus"; }
+
+// Where a program's time went: its wall time, the robot's waits for
+// binpick's answers (sum, count) and the slowest three with their commands.
+// A slow run shows whether binpick was slow to answer, and to which request,
+// or the time was elsewhere (binpickd's start-up, the test's own work).
+std::string Timing(const UrSeedProgram& p, double wall_s) {
+  std::vector<UrSeedProgram::AnswerTime> t = p.answer_times();
+  double waited = 0;
+  for (const auto& a : t) waited += a.ms;
+  std::sort(t.begin(), t.end(), [](const auto& a, const auto& b) { return a.ms > b.ms; });
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "%.1f s, %zu answers waited %.1f s, slowest", wall_s, t.size(), waited / 1000);
+  std::string s = buf;
+  for (size_t i = 0; i < std::min<size_t>(3, t.size()); ++i) {
+    std::snprintf(buf, sizeof buf, " %d:%.0f ms", t[i].command, t[i].ms);
+    s += buf;
+  }
+  return s;
+}
+
+double SecondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
 
 std::string Popups(const UrSeedProgram& p) {
   std::string s;
@@ -349,12 +377,15 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
   Rig rig(GetParam(), "seed003", [&](const std::string& dir) { return WriteCell(dir, parts, scene, place_picks); });
   ASSERT_TRUE(rig.ready()) << rig.log();
   const Cell cell = LoadCell(rig.cell_path()).value();
+  std::string timing;
   {  // The default cell's camera is not where the cell file says until the
      // cell is calibrated (calibration.true_pose): uncalibrated, the emptied
      // bin still showed ~19,000 points and detections without a grasp.
     const UrPose facing = ToUrPose(BoardFacingStartPose(cell));
     auto c = rig.Program(facing);
+    const auto t0 = std::chrono::steady_clock::now();
     ASSERT_TRUE(c->Run([&] { c->AutoCalibrationProgram(facing, 30); }).ok()) << rig.log();
+    timing = "calibration " + Timing(*c, SecondsSince(t0));
     EXPECT_EQ(c->status(), 33);
     EXPECT_TRUE(c->failure_popups().empty()) << Popups(*c);
     ASSERT_TRUE(Rig::WaitForFile(rig.cell_path() + ".calibration.yaml")) << rig.log();
@@ -376,6 +407,7 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
   int picks = 0, passes = 0;
   bool empty = false, unplaceable_left = false;
   const std::string kNoPlaceableGrasp = "NO Collision-free PICK pose.";
+  const auto program_t0 = std::chrono::steady_clock::now();
   // The operator stops the Loop (it has no end): after one pass per part,
   // then (a part perception missed in a pass is still there) a pass at a
   // time until daoai_check_box_empty() says empty, or until a pick is
@@ -401,6 +433,8 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
       empty = check_empty();
     }
   }).ok()) << rig.log();
+  std::printf("seed 003 timing over %s: binpickd ready in %.1f s; %s; program %s\n", LinkName(GetParam()),
+              rig.ready_seconds(), timing.c_str(), Timing(*p, SecondsSince(program_t0)).c_str());
   std::printf("seed 003 program on the %s cell over %s: %d parts, %d picked in %d passes, %zu failure popups (%s)",
               place_picks ? "seed-003" : "default", LinkName(GetParam()), parts, picks, passes,
               p->failure_popups().size(), empty ? "box empty" : "parts left");
