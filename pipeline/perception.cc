@@ -419,6 +419,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   PoseEstimatorOptions reference;
   reference.max_support_penetration = options.max_support_penetration;
   reference.ambiguity_net_gain = options.ambiguity_net_gain;
+  reference.arm_swaps = options.arm_swaps;
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());

@@ -172,6 +172,9 @@ struct PerceptionOptions {
   // PoseEstimatorOptions::ambiguity_net_gain, handed to every class's
   // estimator (>= 0; 0 = off; docs/tuning.md).
   double ambiguity_net_gain = PoseEstimatorOptions{}.ambiguity_net_gain;
+  // PoseEstimatorOptions::arm_swaps, handed to every class's estimator
+  // (docs/tuning.md).
+  bool arm_swaps = PoseEstimatorOptions{}.arm_swaps;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

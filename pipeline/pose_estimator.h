@@ -124,6 +124,11 @@ struct PoseEstimatorOptions {
   double near_symmetry_min_overlap = 0.35;
   int max_near_symmetries = 4;
   double near_symmetry_score_slack = 0.02;
+  // Also candidates: the half-turns that swap two arms (two large faces with
+  // near-perpendicular normals whose normal lines meet behind both: a tee's
+  // run end and branch end). A tee seen as an L, one arm hidden, fits with
+  // its branch on either seen arm.
+  bool arm_swaps = true;
   // Turn axes (turn_axes()): axes the part is nearly round about, found at
   // multiples of this step (degrees, in [0, 180]; 0 = none). Each final
   // hypothesis is also tried turned about them by every multiple, then

@@ -58,6 +58,33 @@ bool SameLine(const TurnAxis& a, const TurnAxis& b, double diameter) {
   return (d - d.dot(a.direction) * a.direction).norm() < kSameTransformRelative * diameter;
 }
 
+// Arms: two large faces whose normals are near perpendicular and whose
+// normal lines through their box centres meet (the ends of a tee's run and
+// branch, identical arms about a common junction). The half-turn about the
+// bisector of the two outward normals through that point swaps the two
+// ends: a tee seen as an L (one arm hidden) fits either way.
+void AppendArmSwaps(const PoseModel& m, std::vector<Pose>& candidates) {
+  const float meet = static_cast<float>(kSameTransformRelative * m.diameter);
+  for (size_t i = 0; i < m.faces.size(); ++i) {
+    const PlanarFace& f = m.faces[i];
+    if ((f.hi - f.lo).minCoeff() < kMinFaceExtent) continue;
+    for (size_t j = i + 1; j < m.faces.size(); ++j) {
+      const PlanarFace& g = m.faces[j];
+      if ((g.hi - g.lo).minCoeff() < kMinFaceExtent) continue;
+      if (std::abs(f.n.dot(g.n)) > std::sin(kSameTransformDeg * kDeg)) continue;
+      // The closest points of the two lines a + s f.n, b + t g.n.
+      const Eigen::Vector3f a = BoxCentre(f), b = BoxCentre(g), w = a - b;
+      const float c = f.n.dot(g.n), den = 1.f - c * c;
+      const float s = (c * g.n.dot(w) - f.n.dot(w)) / den, t = (g.n.dot(w) - c * f.n.dot(w)) / den;
+      const Eigen::Vector3f pa = a + s * f.n, pb = b + t * g.n;
+      // Both ends lie outward of the junction (s, t < 0: the lines meet
+      // behind both faces), and the lines meet.
+      if (!(s < 0.f && t < 0.f) || (pa - pb).norm() > meet) continue;
+      candidates.push_back(HalfTurn((f.n + g.n).normalized(), 0.5f * (pa + pb)));
+    }
+  }
+}
+
 }  // namespace
 
 Pose TurnAxis::Turn(double angle_rad) const {
@@ -111,6 +138,7 @@ std::vector<Pose> FindNearSymmetries(const PoseModel& m) {
     candidates.push_back(HalfTurn(f.u, mid));
     candidates.push_back(HalfTurn(f.v, mid));
   }
+  if (m.options.arm_swaps) AppendArmSwaps(m, candidates);
   const Eigen::Vector3d centroid = m.centroid_O.cast<double>();
   const auto same = [&](const Pose& a, const Pose& b) {
     return SymmetricRotationError(a, b, m.symmetry) < kSameTransformDeg * kDeg &&

@@ -2,8 +2,9 @@
 // the part but map most of its surface onto its surface (an L-bracket turned
 // over about its upright, whose base is then hidden under it, looks the same
 // from above but for the upright's hole). Candidates are the 180 deg turns
-// about each large planar face's normal through its centre and about each
-// plate's in-plane axes through its mid-plane; those that keep at least
+// about each large planar face's normal through its centre, about each
+// plate's in-plane axes through its mid-plane and (arm_swaps) about the
+// bisector of two arms' end faces through their junction; those that keep at least
 // PoseEstimatorOptions::near_symmetry_min_overlap of the surface, the
 // max_near_symmetries that keep the most, none that the declared symmetry
 // covers. Private to bp_pipeline. Frame: O part.

@@ -1234,6 +1234,48 @@ TEST(PerceptionEval, ATurnThatExplainsMoreOfTheViewIsPreferred) {
   }
 }
 
+// A pipe tee seen as an L (one of its three alike arms hidden) fits with its
+// branch on either seen arm: 90 deg off about the part's y. The arm swap
+// (PoseEstimatorOptions::arm_swaps) is tried as a near symmetry and the
+// truth replaces the pose or is carried as its alternative. Piles of the
+// tuning range (--variety): 1003 and 1068, a tee detected 90 deg off about
+// y without the swap and right with it; 1016, one still off whose true pose
+// is now among its alternatives.
+TEST(PerceptionEval, ATeeSeenAsAnLIsTriedWithItsArmsSwapped) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  PerceptionOptions off;
+  off.arm_swaps = false;
+  const std::unique_ptr<Perception> no_swaps = Perception::Build(f.cell, off).value();
+  for (uint64_t seed : {1003u, 1068u, 1016u}) {
+    Result<Frame> frame = VariedPile(f.cell, seed);
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    struct Counts {
+      int true_tees = 0, gross_tees = 0, carried = 0;
+    };
+    const auto judge = [&](const PerceptionResult& r) {
+      Counts c;
+      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
+        if (o.class_id != 2) continue;
+        c.true_tees += o.verdict == DetectionVerdict::kTrue;
+        c.gross_tees += o.verdict == DetectionVerdict::kGross;
+        c.carried += o.verdict == DetectionVerdict::kGross && o.carried;
+      }
+      return c;
+    };
+    const Counts before = judge(Fixture::RunWith(*no_swaps, *frame));
+    const Counts after = judge(f.Run(*frame));
+    EXPECT_GE(before.gross_tees, 1) << "pile " << seed << ": no tee off without the swap";
+    if (seed == 1016u) {
+      EXPECT_GE(after.carried, before.carried + 1) << "pile " << seed;
+      EXPECT_LE(after.gross_tees, before.gross_tees) << "pile " << seed;
+    } else {
+      EXPECT_LE(after.gross_tees, before.gross_tees - 1) << "pile " << seed;
+      EXPECT_GE(after.true_tees, before.true_tees + 1) << "pile " << seed;
+    }
+  }
+}
+
 // Parts the segmentation split over segments, left in pieces below
 // min_segment_points or merged with a neighbour: once the neighbours are
 // found, the samples no detection explains, grouped by grid connectivity,

@@ -629,6 +629,37 @@ TEST(PoseEstimator, FindsTheNearSymmetriesOfTheShippedParts) {
   EXPECT_EQ(PoseEstimator::Build(MakeLBracket(), Symmetry{}, bad).status().code(), Status::Code::kInvalidArgument);
 }
 
+// The shipped tee's three arms are alike (outer radius 20 mm, 50 mm from the
+// junction): a half-turn about the bisector of the run's +x end and the
+// branch end swaps them, (x, y, z) -> (z, -y, x), and keeps two of the
+// three arms on the tee (arm_swaps). Without arm_swaps no near symmetry
+// maps the run end onto the branch end.
+TEST(PoseEstimator, FindsTheArmSwapOfATee) {
+  Symmetry tee;
+  tee.kind = Symmetry::Kind::kDiscrete;
+  tee.order = 2;
+  const auto swaps_arms = [&](const std::vector<Pose>& F) {
+    for (const Pose& f : F) {
+      // Either run end onto the branch end and the branch end back onto it
+      // (the tee's half-turn about z makes both run ends one).
+      const Vec3 branch_end = f * Vec3(0, 0, 0.05);
+      const bool run_to_branch = (f * Vec3(0.05, 0, 0) - Vec3(0, 0, 0.05)).norm() < 0.002 ||
+                                 (f * Vec3(-0.05, 0, 0) - Vec3(0, 0, 0.05)).norm() < 0.002;
+      const bool branch_to_run = std::abs(std::abs(branch_end.x()) - 0.05) < 0.002 && branch_end.tail<2>().norm() < 0.002;
+      if (run_to_branch && branch_to_run) return true;
+    }
+    return false;
+  };
+  auto est = PoseEstimator::Build(MakePipeTee(), tee);
+  ASSERT_TRUE(est.ok()) << est.status().ToString();
+  EXPECT_TRUE(swaps_arms((*est)->near_symmetries()));
+  PoseEstimatorOptions off;
+  off.arm_swaps = false;
+  auto plain = PoseEstimator::Build(MakePipeTee(), tee, off);
+  ASSERT_TRUE(plain.ok());
+  EXPECT_FALSE(swaps_arms((*plain)->near_symmetries()));
+}
+
 // A pipe tee is nearly round about its run (the branch aside): its one turn
 // axis. A revolute part's axis is its declared symmetry, not a turn axis.
 TEST(PoseEstimator, FindsTheTurnAxisOfATeesRunAndNoneOfARevolutePart) {
