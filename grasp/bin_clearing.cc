@@ -94,7 +94,8 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
     if (!spdlog::should_log(spdlog::level::debug)) return;
     for (const GraspCandidate& c : plan.plan.candidates) {
-      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}{}", seed, report.cycles,
+      // The cycle as the picks of this plan are logged (numbered from 1).
+      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}{}", seed, report.cycles + 1,
                     t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
                     c.rejected ? ToString(*c.rejected) : "ok", c.seal_only ? " (seal only)" : "");
     }
@@ -176,7 +177,8 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
     for (size_t j = 0; j < now.size(); ++j) {
       if (static_cast<int>(j) == l.target) continue;
       const Detection pair[] = {l.parts[j]};
-      if (!p.model().CheckAgainstParts(used.gripper, grasp.X_BT, pair, -1, X_BW)) continue;
+      // The part alone: a grasp into the bin hits it whatever the part.
+      if (!p.model().CheckAgainstParts(used.gripper, grasp.X_BT, pair, -1, X_BW, /*with_bin=*/false)) continue;
       line += "; hits instance " + std::to_string(now[j].instance_id) + " (" + now[j].class_name + ")";
     }
     report.collisions.push_back(std::move(line));

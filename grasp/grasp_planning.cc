@@ -226,6 +226,7 @@ class GraspPlanningModel::Impl {
   std::map<int, CollisionGeometryPtr> parts_touch;  // `parts` grown by options.touch_distance
   std::map<int, TriangleMesh> part_meshes;       // by class id, in O (contact ray casts)
   CollisionGeometryPtr bin;                      // in W
+  CollisionGeometryPtr bin_planning;             // `bin` grown by options.bin_margin (the plan's walls)
   std::map<std::string, Gripper> grippers;       // by name
   // (class id, gripper) -> expanded cell grasps
   std::map<std::pair<int, std::string>, std::vector<TaughtGrasp>> cell_grasps;
@@ -291,7 +292,8 @@ const std::vector<TaughtGrasp>& GraspPlanningModel::CellGrasps(int class_id, con
 Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(const Cell& cell,
                                                                             const GraspPlanningOptions& options) {
   if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
-      !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0)) {
+      !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0) ||
+      !(options.bin_margin >= 0)) {
     return Status::InvalidArgument(
         "grasp planning options: steps and resolution must be > 0, margins and distances >= 0");
   }
@@ -328,6 +330,12 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
   auto bin = CollisionGeometry::FromMesh(bin_mesh);
   if (!bin.ok()) return Status::InvalidArgument("bin: " + bin.status().message());
   impl->bin = *bin;
+  impl->bin_planning = *bin;
+  if (options.bin_margin > 0) {
+    auto grown = CollisionGeometry::FromMesh(Inflated(bin_mesh, options.bin_margin));
+    if (!grown.ok()) return Status::InvalidArgument("bin: " + grown.status().message());
+    impl->bin_planning = *grown;
+  }
   for (const GripperSpec& g : c.grippers) {
     Result<TriangleMesh> mesh = LoadMesh(g.mesh);
     if (!mesh.ok()) return mesh.status();
@@ -413,12 +421,13 @@ double TiltRad(const Pose& X_BT) {
 
 std::optional<RejectReason> GraspPlanningModel::CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
                                                                   std::span<const Detection> parts,
-                                                                  int target, const Pose& X_BW) const {
+                                                                  int target, const Pose& X_BW,
+                                                                  bool with_bin) const {
   const Impl& m = *impl_;
   auto g = m.grippers.find(gripper);
   if (g == m.grippers.end()) return RejectReason::kPart;
   const CollisionGeometry& sweep = *g->second.sweep;
-  if (Collides(sweep, X_BT, *m.bin, X_BW)) return RejectReason::kBin;
+  if (with_bin && Collides(sweep, X_BT, *m.bin, X_BW)) return RejectReason::kBin;
   const Pose X_BT_lift = X_BT * TranslateZ(-m.options.contact_margin);
   for (int i = 0; i < static_cast<int>(parts.size()); ++i) {
     auto p = m.parts.find(parts[i].class_id);
@@ -724,7 +733,7 @@ void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper,
         if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
       }
       const CollisionGeometry& sweep = *gripper.sweep;
-      if (Collides(sweep, c.X_BT, *m.bin, X_BW)) return RejectReason::kBin;
+      if (Collides(sweep, c.X_BT, *m.bin_planning, X_BW)) return RejectReason::kBin;
       const int self[] = {c.detection};
       if (obstacles.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
       const Pose X_BT_lift = c.X_BT * TranslateZ(-m.options.contact_margin);

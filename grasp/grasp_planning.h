@@ -12,10 +12,11 @@
 // first, for: approach tilt from vertical (task.max_tilt_deg), flange inside
 // robot.workspace at the grasp and the pre-grasp (and, when the task names
 // place_on, at the place pose and its approach), the swept gripper against
-// the bin, against the other detected parts (meshes at their estimated poses,
-// FCL broadphase), against its own part and against the scene points not
-// explained by any detection (an FCL OcTree built once per frame, behind a
-// dense occupancy-bitmap pre-filter). Its own part and the points are checked
+// the bin (its walls grown by bin_margin), against the other detected parts
+// (meshes at their estimated poses, FCL broadphase), against its own part
+// and against the scene points not explained by any detection (an FCL
+// OcTree built once per frame, behind a dense occupancy-bitmap pre-filter).
+// Its own part and the points are checked
 // with the gripper lifted by contact_margin along -z: the tool touches the part
 // at the grasp point by design, and the points are inflated by a voxel.
 //
@@ -149,6 +150,13 @@ struct GraspPlanningOptions {
   // resettling parts can move into.
   double touch_distance = 0.003;
   double approach_margin = 0.010;
+  // m the swept gripper keeps from the bin in the plan (the walls grown by
+  // it, as Inflated grows a mesh): the walls stand where the cell or the bin
+  // detection says, a measured bin is off by a few tenths of a mm
+  // (docs/tuning.md, "bin_margin"), and a grasp planned to graze the
+  // measured wall would hit the true one. The judge's check
+  // (CheckAgainstParts) takes the exact bin.
+  double bin_margin = 0.001;
 };
 
 namespace internal {
@@ -228,10 +236,11 @@ class GraspPlanningModel {
   // Checks one tool pose against the bin standing at X_BW and `parts`
   // (meshes at their poses; parts[target] is the part being grasped),
   // without points or task limits. Used to judge a grasp against ground
-  // truth (the true bin pose). nullopt = collision-free.
+  // truth (the true bin pose). nullopt = collision-free. `with_bin` false:
+  // the parts alone (which parts a grasp that also hits the bin hits).
   std::optional<RejectReason> CheckAgainstParts(const std::string& gripper, const Pose& X_BT,
                                                 std::span<const Detection> parts, int target,
-                                                const Pose& X_BW) const;
+                                                const Pose& X_BW, bool with_bin = true) const;
 
   class Impl;
   const Impl& impl() const { return *impl_; }

@@ -195,6 +195,70 @@ TEST(GraspFilter, WallsAtTheMeasuredBinPoseRejectAGraspTheNominalWallsLetThrough
   EXPECT_EQ((*model)->CheckAgainstParts(task.gripper, hub->X_BT, parts, 0, bin.X_BW), RejectReason::kBin);
 }
 
+// A bin measured off its true pose by less than bin_margin never lets a
+// grasp through that hits the true wall (clear seed 10259: the bin measured
+// 0.3 mm off, a run_bottom grasp planned to graze the measured wall hit the
+// true one). x_edge: the farthest position (0.2 mm steps) of a bushing tilted
+// toward the +x wall where the exact walls let hub_top through.
+TEST(GraspFilter, KeepsTheBinMarginFromTheWallsSoAWallMeasuredSlightlyOffIsNotHit) {
+  TaskSpec task = PickTask();
+  GraspPlanningOptions exact_options;
+  exact_options.suction_compliance_deg = 0;  // judge the grasp as defined
+  exact_options.bin_margin = 0.0;
+  GraspPlanningOptions margin_options = exact_options;
+  margin_options.bin_margin = GraspPlanningOptions{}.bin_margin;
+  ASSERT_GT(margin_options.bin_margin, 0.0);
+  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), exact_options);
+  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), margin_options);
+  ASSERT_TRUE(exact.ok() && margin.ok());
+  const auto hub = [&](const GraspPlanningModel& model, double x) -> const GraspCandidate {
+    const GraspPlan plan = PlanGrasps(model, task, Scene({Bushing(x, 0, 0.02, 30)}));
+    for (const GraspCandidate& c : plan.candidates) {
+      if (c.name == "hub_top@0") return c;
+    }
+    ADD_FAILURE() << "no hub_top@0";
+    return {};
+  };
+  double x_edge = -1;
+  for (double x = 0.0; x < 0.25; x += 0.005) {  // coarse, then 0.2 mm steps
+    if (hub(**exact, x).rejected) break;
+    x_edge = x;
+  }
+  ASSERT_GE(x_edge, 0.0);
+  ASSERT_LT(x_edge, 0.245);
+  while (!hub(**exact, x_edge + 0.0002).rejected) x_edge += 0.0002;
+  // At the edge the exact walls let it through, the grown ones do not.
+  EXPECT_EQ(hub(**exact, x_edge).rejected, std::nullopt);
+  EXPECT_EQ(hub(**margin, x_edge).rejected, RejectReason::kBin);
+  // The last position the margin lets through keeps clear of a true wall
+  // that stands up to 0.8 margin closer than measured, in x, y or z.
+  double x_kept = -1;
+  for (double x = x_edge; x > x_edge - 0.01; x -= 0.0002) {
+    if (!hub(**margin, x).rejected) {
+      x_kept = x;
+      break;
+    }
+  }
+  ASSERT_GT(x_kept, 0.0);
+  EXPECT_GT(x_edge - x_kept, 0.5 * margin_options.bin_margin);
+  const GraspCandidate kept = hub(**margin, x_kept);
+  const Detection part[] = {Bushing(x_kept, 0, 0.02, 30)};
+  const double d = 0.8 * margin_options.bin_margin;
+  for (const Vec3& off : {Vec3(-d, 0, 0), Vec3(d, 0, 0), Vec3(0, d, 0), Vec3(0, -d, 0), Vec3(0, 0, d)}) {
+    const Pose X_BW_true = DefaultCell().bin.X_BW * MakePose(Mat3::Identity(), off);
+    EXPECT_EQ((*margin)->CheckAgainstParts(task.gripper, kept.X_BT, part, 0, X_BW_true), std::nullopt)
+        << "true bin " << off.transpose() * 1000 << " mm off";
+  }
+  // The edge grasp against a wall 0.8 margin closer: into the bin, its part
+  // alone not hit (a collision report names only parts really hit).
+  const GraspCandidate edge = hub(**exact, x_edge);
+  const Detection at_edge[] = {Bushing(x_edge, 0, 0.02, 30)};
+  const Pose X_BW_closer = DefaultCell().bin.X_BW * MakePose(Mat3::Identity(), Vec3(-d, 0, 0));
+  EXPECT_EQ((*exact)->CheckAgainstParts(task.gripper, edge.X_BT, at_edge, 0, X_BW_closer), RejectReason::kBin);
+  EXPECT_EQ((*exact)->CheckAgainstParts(task.gripper, edge.X_BT, at_edge, 0, X_BW_closer, /*with_bin=*/false),
+            std::nullopt);
+}
+
 // The default cell's L-bracket lying on its side (+y up) near the +x wall,
 // its base turned 40 deg toward the wall. The parallel jaw closes across a
 // plate, so its 90 mm palm spans the plate's normal: at the middle of either
