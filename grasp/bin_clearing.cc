@@ -195,7 +195,8 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
                 1000 * l.outcome.position_error, l.outcome.approach_error * 180 / M_PI, l.outcome.truth_instance,
                 stale ? " (it would have landed on the pile as captured)" : "");
   v.line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
-           " (detection " + std::to_string(grasp.instance_id) + "): " + detail;
+           " (detection " + std::to_string(grasp.instance_id) + (grasp.last_resort ? ", a last resort" : "") +
+           "): " + detail;
   return v;
 }
 

@@ -36,6 +36,11 @@ struct Grasp {
   // measured it (PlanResult::bin found); nullopt: the cell's nominal
   // bin.pose. The failed-pick memory keeps spots in this bin frame.
   std::optional<Pose> X_BW;
+  // A last resort (GraspCandidate::seal_only): a suction grasp on a
+  // detection with alternative poses that lands off its grasp point were an
+  // alternative true, offered only because the plan had no other grasp.
+  // `binpick clear` names the failed ones (docs/tuning.md).
+  bool last_resort = false;
 };
 
 }  // namespace bp

@@ -816,6 +816,7 @@ std::vector<Grasp> QueueByPart(std::span<const Detection> detections, const std:
     g.class_id = best.class_id;
     g.score = best.score;
     g.name = best.name;
+    g.last_resort = best.seal_only;
     for (size_t k = 1; k < list.size(); ++k) g.related_X_B.push_back(list[k]->X_BT);
     queue.push_back(std::move(g));
   }

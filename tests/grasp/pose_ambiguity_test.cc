@@ -267,6 +267,7 @@ TEST(PoseAmbiguity, ATeeStandingOnItsBranchTurnedAboutItsRunIsGraspedStraightDow
     }
   }
   EXPECT_GT(-g.X_BT.linear().col(2).z(), std::cos(1.0 * M_PI / 180)) << "not straight down: " << g.name;
+  EXPECT_TRUE(g.last_resort) << "the queued grasp says it is a last resort";
   const PartTruth part{0, kTee, {}, truth, 0, 0, 0.0};
   EXPECT_TRUE(JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1)).on_part);
 }
@@ -304,6 +305,7 @@ TEST(PoseAmbiguity, ASealOnlySuctionGraspWaitsWhileAnotherPartHasAGraspThatLands
   ASSERT_EQ(plan.outcome, PlanResult::Outcome::kGrasps) << plan.stats.Describe();
   ASSERT_EQ(plan.queue.size(), 1u);
   EXPECT_EQ(plan.queue.front().instance_id, 1);
+  EXPECT_FALSE(plan.queue.front().last_resort);
   int withheld = 0;
   for (const GraspCandidate& c : plan.candidates) {
     if (c.detection != 0 || !c.seal_only) continue;
