@@ -156,7 +156,7 @@ struct GraspPlanningOptions {
   // (docs/tuning.md, "bin_margin"), and a grasp planned to graze the
   // measured wall would hit the true one. The judge's check
   // (CheckAgainstParts) takes the exact bin.
-  double bin_margin = 0.001;
+  double bin_margin = 0.0005;
 };
 
 namespace internal {
