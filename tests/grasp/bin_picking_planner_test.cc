@@ -6,7 +6,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -131,32 +130,6 @@ TEST(EmptyBoxRule, EmptyBelowTheThresholdOnlyWithoutDetections) {
   EXPECT_FALSE(IsBoxEmpty(total, 2000, 10, 0));
   EXPECT_FALSE(IsBoxEmpty(total, 2001, 10, 0));
   EXPECT_FALSE(IsBoxEmpty(total, 1999, 10, 2));
-}
-
-// The default cell's pick tasks at each camera config, with the largest
-// regions `binpick clear --variety` measured at VGA (640 x 480) when nothing
-// was detected, scaled by the pixel count: an L-bracket left on its edge,
-// 118-210 points (too few to segment), is not empty; an emptied bin, at most
-// 8 points of noise, is. The seed's 2000 points (267 at VGA) called the
-// bracket empty.
-TEST(EmptyBoxRule, TheDefaultCellCallsABracketOnItsEdgeNotEmptyAndAnEmptiedBinEmpty) {
-  Result<Cell> cell = LoadDefaultCell();
-  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
-  int tasks = 0;
-  for (const TaskSpec& task : cell->tasks) {
-    if (task.kind != TaskSpec::Kind::kPick) continue;
-    ++tasks;
-    for (const CameraConfig& config : cell->camera.configs) {
-      const int64_t pixels = static_cast<int64_t>(config.intrinsics.width) * config.intrinsics.height;
-      const double scale = static_cast<double>(pixels) / (640.0 * 480.0);
-      const auto region = [&](double vga_points) { return static_cast<int64_t>(std::lround(vga_points * scale)); };
-      EXPECT_FALSE(IsBoxEmpty(task.empty_box, region(226), region(118), 0, pixels))
-          << "task " << task.id << ", config " << config.id;
-      EXPECT_TRUE(IsBoxEmpty(task.empty_box, region(366), region(8), 0, pixels))
-          << "task " << task.id << ", config " << config.id;
-    }
-  }
-  EXPECT_GE(tasks, 2);
 }
 
 TEST(EmptyBoxRule, ScatteredNoiseHasNoLargeRegionButADenseClusterDoes) {
