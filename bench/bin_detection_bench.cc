@@ -65,5 +65,27 @@ void BM_StageBinDetection(benchmark::State& state) {
 }
 BENCHMARK(BM_StageBinDetection)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// The same frames with a free-standing bin's window (bin.detect_search
+// rotation_deg: any, search_yaw_deg 180): the rim's yaw searched over its
+// whole period.
+void BM_StageBinDetectionAnyYaw(benchmark::State& state) {
+  const BinFrame& d = FrameFor(static_cast<int>(state.range(0)));
+  if (!d.ok) {
+    state.SkipWithError("no synthetic frame (OSMesa)");
+    return;
+  }
+  BinSpec bin_spec = d.cell.bin;
+  bin_spec.detect.search_yaw_deg = 180.0;
+  BinDetection bin;
+  for (auto _ : state) {
+    bin = DetectBin(d.frame, bin_spec);
+    benchmark::DoNotOptimize(bin);
+  }
+  state.counters["found"] = bin.found ? 1 : 0;
+  state.counters["rim_points"] = bin.rim_points;
+  state.counters["offset_mm"] = 1e3 * bin.offset;
+}
+BENCHMARK(BM_StageBinDetectionAnyYaw)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 }  // namespace
 }  // namespace bp

@@ -28,6 +28,9 @@ namespace {
 
 constexpr double kDegToRad = M_PI / 180.0;
 constexpr int kWallPieces = 20;  // a wall's length in this many pieces for the seen share
+// The rim plane is fitted to band points within this much (m) beyond the
+// rim's half width + slack of the consensus outline.
+constexpr double kNearRim = 0.006;
 
 // Points of the frame near the rim and near the floor, in the nominal bin
 // frame (W0), sampled every `stride` pixels.
@@ -283,46 +286,106 @@ std::vector<T> EvenSubsample(const std::vector<T>& points, int max_points) {
   return out;
 }
 
-// The rim's pose from anywhere in the search window, on an even subsample
-// of the candidates q: one ICP from the nominal pose for windows up to
-// kBasinYaw, else ICPs started every kBasinYaw across the window's yaw
-// range (on a sparser subsample), the one explaining the most points
-// refined. The yaw comes back within half the rim's period of nominal.
-RimPose CoarseRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, const BinSpec& bin,
-                      const BinDetectOptions& o) {
-  // The ICP converges from yaws this far off (rad).
-  constexpr double kBasinYaw = 10.0 * kDegToRad;
-  const std::vector<Eigen::Vector2d> sub = EvenSubsample(q, o.fit_max_points);
-  const double yaw = SearchYaw(bin), period = YawPeriod(bin);
-  RimPose best;
-  if (yaw <= kBasinYaw + 1e-9) {
-    best = FitRim(sub, rim, RimReach(bin, yaw), o.rim_slack, RimPose{});
-  } else {
-    const std::vector<Eigen::Vector2d> sparse = EvenSubsample(q, o.fit_max_points / 4);
-    // Starts every kBasinYaw in [-yaw, yaw]; a window of any yaw drops the
-    // start at -period / 2, the same rim as +period / 2.
-    const int starts = static_cast<int>(std::ceil(yaw / kBasinYaw - 1e-9));
-    int best_count = -1;
-    for (int k = -starts; k <= starts; ++k) {
-      RimPose start;
-      start.theta = std::clamp(k * kBasinYaw, -yaw, yaw);
-      if (yaw >= period / 2 - 1e-9 && k == -starts) continue;
-      const RimPose fit = FitRim(sparse, rim, RimReach(bin, kBasinYaw), o.rim_slack, start);
-      const Eigen::Matrix2d Rt = Rot2(fit.theta).transpose();
-      int count = 0;
-      for (const Eigen::Vector2d& p : sparse) {
-        const WallHit h = NearestWall(rim, Rt * (p - fit.c));
-        count += std::abs(h.r) <= rim.half_width + o.rim_slack && h.along >= 0 && h.along <= 1 ? 1 : 0;
-      }
-      if (count > best_count) {
-        best_count = count;
-        best = fit;
+// The consensus pose: the yaw and centre over a grid of the search window
+// whose rim explains the most of the points q (2D, in the nominal bin
+// frame's xy or the rim plane's frame: a tilt of a few degrees shrinks the
+// rim's outline by under 0.1%), counted per axis. For each yaw in [lo, hi]
+// (every `step`, rad) the points, turned into the rim's frame, fall into
+// 1 mm histograms of x and y; the walls along y lie at x = c_x +- a, so the
+// best c_x is the shift whose two windows (the rim's half width + slack
+// about each line) hold the most points (prefix sums), and c_y likewise.
+// A full pile's points in the height band scatter over the histograms
+// while a wall's rim piles up in one window, so the pile cannot pull this
+// pose inward the way it pulls an ICP whose first gate is the window's
+// reach, or tilt a plane fitted to the whole band. Cost: yaws x points.
+// The centre comes back to within a histogram bin, the yaw half a step.
+RimPose ConsensusRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, const BinSpec& bin,
+                         const BinDetectOptions& o, double lo, double hi, double step) {
+  constexpr double kBin = 0.001;  // histogram bin, m
+  // The centre's reach in the rim's frame: the window's translation on both
+  // axes and 15 mm of tilt.
+  const double shift = std::sqrt(2.0) * bin.detect.search_translation + 0.015;
+  const int shift_bins = static_cast<int>(std::ceil(shift / kBin));
+  const double w = rim.half_width + o.rim_slack;
+  const int w_bins = std::max(1, static_cast<int>(std::lround(w / kBin)));
+  const double half_x = rim.a + shift + w, half_y = rim.b + shift + w;
+  const int nx = static_cast<int>(std::ceil(2 * half_x / kBin)) + 1;
+  const int ny = static_cast<int>(std::ceil(2 * half_y / kBin)) + 1;
+  std::vector<int> hx(static_cast<size_t>(nx) + 1), hy(static_cast<size_t>(ny) + 1);
+  // The most points in the two windows about shift +- line over shifts
+  // within +-shift_bins; *best_shift in m. h: prefix sums (h[k]: points in
+  // bins < k), half: the histogram's half range, line: a or b.
+  const auto best_in = [&](const std::vector<int>& h, double half, double line, double* best_shift) {
+    const int n = static_cast<int>(h.size()) - 1;
+    const auto count = [&](int first, int last) {  // bins [first, last]
+      first = std::clamp(first, 0, n);
+      last = std::clamp(last + 1, 0, n);
+      return last > first ? h[last] - h[first] : 0;
+    };
+    const int centre = static_cast<int>(std::lround(half / kBin));
+    const int line_bins = static_cast<int>(std::lround(line / kBin));
+    int best = -1;
+    for (int s = -shift_bins; s <= shift_bins; ++s) {
+      const int plus = centre + s + line_bins, minus = centre + s - line_bins;
+      const int c = count(plus - w_bins, plus + w_bins) + count(minus - w_bins, minus + w_bins);
+      if (c > best) {
+        best = c;
+        *best_shift = (s + 0.5) * kBin;  // within half a bin of the windows' centre
       }
     }
-    best = FitRim(sub, rim, rim.half_width + o.rim_slack + 0.01, o.rim_slack, best);
+    return best;
+  };
+  const int steps = std::max(0, static_cast<int>(std::floor((hi - lo) / step + 1e-9)));
+  RimPose best;
+  int best_count = -1;
+  for (int k = 0; k <= steps; ++k) {
+    const double theta = lo + k * step;
+    const double c = std::cos(theta), s = std::sin(theta);
+    std::fill(hx.begin(), hx.end(), 0);
+    std::fill(hy.begin(), hy.end(), 0);
+    for (const Eigen::Vector2d& p : q) {
+      const double mx = c * p.x() + s * p.y(), my = -s * p.x() + c * p.y();  // R(theta)^T p
+      const int ix = static_cast<int>(std::floor((mx + half_x) / kBin));
+      const int iy = static_cast<int>(std::floor((my + half_y) / kBin));
+      // A point counts for the walls along y when it lies within their
+      // length (and likewise for x).
+      if (ix >= 0 && ix < nx && std::abs(my) < rim.ly + shift) ++hx[static_cast<size_t>(ix) + 1];
+      if (iy >= 0 && iy < ny && std::abs(mx) < rim.lx + shift) ++hy[static_cast<size_t>(iy) + 1];
+    }
+    for (size_t i = 1; i < hx.size(); ++i) hx[i] += hx[i - 1];
+    for (size_t i = 1; i < hy.size(); ++i) hy[i] += hy[i - 1];
+    double sx = 0, sy = 0;
+    const int count = best_in(hx, half_x, rim.a, &sx) + best_in(hy, half_y, rim.b, &sy);
+    if (count > best_count) {
+      best_count = count;
+      best.theta = theta;
+      best.c = Rot2(theta) * Eigen::Vector2d(sx, sy);
+    }
   }
-  best.theta = std::remainder(best.theta, period);
   return best;
+}
+
+// The rim's pose in the nominal bin frame's xy from the band's points
+// anywhere in the search window: the consensus pose every 2 deg across the
+// window's yaw range on a quarter of fit_max_points of them, then every
+// 0.5 deg within 2 deg of the best on half (a wall's ends move 4.4 mm per
+// degree of yaw error on the default bin, within the 8 mm half window at a
+// coarse step's worst 1 deg). The yaw comes back within half the rim's
+// period.
+RimPose StartRimPose(const std::vector<Eigen::Vector2d>& band_xy, const RimModel& rim, const BinSpec& bin,
+                     const BinDetectOptions& o) {
+  constexpr double kFine = 0.5 * kDegToRad, kCoarse = 2.0 * kDegToRad;
+  const double yaw = SearchYaw(bin), period = YawPeriod(bin);
+  // A window of any yaw stops short of +period / 2 (the same rim as
+  // -period / 2).
+  const double hi = yaw >= period / 2 - 1e-9 ? yaw - 0.5 * kCoarse : yaw;
+  const double step = std::min(kCoarse, 2 * yaw);
+  const RimPose coarse =
+      ConsensusRimPose(EvenSubsample(band_xy, o.fit_max_points / 4), rim, bin, o, -yaw, hi, step);
+  RimPose pose = ConsensusRimPose(EvenSubsample(band_xy, o.fit_max_points / 2), rim, bin, o,
+                                  coarse.theta - kCoarse, coarse.theta + kCoarse, kFine);
+  pose.theta = std::remainder(pose.theta, period);
+  return pose;
 }
 
 // A 2D frame in the plane (n, d): origin under (0, 0, H) of W0, x along W0's
@@ -363,9 +426,36 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
     return finish("no rim: " + std::to_string(sampled.band_W0.size()) +
                   " points near the rim's height within the search window");
   }
+  RimModel rim;
+  rim.half_width = t / 2;
+  rim.a = X + t / 2;
+  rim.b = Y + t / 2;
+  rim.lx = X + t;
+  rim.ly = Y + t;
+  // Where the rim lies seen from above (the consensus pose on the band's
+  // xy), then its plane on the band points near that outline only: a full
+  // pile's points in the band outnumber the rim's and tilt a plane fitted
+  // to the whole band.
+  const std::vector<Eigen::Vector3f> band_sub = EvenSubsample(sampled.band_W0, o.fit_max_points);
+  std::vector<Eigen::Vector2d> band_xy;
+  band_xy.reserve(band_sub.size());
+  for (const Eigen::Vector3f& p : band_sub) band_xy.emplace_back(p.x(), p.y());
+  const RimPose start = StartRimPose(band_xy, rim, bin, o);
+  std::vector<Eigen::Vector3f> near_rim;
+  {
+    const Eigen::Matrix2d Rt0 = Rot2(start.theta).transpose();
+    for (size_t i = 0; i < band_xy.size(); ++i) {
+      const WallHit h = NearestWall(rim, Rt0 * (band_xy[i] - start.c));
+      if (std::abs(h.r) <= rim.half_width + o.rim_slack + kNearRim && h.along >= -0.02 && h.along <= 1.02) {
+        near_rim.push_back(band_sub[i]);
+      }
+    }
+  }
   Eigen::Vector3d n;
   double d = 0;
-  if (!FitRimPlane(sampled.band_W0, o, &n, &d)) return finish("no rim: no plane near the rim's height");
+  if (near_rim.size() < 50 || !FitRimPlane(near_rim, o, &n, &d)) {
+    return finish("no rim: no plane near the rim's height");
+  }
 
   // The rim candidates: band points on the plane, in its 2D frame.
   PlaneFrame plane = MakePlaneFrame(n, d, H);
@@ -379,13 +469,13 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
     q.push_back(plane.To2D(p));
     on_plane.push_back(p);
   }
-  RimModel rim;
-  rim.half_width = t / 2;
-  rim.a = X + t / 2;
-  rim.b = Y + t / 2;
-  rim.lx = X + t;
-  rim.ly = Y + t;
-  RimPose pose = CoarseRimPose(q, rim, bin, o);
+  // ICP from the start, its gate 10 mm beyond the rim's half width + slack
+  // (the start lies within a histogram bin and a quarter yaw step).
+  RimPose start_in_plane = start;
+  start_in_plane.c = plane.To2D(Eigen::Vector3d(start.c.x(), start.c.y(), H));
+  RimPose pose = FitRim(EvenSubsample(q, o.fit_max_points), rim, rim.half_width + o.rim_slack + 0.01, o.rim_slack,
+                        start_in_plane);
+  pose.theta = std::remainder(pose.theta, YawPeriod(bin));
 
   // What the fit explains: rim points per wall piece, points inward on the plane.
   const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();

@@ -2,11 +2,14 @@
 // depth of one frame, before anything crops to its ROI.
 //
 // The rim (the four walls' top faces, a flat frame of wall_thickness width
-// at the bin's inner height) is found in a band about its nominal height,
-// its plane fitted by RANSAC (PCL) and then least squares, and the bin
-// model's rim (the walls' centre lines) fitted to the rim points in that
-// plane by point-to-line ICP (Gauss-Newton on x, y, yaw), starting at the
-// nominal pose. Plane and pose are then fitted again on the rim points within
+// at the bin's inner height) is found in a band about its nominal height:
+// seen from above, the yaw and centre over a grid of the search window
+// whose rim outline explains the most band points (per-axis histograms;
+// a full pile's points in the band scatter, a wall's pile up), then the
+// rim's plane fitted by RANSAC (PCL) to the band points near that outline,
+// and the bin model's rim (the walls' centre lines) fitted to the points on
+// that plane by point-to-line ICP (Gauss-Newton on x, y, yaw) from the
+// consensus pose. Plane and pose are then fitted again on the rim points within
 // 3 robust sigmas of the plane: points on the walls' inner faces just below
 // the rim, seen along its inner edge, would tilt and shift the fit. The floor follows from the bin model: it lies inner height
 // below the rim, parallel to it (the floor itself is mostly hidden under
