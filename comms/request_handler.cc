@@ -19,6 +19,7 @@
 #include <utility>
 #include <vector>
 
+#include "comms/internal/exception_text.h"
 #include "core/conventions.h"
 #include "core/fault_points.h"
 #include "core/sanitizers.h"
@@ -33,6 +34,7 @@ using daoai::Request;
 using daoai::Response;
 using Reply = RequestHandler::Reply;
 using Completion = RequestHandler::Completion;
+using internal::ExceptionText;
 
 Reply NoResponse() {
   return [] { return std::optional<Response>(); };
@@ -151,18 +153,6 @@ Status EncodePose(const Pose& X, const WireFormat& f, Response& out) {
     out.orientation[i] = *v;
   }
   return Status::Ok();
-}
-
-// The text of the exception being handled (call inside a catch block only;
-// the pointer lives as long as the exception). Never throws.
-const char* ExceptionText() noexcept {
-  try {
-    throw;
-  } catch (const std::exception& e) {
-    return e.what();
-  } catch (...) {
-    return "an exception that is not a std::exception";
-  }
 }
 
 // Runs jobs one after another, in submission order, on the arena. At most
