@@ -405,6 +405,106 @@ PlaneFrame MakePlaneFrame(const Eigen::Vector3d& n, double d, double H) {
   return f;
 }
 
+// The band points near the rim's outline at the consensus start pose
+// (seen from above): a full pile's points in the band outnumber the rim's
+// and tilt a plane fitted to the whole band. Sets *start.
+std::vector<Eigen::Vector3f> BandPointsNearRim(const SampledPoints& sampled, const RimModel& rim,
+                                               const BinSpec& bin, const BinDetectOptions& o, RimPose* start) {
+  const std::vector<Eigen::Vector3f> band_sub = EvenSubsample(sampled.band_W0, o.fit_max_points);
+  std::vector<Eigen::Vector2d> band_xy;
+  band_xy.reserve(band_sub.size());
+  for (const Eigen::Vector3f& p : band_sub) band_xy.emplace_back(p.x(), p.y());
+  *start = StartRimPose(band_xy, rim, bin, o);
+  std::vector<Eigen::Vector3f> near_rim;
+  const Eigen::Matrix2d Rt0 = Rot2(start->theta).transpose();
+  for (size_t i = 0; i < band_xy.size(); ++i) {
+    const WallHit h = NearestWall(rim, Rt0 * (band_xy[i] - start->c));
+    if (std::abs(h.r) <= rim.half_width + o.rim_slack + kNearRim && h.along >= -0.02 && h.along <= 1.02) {
+      near_rim.push_back(band_sub[i]);
+    }
+  }
+  return near_rim;
+}
+
+// What a rim pose explains on the plane: the points on the rim, the least
+// seen share of a wall's length (0-1, over kWallPieces pieces with >= 3
+// points each), and the points just inside the rim (a surface continuing
+// inward at its height: a lid, a flat part on top, not a bin).
+struct RimCoverage {
+  std::vector<Eigen::Vector3d> rim_points;  // in W0
+  double least_seen = 1.0;
+  int inward = 0;
+};
+
+RimCoverage MeasureRimCoverage(const std::vector<Eigen::Vector2d>& q, const std::vector<Eigen::Vector3d>& on_plane,
+                               const RimModel& rim, const RimPose& pose, const BinDetectOptions& o) {
+  RimCoverage cov;
+  const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();
+  std::array<std::array<int, kWallPieces>, 4> pieces{};
+  cov.rim_points.reserve(q.size());
+  for (size_t i = 0; i < q.size(); ++i) {
+    const WallHit h = NearestWall(rim, Rt * (q[i] - pose.c));
+    if (h.along < 0 || h.along > 1) continue;
+    if (std::abs(h.r) <= rim.half_width + o.rim_slack) {
+      ++pieces[h.wall][std::min(kWallPieces - 1, static_cast<int>(h.along * kWallPieces))];
+      cov.rim_points.push_back(on_plane[i]);
+    } else if (h.r < -(rim.half_width + 0.006) && h.r > -(rim.half_width + 0.020)) {
+      ++cov.inward;
+    }
+  }
+  for (const auto& wall : pieces) {
+    const int seen = static_cast<int>(std::count_if(wall.begin(), wall.end(), [](int c) { return c >= 3; }));
+    cov.least_seen = std::min(cov.least_seen, static_cast<double>(seen) / kWallPieces);
+  }
+  return cov;
+}
+
+// The rim plane again over the rim points alone (tightened to their noise;
+// a subsample is plenty for a plane), and the rim's pose in it again on
+// every rim point within the plane's gate: the points spread across the
+// wall's width, so the pose's noise is that width over the square root of
+// their number (12 mm / sqrt(12 x 1000) ~ 0.1 mm at 4000). Leaves
+// everything as it was when the tight plane cannot be fitted.
+void RefitOnRimPoints(const RimModel& rim, const BinSpec& bin, const BinDetectOptions& o, Eigen::Vector3d* n,
+                      double* d, PlaneFrame* plane, RimPose* pose, std::vector<Eigen::Vector3d>* rim_points) {
+  std::vector<Eigen::Vector3d> tight;
+  double gate = 0;
+  if (!FitRimPlaneTight(EvenSubsample(*rim_points, o.fit_max_points), n, d, &tight, &gate)) return;
+  tight.clear();
+  for (const Eigen::Vector3d& p : *rim_points) {
+    if (std::abs(n->dot(p) + *d) <= gate) tight.push_back(p);
+  }
+  const PlaneFrame refined = MakePlaneFrame(*n, *d, bin.inner_size.z());
+  std::vector<Eigen::Vector2d> q_tight;
+  q_tight.reserve(tight.size());
+  for (const Eigen::Vector3d& p : tight) q_tight.push_back(refined.To2D(p));
+  // The pose so far, in the refined plane's 2D frame.
+  const Eigen::Vector3d c_3d = plane->origin + pose->c.x() * plane->ex + pose->c.y() * plane->ey;
+  const Eigen::Vector3d x_3d = std::cos(pose->theta) * plane->ex + std::sin(pose->theta) * plane->ey;
+  RimPose start;
+  start.c = refined.To2D(c_3d);
+  start.theta = std::atan2(x_3d.dot(refined.ey), x_3d.dot(refined.ex));
+  *pose = FitRim(q_tight, rim, rim.half_width + o.rim_slack, o.rim_slack, start);
+  pose->theta = std::remainder(pose->theta, YawPeriod(bin));
+  *plane = refined;
+  *rim_points = std::move(tight);
+}
+
+// The measured bin frame in W0: z the rim's normal, x the fitted yaw, the
+// origin the inner height H below the rim's centre.
+Pose BinFrameFromRim(const PlaneFrame& plane, const RimPose& pose, const Eigen::Vector3d& n, double d, double H) {
+  const Eigen::Vector3d centre_on_rim = plane.origin + pose.c.x() * plane.ex + pose.c.y() * plane.ey;
+  const Eigen::Vector3d rim_centre = centre_on_rim - (n.dot(centre_on_rim) + d) * n;
+  const Eigen::Vector3d x_dir = std::cos(pose.theta) * plane.ex + std::sin(pose.theta) * plane.ey;
+  const Eigen::Vector3d ex = (x_dir - x_dir.dot(n) * n).normalized();
+  Pose X_W0W = Pose::Identity();
+  X_W0W.linear().col(0) = ex;
+  X_W0W.linear().col(1) = n.cross(ex);
+  X_W0W.linear().col(2) = n;
+  X_W0W.translation() = rim_centre - H * n;
+  return X_W0W;
+}
+
 }  // namespace
 
 BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOptions& o) {
@@ -432,25 +532,10 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
   rim.b = Y + t / 2;
   rim.lx = X + t;
   rim.ly = Y + t;
-  // Where the rim lies seen from above (the consensus pose on the band's
-  // xy), then its plane on the band points near that outline only: a full
-  // pile's points in the band outnumber the rim's and tilt a plane fitted
-  // to the whole band.
-  const std::vector<Eigen::Vector3f> band_sub = EvenSubsample(sampled.band_W0, o.fit_max_points);
-  std::vector<Eigen::Vector2d> band_xy;
-  band_xy.reserve(band_sub.size());
-  for (const Eigen::Vector3f& p : band_sub) band_xy.emplace_back(p.x(), p.y());
-  const RimPose start = StartRimPose(band_xy, rim, bin, o);
-  std::vector<Eigen::Vector3f> near_rim;
-  {
-    const Eigen::Matrix2d Rt0 = Rot2(start.theta).transpose();
-    for (size_t i = 0; i < band_xy.size(); ++i) {
-      const WallHit h = NearestWall(rim, Rt0 * (band_xy[i] - start.c));
-      if (std::abs(h.r) <= rim.half_width + o.rim_slack + kNearRim && h.along >= -0.02 && h.along <= 1.02) {
-        near_rim.push_back(band_sub[i]);
-      }
-    }
-  }
+  // Where the rim lies seen from above, then its plane on the band points
+  // near that outline only.
+  RimPose start;
+  const std::vector<Eigen::Vector3f> near_rim = BandPointsNearRim(sampled, rim, bin, o, &start);
   Eigen::Vector3d n;
   double d = 0;
   if (near_rim.size() < 50 || !FitRimPlane(near_rim, o, &n, &d)) {
@@ -477,79 +562,24 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
                         start_in_plane);
   pose.theta = std::remainder(pose.theta, YawPeriod(bin));
 
-  // What the fit explains: rim points per wall piece, points inward on the plane.
-  const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();
-  std::array<std::array<int, kWallPieces>, 4> pieces{};
-  int inward = 0;
-  std::vector<Eigen::Vector3d> rim_points;
-  rim_points.reserve(q.size());
-  for (size_t i = 0; i < q.size(); ++i) {
-    const WallHit h = NearestWall(rim, Rt * (q[i] - pose.c));
-    if (h.along < 0 || h.along > 1) continue;
-    if (std::abs(h.r) <= rim.half_width + o.rim_slack) {
-      ++pieces[h.wall][std::min(kWallPieces - 1, static_cast<int>(h.along * kWallPieces))];
-      rim_points.push_back(on_plane[i]);
-    } else if (h.r < -(rim.half_width + 0.006) && h.r > -(rim.half_width + 0.020)) {
-      ++inward;
-    }
-  }
-  det.rim_points = static_cast<int>(rim_points.size());
-  double least_seen = 1.0;
-  for (const auto& wall : pieces) {
-    const int seen = static_cast<int>(std::count_if(wall.begin(), wall.end(), [](int c) { return c >= 3; }));
-    least_seen = std::min(least_seen, static_cast<double>(seen) / kWallPieces);
-  }
-  det.rim_seen = least_seen;
-  if (least_seen < o.min_wall_seen) {
-    return finish("no rim: a wall's rim is seen along " + std::to_string(static_cast<int>(100 * least_seen)) +
+  RimCoverage cov = MeasureRimCoverage(q, on_plane, rim, pose, o);
+  det.rim_points = static_cast<int>(cov.rim_points.size());
+  det.rim_seen = cov.least_seen;
+  if (cov.least_seen < o.min_wall_seen) {
+    return finish("no rim: a wall's rim is seen along " + std::to_string(static_cast<int>(100 * cov.least_seen)) +
                   "% of its length (needs " + std::to_string(static_cast<int>(100 * o.min_wall_seen)) + "%)");
   }
-  if (inward > o.max_inward_share * static_cast<double>(rim_points.size())) {
-    return finish("no rim: a surface continues inward at the rim's height (" + std::to_string(inward) +
-                  " points inside the rim on its plane, " + std::to_string(rim_points.size()) + " on the rim)");
+  if (cov.inward > o.max_inward_share * static_cast<double>(cov.rim_points.size())) {
+    return finish("no rim: a surface continues inward at the rim's height (" + std::to_string(cov.inward) +
+                  " points inside the rim on its plane, " + std::to_string(cov.rim_points.size()) + " on the rim)");
   }
-  // The rim plane again over the rim points alone (tightened to their
-  // noise; a subsample is plenty for a plane), and the rim's pose in it
-  // again on every rim point within the plane's gate: the points spread
-  // across the wall's width, so the pose's noise is that width over the
-  // square root of their number (12 mm / sqrt(12 x 1000) ~ 0.1 mm at 4000).
-  std::vector<Eigen::Vector3d> tight;
-  double gate = 0;
-  if (FitRimPlaneTight(EvenSubsample(rim_points, o.fit_max_points), &n, &d, &tight, &gate)) {
-    tight.clear();
-    for (const Eigen::Vector3d& p : rim_points) {
-      if (std::abs(n.dot(p) + d) <= gate) tight.push_back(p);
-    }
-    const PlaneFrame refined = MakePlaneFrame(n, d, H);
-    std::vector<Eigen::Vector2d> q_tight;
-    q_tight.reserve(tight.size());
-    for (const Eigen::Vector3d& p : tight) q_tight.push_back(refined.To2D(p));
-    // The pose so far, in the refined plane's 2D frame.
-    const Eigen::Vector3d c_3d = plane.origin + pose.c.x() * plane.ex + pose.c.y() * plane.ey;
-    const Eigen::Vector3d x_3d = std::cos(pose.theta) * plane.ex + std::sin(pose.theta) * plane.ey;
-    RimPose start;
-    start.c = refined.To2D(c_3d);
-    start.theta = std::atan2(x_3d.dot(refined.ey), x_3d.dot(refined.ex));
-    pose = FitRim(q_tight, rim, rim.half_width + o.rim_slack, o.rim_slack, start);
-    pose.theta = std::remainder(pose.theta, YawPeriod(bin));
-    plane = refined;
-    rim_points = std::move(tight);
-  }
+  std::vector<Eigen::Vector3d>& rim_points = cov.rim_points;
+  RefitOnRimPoints(rim, bin, o, &n, &d, &plane, &pose, &rim_points);
   double sq = 0;
   for (const auto& p : rim_points) sq += std::pow(n.dot(p) + d, 2);
   det.rim_rms = std::sqrt(sq / std::max<size_t>(1, rim_points.size()));
 
-  // The measured bin frame in W0: z the rim's normal, x the fitted yaw, the
-  // origin inner height below the rim's centre.
-  const Eigen::Vector3d centre_on_rim = plane.origin + pose.c.x() * plane.ex + pose.c.y() * plane.ey;
-  const Eigen::Vector3d rim_centre = centre_on_rim - (n.dot(centre_on_rim) + d) * n;
-  const Eigen::Vector3d x_dir = std::cos(pose.theta) * plane.ex + std::sin(pose.theta) * plane.ey;
-  const Eigen::Vector3d ex = (x_dir - x_dir.dot(n) * n).normalized();
-  Pose X_W0W = Pose::Identity();
-  X_W0W.linear().col(0) = ex;
-  X_W0W.linear().col(1) = n.cross(ex);
-  X_W0W.linear().col(2) = n;
-  X_W0W.translation() = rim_centre - H * n;
+  const Pose X_W0W = BinFrameFromRim(plane, pose, n, d, H);
   // The window is a square in the nominal floor plane (the floor centre's x
   // and y each within +-search_translation) and a yaw range, with 5 mm /
   // 0.5 deg of slack. It is judged on the floor centre, not the rim's: a bin
