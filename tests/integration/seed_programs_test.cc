@@ -444,21 +444,26 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
   // cell: a pass whose stage 1 or 2 gets no answer stops there with "NO
   // OBJECTS FOUND." (binpick's 3: the place would leave the workspace, or
   // perception missed the part in the gripper or the nest).
+  // Default cell: a part no grasp of task 0 can take at all (an L-bracket on
+  // its side, scenes 2 and 4: seed 000's pick program leaves it too) ends the
+  // run on the pick's 4 with the box not empty, as a seed-003 cell's
+  // unplaceable parts do.
   const std::vector<std::string> failures = p->failure_popups();
-  if (place_picks) {
-    EXPECT_TRUE(empty || unplaceable_left) << Popups(*p);
-    for (const std::string& f : failures) EXPECT_EQ(f, kNoPlaceableGrasp) << Popups(*p);
-    if (empty) {
-      EXPECT_EQ(picks, parts) << Popups(*p);
-    }
-    // Scene 3's 6 parts, the test's default bin, all have a placeable grasp.
-    if (std::getenv("BINPICK_SEED_PARTS") == nullptr && std::getenv("BINPICK_SEED_SCENE") == nullptr) {
-      EXPECT_TRUE(empty) << Popups(*p);
-    }
-  } else {
+  EXPECT_TRUE(empty || unplaceable_left) << Popups(*p);
+  if (empty) {
     EXPECT_EQ(picks, parts) << Popups(*p);
-    EXPECT_TRUE(empty);
-    for (const std::string& f : failures) EXPECT_EQ(f, "NO OBJECTS FOUND.") << Popups(*p);
+  }
+  // Scene 3's 6 parts, the test's default bin, all have a (placeable) grasp.
+  if (std::getenv("BINPICK_SEED_PARTS") == nullptr && std::getenv("BINPICK_SEED_SCENE") == nullptr) {
+    EXPECT_TRUE(empty) << Popups(*p);
+  }
+  int not_placed = 0;  // passes stopped at stage 1 or 2 with the part in the gripper
+  for (const std::string& f : failures) {
+    if (place_picks || f != "NO OBJECTS FOUND.") {
+      EXPECT_EQ(f, kNoPlaceableGrasp) << Popups(*p);
+    } else {
+      ++not_placed;
+    }
   }
   // Each place is MoveJ pre_drop_pose, MoveJ tool_in_base, MoveJ pre_drop_pose.
   const std::vector<UrPose>& moves = p->moves();
@@ -475,7 +480,7 @@ TEST_P(SeedPrograms, Seed003CalibratesThenRunsItsPickCorrectPlaceProgramAsPrinte
   if (place_picks) {
     EXPECT_EQ(places, picks) << Popups(*p);  // every part picked is placed
   } else {
-    EXPECT_EQ(places + static_cast<int>(failures.size()), picks) << Popups(*p);  // each pass placed or stopped
+    EXPECT_EQ(places + not_placed, picks) << Popups(*p);  // each pass that picked placed or stopped
   }
   EXPECT_GE(places, 1) << Popups(*p);
   std::printf(", %d placed\n", places);
