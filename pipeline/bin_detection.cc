@@ -95,6 +95,8 @@ RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, doubl
   for (int it = 0; it < 30; ++it) {
     const double gate = std::max(final_gate, first_gate * std::pow(0.5, it));
     const Eigen::Matrix2d R = Rot2(pose.theta), Rt = R.transpose();
+    // JtJ's lower triangle only: ldlt() reads no other (the upper one is the
+    // same products).
     Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
     Eigen::Vector3d Jtr = Eigen::Vector3d::Zero();
     int used = 0;
@@ -104,7 +106,9 @@ RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, doubl
       if (std::abs(h.r) > gate || h.along < -0.02 || h.along > 1.02) continue;
       const Eigen::Vector2d n = R * h.n_model;
       const Eigen::Vector3d J(-n.x(), -n.y(), -n.y() * d.x() + n.x() * d.y());
-      JtJ += J * J.transpose();
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c <= r; ++c) JtJ(r, c) += J(r) * J(c);
+      }
       Jtr += J * h.r;
       ++used;
     }
@@ -239,8 +243,14 @@ bool FitPlane(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, do
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (const auto& p : points) mean += p;
   mean /= static_cast<double>(points.size());
+  // The covariance's lower triangle only: the solver reads no other.
   Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  for (const auto& p : points) cov += (p - mean) * (p - mean).transpose();
+  for (const auto& p : points) {
+    const Eigen::Vector3d q = p - mean;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c <= r; ++c) cov(r, c) += q(r) * q(c);
+    }
+  }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   Eigen::Vector3d normal = eig.eigenvectors().col(0);
   if (normal.z() < 0) normal = -normal;
@@ -265,6 +275,7 @@ bool FitRimPlaneTight(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3
     const double gate = std::max(3.0 * 1.4826 * sorted[sorted.size() / 2], 0.0003);
     *gate_out = gate;
     inliers->clear();
+    inliers->reserve(points.size());
     for (size_t i = 0; i < points.size(); ++i) {
       if (r[i] <= gate) inliers->push_back(points[i]);
     }
@@ -471,6 +482,7 @@ void RefitOnRimPoints(const RimModel& rim, const BinSpec& bin, const BinDetectOp
   double gate = 0;
   if (!FitRimPlaneTight(EvenSubsample(*rim_points, o.fit_max_points), n, d, &tight, &gate)) return;
   tight.clear();
+  tight.reserve(rim_points->size());
   for (const Eigen::Vector3d& p : *rim_points) {
     if (std::abs(n->dot(p) + *d) <= gate) tight.push_back(p);
   }
