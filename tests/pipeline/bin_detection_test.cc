@@ -140,6 +140,19 @@ TEST(BinDetection, FindsTheBinAroundAFullPile) {
   const auto [mm, deg] = Error(bin.X_BW, scene.X_BW_true);
   EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
   EXPECT_LT(deg, 0.1) << deg << " deg";
+  // The same frame with the window of a free-standing bin (any yaw: the
+  // consensus start's yaws every 2 deg over the rim's whole period, 90 of
+  // them, against 11 for the default window): at every yaw the pile's band
+  // points fall into the histograms, and none of those yaws may outvote the
+  // walls'. The rim turned by 180 deg is the same bin.
+  BinSpec any_yaw = cell.bin;
+  any_yaw.detect.search_yaw_deg = 180.0;
+  const BinDetection turned = DetectBin(scene.frame, any_yaw);
+  ASSERT_TRUE(turned.found) << turned.reason;
+  const Pose flipped = scene.X_BW_true * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitZ())), Vec3::Zero());
+  const auto [any_mm, any_deg] = std::min(Error(turned.X_BW, scene.X_BW_true), Error(turned.X_BW, flipped));
+  EXPECT_LT(any_mm, 0.0005) << 1e3 * any_mm << " mm";
+  EXPECT_LT(any_deg, 0.1) << any_deg << " deg";
 }
 
 TEST(BinDetection, FindsNoBinOnAFloorALidOrAnEmptyFrame) {
