@@ -391,8 +391,13 @@ RimPose StartRimPose(const std::vector<Eigen::Vector2d>& band_xy, const RimModel
   // -period / 2).
   const double hi = yaw >= period / 2 - 1e-9 ? yaw - 0.5 * kCoarse : yaw;
   const double step = std::min(kCoarse, 2 * yaw);
-  const RimPose coarse =
-      ConsensusRimPose(EvenSubsample(band_xy, o.fit_max_points / 4), rim, bin, o, -yaw, hi, step);
+  // At most kCoarseWork point-yaws: the default window's 11 yaws take their
+  // 1000 points, a window of any yaw (90 yaws of a rectangular rim) half of
+  // them; the finer pass below looks again on 2000.
+  constexpr double kCoarseWork = 45000;
+  const int yaws = static_cast<int>(std::floor((hi + yaw) / step + 1e-9)) + 1;
+  const int coarse_points = std::min(o.fit_max_points / 4, static_cast<int>(kCoarseWork / yaws));
+  const RimPose coarse = ConsensusRimPose(EvenSubsample(band_xy, coarse_points), rim, bin, o, -yaw, hi, step);
   RimPose pose = ConsensusRimPose(EvenSubsample(band_xy, o.fit_max_points / 2), rim, bin, o,
                                   coarse.theta - kCoarse, coarse.theta + kCoarse, kFine);
   pose.theta = std::remainder(pose.theta, period);
