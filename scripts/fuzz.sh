@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Builds the libFuzzer targets (fuzz/, `fuzz` preset, clang) and runs each
-# from its committed seed corpus (fuzz/corpus/<target>/). Fails on the first
-# crash, leak, timeout or out-of-memory; the reproducer is kept in
+# from its committed seed corpus (fuzz/corpus/<target>/), one per core at a
+# time (FUZZ_JOBS). Fails on a crash, leak, timeout or out-of-memory; the reproducer is kept in
 # build-fuzz/artifacts/<target>/ (replay: build-fuzz/bin/<target> FILE).
 #
 # Two modes:
@@ -36,8 +36,10 @@ if [ -n "$GATE" ]; then SECONDS_EACH="${FUZZ_SECONDS:-120}"; else SECONDS_EACH="
 declare -A GATE_RUNS=([daoai_request_fuzz]=300000 [gri_v2_fuzz]=300000 [gri_official_fuzz]=300000
                       [modbus_registers_fuzz]=300000 [cell_yaml_fuzz]=25000 [mesh_fuzz]=300000
                       [pcd_fuzz]=60000 [ply_frame_fuzz]=100000 [depth_png_fuzz]=100000)
-TARGETS=(daoai_request_fuzz gri_v2_fuzz gri_official_fuzz modbus_registers_fuzz cell_yaml_fuzz
-         mesh_fuzz pcd_fuzz ply_frame_fuzz depth_png_fuzz)
+# The longest gate runs first (mesh_fuzz about 11 s, the file parsers about
+# 7 s, the wire decoders about 1 s), so the parallel runs below end together.
+TARGETS=(mesh_fuzz cell_yaml_fuzz pcd_fuzz ply_frame_fuzz depth_png_fuzz daoai_request_fuzz gri_v2_fuzz
+         gri_official_fuzz modbus_registers_fuzz)
 if [ $# -gt 0 ]; then TARGETS=("$@"); fi
 
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
@@ -46,10 +48,13 @@ cmake --build build-fuzz --target "${TARGETS[@]}"
 
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 export ASAN_OPTIONS="detect_leaks=1"
-summary=()
-for t in "${TARGETS[@]}"; do
-  work="build-fuzz/corpus/$t" art="build-fuzz/artifacts/$t"
-  mode=()
+
+# One target: its run, its log build-fuzz/<target>.log, its summary line in
+# build-fuzz/<target>.summary; returns non-zero (log tail printed) on a
+# crash, leak, timeout or out-of-memory.
+fuzz_one() {
+  local t="$1" work="build-fuzz/corpus/$1" art="build-fuzz/artifacts/$1" log="build-fuzz/$1.log"
+  local mode=() runs execs cov n
   if [ -n "$GATE" ]; then
     runs="${FUZZ_RUNS:-${GATE_RUNS[$t]}}"
     work="build-fuzz/gate-corpus/$t"
@@ -60,16 +65,29 @@ for t in "${TARGETS[@]}"; do
     echo "fuzz: $t for ${SECONDS_EACH}s"
   fi
   mkdir -p "$work" "$art"
-  log="build-fuzz/$t.log"
   if ! build-fuzz/bin/"$t" "${mode[@]}" -max_total_time="$SECONDS_EACH" -timeout=10 -rss_limit_mb=2048 \
         -print_final_stats=1 -artifact_prefix="$art/" "$work" "fuzz/corpus/$t" >"$log" 2>&1; then
     tail -n 60 "$log"
     echo "fuzz: $t FAILED (reproducer in $art/, log $log)"
-    exit 1
+    return 1
   fi
   execs=$(grep -o 'stat::number_of_executed_units: [0-9]*' "$log" | awk '{print $2}')
   cov=$(grep -o 'cov: [0-9]*' "$log" | tail -1 | awk '{print $2}')
   n=$(ls "$work" | wc -l)
-  summary+=("$(printf '%-24s execs %10s  corpus %5s  cov %6s' "$t" "$execs" "$n" "$cov")")
+  printf '%-24s execs %10s  corpus %5s  cov %6s\n' "$t" "$execs" "$n" "$cov" >"build-fuzz/$t.summary"
+}
+
+# FUZZ_JOBS targets at a time (default: one per core). Each run is
+# single-threaded and its inputs depend on its seed and count only, not on
+# what runs beside it; one after the other the gate's runs left a core idle
+# for about 50 s of CI. A failure stops new runs; the running ones finish.
+JOBS="${FUZZ_JOBS:-$(nproc)}"
+rm -f build-fuzz/*.summary build-fuzz/*.failed
+for t in "${TARGETS[@]}"; do
+  while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n || true; done
+  if compgen -G 'build-fuzz/*.failed' >/dev/null; then break; fi
+  { fuzz_one "$t" || touch "build-fuzz/$t.failed"; } &
 done
-printf 'fuzz: %s\n' "${summary[@]}"
+wait
+if compgen -G 'build-fuzz/*.failed' >/dev/null; then exit 1; fi
+for t in "${TARGETS[@]}"; do printf 'fuzz: %s' "$(cat "build-fuzz/$t.summary")"; echo; done
