@@ -378,7 +378,8 @@ RimPose ConsensusRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& 
 
 // The rim's pose in the nominal bin frame's xy from the band's points
 // anywhere in the search window: the consensus pose every 2 deg across the
-// window's yaw range on a quarter of fit_max_points of them, then every
+// window's yaw range on a quarter of fit_max_points of them (fewer for a
+// wide window, below), then every
 // 0.5 deg within 2 deg of the best on half (a wall's ends move 4.4 mm per
 // degree of yaw error on the default bin, within the 8 mm half window at a
 // coarse step's worst 1 deg). The yaw comes back within half the rim's
