@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The README's test command (and CI's, through .ci/run). Stages, in order:
-#   build  normal build of the programs and benches (scripts/build.sh,
+#   build  normal build of the programs and the load test (scripts/build.sh,
 #          target bp_programs), bounded load test (bp_load: 8 robots, 5 s,
 #          fails on any error); with arguments, the whole build and a ctest
 #          run with them (e.g. `scripts/test.sh -R Perception`)
@@ -9,10 +9,12 @@
 #          (tests/deploy/package_test.sh), the Dockerfile's lint and the
 #          Prometheus config, rules and their unit tests
 #          (tests/deploy/static_checks.sh)
-#   asan   every test under AddressSanitizer + UBSan (build-asan/, all but
-#          the benches; each test binary once, all its tests in one process).
-#          The tests run here only, not also in the normal build: compiling
-#          them twice cost about 4 min of CI (docs/reliability.md, "Timings")
+#   asan   every test under AddressSanitizer + UBSan (build-asan/; each test
+#          binary once, all its tests in one process). The tests run here
+#          only, not also in the normal build: compiling them twice cost
+#          about 4 min of CI (docs/reliability.md, "Timings"). The benches
+#          are compiled and linked here too, at -O0 without sanitizers, as
+#          a check only (never run; their -O2 build is the normal one's)
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
 #          ThreadSanitizer (build-tsan/; oneTBB runs serially there, see
 #          tests/testing/tsan_serial_tbb.cc and scripts/tsan.supp)
@@ -101,8 +103,9 @@ stage_asan() {
     rm -rf build-asan
   fi
   if [ ! -f build-asan/CMakeCache.txt ]; then cmake --preset asan >/dev/null; fi
-  # Everything but the benches (the preset turns them off): the tests run
-  # binpickd, binpick and binpick-robot too.
+  # Everything: the tests run binpickd, binpick and binpick-robot too; the
+  # benches are a compile-and-link check (the preset's
+  # BINPICK_BENCH_CHECK_ONLY).
   cmake --build build-asan --parallel "$JOBS"
   export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp"
   export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
