@@ -28,6 +28,11 @@ struct Grasp {
   // withdraws it when one of them is handed out (docs/protocols.md, "Stale
   // grasps"). Empty: no part disturbs it (or the planner does not say).
   std::vector<int> stale_after;
+  // Of stale_after, the parts that touch this one (within touch_distance at
+  // their estimated poses; the relation is symmetric). When one of them may
+  // move, this part may move too: GraspQueue then also withdraws the grasps
+  // listing THIS part, transitively (docs/protocols.md, "Stale grasps").
+  std::vector<int> touching;
   // Tool poses in base the robot program computes from this answer and moves
   // to, when the answer is not itself one (seed 003's place: tool_in_base
   // from place_area's offset). Checked like X_BT (grasp/robot_targets.h).

@@ -873,14 +873,20 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
     close[k] = q.approach ? Collides(*gripper.sweep_margin, queue[q.i].X_BT, *part[q.j], queue[q.j].X_BO)
                           : Collides(*part_touch[q.i], queue[q.i].X_BO, *part[q.j], queue[q.j].X_BO);
   });
-  std::vector<std::set<int>> stale(n);
+  std::vector<std::set<int>> stale(n), touching(n);
   for (size_t k = 0; k < queries.size(); ++k) {
     if (!close[k]) continue;
     const Query& q = queries[k];
     stale[q.i].insert(queue[q.j].instance_id);
-    if (!q.approach) stale[q.j].insert(queue[q.i].instance_id);
+    if (q.approach) continue;
+    stale[q.j].insert(queue[q.i].instance_id);
+    touching[q.i].insert(queue[q.j].instance_id);
+    touching[q.j].insert(queue[q.i].instance_id);
   }
-  for (size_t i = 0; i < n; ++i) queue[i].stale_after.assign(stale[i].begin(), stale[i].end());
+  for (size_t i = 0; i < n; ++i) {
+    queue[i].stale_after.assign(stale[i].begin(), stale[i].end());
+    queue[i].touching.assign(touching[i].begin(), touching[i].end());
+  }
 }
 
 }  // namespace

@@ -49,8 +49,9 @@
 // Stale neighbours (issue 37 item 4). Each queued grasp lists the queued
 // parts whose hand-out makes it stale (Grasp::stale_after): parts within
 // touch_distance of its part (both at their estimated poses), and parts its
-// swept gripper passes within approach_margin of. GraspQueue::Pop withdraws
-// it when one of them is handed out.
+// swept gripper passes within approach_margin of; the touching ones also in
+// Grasp::touching. GraspQueue::Pop withdraws it when one of them is handed
+// out, or is itself withdrawn while touching a part that may move.
 //
 // Thread-safety: GraspPlanningModel is immutable after Build; PlanGrasps may
 // run concurrently. PlanGrasps parallelises over candidates with oneTBB in the

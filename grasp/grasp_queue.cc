@@ -32,6 +32,7 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
   withdrawn_ids_.clear();
+  gone_touching_.clear();
   summary_ = s;
   ++generation_;
   ApplyScreen();
@@ -42,7 +43,10 @@ int GraspQueue::ApplyScreen() {
   if (!screen_ || grasps_.empty()) return 0;
   const std::vector<Grasp> removed = screen_(grasps_);
   if (removed.empty()) return 0;
-  for (const Grasp& g : removed) withdrawn_ids_.push_back(g.instance_id);
+  for (const Grasp& g : removed) {
+    withdrawn_ids_.push_back(g.instance_id);
+    gone_touching_[g.instance_id] = g.touching;
+  }
   if (summary_) {
     summary_->screened += static_cast<int>(removed.size());
     // Only refused grasps leave a queue empty (withheld ones stay when
@@ -73,6 +77,7 @@ bool GraspQueue::Restore(Popped p) {
     // No longer withdrawn: the hand-out that made it stale did not happen.
     const auto id = std::find(withdrawn_ids_.begin(), withdrawn_ids_.end(), back.back().second.instance_id);
     if (id != withdrawn_ids_.end()) withdrawn_ids_.erase(id);
+    gone_touching_.erase(back.back().second.instance_id);
     if (summary_ && summary_->withdrawn > 0) --summary_->withdrawn;
   }
   std::sort(back.begin(), back.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
@@ -89,16 +94,12 @@ void GraspQueue::Reset() {
   std::lock_guard lock(mutex_);
   grasps_.swap(old);
   withdrawn_ids_.clear();
+  gone_touching_.clear();
   summary_.reset();
   ++generation_;
 }
 
 namespace {
-
-// True when `g` is made stale by handing out part `picked` (Grasp::stale_after).
-bool StaleAfter(const Grasp& g, int picked) {
-  return picked >= 0 && std::find(g.stale_after.begin(), g.stale_after.end(), picked) != g.stale_after.end();
-}
 
 void LogWithdrawal(const GraspQueue::Popped& p) {
   if (p.withdrawn.empty()) return;
@@ -110,23 +111,52 @@ void LogWithdrawal(const GraspQueue::Popped& p) {
 
 }  // namespace
 
+std::vector<bool> GraspQueue::StaleSet(int picked) const {
+  std::vector<bool> stale(grasps_.size(), false);
+  if (picked < 0 || !stale_listed_) return stale;
+  std::vector<int> moving = {picked};  // parts that may move
+  const auto moves = [&moving](int id) { return std::find(moving.begin(), moving.end(), id) != moving.end(); };
+  const auto names_moving = [&moves](const std::vector<int>& ids) { return std::any_of(ids.begin(), ids.end(), moves); };
+  // Each pass adds the grasps naming a moving part; a part touching one
+  // joins the moving ones and the passes go on (each part joins once).
+  for (bool grew = true; grew;) {
+    grew = false;
+    for (const auto& [id, touching] : gone_touching_) {
+      if (moves(id) || !names_moving(touching)) continue;
+      moving.push_back(id);
+      grew = true;
+    }
+    for (size_t i = 0; i < grasps_.size(); ++i) {
+      // The picked grasp itself (still queued when PopFirst counts) is not withdrawn.
+      const Grasp& g = grasps_[i];
+      if (g.instance_id == picked) continue;
+      stale[i] = stale[i] || names_moving(g.stale_after);
+      if (stale[i] && !moves(g.instance_id) && names_moving(g.touching)) {
+        moving.push_back(g.instance_id);
+        grew = true;
+      }
+    }
+  }
+  return stale;
+}
+
 int GraspQueue::StaleCount(int picked) const {
-  if (picked < 0 || !stale_listed_) return 0;
-  return static_cast<int>(
-      std::count_if(grasps_.begin(), grasps_.end(), [picked](const Grasp& g) { return StaleAfter(g, picked); }));
+  const std::vector<bool> stale = StaleSet(picked);
+  return static_cast<int>(std::count(stale.begin(), stale.end(), true));
 }
 
 void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
   p.position = static_cast<int>(it - grasps_.begin());
   p.grasp = std::move(*it);
   grasps_.erase(it);
-  const int picked = p.grasp->instance_id;
-  if (StaleCount(picked) > 0) {
+  const std::vector<bool> stale = StaleSet(p.grasp->instance_id);
+  if (std::find(stale.begin(), stale.end(), true) != stale.end()) {
     std::deque<Grasp> kept;
     int index = 0;  // in the queue after the erase
     for (Grasp& g : grasps_) {
-      if (StaleAfter(g, picked)) {
+      if (stale[static_cast<size_t>(index)]) {
         withdrawn_ids_.push_back(g.instance_id);
+        gone_touching_[g.instance_id] = g.touching;
         p.withdrawn_positions.push_back(index < p.position ? index : index + 1);
         p.withdrawn.push_back(std::move(g));
       } else {

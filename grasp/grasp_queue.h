@@ -3,7 +3,9 @@
 // A stale queue is never served: when Pop hands out a grasp on part P, the
 // queued grasps whose Grasp::stale_after names P (parts that touched P, or
 // whose approach passes close to it) leave the queue with it, and the
-// remaining count says so (docs/protocols.md, "Stale grasps").
+// remaining count says so (docs/protocols.md, "Stale grasps"). Staleness
+// passes through a part that may move: a withdrawn grasp whose part touches
+// P (Grasp::touching) makes the grasps naming ITS part stale too, and so on.
 //
 // A screen (SetScreen) may take grasps out too: the failed-pick feedback
 // (grasp/failed_picks.h) withholds grasps on spots a robot failed to pick.
@@ -17,6 +19,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <vector>
@@ -117,12 +120,22 @@ class GraspQueue {
   uint64_t capture_seq_ = 0;        // GUARDED_BY(mutex_): of the plan queued
   bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
   std::vector<int> withdrawn_ids_;  // GUARDED_BY(mutex_): since the last Replace / Reset
+  // GUARDED_BY(mutex_): the Grasp::touching of the parts whose grasps left
+  // the queue without being handed out (withdrawn or screened) since the
+  // last Replace / Reset: still in the bin, they pass staleness on.
+  std::map<int, std::vector<int>> gone_touching_;
   Screen screen_;                   // set before use, then read-only
 
   // Runs screen_ on grasps_. Needs mutex_. @returns the grasps it took out.
   int ApplyScreen();
 
-  // Queued grasps that handing out part `picked` makes stale. Needs mutex_.
+  // Per queued grasp, whether handing out part `picked` makes it stale:
+  // it names a part that may move (stale_after), where the parts that may
+  // move are `picked` and, transitively, the parts of stale grasps that
+  // touch one that may move (Grasp::touching), and so do the parts of
+  // grasps withdrawn earlier (gone_touching_). Needs mutex_.
+  std::vector<bool> StaleSet(int picked) const;
+  // How many grasps StaleSet marks. Needs mutex_.
   int StaleCount(int picked) const;
   // Hands out *it into p, withdraws the grasps it makes stale, sets
   // p.remaining (after the withdrawal, including p.grasp). Needs mutex_.

@@ -510,6 +510,8 @@ TEST(StaleNeighbours, PartsTouchingEachOtherListEachOtherAndAFarPartNeither) {
   EXPECT_EQ(stale[0], (std::vector<int>{1}));
   EXPECT_EQ(stale[1], (std::vector<int>{0}));
   EXPECT_TRUE(stale[2].empty());
+  // Touching, both ways (Grasp::touching).
+  for (const Grasp& g : plan.queue) EXPECT_EQ(g.touching, stale[g.instance_id]) << g.instance_id;
   // 6 mm apart: no longer touching, and no approach passes within 10 mm
   // (the cups are 12 mm off the axes, over the hubs).
   const PerceptionResult apart = Scene({Bushing(-0.1, 0), Bushing(-0.034, 0)});
@@ -544,6 +546,8 @@ TEST(StaleNeighbours, AGraspWhoseApproachPassesCloseToAPartIsStaleOnceThatPartIs
   for (const Grasp& g : plan.queue) stale[g.instance_id] = g.stale_after;
   EXPECT_EQ(stale[0], (std::vector<int>{1}));
   EXPECT_TRUE(stale[1].empty());
+  // An approach close to a part is no touch: nothing passes on through it.
+  for (const Grasp& g : plan.queue) EXPECT_TRUE(g.touching.empty()) << g.instance_id;
   // 15 mm beside the rod: beyond the margin.
   c.X_BO = DefaultCell().bin.X_BW * MakePose(R, (0.012 + 0.010 + 0.015 + 0.030) * dir + Vec3(0, 0, 0.060));
   for (const Grasp& g : PlanGrasps(Model(), task, Scene({b, c})).queue) EXPECT_TRUE(g.stale_after.empty());

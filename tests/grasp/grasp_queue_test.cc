@@ -128,6 +128,71 @@ TEST(GraspQueue, HandingOutAPartWithdrawsTheGraspsItMakesStaleAndCountsThemOut) 
   EXPECT_EQ(q.LastPlan()->total_grasps, 5);
 }
 
+// Scene 10230 (docs/tuning.md): picking bracket 5 let bracket 15, which
+// touched it, and the tee 16 on bracket 15 drop; 15's grasp was withdrawn,
+// the tee's was served. Staleness passes through a withdrawn part that
+// touches a moving one, not through one withdrawn for its approach alone.
+TEST(GraspQueue, StalenessPassesThroughAWithdrawnPartThatTouchesAMovedOne) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(6, 5);  // parts 5..10
+  plan.grasps[1].stale_after = {5, 7};  // part 6: touches 5 (and 7)
+  plan.grasps[1].touching = {5, 7};
+  plan.grasps[2].stale_after = {6};  // part 7: touches 6
+  plan.grasps[2].touching = {6};
+  plan.grasps[3].stale_after = {5};  // part 8: its approach passes close to 5
+  plan.grasps[4].stale_after = {8};  // part 9: touches 8, which does not move
+  plan.grasps[4].touching = {8};
+  plan.grasps[5].stale_after = {7};  // part 10: its approach passes close to 7
+  q.Replace(plan);
+  std::vector<int> offered;
+  GraspQueue::Popped first = q.PopFirst([&](const Grasp&, int remaining) {
+    offered.push_back(remaining);
+    return true;
+  });
+  ASSERT_TRUE(first.grasp);
+  EXPECT_EQ(first.grasp->instance_id, 5);
+  std::vector<int> withdrawn;
+  for (const Grasp& g : first.withdrawn) withdrawn.push_back(g.instance_id);
+  EXPECT_EQ(withdrawn, (std::vector<int>{6, 7, 8, 10}));
+  EXPECT_EQ(first.withdrawn_positions, (std::vector<int>{1, 2, 3, 5}));
+  EXPECT_EQ(offered, (std::vector<int>{2}));  // 5 and 9
+  EXPECT_EQ(first.remaining, 2);
+  const GraspQueue::Popped next = q.Pop();
+  ASSERT_TRUE(next.grasp);
+  EXPECT_EQ(next.grasp->instance_id, 9);
+  EXPECT_EQ(next.remaining, 1);
+  ASSERT_TRUE(q.LastPlan());
+  EXPECT_EQ(q.LastPlan()->withdrawn, 4);
+  // 9 was the last grasp.
+  EXPECT_EQ(q.size(), 0);
+}
+
+// Scene 10606 (docs/tuning.md): the tee's grasp was withdrawn by an earlier
+// pick; a later pick of a part it touched let it drop onto the spot of a
+// grasp queued beside it. A part withdrawn earlier is still in the bin.
+TEST(GraspQueue, APartWithdrawnEarlierStillPassesStalenessOn) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(4);        // parts 0..3
+  plan.grasps[1].stale_after = {0, 2};  // part 1: its approach passes close to 0; it touches 2
+  plan.grasps[1].touching = {2};
+  plan.grasps[2].stale_after = {1};     // part 2: touches 1
+  plan.grasps[2].touching = {1};
+  plan.grasps[3].stale_after = {1};     // part 3: its approach passes close to 1
+  q.Replace(plan);
+  GraspQueue::Popped p = q.Pop();  // 0: withdraws 1 (which does not move)
+  ASSERT_TRUE(p.grasp);
+  ASSERT_EQ(p.withdrawn.size(), 1u);
+  EXPECT_EQ(p.withdrawn[0].instance_id, 1);
+  EXPECT_EQ(p.remaining, 3);
+  p = q.Pop();  // 2: part 1, still in the bin, touches it and may move onto 3's path
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 2);
+  ASSERT_EQ(p.withdrawn.size(), 1u);
+  EXPECT_EQ(p.withdrawn[0].instance_id, 3);
+  EXPECT_EQ(p.remaining, 1);
+  EXPECT_EQ(q.size(), 0);
+}
+
 // The answer path encodes the remaining count before the grasp leaves
 // (PopFirst): it is the count after the withdrawal, as with Pop.
 TEST(GraspQueue, PopFirstOffersTheCountAfterTheWithdrawalAndWithdrawsLikePop) {
