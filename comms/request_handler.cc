@@ -545,6 +545,7 @@ class RequestHandler::Impl {
     p.task = t.spec;
     p.X_BF = X_BF;
     p.camera_config_id = camera_config_id_.load();
+    if (t.failed) p.refuted = t.failed->Refuted();  // failed last resorts (grasp/failed_picks.h)
     return p;
   }
 

@@ -100,9 +100,15 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
                     c.rejected ? ToString(*c.rejected) : "ok", c.seal_only ? " (seal only)" : "");
     }
   };
+  // The poses the task's failed last resorts refuted (grasp/failed_picks.h).
+  const auto refuted = [&feedback](const TaskSpec& t) {
+    FailedPicks* f = feedback.For(t);
+    return f ? f->Refuted() : std::vector<RefutedPose>{};
+  };
   CyclePlan out;
   PlanRequest request;
   request.task = task;
+  request.refuted = refuted(task);
   const auto t0 = std::chrono::steady_clock::now();
   auto detail = p.PlanDetailed(request, scene);
   report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -116,6 +122,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   for (const TaskSpec* fb : fallbacks) {
     PlanRequest fb_request;
     fb_request.task = *fb;
+    fb_request.refuted = refuted(*fb);
     const auto t1 = std::chrono::steady_clock::now();
     auto fb_detail = p.PlanDetailed(fb_request, scene);
     report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
@@ -196,6 +203,7 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
                 stale ? " (it would have landed on the pile as captured)" : "");
   v.line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
            " (detection " + std::to_string(grasp.instance_id) + (grasp.last_resort ? ", a last resort" : "") +
+           (grasp.reposed ? ", on a pose left by a failed last resort" : "") +
            "): " + detail;
   return v;
 }

@@ -102,7 +102,8 @@ struct SceneClearReport {
   double plan_ms_total = 0;     // perception + planning over all cycles
   std::vector<std::string> collisions;  // "cycle 3: grasp hub_top@5 on instance 7: part"
   // Every failed pick: "cycle 3: task 0 grasp run_top@1~v (detection 4): off_part, 7.3 mm / 2.1 deg from instance 9's grasp point"
-  // (", a last resort" after the detection: Grasp::last_resort)
+  // (", a last resort" after the detection: Grasp::last_resort; ", on a pose
+  // left by a failed last resort": Grasp::reposed)
   std::vector<std::string> failures;
   std::map<std::string, int> failure_causes;  // cause -> failed picks
   std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty

@@ -9,6 +9,7 @@
 #include <limits>
 #include <utility>
 
+#include "grasp/failed_picks.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp {
@@ -253,8 +254,19 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
   const TaskSpec& task = request.task;
   PlanResult& result = detail.result;
   std::vector<TaughtGrasp> taught = teach_->All();
+  // Grasps on the poses failed last resorts left (grasp/failed_picks.h).
+  const auto plan_grasps = [&](PerceptionResult& perception) {
+    const std::vector<bool> reposed =
+        ApplyRefutedPoses(request.refuted, cell_, BinPoseOf(perception, cell_.bin), perception.detections);
+    GraspPlan plan = PlanGrasps(*model_, task, perception, taught, &frame);
+    for (Grasp& g : plan.queue) {
+      g.reposed = g.instance_id >= 0 && static_cast<size_t>(g.instance_id) < reposed.size() &&
+                  reposed[static_cast<size_t>(g.instance_id)];
+    }
+    return plan;
+  };
   auto t0 = std::chrono::steady_clock::now();
-  detail.plan = PlanGrasps(*model_, task, detail.perception, taught, &frame);
+  detail.plan = plan_grasps(detail.perception);
   *grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
                                detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
@@ -265,7 +277,7 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
         perception_->RunThorough(frame, task.part_classes, RetryBudget(RetryClockMs(), *grasps_ms));
     if (again.ok()) {
       detail.retry_estimates_skipped = again->estimates_skipped;
-      GraspPlan plan = PlanGrasps(*model_, task, *again, taught, &frame);
+      GraspPlan plan = plan_grasps(*again);
       spdlog::debug("task {}: thorough retry: {} -> {} detections ({} estimates run, {} not, {:.0f} ms), {}", task.id,
                     detail.plan.stats.Describe(), again->detections.size(), again->estimator_calls,
                     again->estimates_skipped,

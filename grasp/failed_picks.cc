@@ -1,7 +1,10 @@
 #include "grasp/failed_picks.h"
 
 #include <algorithm>
+#include <cmath>
 #include <tuple>
+
+#include "pipeline/evaluation.h"
 
 namespace bp {
 
@@ -51,6 +54,11 @@ FailedPicks::Recorded FailedPicks::Report(const Grasp& grasp, PickFailure reason
   ++same->failures;
   same->age = 0;
   same->p_W = p_W;  // where the part was last tried (a slip may have moved it)
+  if (grasp.last_resort) {
+    // It lands only if the pose it was planned on is true: that pose is refuted.
+    const Pose X_WB = grasp.X_BW ? grasp.X_BW->inverse() : X_WB_;
+    same->refuted_X_WO.push_back(X_WB * grasp.X_BO);
+  }
   return Recorded{same->failures, same->failures >= rule_.max_failures};
 }
 
@@ -72,6 +80,8 @@ FailedPicks::Verdict FailedPicks::JudgeLocked(const Grasp& grasp) const {
   for (const Spot& s : spots_) {
     if ((s.p_W - p_W).norm() > rule_.radius) continue;
     if (s.class_id == grasp.class_id && s.failures >= rule_.max_failures) return Verdict::kRefused;
+    // A grasp planned on the poses a failed last resort left is a new try there.
+    if (grasp.reposed && s.class_id == grasp.class_id && !s.refuted_X_WO.empty()) continue;
     v = Verdict::kWithheld;
   }
   return v;
@@ -119,6 +129,49 @@ std::vector<FailedPicks::Count> FailedPicks::Counts() const {
 std::vector<FailedPicks::Spot> FailedPicks::Spots() const {
   std::lock_guard lock(mutex_);
   return spots_;
+}
+
+std::vector<RefutedPose> FailedPicks::Refuted() const {
+  std::lock_guard lock(mutex_);
+  std::vector<RefutedPose> out;
+  for (const Spot& s : spots_) {
+    for (const Pose& X_WO : s.refuted_X_WO) out.push_back(RefutedPose{s.class_id, X_WO});
+  }
+  return out;
+}
+
+std::vector<bool> ApplyRefutedPoses(std::span<const RefutedPose> refuted, const Cell& cell, const Pose& X_BW,
+                                    std::vector<Detection>& detections) {
+  std::vector<bool> changed(detections.size(), false);
+  if (refuted.empty()) return changed;
+  const double max_angle = kRefutedMatchDeg * M_PI / 180.0;
+  for (size_t i = 0; i < detections.size(); ++i) {
+    Detection& d = detections[i];
+    const PartSpec* part = cell.FindPart(d.class_id);
+    if (!d.pose_ambiguous() || part == nullptr) continue;
+    const auto is_refuted = [&](const Pose& X_BO) {
+      for (const RefutedPose& r : refuted) {
+        if (r.class_id != d.class_id) continue;
+        const Pose X_BO_r = X_BW * r.X_WO;
+        if (SymmetryAwareTranslationError(X_BO, X_BO_r, part->symmetry) <= kRefutedMatchPosition &&
+            SymmetryAwareRotationError(X_BO, X_BO_r, part->symmetry) <= max_angle) {
+          return true;
+        }
+      }
+      return false;
+    };
+    // The detection's poses, best first (X_BO, then its alternatives in order).
+    std::vector<Pose> live;
+    if (!is_refuted(d.X_BO)) live.push_back(d.X_BO);
+    for (const Pose& alt : d.alternatives_X_BO) {
+      if (!is_refuted(alt)) live.push_back(alt);
+    }
+    if (live.empty() || live.size() == d.alternatives_X_BO.size() + 1) continue;
+    d.X_BO = live.front();
+    d.alternatives_X_BO.assign(live.begin() + 1, live.end());
+    changed[i] = true;
+  }
+  return changed;
 }
 
 }  // namespace bp

@@ -18,7 +18,12 @@
 //     otherwise stop on a part it may still pick: a slip is often chance);
 //   - a grasp on a spot with `max_failures` failures (same class) is
 //     refused: it leaves the queue even when nothing else is left, and a
-//     queue emptied that way answers NO_COLLISION_FREE_POSE.
+//     queue emptied that way answers NO_COLLISION_FREE_POSE;
+//   - a failed last resort (Grasp::last_resort: a grasp on an ambiguous
+//     detection that lands only if the pose it was planned on is true) also
+//     refutes that pose: while the spot is remembered, plans put the
+//     detection there on its other poses (Refuted, ApplyRefutedPoses), and
+//     a grasp so planned (Grasp::reposed) is served, not withheld.
 //
 // Thread-safety: every member is safe to call concurrently (one mutex).
 // Screen() is called under a GraspQueue's lock (GraspQueue::SetScreen), so
@@ -29,6 +34,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <span>
 #include <string>
 #include <string_view>
 #include <tuple>
@@ -38,6 +44,8 @@
 #include "core/cell.h"
 #include "core/pose.h"
 #include "grasp/grasp.h"
+#include "grasp/planner.h"
+#include "pipeline/perception.h"
 
 namespace bp {
 
@@ -90,8 +98,12 @@ class FailedPicks {
     int class_id = 0;
     int failures = 0;
     int age = 0;  // captures since its last failure
+    std::vector<Pose> refuted_X_WO = {};  // poses failed last resorts were planned on
   };
   std::vector<Spot> Spots() const;
+  // The poses the remembered spots' failed last resorts refuted (for
+  // PlanRequest::refuted).
+  std::vector<RefutedPose> Refuted() const;
   const FailedPickRule& rule() const { return rule_; }
 
  private:
@@ -110,5 +122,18 @@ class FailedPicks {
 
 // The cell's grasp name of a queued grasp: "run_top@3~v" -> "run_top".
 std::string BaseGraspName(const std::string& name);
+
+// A detection's pose matches a refuted one within the strict pose
+// tolerance (5 mm, 5 deg, symmetry-aware): a new capture of an unmoved part
+// finds it there again, and an ambiguous detection's poses differ by more.
+inline constexpr double kRefutedMatchPosition = 0.005;  // m
+inline constexpr double kRefutedMatchDeg = 5.0;
+// Puts each ambiguous detection (Detection::alternatives_X_BO) with some
+// pose, best or alternative, at a refuted pose of its class (X_BW: the
+// bin of this capture) on its other poses: the best of those left becomes
+// X_BO, the rest its alternatives. A detection all of whose poses are
+// refuted is left as it is. @returns per detection whether it was changed.
+std::vector<bool> ApplyRefutedPoses(std::span<const RefutedPose> refuted, const Cell& cell, const Pose& X_BW,
+                                    std::vector<Detection>& detections);
 
 }  // namespace bp

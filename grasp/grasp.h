@@ -46,6 +46,11 @@ struct Grasp {
   // alternative true, offered only because the plan had no other grasp.
   // `binpick clear` names the failed ones (docs/tuning.md).
   bool last_resort = false;
+  // Planned on a detection some of whose poses a failed last resort refuted
+  // (PlanRequest::refuted): on the poses still live. The failed-pick
+  // feedback serves it rather than withholding the spot (a new try there,
+  // not the same one).
+  bool reposed = false;
 };
 
 }  // namespace bp

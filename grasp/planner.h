@@ -32,10 +32,21 @@
 
 namespace bp {
 
+// A part pose a failed pick refuted (failed-pick feedback, FailedPicks::
+// Refuted): a last resort planned on it failed, which is evidence that the
+// part does not lie so. In the bin frame W of the failed grasp's capture.
+struct RefutedPose {
+  int class_id = 0;
+  Pose X_WO = Pose::Identity();
+};
+
 struct PlanRequest {
   TaskSpec task;                // the cell's task the robot named (payload_1)
   std::optional<Pose> X_BF;     // robot pose sent with the request (eye-in-hand needs it)
   int camera_config_id = 0;     // cell camera config to capture with; 0 = cell default
+  // Pick tasks: an ambiguous detection at one of these poses is planned on
+  // its other poses (grasp/failed_picks.h, ApplyRefutedPoses).
+  std::vector<RefutedPose> refuted = {};
 };
 
 // What one capture produced, opaque to the server: the planner that made it

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "core/mesh.h"
+#include "grasp/failed_picks.h"
 #include "grasp/grasp_judge.h"
 #include "grasp/grasp_planning.h"
 #include "pipeline/pose_estimator.h"
@@ -270,6 +271,58 @@ TEST(PoseAmbiguity, ATeeStandingOnItsBranchTurnedAboutItsRunIsGraspedStraightDow
   EXPECT_TRUE(g.last_resort) << "the queued grasp says it is a last resort";
   const PartTruth part{0, kTee, {}, truth, 0, 0, 0.0};
   EXPECT_TRUE(JudgeGrasp(Model(), "suction", g, std::span<const PartTruth>(&part, 1)).on_part);
+}
+
+// A failed last resort is evidence against the pose it was planned on
+// (grasp/failed_picks.h): the tee truly turned 14 deg about its run, detected
+// standing straight with the turn as its alternative. The last resort misses
+// the true grasp point; once its failure is reported, the detection is put
+// on its other pose and the grasp planned there lands, and the feedback
+// serves it instead of withholding the spot.
+TEST(PoseAmbiguity, AFailedLastResortPutsTheTeeOnItsOtherPoseWhereItsGraspLands) {
+  const Pose straight = TeeStandingOnItsBranch();
+  const Pose truth = TurnedAboutTheRun(straight, 14.3);
+  const View v = Look(truth, /*hide_branch=*/false);
+  const PartTruth part{0, kTee, {}, truth, 0, 0, 0.0};
+  const std::span<const PartTruth> pile(&part, 1);
+  const GraspPlan first = Plan(v, AtTruth(v, straight, {truth}));
+  ASSERT_EQ(first.queue.size(), 1u) << first.stats.Describe();
+  Grasp tried = first.queue.front();
+  ASSERT_TRUE(tried.last_resort) << tried.name;
+  EXPECT_FALSE(JudgeGrasp(Model(), "suction", tried, pile).on_part) << tried.name;
+
+  FailedPicks feedback(DefaultCell().FindTask(0)->failed_picks, DefaultCell().bin.X_BW);
+  feedback.Report(tried, PickFailure::kNoVacuum);
+  const std::vector<RefutedPose> refuted = feedback.Refuted();
+  ASSERT_EQ(refuted.size(), 1u);
+  EXPECT_TRUE(refuted[0].X_WO.isApprox(DefaultCell().bin.X_BW.inverse() * straight, 1e-9));
+
+  std::vector<Detection> detections = {AtTruth(v, straight, {truth})};
+  EXPECT_EQ(ApplyRefutedPoses(refuted, DefaultCell(), DefaultCell().bin.X_BW, detections), std::vector<bool>{true});
+  EXPECT_TRUE(detections[0].X_BO.isApprox(truth, 1e-9));
+  EXPECT_TRUE(detections[0].alternatives_X_BO.empty());
+  const GraspPlan second = Plan(v, detections[0]);
+  ASSERT_FALSE(second.queue.empty()) << second.stats.Describe();
+  Grasp next = second.queue.front();
+  EXPECT_FALSE(next.last_resort) << next.name;
+  EXPECT_TRUE(JudgeGrasp(Model(), "suction", next, pile).on_part) << next.name;
+  // The spot failed once: a grasp there waits while others are left, unless
+  // it was planned on the pose the failure left.
+  EXPECT_EQ(feedback.Judge(next), FailedPicks::Verdict::kWithheld);
+  next.reposed = true;
+  EXPECT_EQ(feedback.Judge(next), FailedPicks::Verdict::kServe);
+
+  // Every pose refuted, another class, or an unambiguous detection: unchanged.
+  std::vector<RefutedPose> both = refuted;
+  both.push_back(RefutedPose{kTee, DefaultCell().bin.X_BW.inverse() * truth});
+  detections = {AtTruth(v, straight, {truth})};
+  EXPECT_EQ(ApplyRefutedPoses(both, DefaultCell(), DefaultCell().bin.X_BW, detections), std::vector<bool>{false});
+  EXPECT_TRUE(detections[0].X_BO.isApprox(straight, 1e-9));
+  std::vector<RefutedPose> other = refuted;
+  other[0].class_id = 0;
+  EXPECT_EQ(ApplyRefutedPoses(other, DefaultCell(), DefaultCell().bin.X_BW, detections), std::vector<bool>{false});
+  detections = {AtTruth(v, straight, {})};
+  EXPECT_EQ(ApplyRefutedPoses(refuted, DefaultCell(), DefaultCell().bin.X_BW, detections), std::vector<bool>{false});
 }
 
 // The standing tee's seal-only grasps are a last resort: beside a tee whose
