@@ -24,6 +24,12 @@
 # and, not in the default run:
 #   tests  every test in the normal build, each binary once (the quick
 #          check while working: no sanitizer build)
+#   tsan-all  the tsan stage and every other test binary with threads (web,
+#          record, calib: the status page's HTTP thread, the recorder's
+#          writer, the calibration sequence, binpickd end to end; binpickd,
+#          binpick and binpick-robot built with TSan too). Not in CI's run
+#          for time (docs/reliability.md, "Timings"): about 2 min more of
+#          compiling and 1.5-2 min more of running on two idle cores
 # BINPICK_TEST_STAGES picks stages (default: all five, "build deploy asan
 # tsan fuzz"; timings in docs/reliability.md); extra arguments go to a ctest run
 # of the normal build (e.g. `scripts/test.sh -R Perception`). Each stage logs
@@ -113,17 +119,32 @@ stage_asan() {
   run_test_binaries build-asan
 }
 
-stage_tsan() {
+# Builds the named test binaries in build-tsan/ and runs them under
+# ThreadSanitizer, in the order given (the longest first: two at a time).
+run_tsan() {
   # clang-14 like the asan stage since 2026-12-05; a tree configured with GCC
   # before is configured again.
   if [ -f build-tsan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-tsan/CMakeCache.txt; then
     rm -rf build-tsan
   fi
   if [ ! -f build-tsan/CMakeCache.txt ]; then cmake --preset tsan >/dev/null; fi
-  cmake --build build-tsan --parallel "$JOBS" --target bp_comms_tests bp_grasp_tests
-  # Both at once: the stage ran them one after the other (49 + 65 s).
+  cmake --build build-tsan --parallel "$JOBS" --target "$@"
   export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$PWD/scripts/tsan.supp"
-  run_test_binaries build-tsan bp_comms_tests bp_grasp_tests
+  run_test_binaries build-tsan "$@"
+}
+
+stage_tsan() {
+  # Both at once: the stage ran them one after the other (49 + 65 s).
+  run_tsan bp_comms_tests bp_grasp_tests
+}
+
+# Every test binary whose code has threads: besides the servers, queues and
+# handler (comms, grasp), the recorder's writer thread and binpickd replay
+# (record), the status page and its HTTP thread and the binpickd end-to-end
+# tests (web), the calibration sequence behind the servers (calib). The
+# tests run binpickd, binpick and binpick-robot, built here with TSan too.
+stage_tsan_all() {
+  run_tsan bp_record_tests bp_comms_tests bp_grasp_tests bp_web_tests bp_calib_tests
 }
 
 stage_fuzz() {
@@ -137,8 +158,9 @@ for s in $STAGES; do
     tests) run_stage tests stage_tests ;;
     asan) run_stage asan stage_asan ;;
     tsan) run_stage tsan stage_tsan ;;
+    tsan-all) run_stage tsan-all stage_tsan_all ;;
     fuzz) run_stage fuzz stage_fuzz ;;
-    *) echo "test.sh: unknown stage '$s' (build deploy tests asan tsan fuzz)"; exit 2 ;;
+    *) echo "test.sh: unknown stage '$s' (build deploy tests asan tsan tsan-all fuzz)"; exit 2 ;;
   esac
 done
 echo "=== test.sh: all stages passed"
