@@ -16,6 +16,7 @@
 #include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/model_sampling.h"
+#include "pipeline/internal/own_point_turns.h"
 #include "pipeline/internal/part_settings.h"
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
@@ -165,11 +166,12 @@ class PerceptionImpl final : public Perception {
   // (none without `floor`).
   internal::Segments Segment(const internal::RoiCloud& roi, const Frame& frame, const Pose& X_BW, bool floor,
                              StageClock& clock) const;
-  // Stages "pose", "verify", "second_look", "residual" and
-  // "residual_regions": the views matched and accepted. Fills the result's
-  // detections and counts.
-  void MatchViews(const internal::Segments& segments, const Frame& frame, std::span<const ClassModel* const> models,
-                  bool thorough, const internal::FitRmsLimit& fit_limit,
+  // Stages "pose", "verify", "second_look", "residual",
+  // "residual_regions" and "own_turns": the views matched and accepted.
+  // Fills the result's detections and counts. point_of_pixel:
+  // RoiCloud::point_of_pixel of result.roi_points_B.
+  void MatchViews(const internal::Segments& segments, const Frame& frame, std::span<const int32_t> point_of_pixel,
+                  std::span<const ClassModel* const> models, bool thorough, const internal::FitRmsLimit& fit_limit,
                   const std::optional<Eigen::Vector4d>& floor_plane_B, const PerceptionBudget* budget,
                   StageClock& clock, PerceptionResult& result) const;
 
@@ -228,6 +230,7 @@ internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const 
 }
 
 void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame& frame,
+                                std::span<const int32_t> point_of_pixel,
                                 std::span<const ClassModel* const> models, bool thorough,
                                 const internal::FitRmsLimit& fit_limit,
                                 const std::optional<Eigen::Vector4d>& floor_plane_B,
@@ -273,6 +276,11 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   result.coarse_refined = counts.coarse_refined.load();
   result.coarse_skipped = counts.coarse_skipped.load();
   result.detections = acceptance.TakeDetections();
+  if (options_.own_turn_gain >= 0.0) {
+    internal::RedecideTurns(models, frame, result.roi_points_B, point_of_pixel, floor_plane_B, options_.own_turn_gain,
+                            &result.detections);
+    clock.Lap("own_turns");
+  }
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(segments.range.size()) + " segments" +
                     (counts.rejected_low_score > 0
@@ -372,7 +380,7 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
     result.reason = model_problems.empty() ? "no part class to look for" : "no pose model: " + model_problems;
     return result;
   }
-  MatchViews(segments, used, models, effort == PerceptionEffort::kThorough, fit_limit,
+  MatchViews(segments, used, roi.point_of_pixel, models, effort == PerceptionEffort::kThorough, fit_limit,
              floor ? std::optional<Eigen::Vector4d>(FloorPlane(X_BW)) : std::nullopt, budget, clock, result);
   return result;
 }

@@ -175,6 +175,12 @@ struct PerceptionOptions {
   // PoseEstimatorOptions::arm_swaps, handed to every class's estimator
   // (docs/tuning.md).
   bool arm_swaps = PoseEstimatorOptions{}.arm_swaps;
+  // After every pass, a detection of a class nearly round about an axis (a
+  // pipe tee about its run) is turned again on its own points, those its
+  // accepted neighbours explain left out (internal::RedecideTurns): a turn
+  // that explains more than (1 + own_turn_gain) times what its pose does
+  // replaces it (stage "own_turns"). < 0 = off (docs/tuning.md).
+  double own_turn_gain = 0.01;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

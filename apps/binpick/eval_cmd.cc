@@ -87,6 +87,7 @@ struct EvalCliOptions {
   double max_free_space = PerceptionOptions{}.max_free_space_fraction;
   double max_penetration = PerceptionOptions{}.max_support_penetration;
   double ambiguity_net_gain = PerceptionOptions{}.ambiguity_net_gain;
+  double own_turn_gain = PerceptionOptions{}.own_turn_gain;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   bool residual_regions = PerceptionOptions{}.residual_regions;
@@ -288,6 +289,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.max_free_space_fraction = opt.max_free_space;
   popt.max_support_penetration = opt.max_penetration;
   popt.ambiguity_net_gain = opt.ambiguity_net_gain;
+  popt.own_turn_gain = opt.own_turn_gain;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
@@ -785,6 +787,11 @@ Command EvalCommand() {
                                   "an alternative pose explaining this fraction more of the view replaces the "
                                   "detection's (PerceptionOptions::ambiguity_net_gain; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 10.0))
+                       ->capture_default_str();
+                   sub.add_option("--own-turn-gain", opt->own_turn_gain,
+                                  "a turn explaining this fraction more of a part's own points (its neighbours' "
+                                  "left out) replaces its pose (PerceptionOptions::own_turn_gain; < 0 = off, tuning)")
+                       ->check(CLI::Range(-1.0, 10.0))
                        ->capture_default_str();
                    sub.add_option("--max-free-space", opt->max_free_space,
                                   "largest fraction of a detection's seen surface in free space "

@@ -63,6 +63,12 @@ class PpfClassModel final : public ClassModel {
   }
   std::span<const Eigen::Vector3f> surface_points_O() const override { return estimator_->surface_points_O(); }
 
+  bool has_turn_axes() const override { return !PoseEstimatorAccess::Model(*estimator_).turn_axes.empty(); }
+  TurnChoice ChooseTurn(const SegmentView& view, const Pose& X_BO, std::span<const Pose> others,
+                        double step_deg) const override {
+    return internal::ChooseTurn(PoseEstimatorAccess::Model(*estimator_), ToScene(view), X_BO, others, step_deg);
+  }
+
   Result<PoseHypothesis> Score(const SegmentView& view, const Pose& X_BO) const override {
     return estimator_->Score(ToScene(view), X_BO);
   }

@@ -84,6 +84,17 @@ class ClassModel {
   virtual double lowest_upward_face() const = 0;
   // The estimator's options in use (scaled to the part and the camera).
   virtual const PoseEstimatorOptions& estimator_options() const = 0;
+  // Whether the part is nearly round about an axis (PoseEstimator::turn_axes).
+  virtual bool has_turn_axes() const { return false; }
+  // internal::ChooseTurn on the view; a model without turn axes returns X_BO
+  // unjudged (net 0).
+  virtual TurnChoice ChooseTurn(const SegmentView& view, const Pose& X_BO, std::span<const Pose> others,
+                                double step_deg) const {
+    (void)view;
+    (void)others;
+    (void)step_deg;
+    return {X_BO};
+  }
 };
 
 // Extents of points along their principal axes (PCA), largest first, metres.

@@ -9,6 +9,8 @@
 #include <utility>
 #include <vector>
 
+#include <tbb/parallel_for.h>
+
 #include "pipeline/internal/face_seeds.h"
 #include "pipeline/internal/pose_model.h"
 #include "pipeline/internal/resting_poses.h"
@@ -629,6 +631,80 @@ std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
 }
 
 }  // namespace
+
+TurnChoice ChooseTurn(const PoseModel& m, const SceneView& view, const Pose& X_BO, std::span<const Pose> others,
+                      double step_deg) {
+  std::vector<Eigen::Vector3f> pts;
+  pts.reserve(view.points_B.size());
+  for (const Eigen::Vector3f& p : view.points_B) {
+    if (p.allFinite()) pts.push_back(p);
+  }
+  SceneSupport support;
+  support.Build(pts, 2.f * static_cast<float>(m.options.support_distance), view);
+  const SegmentDepth no_segment_depth;
+  const auto verify = [&](const Pose& X, int stride) { return Verify(m, X, view, support, no_segment_depth, stride); };
+  const VerifyStats given = verify(X_BO, 1);
+  TurnChoice out{X_BO, Net(given), Net(given), given.score};
+  const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
+  if (!have_depth || given.below_support || !(step_deg > 0)) return out;
+  std::vector<Pose> candidates(others.begin(), others.end());
+  const double step = step_deg * M_PI / 180.0;
+  const int turns = static_cast<int>(std::floor(2.0 * M_PI / step - 1e-9));
+  const int given_quick = Net(verify(X_BO, kQuickStride));
+  for (const TurnAxis& axis : m.turn_axes) {
+    int best = given_quick;
+    double best_angle = 0.0;
+    const auto look = [&](double angle) {
+      const int net = Net(verify(X_BO * axis.Turn(angle), kQuickStride));
+      if (net > best) {
+        best = net;
+        best_angle = angle;
+      }
+    };
+    // The grid's looks on every thread of the caller's arena, judged in
+    // order afterwards: the same choice as one pass.
+    std::vector<int> grid(static_cast<size_t>(turns), 0);
+    tbb::parallel_for(0, turns, [&](int k) {
+      grid[static_cast<size_t>(k)] = Net(verify(X_BO * axis.Turn((k + 1) * step), kQuickStride));
+    });
+    for (int k = 0; k < turns; ++k) {
+      if (grid[static_cast<size_t>(k)] > best) {
+        best = grid[static_cast<size_t>(k)];
+        best_angle = (k + 1) * step;
+      }
+    }
+    for (double h = 0.5 * step; h > step / 16.0; h *= 0.5) {
+      const double centre = best_angle;
+      look(centre - h);
+      look(centre + h);
+    }
+    if (best_angle != 0.0) candidates.push_back(X_BO * axis.Turn(best_angle));
+  }
+  // The own points strided to about icp_max_points; a turn is refined on
+  // them (the turn of the detected pose is off the true one by the
+  // detection's own small tilt and shift) and kept as looked at when ICP
+  // fails or leaves it explaining less.
+  std::vector<Eigen::Vector3f> fine;
+  const size_t max_points = static_cast<size_t>(std::max(1, m.options.icp_max_points));
+  const size_t stride = std::max<size_t>(1, (pts.size() + max_points - 1) / max_points);
+  for (size_t i = 0; i < pts.size(); i += stride) fine.push_back(pts[i]);
+  const float gate1 = static_cast<float>(m.options.icp_final_distance);
+  for (const Pose& X : candidates) {
+    VerifyStats st = verify(X, 1);
+    Pose best = X;
+    const IcpResult icp = m.Refine(fine, {}, X, view.X_BC.translation(), std::max(gate1, 0.75f * m.step), gate1,
+                                   m.options.icp_iterations, m.options.icp_convergence);
+    if (icp.ok && icp.X_BO.matrix().allFinite()) {
+      const VerifyStats refined = verify(icp.X_BO, 1);
+      if (!refined.below_support && Net(refined) > Net(st)) {
+        st = refined;
+        best = icp.X_BO;
+      }
+    }
+    if (!st.below_support && Net(st) > out.net) out = {best, Net(st), out.given_net, st.score};
+  }
+  return out;
+}
 
 Result<PoseEstimates> EstimatePose(const PoseModel& m, const SceneView& view, const PoseSearch& search,
                                    const SearchReuse& reuse, SearchTrace* trace) {

@@ -49,6 +49,28 @@ struct SearchTrace {
 Result<PoseEstimates> EstimatePose(const PoseModel& model, const SceneView& view, const PoseSearch& search,
                                    const SearchReuse& reuse = {}, SearchTrace* trace = nullptr);
 
+// What ChooseTurn found: the pose that explains most of the view and its
+// figures, verified in full, and the given pose's.
+struct TurnChoice {
+  Pose X_BO = Pose::Identity();
+  int net = 0;       // supported minus free-space samples at X_BO
+  int given_net = 0;  // the same at the pose ChooseTurn was given
+  double score = -1.0;  // VerifyStats::score at X_BO
+};
+
+// A part nearly round about an axis (a pipe tee about its run) judged again
+// on a view of its own points (perception: after its neighbours are
+// accepted, the points they explain left out of the view and of its depth
+// image). Looks at X_BO's turns about the model's turn axes as the fine
+// pass does, but every step_deg (> 0; the fine pass's turn_step_deg misses
+// a true turn whose peak is narrower than its step) at a quick look, the
+// best bisected to an eighth of the step; then verifies in full X_BO, the
+// best turn per axis and `others`; returns the one with the most supported
+// minus free-space samples (X_BO on ties; none that sinks the part into the
+// support plane). Needs the view's depth image: without one, X_BO.
+TurnChoice ChooseTurn(const PoseModel& model, const SceneView& view, const Pose& X_BO, std::span<const Pose> others,
+                      double step_deg);
+
 // The model behind a PoseEstimator, for EstimatePose.
 class PoseEstimatorAccess {
  public:
