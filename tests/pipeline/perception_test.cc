@@ -1151,7 +1151,12 @@ TEST(PerceptionEval, ABushingFittedIntoATeeIsRefusedByTheFreeSpaceItLeaves) {
 TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
-  PerceptionOptions old_limit;
+  // Both without the own-point turns (which turn some of these tees right
+  // whatever the limit): the limit's effect alone.
+  PerceptionOptions no_own_turns;
+  no_own_turns.own_turn_gain = -1.0;
+  const std::unique_ptr<Perception> limited = Perception::Build(f.cell, no_own_turns).value();
+  PerceptionOptions old_limit = no_own_turns;
   old_limit.max_support_penetration = 0.003;
   const std::unique_ptr<Perception> loose = Perception::Build(f.cell, old_limit).value();
   const Pose& X_BW = f.cell.bin.X_BW;
@@ -1183,7 +1188,7 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
       return c;
     };
     const Counts before = judge(Fixture::RunWith(*loose, *frame));
-    const PerceptionResult result = f.Run(*frame);
+    const PerceptionResult result = Fixture::RunWith(*limited, *frame);
     const Counts after = judge(result);
     sunk_gross_tees_loose += before.sunk_gross_tees;
     EXPECT_EQ(after.sunk_gross_tees, 0) << "pile " << seed;
@@ -1204,7 +1209,12 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
 TEST(PerceptionEval, ATurnThatExplainsMoreOfTheViewIsPreferred) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
-  PerceptionOptions off;
+  // Both without the own-point turns (which turn the tee of 1068 right by
+  // themselves): the gain's effect alone.
+  PerceptionOptions no_own_turns;
+  no_own_turns.own_turn_gain = -1.0;
+  const std::unique_ptr<Perception> by_gain = Perception::Build(f.cell, no_own_turns).value();
+  PerceptionOptions off = no_own_turns;
   off.ambiguity_net_gain = 0.0;
   const std::unique_ptr<Perception> by_score = Perception::Build(f.cell, off).value();
   for (uint64_t seed : {1010u, 1068u}) {
@@ -1225,7 +1235,7 @@ TEST(PerceptionEval, ATurnThatExplainsMoreOfTheViewIsPreferred) {
       return c;
     };
     const Counts before = judge(Fixture::RunWith(*by_score, *frame));
-    const Counts after = judge(f.Run(*frame));
+    const Counts after = judge(Fixture::RunWith(*by_gain, *frame));
     EXPECT_GE(before.gross_tees, 1) << "pile " << seed << ": no tee off its pose by score alone";
     EXPECT_LE(after.gross_tees, before.gross_tees - 1) << "pile " << seed;
     EXPECT_GE(after.true_tees, before.true_tees + 1) << "pile " << seed;
