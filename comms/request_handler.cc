@@ -707,6 +707,12 @@ class RequestHandler::Impl {
                  Completion done);
   // One calibration command on the calibration sequence (Calibrate's job).
   void RunCalibrationCommand(int32_t command, const Pose& X_BF, const WireFormat& f, const Completion& done);
+  // Starts a calibration of `kind` with the robot at X_BF and enters its
+  // mode; false (logged, no mode) when the service refuses.
+  bool StartCalibration(CalibrationKind kind, const Pose& X_BF);
+  // Accumulates the view at X_BF in `kind`, finishing it (and leaving the
+  // mode) on its last view; nullopt (logged) when the view is not used.
+  std::optional<CalibrationStep> AccumulateCalibration(CalibrationKind kind, const Pose& X_BF);
 
   Cell cell_;
   std::shared_ptr<GraspPlanner> planner_;
@@ -1419,31 +1425,8 @@ void RequestHandler::Impl::RunCalibrationCommand(int32_t command, const Pose& X_
     }
     done(Respond(r));
   };
-  auto start = [&](CalibrationKind kind) -> bool {
-    failed_views_in_a_row_ = 0;
-    const Status s = calibration_->Start(kind, X_BF);
-    if (!s.ok()) {
-      spdlog::error("daoai: calibration start failed: {}", s.ToString());
-      calibration_mode_.reset();
-      return false;
-    }
-    calibration_mode_ = kind;
-    return true;
-  };
-  // Accumulates in `kind`; @returns the step or nullopt (logged) on failure.
-  auto accumulate = [&](CalibrationKind kind) -> std::optional<CalibrationStep> {
-    Result<CalibrationStep> step = calibration_->Accumulate(kind, X_BF);
-    if (!step.ok()) {
-      spdlog::warn("daoai: calibration pose not accumulated: {}", step.status().ToString());
-      return std::nullopt;
-    }
-    if (step->done) {
-      const Status s = calibration_->Finish(kind);
-      if (!s.ok()) spdlog::error("daoai: calibration failed: {}", s.ToString());
-      calibration_mode_.reset();
-    }
-    return *step;
-  };
+  auto start = [&](CalibrationKind kind) { return StartCalibration(kind, X_BF); };
+  auto accumulate = [&](CalibrationKind kind) { return AccumulateCalibration(kind, X_BF); };
   switch (command) {
     case daoai::kStartManualCalibration:
       answer(start(CalibrationKind::kManual) ? daoai::kModeCalibration : daoai::kUnknownCommand);
@@ -1508,7 +1491,34 @@ void RequestHandler::Impl::RunCalibrationCommand(int32_t command, const Pose& X_
       return;
     default:
       answer(daoai::kUnknownCommand);
-  }}
+  }
+}
+
+bool RequestHandler::Impl::StartCalibration(CalibrationKind kind, const Pose& X_BF) {
+  failed_views_in_a_row_ = 0;
+  const Status s = calibration_->Start(kind, X_BF);
+  if (!s.ok()) {
+    spdlog::error("daoai: calibration start failed: {}", s.ToString());
+    calibration_mode_.reset();
+    return false;
+  }
+  calibration_mode_ = kind;
+  return true;
+}
+
+std::optional<CalibrationStep> RequestHandler::Impl::AccumulateCalibration(CalibrationKind kind, const Pose& X_BF) {
+  Result<CalibrationStep> step = calibration_->Accumulate(kind, X_BF);
+  if (!step.ok()) {
+    spdlog::warn("daoai: calibration pose not accumulated: {}", step.status().ToString());
+    return std::nullopt;
+  }
+  if (step->done) {
+    const Status s = calibration_->Finish(kind);
+    if (!s.ok()) spdlog::error("daoai: calibration failed: {}", s.ToString());
+    calibration_mode_.reset();
+  }
+  return *step;
+}
 
 Response RequestHandler::Impl::EmptyBoxCheck(TaskState& t, const PlanRequest& plan_request) {
   const auto t0 = std::chrono::steady_clock::now();
