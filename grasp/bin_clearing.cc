@@ -265,8 +265,12 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
       ++report.failure_causes[v.cause];
       report.failures.push_back(v.line);
       if (s.feedback) {
-        // What the robot can tell: the part slipped off, or the vacuum never built.
-        s.feedback->Report(*popped.grasp, v.cause == "slipped" ? PickFailure::kSlipped : PickFailure::kNoVacuum);
+        // What the robot can tell: it stopped on contact, the part slipped
+        // off, or the vacuum never built.
+        const PickFailure reason = v.cause == "collision" ? PickFailure::kCollision
+                                   : v.cause == "slipped" ? PickFailure::kSlipped
+                                                          : PickFailure::kNoVacuum;
+        s.feedback->Report(*popped.grasp, reason);
         ++report.reported;
         report.screened += queue.Rescreen();
       }

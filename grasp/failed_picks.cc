@@ -16,12 +16,14 @@ std::string_view ToString(PickFailure reason) {
       return "no_vacuum";
     case PickFailure::kSlipped:
       return "slipped";
+    case PickFailure::kCollision:
+      return "collision";
   }
   return "unspecified";
 }
 
 bool PickFailureFromWire(int32_t value, PickFailure* out) {
-  if (value < 0 || value > 2) return false;
+  if (value < 0 || value > 3) return false;
   *out = static_cast<PickFailure>(value);
   return true;
 }
@@ -52,6 +54,7 @@ FailedPicks::Recorded FailedPicks::Report(const Grasp& grasp, PickFailure reason
     same = &spots_.back();
   }
   ++same->failures;
+  if (reason == PickFailure::kCollision) same->failures = std::max(same->failures, rule_.max_failures);
   same->age = 0;
   same->p_W = p_W;  // where the part was last tried (a slip may have moved it)
   if (grasp.last_resort) {

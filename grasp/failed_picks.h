@@ -19,6 +19,10 @@
 //   - a grasp on a spot with `max_failures` failures (same class) is
 //     refused: it leaves the queue even when nothing else is left, and a
 //     queue emptied that way answers NO_COLLISION_FREE_POSE;
+//   - a collision (the robot stopped on contact) takes its spot to
+//     `max_failures` at once: the robot is never sent into the same contact
+//     again while the spot is remembered (a vacuum or slip failure is often
+//     chance, a contact is the plan's, and another try would repeat it);
 //   - a failed last resort (Grasp::last_resort: a grasp on an ambiguous
 //     detection that lands only if the pose it was planned on is true) also
 //     refutes that pose: while the spot is remembered, plans put the
@@ -54,9 +58,10 @@ enum class PickFailure : int32_t {
   kUnspecified = 0,
   kNoVacuum = 1,  // the vacuum never built up
   kSlipped = 2,   // the part was held, then lost
+  kCollision = 3,  // the robot stopped on contact (a protective stop, a force limit)
 };
 std::string_view ToString(PickFailure reason);
-// 0, 1, 2 -> the reason; anything else -> false.
+// 0, 1, 2, 3 -> the reason; anything else -> false.
 bool PickFailureFromWire(int32_t value, PickFailure* out);
 
 class FailedPicks {

@@ -791,7 +791,7 @@ TEST_F(DaoaiServerTest, AMalformedFailureReportGetsUnknownCommandAndTheNextReque
   EXPECT_RESPONSE(*c, Report(0, 2), kUnknown) << "no grasp was handed out yet";
   EXPECT_RESPONSE(*c, Req(daoai::kCaptureAndProcess, 0), kCapture5);
   EXPECT_RESPONSE(*c, Req(daoai::kPickPose, 0), kPick0_3);
-  EXPECT_RESPONSE(*c, Report(0, 9), kUnknown) << "reason 9 is not 0, 1 or 2";
+  EXPECT_RESPONSE(*c, Report(0, 9), kUnknown) << "reason 9 is not 0, 1, 2 or 3";
   EXPECT_RESPONSE(*c, Report(42, 2), kUnknown) << "no task 42";
   EXPECT_RESPONSE(*c, Report(2, 2), kUnknown) << "task 2 is a place task";
   EXPECT_RESPONSE(*c, Report(0, 2), kNoted61) << "the grasp is still the one to blame";

@@ -80,6 +80,25 @@ TEST(FailedPicks, WithheldGraspsStayWhenNothingElseIsLeftAndARefusedSpotLeavesEv
   ASSERT_EQ(f.Spots().size(), 1u);
 }
 
+// A collision is the plan's, not chance: its spot is refused at the first
+// report, even when it is the only part left; a vacuum failure elsewhere
+// still only withholds.
+TEST(FailedPicks, ACollisionRefusesItsSpotAtOnce) {
+  FailedPicks f(Rule(0.03, 3, 3), Pose::Identity());
+  const Grasp a = GraspAt(0, 0, Vec3(0.5, 0, 0.1));
+  const Grasp b = GraspAt(1, 0, Vec3(0.8, 0, 0.1));
+  std::deque<Grasp> q = {a};
+  const FailedPicks::Recorded r = f.Report(a, PickFailure::kCollision);
+  EXPECT_EQ(r.failures, 3);
+  EXPECT_TRUE(r.refused);
+  EXPECT_EQ(f.Judge(a), FailedPicks::Verdict::kRefused);
+  EXPECT_EQ(f.Screen(q).size(), 1u);
+  EXPECT_TRUE(q.empty()) << "not sent into the same contact again";
+  EXPECT_EQ(f.Judge(b), FailedPicks::Verdict::kServe);
+  EXPECT_FALSE(f.Report(b, PickFailure::kNoVacuum).refused);
+  EXPECT_EQ(f.Judge(b), FailedPicks::Verdict::kWithheld);
+}
+
 TEST(FailedPicks, ASpotIsReleasedNCapturesAfterItsLastFailure) {
   FailedPicks f(Rule(0.03, 2, 3), Pose::Identity());
   const Grasp a = GraspAt(0, 0, Vec3(0.5, 0, 0.1));
@@ -145,13 +164,16 @@ TEST(FailedPicks, SpotsAreInTheMeasuredBinWhenTheGraspCarriesIt) {
   EXPECT_EQ(f.Judge(GraspAt(4, 1, X_BW_2 * p_W)), FailedPicks::Verdict::kServe);
 }
 
-TEST(FailedPicks, OnlyTheThreeReasonsDecodeFromTheWire) {
+TEST(FailedPicks, OnlyTheFourReasonsDecodeFromTheWire) {
   PickFailure r = PickFailure::kUnspecified;
   EXPECT_TRUE(PickFailureFromWire(2, &r));
   EXPECT_EQ(r, PickFailure::kSlipped);
+  EXPECT_TRUE(PickFailureFromWire(3, &r));
+  EXPECT_EQ(r, PickFailure::kCollision);
+  EXPECT_EQ(ToString(r), "collision");
   EXPECT_TRUE(PickFailureFromWire(0, &r));
   EXPECT_EQ(r, PickFailure::kUnspecified);
-  EXPECT_FALSE(PickFailureFromWire(3, &r));
+  EXPECT_FALSE(PickFailureFromWire(4, &r));
   EXPECT_FALSE(PickFailureFromWire(-1, &r));
 }
 
