@@ -1199,6 +1199,24 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   EXPECT_GE(sunk_gross_tees_loose, 2) << "no tee turned into the floor with the old limit: nothing to refuse";
 }
 
+// The pipe tees (class 2) of a result, judged strictly against the truth:
+// right ones, gross ones (near a true tee, outside the pose tolerance), and
+// right ones that carry an alternative pose.
+struct TeeCounts {
+  int true_tees = 0, gross_tees = 0, true_tees_with_alternatives = 0;
+};
+TeeCounts JudgeTees(const PerceptionResult& r, const GroundTruth& truth, const std::vector<EvalPartModel>& models) {
+  TeeCounts c;
+  for (const DetectionOutcome& o : EvaluateFrame(r, truth, models).detections) {
+    if (o.class_id != 2) continue;
+    c.gross_tees += o.verdict == DetectionVerdict::kGross;
+    if (o.verdict != DetectionVerdict::kTrue) continue;
+    ++c.true_tees;
+    c.true_tees_with_alternatives += !r.detections[o.detection].alternatives_X_BO.empty();
+  }
+  return c;
+}
+
 // A pipe tee's turns about its run that hide its branch behind the run
 // score higher (fewer of its samples in view) while explaining less of what
 // the camera saw; the turn that explains more was carried as an alternative
@@ -1220,22 +1238,9 @@ TEST(PerceptionEval, ATurnThatExplainsMoreOfTheViewIsPreferred) {
   for (uint64_t seed : {1010u, 1068u}) {
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    struct Counts {
-      int true_tees = 0, gross_tees = 0, true_tees_with_alternatives = 0;
-    };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        if (o.class_id != 2) continue;
-        if (o.verdict == DetectionVerdict::kGross) ++c.gross_tees;
-        if (o.verdict != DetectionVerdict::kTrue) continue;
-        ++c.true_tees;
-        if (!r.detections[o.detection].alternatives_X_BO.empty()) ++c.true_tees_with_alternatives;
-      }
-      return c;
-    };
-    const Counts before = judge(Fixture::RunWith(*by_score, *frame));
-    const Counts after = judge(Fixture::RunWith(*by_gain, *frame));
+    const auto judge = [&](const PerceptionResult& r) { return JudgeTees(r, *frame->truth, f.models); };
+    const TeeCounts before = judge(Fixture::RunWith(*by_score, *frame));
+    const TeeCounts after = judge(Fixture::RunWith(*by_gain, *frame));
     EXPECT_GE(before.gross_tees, 1) << "pile " << seed << ": no tee off its pose by score alone";
     EXPECT_LE(after.gross_tees, before.gross_tees - 1) << "pile " << seed;
     EXPECT_GE(after.true_tees, before.true_tees + 1) << "pile " << seed;
@@ -1304,23 +1309,10 @@ TEST(PerceptionEval, ATeeIsTurnedAgainOnItsOwnPointsOnceItsNeighboursAreFound) {
   for (uint64_t seed : {1013u, 1082u}) {
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    struct Counts {
-      int true_tees = 0, gross_tees = 0, true_tees_with_alternatives = 0;
-    };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        if (o.class_id != 2) continue;
-        c.gross_tees += o.verdict == DetectionVerdict::kGross;
-        if (o.verdict != DetectionVerdict::kTrue) continue;
-        ++c.true_tees;
-        c.true_tees_with_alternatives += !r.detections[o.detection].alternatives_X_BO.empty();
-      }
-      return c;
-    };
-    const Counts before = judge(Fixture::RunWith(*on_segments, *frame));
+    const auto judge = [&](const PerceptionResult& r) { return JudgeTees(r, *frame->truth, f.models); };
+    const TeeCounts before = judge(Fixture::RunWith(*on_segments, *frame));
     const PerceptionResult result = f.Run(*frame);
-    const Counts after = judge(result);
+    const TeeCounts after = judge(result);
     EXPECT_GE(before.gross_tees, 1) << "pile " << seed << ": no tee off about its run without the stage";
     EXPECT_LE(after.gross_tees, before.gross_tees - 1) << "pile " << seed;
     EXPECT_GE(after.true_tees, before.true_tees + 1) << "pile " << seed;
