@@ -9,6 +9,8 @@
 //       the flood against a single plan time: the same robot's pick latency
 //       measured alone first. Before issue 39 each 19 started a detection of
 //       its own and the second robot waited behind all of them.
+//       --flood-command 20 floods synchronous captures instead (each waits
+//       for its image, so the flooded task's detections are not background).
 //   build/bin/bp_soak --mode soak --requests 1000000 --robots 8
 //       Mixed requests from N robots: captures (19 and 20), picks until the
 //       queue is empty, pose updates, garbage (unknown commands, a bad
@@ -77,6 +79,10 @@ struct Options {
   int plan_ms = 2;
   int seed = 39;
   int flood_task = 0;  // flood: the task the flooding robot captures on
+  // flood: the flooding robot's capture, 19 (CAPTURE_AND_PROCESS_ASYNC,
+  // answered at once) or 20 (CAPTURE_AND_PROCESS, answered once the image is
+  // captured: a waiter, so its detection is planned at the normal priority).
+  int flood_command = 19;
   int pick_task = 1;   // flood: the second robot's task (a pick task)
   // In-process: requests/s per connection (DaoaiServerOptions), binpickd's
   // default (the cell's endpoints.max_message_rate); 0: off.
@@ -221,7 +227,7 @@ int Flood(const Options& o) {
       return;
     }
     while (!stop) {
-      Result<RobotReply> r = (*robot)->Call(daoai::kCaptureAndProcessAsync, o.flood_task);
+      Result<RobotReply> r = (*robot)->Call(o.flood_command, o.flood_task);
       if (!r.ok() || r->status != daoai::kDetection) {
         flood_error = r.ok() ? "status " + std::to_string(r->status) : r.status().ToString();
         return;
@@ -252,8 +258,8 @@ int Flood(const Options& o) {
                  std::to_string(hs.background_detections) + " planned in the background)";
   }
   local.Stop();
-  std::printf("bp_soak flood: %.0f s, flooding robot sent %lld captures (%.0f/s)%s\n", o.seconds,
-              static_cast<long long>(flood_requests.load()),
+  std::printf("bp_soak flood: %.0f s, flooding robot sent %lld captures (%d, %.0f/s)%s\n", o.seconds,
+              static_cast<long long>(flood_requests.load()), o.flood_command,
               static_cast<double>(flood_requests.load()) / o.seconds, in_process.c_str());
   std::printf("bp_soak flood: single plan time (second robot alone, pick p50 of %zu): %.2f ms\n",
               alone.size(), single);
@@ -490,6 +496,8 @@ int main(int argc, char** argv) {
   app.add_option("--plan-ms", o.plan_ms, "in-process: detection time, ms");
   app.add_option("--seed", o.seed, "soak: the robots' random mix");
   app.add_option("--flood-task", o.flood_task, "flood: the flooding robot's task")->check(CLI::Range(0, 99));
+  app.add_option("--flood-command", o.flood_command, "flood: the flooding robot's capture, 19 (async) or 20")
+      ->check(CLI::IsMember({19, 20}));
   app.add_option("--pick-task", o.pick_task, "flood: the second robot's pick task (with --port, one of the "
                  "cell's pick tasks: on the default cell task 1 is the in-hand check)")->check(CLI::Range(0, 99));
   std::string log_level = "error";
