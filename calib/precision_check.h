@@ -52,6 +52,10 @@ class PrecisionCheckPlanner final : public GraspPlanner {
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override {
     return inner_->Plan(request, scene);
   }
+  Result<PlanResult> PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                  const HeadReady& on_head) override {
+    return inner_->PlanWithHead(request, scene, on_head);
+  }
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override { inner_->NotifyHandedOut(task, grasp); }
   Status Teach(const TeachRequest& request) override { return inner_->Teach(request); }
   // NotFound when the target is not detected (answered 52).

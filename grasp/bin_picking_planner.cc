@@ -178,12 +178,18 @@ Result<CaptureHandle> BinPickingPlanner::Capture(const PlanRequest& request) {
 }
 
 Result<PlanResult> BinPickingPlanner::Plan(const PlanRequest& request, const CapturedScene& scene) {
-  Result<PlanDetail> detail = PlanDetailed(request, scene);
+  return PlanWithHead(request, scene, {});
+}
+
+Result<PlanResult> BinPickingPlanner::PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                                   const HeadReady& on_head) {
+  Result<PlanDetail> detail = PlanDetailed(request, scene, on_head);
   if (!detail.ok()) return detail.status();
   return std::move(detail->result);
 }
 
-Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, const CapturedScene& scene) {
+Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, const CapturedScene& scene,
+                                                   const HeadReady& on_head) {
   const auto* captured = dynamic_cast<const CapturedFrame*>(&scene);
   if (captured == nullptr) return Status::InvalidArgument("grasp planner: scene was not captured by this planner");
   const Frame& frame = captured->frame();
@@ -192,6 +198,7 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   PlanResult& result = detail.result;
   double grasps_ms = -1, retry_ms = -1;
   std::vector<StageTiming> first_timings;
+  std::optional<std::vector<int>> head_truth;  // MatchTruth of the perception a head was published from
 
   if (task.kind == TaskSpec::Kind::kInHand || LooksAtFixture(task)) {
     if (Status s = PlanElsewhere(request, frame, detail); !s.ok()) return s;
@@ -201,7 +208,23 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
     if (!perception.ok()) return perception.status();
     detail.perception = std::move(*perception);
     first_timings = detail.perception.timings;
-    PlanPick(request, frame, detail, &grasps_ms, &retry_ms);
+    // The head leaves with what the queued grasp will carry (the measured
+    // bin), and the task's state is what its hand-out and a teach refer to
+    // before the head can reach a robot.
+    HeadReady head_ready;
+    if (on_head) {
+      head_ready = [&](const PlanHead& head) {
+        PlanHead h = head;
+        if (detail.perception.bin && detail.perception.bin->found) {
+          h.grasp.X_BW = detail.perception.bin->X_BW;
+          if (h.next) h.next->X_BW = detail.perception.bin->X_BW;
+        }
+        head_truth = MatchTruth(frame, detail.perception);
+        Remember(task.id, detail.perception, *head_truth, &h.grasp);
+        on_head(h);
+      };
+    }
+    PlanPick(request, frame, detail, &grasps_ms, &retry_ms, head_ready);
   }
   NoteRetryBudget(options_.thorough_retry_estimates, options_.thorough_retry_ms, detail);
 
@@ -222,51 +245,65 @@ Result<PlanDetail> BinPickingPlanner::PlanDetailed(const PlanRequest& request, c
   if (grasps_ms >= 0) result.stages.push_back({"grasps", grasps_ms});
   if (retry_ms >= 0) result.stages.push_back({"thorough_retry", retry_ms});  // perception + grasps, used or not
 
-  std::vector<int> truth = MatchTruth(frame, per);
-
-  {
-    std::lock_guard lock(state_mutex_);
-    TaskState& state = tasks_[task.id];
-    state.detections.clear();
-    for (const Detection& d : per.detections) {
-      Detection copy;
-      copy.class_id = d.class_id;
-      copy.X_BO = d.X_BO;
-      copy.score = d.score;
-      state.detections.push_back(std::move(copy));
-    }
-    state.truth_instance = std::move(truth);
-    state.held_X_BO.reset();
-    // Until a grasp is handed out, teaching refers to the first part of the queue.
-    if (!result.grasps.empty()) {
-      state.held_X_BO = result.grasps.front().X_BO;
-      state.held_class = result.grasps.front().class_id;
-    } else if (!per.detections.empty()) {
-      state.held_X_BO = per.detections.front().X_BO;
-      state.held_class = per.detections.front().class_id;
-    }
-  }
+  Remember(task.id, per, head_truth && !detail.thorough_retry ? std::move(*head_truth) : MatchTruth(frame, per),
+           result.grasps.empty() ? nullptr : &result.grasps.front());
   return detail;
 }
 
+void BinPickingPlanner::Remember(int task_id, const PerceptionResult& per, std::vector<int> truth,
+                                 const Grasp* first) {
+  std::lock_guard lock(state_mutex_);
+  TaskState& state = tasks_[task_id];
+  state.detections.clear();
+  for (const Detection& d : per.detections) {
+    Detection copy;
+    copy.class_id = d.class_id;
+    copy.X_BO = d.X_BO;
+    copy.score = d.score;
+    state.detections.push_back(std::move(copy));
+  }
+  state.truth_instance = std::move(truth);
+  state.held_X_BO.reset();
+  // Until a grasp is handed out, teaching refers to the first part of the queue.
+  if (first != nullptr) {
+    state.held_X_BO = first->X_BO;
+    state.held_class = first->class_id;
+  } else if (!per.detections.empty()) {
+    state.held_X_BO = per.detections.front().X_BO;
+    state.held_class = per.detections.front().class_id;
+  }
+}
+
 void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame, PlanDetail& detail, double* grasps_ms,
-                                 double* retry_ms) const {
+                                 double* retry_ms, const HeadReady& on_head) const {
   const TaskSpec& task = request.task;
   PlanResult& result = detail.result;
   std::vector<TaughtGrasp> taught = teach_->All();
   // Grasps on the poses failed last resorts left (grasp/failed_picks.h).
-  const auto plan_grasps = [&](PerceptionResult& perception) {
+  // `head` (the first run's only: a thorough retry runs when that found
+  // none) is told with the same flags as the queue's grasps.
+  const auto plan_grasps = [&](PerceptionResult& perception, const HeadReady& head) {
     const std::vector<bool> reposed =
         ApplyRefutedPoses(request.refuted, cell_, BinPoseOf(perception, cell_.bin), perception.detections);
-    GraspPlan plan = PlanGrasps(*model_, task, perception, taught, &frame);
-    for (Grasp& g : plan.queue) {
+    const auto mark = [&reposed](Grasp& g) {
       g.reposed = g.instance_id >= 0 && static_cast<size_t>(g.instance_id) < reposed.size() &&
                   reposed[static_cast<size_t>(g.instance_id)];
+    };
+    HeadReady marked;
+    if (head) {
+      marked = [&head, &mark](const PlanHead& h) {
+        PlanHead copy = h;
+        mark(copy.grasp);
+        if (copy.next) mark(*copy.next);
+        head(copy);
+      };
     }
+    GraspPlan plan = PlanGrasps(*model_, task, perception, taught, &frame, marked);
+    for (Grasp& g : plan.queue) mark(g);
     return plan;
   };
   auto t0 = std::chrono::steady_clock::now();
-  detail.plan = plan_grasps(detail.perception);
+  detail.plan = plan_grasps(detail.perception, on_head);
   *grasps_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   const bool nothing_to_pick = detail.plan.outcome == PlanResult::Outcome::kNoObjects ||
                                detail.plan.outcome == PlanResult::Outcome::kNoCollisionFree;
@@ -277,7 +314,7 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
         perception_->RunThorough(frame, task.part_classes, RetryBudget(RetryClockMs(), *grasps_ms));
     if (again.ok()) {
       detail.retry_estimates_skipped = again->estimates_skipped;
-      GraspPlan plan = plan_grasps(*again);
+      GraspPlan plan = plan_grasps(*again, {});
       spdlog::debug("task {}: thorough retry: {} -> {} detections ({} estimates run, {} not, {:.0f} ms), {}", task.id,
                     detail.plan.stats.Describe(), again->detections.size(), again->estimator_calls,
                     again->estimates_skipped,

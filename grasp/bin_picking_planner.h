@@ -112,6 +112,10 @@ class BinPickingPlanner final : public GraspPlanner {
 
   Result<CaptureHandle> Capture(const PlanRequest& request) override;
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override;
+  // Pick tasks publish their head (PlanGrasps's on_head) once perception and
+  // the obstacles are done; not from a thorough retry, nor for other kinds.
+  Result<PlanResult> PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                  const HeadReady& on_head) override;
   // Captures for in_hand and fixture tasks ask the source for that view
   // (CaptureRequest::View).
   // With a ground-truth frame: tells the source which true instance the
@@ -126,7 +130,8 @@ class BinPickingPlanner final : public GraspPlanner {
   Status Teach(const TeachRequest& request) override;
 
   // Plan with everything it produced. `scene` must come from Capture.
-  Result<PlanDetail> PlanDetailed(const PlanRequest& request, const CapturedScene& scene);
+  Result<PlanDetail> PlanDetailed(const PlanRequest& request, const CapturedScene& scene,
+                                  const HeadReady& on_head = {});
 
   const GraspPlanningModel& model() const { return *model_; }
   const TeachStore& teach_store() const { return *teach_; }
@@ -152,7 +157,10 @@ class BinPickingPlanner final : public GraspPlanner {
   // Pick tasks: perception in the bin, grasps, a thorough retry; the grasp
   // stage's and the retry's wall times (ms; left alone when not run).
   void PlanPick(const PlanRequest& request, const Frame& frame, PlanDetail& detail, double* grasps_ms,
-                double* retry_ms) const;
+                double* retry_ms, const HeadReady& on_head) const;
+  // Remembers the task's plan for simulated picks and teaching: its
+  // detections, their true instances (`truth`), the first part of its queue.
+  void Remember(int task_id, const PerceptionResult& per, std::vector<int> truth, const Grasp* first);
   // The budget of a thorough retry started at `started_ms` on the retry
   // clock that must leave `reserve_ms` of thorough_retry_ms for what
   // follows it.

@@ -1,5 +1,6 @@
 #include "grasp/grasp_planning.h"
 
+#include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -675,88 +676,216 @@ bool Placeable(const Pose& X_BO_place, const Pose& X_BO, const Pose& X_BT, doubl
          workspace.contains((X_BT_approach * X_TF).translation());
 }
 
-// Stage 3: each candidate's verdict, cheapest check first, in parallel over
-// candidates (the caller's arena). `seen` is null when no grasp needs it.
-void FilterCandidates(const GraspPlanningModel::Impl& m, const Gripper& gripper, const TaskSpec& task,
-                      const Pose& X_BW, std::span<const Detection> detections, const FrameObstacles& obstacles,
-                      const internal::SeenSurface* seen, std::vector<GraspCandidate>& candidates) {
-  const Cell& cell = m.cell;
-  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
-  const Eigen::AlignedBox3d& workspace = cell.robot.workspace;
-  const Pose X_TF = gripper.spec->X_FT.inverse();
-  const SeenContactRule& rule = gripper.spec->seen_contact;
-  const double pad = m.options.octree_resolution;
-  // task.place_on: where the held part goes (taught pose * part_pose, X_BO').
-  std::optional<Pose> place;
-  if (const FixtureSpec* f = task.place_on.empty() ? nullptr : cell.FindFixture(task.place_on); f != nullptr) {
-    place = Pose(f->X_BP_taught * f->X_PO);
+// Stage 3: each candidate's verdict, cheapest check first. `seen` is null
+// when no grasp needs it. Everything a verdict reads is built once per plan
+// here; Verdict is const and runs concurrently on different candidates.
+class CandidateFilter {
+ public:
+  CandidateFilter(const GraspPlanningModel::Impl& m, const Gripper& gripper, const TaskSpec& task, const Pose& X_BW,
+                  std::span<const Detection> detections, const FrameObstacles& obstacles,
+                  const internal::SeenSurface* seen)
+      : m_(m), gripper_(gripper), X_BW_(X_BW), detections_(detections), obstacles_(obstacles), seen_(seen) {
+    const Cell& cell = m.cell;
+    max_tilt_ = task.max_tilt_deg * M_PI / 180.0;
+    X_TF_ = gripper.spec->X_FT.inverse();
+    // task.place_on: where the held part goes (taught pose * part_pose, X_BO').
+    if (const FixtureSpec* f = task.place_on.empty() ? nullptr : cell.FindFixture(task.place_on); f != nullptr) {
+      place_ = Pose(f->X_BP_taught * f->X_PO);
+    }
+    // Pose ambiguity: a candidate must land at its grasp point under every
+    // alternative pose of its detection (the judge's rule: the gripper's
+    // approach limit, the part's symmetry per detection). A suction candidate
+    // that misses its grasp point under one but whose cup still seals on the
+    // surface under each (within the compliance less the margin kept for that
+    // pose's own error) is kept as a last resort (seal_only).
+    suction_ = gripper.spec->kind == GripperSpec::Kind::kSuction;
+    seal_angle_ =
+        std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0;
+    land_approach_ = suction_ ? m.options.suction_compliance_deg * M_PI / 180.0
+                              : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+    symmetry_.resize(detections.size());
+    for (size_t d = 0; d < detections.size(); ++d) {
+      if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry_[d] = part->symmetry;
+    }
   }
-  // Pose ambiguity: a candidate must land at its grasp point under every
-  // alternative pose of its detection (the judge's rule: the gripper's
-  // approach limit, the part's symmetry per detection). A suction candidate
-  // that misses its grasp point under one but whose cup still seals on the
-  // surface under each (within the compliance less the margin kept for that
-  // pose's own error) is kept as a last resort (seal_only).
-  const bool suction = gripper.spec->kind == GripperSpec::Kind::kSuction;
-  const double seal_angle =
-      std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0;
-  const double land_approach = suction ? m.options.suction_compliance_deg * M_PI / 180.0
-                                       : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
-  std::vector<Symmetry> symmetry(detections.size());
-  for (size_t d = 0; d < detections.size(); ++d) {
-    if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry[d] = part->symmetry;
+
+  // The first check `c` fails, nullopt when it passes every one. Sets
+  // c.seal_only and c.seen_fraction on the way.
+  std::optional<RejectReason> Verdict(GraspCandidate& c) const {
+    const Detection& det = detections_[c.detection];
+    const Eigen::AlignedBox3d& workspace = m_.cell.robot.workspace;
+    if (c.tilt_rad > max_tilt_ + 1e-9) return RejectReason::kTilt;
+    if (!workspace.contains((c.X_BT * X_TF_).translation()) || !workspace.contains((c.X_BT_pre * X_TF_).translation())) {
+      return RejectReason::kWorkspace;
+    }
+    if (place_ && !Placeable(*place_, det.X_BO, c.X_BT, gripper_.spec->approach_distance, X_TF_, workspace)) {
+      return RejectReason::kUnplaceable;
+    }
+    // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
+    if (!det.alternatives_X_BO.empty() &&
+        !LandsUnderEveryAlternative(det, symmetry_[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
+                                    m_.options.ambiguity_max_position, land_approach_)) {
+      auto part = m_.parts.find(det.class_id);
+      if (!suction_ || part == m_.parts.end() ||
+          !SealsUnderEveryAlternative(det, *part->second, c.X_BT, m_.options.ambiguity_max_position, seal_angle_)) {
+        return RejectReason::kAmbiguous;
+      }
+      c.seal_only = true;
+    }
+    const SeenContactRule& rule = gripper_.spec->seen_contact;
+    if (seen_ != nullptr && NeedsSeenContact(rule, det)) {
+      c.seen_fraction = SeenShare(c, *seen_);
+      if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
+    }
+    const CollisionGeometry& sweep = *gripper_.sweep;
+    if (Collides(sweep, c.X_BT, *m_.bin_planning, X_BW_)) return RejectReason::kBin;
+    const int self[] = {c.detection};
+    if (obstacles_.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
+    const Pose X_BT_lift = c.X_BT * TranslateZ(-m_.options.contact_margin);
+    if (auto p = m_.parts.find(det.class_id); p != m_.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
+      return RejectReason::kSelf;
+    }
+    if (obstacles_.points) {
+      const double pad = m_.options.octree_resolution;
+      bool near = false;
+      for (const auto& slab : gripper_.slabs) {
+        Eigen::AlignedBox3d box = WorldBox(slab, X_BT_lift);
+        box.min().array() -= pad;
+        box.max().array() += pad;
+        if (obstacles_.grid.AnyIn(box)) {
+          near = true;
+          break;
+        }
+      }
+      if (near && obstacles_.points->Collides(sweep, X_BT_lift)) return RejectReason::kPoints;
+    }
+    return std::nullopt;
   }
+
+ private:
+  const GraspPlanningModel::Impl& m_;
+  const Gripper& gripper_;
+  const Pose X_BW_;
+  std::span<const Detection> detections_;
+  const FrameObstacles& obstacles_;
+  const internal::SeenSurface* seen_;
+  double max_tilt_ = 0;
+  Pose X_TF_ = Pose::Identity();
+  std::optional<Pose> place_;
+  bool suction_ = false;
+  double seal_angle_ = 0, land_approach_ = 0;
+  std::vector<Symmetry> symmetry_;
+};
+
+// Stage 3 for the candidates not checked yet (`checked` 0), in parallel over
+// candidates (the caller's arena).
+void FilterCandidates(const CandidateFilter& filter, std::vector<GraspCandidate>& candidates,
+                      const std::vector<uint8_t>& checked) {
   tbb::parallel_for(size_t{0}, candidates.size(), [&](size_t i) {
-    GraspCandidate& c = candidates[i];
-    const Detection& det = detections[c.detection];
-    auto verdict = [&]() -> std::optional<RejectReason> {
-      if (c.tilt_rad > max_tilt + 1e-9) return RejectReason::kTilt;
-      if (!workspace.contains((c.X_BT * X_TF).translation()) || !workspace.contains((c.X_BT_pre * X_TF).translation())) {
-        return RejectReason::kWorkspace;
-      }
-      if (place && !Placeable(*place, det.X_BO, c.X_BT, gripper.spec->approach_distance, X_TF, workspace)) {
-        return RejectReason::kUnplaceable;
-      }
-      // X_BG: the grasp before any "~v" turn, whose approach the judge holds.
-      if (!det.alternatives_X_BO.empty() &&
-          !LandsUnderEveryAlternative(det, symmetry[c.detection], c.X_BT, det.X_BO.inverse() * c.X_BG,
-                                      m.options.ambiguity_max_position, land_approach)) {
-        auto part = m.parts.find(det.class_id);
-        if (!suction || part == m.parts.end() ||
-            !SealsUnderEveryAlternative(det, *part->second, c.X_BT, m.options.ambiguity_max_position, seal_angle)) {
-          return RejectReason::kAmbiguous;
-        }
-        c.seal_only = true;
-      }
-      if (seen != nullptr && NeedsSeenContact(rule, det)) {
-        c.seen_fraction = SeenShare(c, *seen);
-        if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
-      }
-      const CollisionGeometry& sweep = *gripper.sweep;
-      if (Collides(sweep, c.X_BT, *m.bin_planning, X_BW)) return RejectReason::kBin;
-      const int self[] = {c.detection};
-      if (obstacles.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
-      const Pose X_BT_lift = c.X_BT * TranslateZ(-m.options.contact_margin);
-      if (auto p = m.parts.find(det.class_id); p != m.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
-        return RejectReason::kSelf;
-      }
-      if (obstacles.points) {
-        bool near = false;
-        for (const auto& slab : gripper.slabs) {
-          Eigen::AlignedBox3d box = WorldBox(slab, X_BT_lift);
-          box.min().array() -= pad;
-          box.max().array() += pad;
-          if (obstacles.grid.AnyIn(box)) {
-            near = true;
-            break;
-          }
-        }
-        if (near && obstacles.points->Collides(sweep, X_BT_lift)) return RejectReason::kPoints;
-      }
-      return std::nullopt;
-    };
-    c.rejected = verdict();
+    if (!checked[i]) candidates[i].rejected = filter.Verdict(candidates[i]);
   });
+}
+
+// A candidate's ranking score (task.ranking): it depends on the candidate
+// alone, never on which others pass.
+double CandidateScore(const GraspCandidate& c, const TaskSpec& task, const Pose& X_WB, double bin_height,
+                      std::span<const Detection> detections) {
+  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
+  const double z_W = (X_WB * c.X_BT).translation().z();
+  const double tilt_norm = max_tilt > 0 ? c.tilt_rad / max_tilt : 0.0;
+  return task.ranking.height * (z_W / std::max(1e-6, bin_height)) +
+         task.ranking.detection * detections[c.detection].score - task.ranking.tilt * tilt_norm;
+}
+
+// Whether handing out the part of detection `head` makes `c` stale, were
+// `c` its part's primary grasp: MarkStaleNeighbours' bounding-box pairs and
+// queries for that one pair, the head first in the queue (the same verdict).
+bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, std::span<const Detection> detections,
+                    const GraspCandidate& c, int head) {
+  const Detection& h = detections[head];
+  const Detection& d = detections[c.detection];
+  const auto part_h = m.parts.find(h.class_id), part_c = m.parts.find(d.class_id);
+  if (part_h == m.parts.end() || part_c == m.parts.end()) return false;
+  auto grown = [](Eigen::AlignedBox3d b, double by) {
+    b.min().array() -= by;
+    b.max().array() += by;
+    return b;
+  };
+  const Eigen::AlignedBox3d box_h = part_h->second->WorldBounds(h.X_BO);
+  const Eigen::AlignedBox3d box_c = part_c->second->WorldBounds(d.X_BO);
+  if (grown(box_h, m.options.touch_distance).intersects(box_c) &&
+      Collides(*m.parts_touch.at(h.class_id), h.X_BO, *part_c->second, d.X_BO)) {
+    return true;
+  }
+  for (const auto& slab : gripper.slabs) {
+    if (grown(WorldBox(slab, c.X_BT), m.options.approach_margin).intersects(box_h)) {
+      return Collides(*gripper.sweep_margin, c.X_BT, *part_h->second, h.X_BO);
+    }
+  }
+  return false;
+}
+
+// Stage 3a, when the caller wants the queue head early: candidates in the
+// order the final queue ranks them (score descending; ties as QueueByPart
+// breaks them: detection index, then candidate order) are checked in blocks
+// (1, 2, 4, ... up to 32 candidates, each block in parallel; every verdict
+// kept in `checked` for stage 3). Filtering only removes and a score
+// depends on its candidate alone, so in that order:
+//   - the first candidate that passes every check and is not a seal-only
+//     last resort is the head of the final queue (a passing seal-only one
+//     ranked above it is refused by stage 3b, since a certain grasp exists);
+//   - the first such candidate of each other part is that part's primary
+//     grasp; the first primary the head's hand-out does not make stale
+//     (`next`) proves that the queue still holds a grasp after the head.
+// The head is published only with that proof or with its absence (every
+// candidate checked): the remaining count it is answered with is then
+// never more than 1 where nothing would follow it. head -1: no certain
+// grasp (the head, if any, is a last resort: never published early).
+struct EarlyHead {
+  int head = -1;
+  int next = -1;  // -1 with a head: nothing is queued after its hand-out
+};
+EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, const CandidateFilter& filter,
+                        const TaskSpec& task, const Pose& X_BW, std::span<const Detection> detections,
+                        std::vector<GraspCandidate>& candidates, std::vector<uint8_t>& checked) {
+  const Pose X_WB = X_BW.inverse();
+  const double bin_height = m.cell.bin.inner_size.z();
+  std::vector<double> score(candidates.size());
+  std::vector<int> order(candidates.size());
+  for (size_t i = 0; i < candidates.size(); ++i) {
+    score[i] = CandidateScore(candidates[i], task, X_WB, bin_height, detections);
+    order[i] = static_cast<int>(i);
+  }
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    if (score[a] != score[b]) return score[a] > score[b];
+    return candidates[a].detection < candidates[b].detection;  // then candidate order (stable)
+  });
+  EarlyHead found;
+  std::set<int> decided;  // parts whose primary was seen after the head (stale ones)
+  size_t block = 1;
+  for (size_t begin = 0; begin < order.size(); begin += block, block = std::min<size_t>(block * 2, 32)) {
+    const size_t end = std::min(order.size(), begin + block);
+    tbb::parallel_for(begin, end, [&](size_t k) {
+      GraspCandidate& c = candidates[order[k]];
+      c.rejected = filter.Verdict(c);
+      checked[order[k]] = 1;
+    });
+    for (size_t k = begin; k < end; ++k) {
+      const GraspCandidate& c = candidates[order[k]];
+      if (c.rejected || c.seal_only) continue;
+      if (found.head < 0) {
+        found.head = order[k];
+        decided.insert(c.detection);
+        continue;
+      }
+      if (!decided.insert(c.detection).second) continue;  // not its part's primary
+      if (!StaleAfterHead(m, gripper, detections, c, candidates[found.head].detection)) {
+        found.next = order[k];
+        return found;
+      }
+    }
+  }
+  return found;
 }
 
 // Stage 3b: the last resort. Grasps kept only because the cup seals under
@@ -775,9 +904,7 @@ void KeepSealOnlyAsLastResort(std::vector<GraspCandidate>& candidates) {
 // Stage 4: scores of the accepted candidates (task.ranking) and the counts.
 void RankCandidates(const Cell& cell, const TaskSpec& task, const Pose& X_BW, std::span<const Detection> detections,
                     std::vector<GraspCandidate>& candidates, FilterStats& stats) {
-  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
   const Pose X_WB = X_BW.inverse();
-  const double height = std::max(1e-6, cell.bin.inner_size.z());
   for (GraspCandidate& c : candidates) {
     ++stats.candidates;
     if (c.rejected) {
@@ -785,11 +912,23 @@ void RankCandidates(const Cell& cell, const TaskSpec& task, const Pose& X_BW, st
       continue;
     }
     ++stats.accepted;
-    const double z_W = (X_WB * c.X_BT).translation().z();
-    const double tilt_norm = max_tilt > 0 ? c.tilt_rad / max_tilt : 0.0;
-    c.score = task.ranking.height * (z_W / height) + task.ranking.detection * detections[c.detection].score -
-              task.ranking.tilt * tilt_norm;
+    c.score = CandidateScore(c, task, X_WB, cell.bin.inner_size.z(), detections);
   }
+}
+
+// The grasp queued for a part whose best candidate is `best` (scored),
+// without its related poses and stale neighbours.
+Grasp PrimaryGrasp(std::span<const Detection> detections, const GraspCandidate& best) {
+  Grasp g;
+  g.X_BT = best.X_BT;
+  g.X_BT_pre = best.X_BT_pre;
+  g.X_BO = detections[best.detection].X_BO;
+  g.instance_id = best.detection;
+  g.class_id = best.class_id;
+  g.score = best.score;
+  g.name = best.name;
+  g.last_resort = best.seal_only;
+  return g;
 }
 
 // Stage 5: one primary grasp per part, parts ordered by their best grasp,
@@ -807,16 +946,7 @@ std::vector<Grasp> QueueByPart(std::span<const Detection> detections, const std:
   std::stable_sort(parts.begin(), parts.end(), [](const auto& a, const auto& b) { return a[0]->score > b[0]->score; });
   std::vector<Grasp> queue;
   for (const auto& list : parts) {
-    const GraspCandidate& best = *list[0];
-    Grasp g;
-    g.X_BT = best.X_BT;
-    g.X_BT_pre = best.X_BT_pre;
-    g.X_BO = detections[best.detection].X_BO;
-    g.instance_id = best.detection;
-    g.class_id = best.class_id;
-    g.score = best.score;
-    g.name = best.name;
-    g.last_resort = best.seal_only;
+    Grasp g = PrimaryGrasp(detections, *list[0]);
     for (size_t k = 1; k < list.size(); ++k) g.related_X_B.push_back(list[k]->X_BT);
     queue.push_back(std::move(g));
   }
@@ -892,7 +1022,7 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
 }  // namespace
 
 GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
-                     std::span<const TaughtGrasp> taught, const Frame* frame) {
+                     std::span<const TaughtGrasp> taught, const Frame* frame, const HeadReady& on_head) {
   const auto t0 = std::chrono::steady_clock::now();
   const GraspPlanningModel::Impl& m = model.impl();
   GraspPlan plan;
@@ -935,7 +1065,33 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
 
   // The walls stand where perception measured the bin (BinPoseOf).
   const Pose& X_BW = BinPoseOf(perception, m.cell.bin);
-  FilterCandidates(m, gripper, task, X_BW, detections, obstacles, seen ? &*seen : nullptr, plan.candidates);
+  const CandidateFilter filter(m, gripper, task, X_BW, detections, obstacles, seen ? &*seen : nullptr);
+  std::vector<uint8_t> checked(plan.candidates.size(), 0);
+  std::optional<Grasp> head;
+  if (on_head) {
+    const EarlyHead early = FindEarlyHead(m, gripper, filter, task, X_BW, detections, plan.candidates, checked);
+    if (early.head >= 0) {
+      // Scored as stage 4 will score them.
+      const Pose X_WB = X_BW.inverse();
+      const double bin_height = m.cell.bin.inner_size.z();
+      PlanHead published;
+      GraspCandidate& h = plan.candidates[early.head];
+      h.score = CandidateScore(h, task, X_WB, bin_height, detections);
+      published.grasp = PrimaryGrasp(detections, h);
+      // One grasp per part with candidates at most, the head's included.
+      std::set<int> parts;
+      for (const GraspCandidate& c : plan.candidates) parts.insert(c.detection);
+      published.max_queue = early.next >= 0 ? std::max(2, static_cast<int>(parts.size())) : 1;
+      if (early.next >= 0) {
+        GraspCandidate& n = plan.candidates[early.next];
+        n.score = CandidateScore(n, task, X_WB, bin_height, detections);
+        published.next = PrimaryGrasp(detections, n);
+      }
+      head = published.grasp;
+      on_head(published);
+    }
+  }
+  FilterCandidates(filter, plan.candidates, checked);
   KeepSealOnlyAsLastResort(plan.candidates);
   RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);
@@ -944,6 +1100,12 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   plan.stats.neighbours_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_neighbours).count();
   plan.outcome = plan.queue.empty() ? PlanResult::Outcome::kNoCollisionFree : PlanResult::Outcome::kGrasps;
+  if (head && (plan.queue.empty() || plan.queue.front().instance_id != head->instance_id ||
+               plan.queue.front().name != head->name)) {
+    // FindHead's invariant broke: the caller withdraws the head it published.
+    spdlog::error("grasp planning: the head published early ({} on part {}) is not the plan's first grasp",
+                  head->name, head->instance_id);
+  }
   plan.stats.filter_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return plan;
 }

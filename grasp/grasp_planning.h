@@ -263,7 +263,17 @@ class GraspPlanningModel {
 // `frame`: the frame perception ran on. The seen-contact check reads its
 // depth image when it is organized, else perception.roi_points_B (also
 // without a frame): with neither, no contact region is seen.
+//
+// `on_head` (optional): called once, on the calling thread, with the
+// queue's first grasp as soon as it has passed every check and the
+// candidates ranked above the next part's primary grasp that the head's
+// hand-out leaves queued have been checked (PlanHead: that grasp, or
+// max_queue 1 when there is none). The other candidates are checked after
+// it returns. The head is the grasp the returned queue starts with, without
+// its related poses and stale neighbours; never a seal-only last resort
+// (not called then, nor when nothing passes).
 GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
-                     std::span<const TaughtGrasp> taught = {}, const Frame* frame = nullptr);
+                     std::span<const TaughtGrasp> taught = {}, const Frame* frame = nullptr,
+                     const HeadReady& on_head = {});
 
 }  // namespace bp

@@ -18,6 +18,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -105,6 +106,20 @@ struct TeachRequest {
   Pose X_BT = Pose::Identity();
 };
 
+// A plan's first grasp, told before the rest of the plan is done
+// (GraspPlanner::PlanWithHead).
+struct PlanHead {
+  Grasp grasp;  // the queue's first grasp, without related poses and stale neighbours
+  // The remaining count the head is answered with: an upper bound on the
+  // grasps left, the head included, once its hand-out withdrew the grasps
+  // it makes stale. 1 when the plan queues nothing after that hand-out;
+  // else at least 2, and `next` is a grasp the queue holds after it, so a
+  // robot told "more than one left" finds one.
+  int max_queue = 1;
+  std::optional<Grasp> next;
+};
+using HeadReady = std::function<void(const PlanHead&)>;
+
 class GraspPlanner {
  public:
   virtual ~GraspPlanner() = default;
@@ -117,6 +132,18 @@ class GraspPlanner {
   // with outcome kNoObjects / kNoCollisionFree is a normal answer; a non-OK
   // status means the planner itself failed (the server reports no objects).
   virtual Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) = 0;
+
+  // Plan, telling `on_head` (on the planning thread, at most once, before
+  // returning) the grasp the result's queue will start with as soon as it
+  // is known, so that a robot can be answered while the rest is planned
+  // (docs/protocols.md "The first pose early"). The head carries what the
+  // queued grasp will (X_BW included) but its related poses and stale
+  // neighbours; the returned queue's first grasp is the same part with the
+  // same grasp. A planner that cannot tell its head early plans as Plan.
+  virtual Result<PlanResult> PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                          const HeadReady& /*on_head*/) {
+    return Plan(request, scene);
+  }
 
   // A grasp was handed to a robot (its response is being written). Planners
   // simulating picks remove the part before the next capture.

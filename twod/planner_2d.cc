@@ -157,6 +157,13 @@ Result<PlanResult> TaskKindPlanner::Plan(const PlanRequest& request, const Captu
   return p->Plan(request, scene);
 }
 
+Result<PlanResult> TaskKindPlanner::PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                                 const HeadReady& on_head) {
+  GraspPlanner* p = For(request.task);
+  if (!p) return Status::Unavailable("no planner for this task kind");
+  return p->PlanWithHead(request, scene, on_head);
+}
+
 void TaskKindPlanner::NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) {
   if (GraspPlanner* p = For(task)) p->NotifyHandedOut(task, grasp);
 }

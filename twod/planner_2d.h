@@ -64,6 +64,8 @@ class TaskKindPlanner final : public GraspPlanner {
       : planner_3d_(std::move(planner_3d)), planner_2d_(std::move(planner_2d)) {}
   Result<CaptureHandle> Capture(const PlanRequest& request) override;
   Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override;
+  Result<PlanResult> PlanWithHead(const PlanRequest& request, const CapturedScene& scene,
+                                  const HeadReady& on_head) override;
   void NotifyHandedOut(const TaskSpec& task, const Grasp& grasp) override;
   Status Teach(const TeachRequest& request) override;
   Result<double> CheckPrecision(const PlanRequest& request) override;

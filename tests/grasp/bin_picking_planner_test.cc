@@ -865,5 +865,53 @@ TEST(BinClearing, AFallbackTaskWithTheParallelJawPicksWhatSuctionCannot) {
             Status::Code::kInvalidArgument);
 }
 
+// The first pose early on synthetic piles (oracle perception): the head
+// PlanWithHead publishes is the plan's first grasp, on the same true part,
+// in the measured bin; the planner knows that part before the head leaves,
+// so a robot handed the head at once takes the right part out of the pile.
+TEST(BinPickingPlanner, TheHeadPublishedEarlyIsThePlansFirstGraspOnTheSameTruePart) {
+  int heads = 0;
+  for (const uint64_t seed : {31, 32, 33}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    Cell cell = SyntheticCell(12, seed);
+    auto planner = MakeOraclePlanner(cell);
+    PlanRequest request{*cell.FindTask(0), std::nullopt, 0};
+    auto scene = planner->Capture(request);
+    ASSERT_TRUE(scene.ok());
+    std::optional<Grasp> head;
+    int head_truth = -1, max_queue = 0;
+    auto plan = planner->PlanWithHead(request, **scene, [&](const PlanHead& h) {
+      head = h.grasp;
+      max_queue = h.max_queue;
+      head_truth = planner->TruthInstanceOf(0, h.grasp.instance_id);
+    });
+    ASSERT_TRUE(plan.ok());
+    if (plan->grasps.empty() || plan->grasps.front().last_resort) {
+      EXPECT_FALSE(head);
+      continue;
+    }
+    ASSERT_TRUE(head);
+    ++heads;
+    const Grasp& first = plan->grasps.front();
+    EXPECT_EQ(head->instance_id, first.instance_id);
+    EXPECT_EQ(head->name, first.name);
+    EXPECT_TRUE(head->X_BT.isApprox(first.X_BT, 1e-12));
+    EXPECT_EQ(head->X_BW.has_value(), first.X_BW.has_value());
+    if (head->X_BW && first.X_BW) {
+      EXPECT_TRUE(head->X_BW->isApprox(*first.X_BW, 1e-12));
+    }
+    EXPECT_GT(head_truth, 0);
+    EXPECT_EQ(head_truth, planner->TruthInstanceOf(0, first.instance_id));
+    int after = 0;  // grasps left once the head is handed out
+    for (size_t i = 1; i < plan->grasps.size(); ++i) {
+      const auto& stale = plan->grasps[i].stale_after;
+      after += std::find(stale.begin(), stale.end(), first.instance_id) == stale.end() ? 1 : 0;
+    }
+    EXPECT_GE(max_queue, 1 + after);
+    EXPECT_EQ(max_queue == 1, after == 0);
+  }
+  EXPECT_GE(heads, 2);
+}
+
 }  // namespace
 }  // namespace bp

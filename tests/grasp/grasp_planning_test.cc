@@ -4,7 +4,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <map>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -621,6 +623,94 @@ TEST(GraspFilter, VoxelisedObstaclesGiveEveryCandidateThePointByPointVerdict) {
       }
     }
   }
+}
+
+// The first pose early (GraspPlanner::PlanWithHead): on synthetic piles
+// with the true detections (and with no point explained, so that many
+// candidates fail), the head PlanGrasps publishes is the queue's first
+// grasp, and asking for it changes no verdict and no queue.
+TEST(GraspPlan, TheHeadGivenEarlyIsTheQueuesFirstGraspAndChangesNoVerdict) {
+  Cell cell = DefaultCell();
+  cell.source.kind = SourceSpec::Kind::kSynthetic;
+  cell.source.num_parts = 15;
+  auto model = GraspPlanningModel::Build(cell);
+  ASSERT_TRUE(model.ok());
+  const TaskSpec task = *cell.FindTask(0);
+  int heads = 0;
+  for (const auto& [config, seed] : std::vector<std::pair<int, uint64_t>>{{1, 11}, {1, 12}, {1, 13}, {2, 14}}) {
+    SCOPED_TRACE("config " + std::to_string(config) + " seed " + std::to_string(seed));
+    cell.source.seed = seed;
+    auto source = MakeSyntheticSource(cell);
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    CaptureRequest capture;
+    capture.config_id = config;
+    auto frame = (*source)->Capture(capture);
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    auto perception = TruthPerception(cell).Run(*frame);
+    ASSERT_TRUE(perception.ok());
+    for (const bool explained : {true, false}) {
+      SCOPED_TRACE(explained ? "parts' points explained" : "no point explained");
+      PerceptionResult scene = *perception;
+      if (!explained) {
+        for (Detection& d : scene.detections) d.support.clear();
+      }
+      std::optional<PlanHead> published;
+      int calls = 0;
+      const GraspPlan early = PlanGrasps(**model, task, scene, {}, &*frame, [&](const PlanHead& h) {
+        published = h;
+        ++calls;
+      });
+      const GraspPlan plain = PlanGrasps(**model, task, scene, {}, &*frame);
+      ASSERT_EQ(early.candidates.size(), plain.candidates.size());
+      for (size_t i = 0; i < early.candidates.size(); ++i) {
+        ASSERT_EQ(early.candidates[i].rejected, plain.candidates[i].rejected) << early.candidates[i].name;
+      }
+      ASSERT_EQ(early.queue.size(), plain.queue.size());
+      for (size_t i = 0; i < early.queue.size(); ++i) {
+        EXPECT_EQ(early.queue[i].instance_id, plain.queue[i].instance_id);
+        EXPECT_EQ(early.queue[i].name, plain.queue[i].name);
+        EXPECT_EQ(early.queue[i].stale_after, plain.queue[i].stale_after);
+      }
+      EXPECT_LE(calls, 1);
+      if (plain.queue.empty() || plain.queue.front().last_resort) {
+        EXPECT_EQ(calls, 0);
+        continue;
+      }
+      ASSERT_TRUE(published);
+      ++heads;
+      const Grasp* head = &published->grasp;
+      const Grasp& first = plain.queue.front();
+      EXPECT_EQ(head->instance_id, first.instance_id);
+      EXPECT_EQ(head->class_id, first.class_id);
+      EXPECT_EQ(head->name, first.name);
+      EXPECT_EQ(head->score, first.score);
+      EXPECT_TRUE(head->X_BT.isApprox(first.X_BT, 1e-12));
+      EXPECT_TRUE(head->X_BT_pre.isApprox(first.X_BT_pre, 1e-12));
+      EXPECT_TRUE(head->X_BO.isApprox(first.X_BO, 1e-12));
+      EXPECT_FALSE(head->last_resort);
+      // What the queue holds once the head is handed out (GraspQueue::Pop
+      // withdraws the grasps listing it): none exactly when max_queue is 1,
+      // else `next` among them, as its part's primary grasp.
+      std::vector<const Grasp*> after;
+      for (size_t i = 1; i < plain.queue.size(); ++i) {
+        const auto& stale = plain.queue[i].stale_after;
+        if (std::find(stale.begin(), stale.end(), first.instance_id) == stale.end()) after.push_back(&plain.queue[i]);
+      }
+      // The head's remaining count (after the withdrawal) is never under-told.
+      EXPECT_GE(published->max_queue, 1 + static_cast<int>(after.size()));
+      if (published->max_queue == 1) {
+        EXPECT_TRUE(after.empty());
+        EXPECT_FALSE(published->next);
+      } else {
+        ASSERT_TRUE(published->next);
+        const auto it = std::find_if(after.begin(), after.end(),
+                                     [&](const Grasp* g) { return g->instance_id == published->next->instance_id; });
+        ASSERT_NE(it, after.end());
+        EXPECT_EQ((*it)->name, published->next->name);
+      }
+    }
+  }
+  EXPECT_GE(heads, 6);
 }
 
 }  // namespace
