@@ -10,6 +10,17 @@
 #include "core/fault_points.h"
 
 namespace bp {
+namespace {
+
+void LogWithdrawal(const GraspQueue::Popped& p) {
+  if (p.withdrawn.empty()) return;
+  std::string ids;
+  for (const Grasp& g : p.withdrawn) ids += (ids.empty() ? "" : ", ") + std::to_string(g.instance_id);
+  spdlog::info("grasp queue: handing out part {} withdraws the stale grasps on parts {}; {} left", p.grasp->instance_id,
+               ids, p.remaining - 1);
+}
+
+}  // namespace
 
 bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded) {
   if (discarded) *discarded = 0;
@@ -27,21 +38,86 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
   fault::Hit("grasp_queue.replace");  // tests: the refill's copy fails (no memory); nothing changed
   std::lock_guard lock(mutex_);
   if (capture_seq != 0 && capture_seq < capture_seq_) return false;
+  // The plan whose head was published: the rest merges in behind it.
+  const bool merge = filling_ && capture_seq == capture_seq_;
   if (capture_seq != 0) capture_seq_ = capture_seq;
-  if (discarded) *discarded = static_cast<int>(grasps_.size());
+  if (discarded && !merge) *discarded = static_cast<int>(grasps_.size());
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
   withdrawn_ids_.clear();
   gone_touching_.clear();
   summary_ = s;
-  ++generation_;
+  // Merged: the same plan, so a Restore of the head finds it.
+  if (!merge) ++generation_;
+  const bool head_out = merge && head_taken_;
+  filling_ = false;
+  if (!merge) head_taken_ = false;
   ApplyScreen();
+  if (head_out) TakeMergedHead();
+  return true;
+}
+
+void GraspQueue::TakeMergedHead() {
+  head_withdrawn_.clear();
+  head_position_ = 0;
+  const auto head =
+      std::find_if(grasps_.begin(), grasps_.end(), [this](const Grasp& g) { return g.instance_id == head_id_; });
+  if (head == grasps_.end()) {
+    // A failed plan queues nothing, and the screen takes out a head whose
+    // failure was reported meanwhile; else FindEarlyHead's invariant broke.
+    const bool screened = std::find(withdrawn_ids_.begin(), withdrawn_ids_.end(), head_id_) != withdrawn_ids_.end();
+    if (!grasps_.empty() && !screened) {
+      spdlog::error("grasp queue: the plan completed without part {}, whose grasp was handed out early", head_id_);
+    }
+    return;
+  }
+  // As Pop would have taken it from the full queue (the transitive stale
+  // rule included); filling_ is false here, so no bound is counted down.
+  Popped p;
+  TakeAt(head, p);
+  head_position_ = p.position;
+  for (size_t i = 0; i < p.withdrawn.size() && i < p.withdrawn_positions.size(); ++i) {
+    head_withdrawn_.emplace_back(p.withdrawn_positions[i], std::move(p.withdrawn[i]));
+  }
+  LogWithdrawal(p);
+}
+
+bool GraspQueue::PublishHead(Grasp head, int max_queue, uint64_t capture_seq, int* discarded, const Grasp* next) {
+  if (discarded) *discarded = 0;
+  std::deque<Grasp> grasps;
+  grasps.push_back(std::move(head));
+  std::lock_guard lock(mutex_);
+  if (capture_seq != 0 && capture_seq <= capture_seq_) return false;
+  if (serves_ && (!serves_(grasps.front()) || (max_queue > 1 && next != nullptr && !serves_(*next)))) return false;
+  if (capture_seq != 0) capture_seq_ = capture_seq;
+  if (discarded) *discarded = static_cast<int>(grasps_.size());
+  head_id_ = grasps.front().instance_id;
+  grasps_.swap(grasps);
+  stale_listed_ = false;  // the head's neighbours come with the full queue
+  withdrawn_ids_.clear();
+  gone_touching_.clear();
+  Summary s;
+  s.outcome = PlanResult::Outcome::kGrasps;
+  s.total_grasps = 1;
+  summary_ = s;
+  ++generation_;
+  filling_ = true;
+  filling_bound_ = std::max(1, max_queue);
+  head_taken_ = false;
+  head_withdrawn_.clear();
+  head_position_ = 0;
   return true;
 }
 
 int GraspQueue::ApplyScreen() {
   if (!screen_ || grasps_.empty()) return 0;
-  const std::vector<Grasp> removed = screen_(grasps_);
+  std::vector<Grasp> removed = screen_(grasps_);
+  // A head alone stays where the full queue's screen would withhold it:
+  // while it fills, a head the screen no longer serves is withdrawn.
+  if (filling_ && serves_ && !grasps_.empty() && !serves_(grasps_.front())) {
+    removed.push_back(std::move(grasps_.front()));
+    grasps_.pop_front();
+  }
   if (removed.empty()) return 0;
   for (const Grasp& g : removed) {
     withdrawn_ids_.push_back(g.instance_id);
@@ -67,6 +143,21 @@ bool GraspQueue::Restore(Popped p) {
   if (!p.grasp) return false;
   std::lock_guard lock(mutex_);
   if (p.generation != generation_) return false;
+  if (p.grasp->instance_id == head_id_ && head_taken_) {
+    head_taken_ = false;
+    if (filling_) {
+      ++filling_bound_;  // the robot never got it
+    } else {
+      // Taken before its plan merged: back where the full queue had it,
+      // with the grasps the merge withdrew because it was out.
+      p.position = head_position_;
+      for (auto& [position, grasp] : head_withdrawn_) {
+        p.withdrawn_positions.push_back(position);
+        p.withdrawn.push_back(std::move(grasp));
+      }
+      head_withdrawn_.clear();
+    }
+  }
   // Back where each was, in the order they were queued: inserting in
   // ascending original index rebuilds that order around the grasps still
   // queued (clamped when fewer are queued now).
@@ -97,19 +188,10 @@ void GraspQueue::Reset() {
   gone_touching_.clear();
   summary_.reset();
   ++generation_;
+  filling_ = false;
+  head_taken_ = false;
+  head_withdrawn_.clear();
 }
-
-namespace {
-
-void LogWithdrawal(const GraspQueue::Popped& p) {
-  if (p.withdrawn.empty()) return;
-  std::string ids;
-  for (const Grasp& g : p.withdrawn) ids += (ids.empty() ? "" : ", ") + std::to_string(g.instance_id);
-  spdlog::info("grasp queue: handing out part {} withdraws the stale grasps on parts {}; {} left", p.grasp->instance_id,
-               ids, p.remaining - 1);
-}
-
-}  // namespace
 
 std::vector<bool> GraspQueue::StaleSet(int picked) const {
   std::vector<bool> stale(grasps_.size(), false);
@@ -168,6 +250,12 @@ void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
     if (summary_) summary_->withdrawn += static_cast<int>(p.withdrawn.size());
   }
   p.remaining = 1 + static_cast<int>(grasps_.size());
+  if (filling_) {
+    // The head: what the plan may still queue, counted down (never rises).
+    p.filling = true;
+    p.remaining = filling_bound_--;
+    if (p.grasp->instance_id == head_id_) head_taken_ = true;
+  }
 }
 
 GraspQueue::Popped GraspQueue::Pop() {
@@ -192,7 +280,7 @@ GraspQueue::Popped GraspQueue::PopFirst(const std::function<bool(const Grasp&, i
     const int size = static_cast<int>(grasps_.size());
     for (auto it = grasps_.begin(); it != grasps_.end(); ++it) {
       // The count it would be answered with: after the grasps it makes stale leave.
-      if (!sendable(*it, size - StaleCount(it->instance_id))) {
+      if (!sendable(*it, filling_ ? filling_bound_ : size - StaleCount(it->instance_id))) {
         ++p.refused;
         continue;
       }

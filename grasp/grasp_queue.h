@@ -10,6 +10,15 @@
 // A screen (SetScreen) may take grasps out too: the failed-pick feedback
 // (grasp/failed_picks.h) withholds grasps on spots a robot failed to pick.
 //
+// The first pose early (docs/protocols.md "The first pose early"):
+// PublishHead queues a plan's first grasp alone while the planner checks the
+// rest; that plan's Replace (same capture) then merges the full queue in.
+// While it fills, the remaining count answered is an upper bound that never
+// rises (the parts with candidates); a head already handed out leaves the
+// full queue as if popped from it (with the grasps it makes stale), so
+// nothing is handed out twice; a head the screen would not serve is never
+// published, and one the screen stops serving is withdrawn at once.
+//
 // Thread-safety: every member but SetScreen is safe to call concurrently; each grasp of a
 // Replace() is handed out by at most one Pop() (exactly one unless withdrawn).
 // Replace and Pop are atomic with respect to each other: a Pop sees either
@@ -22,6 +31,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include "grasp/grasp.h"
@@ -48,6 +58,9 @@ class GraspQueue {
     uint64_t generation = 0;  // increments with every Replace / Reset
     // PopFirst: grasps the predicate refused, left queued in their order.
     int refused = 0;
+    // The queue held a plan's head alone (PublishHead): `remaining` is the
+    // upper bound the plan gave, not a count.
+    bool filling = false;
   };
 
   // The instance ids of the grasps still queued (in hand-out order) and of
@@ -74,8 +87,15 @@ class GraspQueue {
   // (FailedPicks::Screen: failed-pick feedback). Called after every Replace
   // and Restore, and by Rescreen. It must not call back into the queue.
   using Screen = std::function<std::vector<Grasp>(std::deque<Grasp>&)>;
+  // Whether the screen serves a grasp whatever else is queued
+  // (FailedPicks::Judge kServe): a head published early must be, since the
+  // screen of the full queue may withhold what it keeps in a queue of one.
+  using Serves = std::function<bool(const Grasp&)>;
   // Set once, before the queue is used (not synchronized with the other members).
-  void SetScreen(Screen screen) { screen_ = std::move(screen); }
+  void SetScreen(Screen screen, Serves serves = nullptr) {
+    screen_ = std::move(screen);
+    serves_ = std::move(serves);
+  }
   // Runs the screen on the queued grasps now (after a failure report).
   // A queue the screen empties reports kNoCollisionFree from then on.
   // @returns the grasps it took out.
@@ -88,6 +108,18 @@ class GraspQueue {
   // @returns whether the queue was replaced; `*discarded` (optional): the
   // grasps of the replaced plan never handed out.
   bool Replace(PlanResult result, uint64_t capture_seq = 0, int* discarded = nullptr);
+  // Queues `head` alone, the first grasp of the plan of capture
+  // `capture_seq` still being completed (GraspPlanner::PlanWithHead), with
+  // `max_queue` (>= 1) the bound on that plan's queue length answered as
+  // the remaining count while it fills, and `next` (PlanHead::next) the
+  // grasp that plan holds after the head's hand-out. Not published (false,
+  // nothing changed) when the queue holds the plan of this capture or a
+  // later one, or the screen would not serve the head, or `next` (the full
+  // queue might then hold nothing after the head, where the bound said
+  // more). The plan's Replace with the same capture_seq completes it (see
+  // above). `*discarded` as Replace.
+  bool PublishHead(Grasp head, int max_queue, uint64_t capture_seq = 0, int* discarded = nullptr,
+                   const Grasp* next = nullptr);
   // Puts a grasp taken by Pop() / PopFirst() whose answer was not written
   // back where it was, as if never popped, with the grasps withdrawn with it
   // (the hand-out that made them stale did not happen), when the queue still
@@ -125,7 +157,25 @@ class GraspQueue {
   // last Replace / Reset: still in the bin, they pass staleness on.
   std::map<int, std::vector<int>> gone_touching_;
   Screen screen_;                   // set before use, then read-only
+  Serves serves_;                   // set before use, then read-only
+  // The head published early (all GUARDED_BY(mutex_)): filling_ until its
+  // plan's Replace merges; head_id_ its part; head_taken_ while it is out
+  // (popped, not restored); head_withdrawn_ the grasps the merge withdrew
+  // as stale because the head was out (restored with it), with their
+  // positions in the full queue, head_position_ the head's there.
+  bool filling_ = false;
+  int filling_bound_ = 0;
+  int head_id_ = -1;
+  bool head_taken_ = false;
+  std::vector<std::pair<int, Grasp>> head_withdrawn_;
+  int head_position_ = 0;
 
+  // The merge of a plan whose head was handed out while it filled, once
+  // the full queue is in grasps_ and screened: the head's grasp leaves it
+  // as TakeAt hands a grasp out (the transitive stale rule included), its
+  // grasp and the grasps it makes stale kept in head_withdrawn_ for a
+  // Restore. Needs mutex_.
+  void TakeMergedHead();
   // Runs screen_ on grasps_. Needs mutex_. @returns the grasps it took out.
   int ApplyScreen();
 

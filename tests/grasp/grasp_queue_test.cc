@@ -6,7 +6,10 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <numeric>
+#include <optional>
 #include <random>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -405,6 +408,231 @@ TEST(GraspQueue, ARestoredGraspBringsBackTheGraspsWithdrawnWithItInTheirPlaces) 
   EXPECT_EQ(again.grasp->instance_id, 1);
   EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 3}));
   EXPECT_EQ(q.LastPlan()->withdrawn, 2);
+}
+
+
+// ---- the first pose early (PublishHead, then the plan's Replace merges) ----
+
+// Plan of parts 0..n-1 in order; part 1 touches 0, part 3 touches 0 and 2.
+PlanResult MakeStalePlan(int n) {
+  PlanResult plan = MakePlan(n);
+  if (n > 1) plan.grasps[1].stale_after = {0};
+  if (n > 3) plan.grasps[3].stale_after = {0, 2};
+  return plan;
+}
+
+TEST(GraspQueueHead, AHeadTakenWhileFillingLeavesTheMergedQueueWithTheGraspsItMakesStale) {
+  GraspQueue q;
+  q.Replace(MakePlan(2, 100), 1);  // the previous capture's plan
+  int discarded = -1;
+  ASSERT_TRUE(q.PublishHead(MakeStalePlan(5).grasps[0], 5, 2, &discarded));
+  EXPECT_EQ(discarded, 2);
+  const auto head = q.Pop();
+  ASSERT_TRUE(head.grasp);
+  EXPECT_EQ(head.grasp->instance_id, 0);
+  EXPECT_TRUE(head.filling);
+  EXPECT_EQ(head.remaining, 5);  // the bound, not a count
+  const auto empty = q.Pop();    // nothing queued until the plan completes
+  EXPECT_FALSE(empty.grasp);
+  EXPECT_TRUE(q.Replace(MakeStalePlan(5), 2, &discarded));
+  EXPECT_EQ(discarded, 0);
+  std::vector<int> handed{0}, remaining{head.remaining};
+  for (auto p = q.Pop(); p.grasp; p = q.Pop()) {
+    EXPECT_FALSE(p.filling);
+    handed.push_back(p.grasp->instance_id);
+    remaining.push_back(p.remaining);
+  }
+  EXPECT_EQ(handed, (std::vector<int>{0, 2, 4}));  // 1 and 3 were stale once 0 was out
+  EXPECT_EQ(remaining, (std::vector<int>{5, 2, 1}));
+  EXPECT_EQ(q.contents().withdrawn, (std::vector<int>{1, 3}));
+  EXPECT_EQ(q.LastPlan()->withdrawn, 2);
+}
+
+TEST(GraspQueueHead, AHeadStillQueuedAtTheMergeIsTheFirstOfTheFullQueue) {
+  GraspQueue q;
+  ASSERT_TRUE(q.PublishHead(MakePlan(4).grasps[0], 6, 1));
+  EXPECT_EQ(q.size(), 1);
+  ASSERT_TRUE(q.Replace(MakePlan(4), 1));
+  std::vector<int> handed, remaining;
+  for (auto p = q.Pop(); p.grasp; p = q.Pop()) {
+    handed.push_back(p.grasp->instance_id);
+    remaining.push_back(p.remaining);
+  }
+  EXPECT_EQ(handed, (std::vector<int>{0, 1, 2, 3}));
+  EXPECT_EQ(remaining, (std::vector<int>{4, 3, 2, 1}));
+}
+
+TEST(GraspQueueHead, AHeadWhoseAnswerWasNotWrittenComesBackWithWhatTheMergeWithdrew) {
+  for (const bool merged_first : {false, true}) {
+    SCOPED_TRACE(merged_first ? "restored after the merge" : "restored while filling");
+    GraspQueue q;
+    ASSERT_TRUE(q.PublishHead(MakeStalePlan(5).grasps[0], 5, 1));
+    GraspQueue::Popped head = q.Pop();
+    ASSERT_TRUE(head.grasp);
+    if (merged_first) {
+      ASSERT_TRUE(q.Replace(MakeStalePlan(5), 1));
+    }
+    ASSERT_TRUE(q.Restore(head));
+    if (!merged_first) {
+      const auto again = q.Pop();  // the same head, with the same bound
+      ASSERT_TRUE(again.grasp);
+      EXPECT_EQ(again.grasp->instance_id, 0);
+      EXPECT_EQ(again.remaining, 5);
+      ASSERT_TRUE(q.Restore(again));
+      ASSERT_TRUE(q.Replace(MakeStalePlan(5), 1));
+    }
+    EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 1, 2, 3, 4}));
+    EXPECT_TRUE(q.contents().withdrawn.empty());
+    EXPECT_EQ(q.LastPlan()->withdrawn, 0);
+  }
+}
+
+TEST(GraspQueueHead, AHeadOfAnOlderOrTheSameCaptureIsNotPublished) {
+  GraspQueue q;
+  ASSERT_TRUE(q.Replace(MakePlan(3), 5));
+  EXPECT_FALSE(q.PublishHead(MakePlan(1, 50).grasps[0], 1, 4));
+  EXPECT_FALSE(q.PublishHead(MakePlan(1, 50).grasps[0], 1, 5));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 1, 2}));
+  // A later capture's plan replaces a head still filling (no merge).
+  ASSERT_TRUE(q.PublishHead(MakePlan(1, 50).grasps[0], 3, 6));
+  const auto head = q.Pop();
+  ASSERT_TRUE(q.Replace(MakePlan(2, 70), 7));
+  EXPECT_FALSE(q.Restore(head));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{70, 71}));
+}
+
+// The screen withholds grasps on `failed` parts while another grasp is
+// served (FailedPicks' rule), and serves() says which it serves alone.
+struct FailedSet {
+  std::set<int> failed;
+  void Install(GraspQueue& q) {
+    q.SetScreen(
+        [this](std::deque<Grasp>& grasps) {
+          std::vector<Grasp> removed;
+          const bool any_served = std::any_of(grasps.begin(), grasps.end(),
+                                              [this](const Grasp& g) { return !failed.count(g.instance_id); });
+          if (!any_served) return removed;
+          std::deque<Grasp> kept;
+          for (Grasp& g : grasps) {
+            if (failed.count(g.instance_id)) {
+              removed.push_back(std::move(g));
+            } else {
+              kept.push_back(std::move(g));
+            }
+          }
+          grasps.swap(kept);
+          return removed;
+        },
+        [this](const Grasp& g) { return !failed.count(g.instance_id); });
+  }
+};
+
+TEST(GraspQueueHead, AHeadTheFullQueuesScreenWouldWithholdIsNeverServedEarly) {
+  FailedSet screen;
+  GraspQueue q;
+  screen.Install(q);
+  screen.failed = {0};
+  // Alone, the screen would keep it (nothing else served): not published.
+  EXPECT_FALSE(q.PublishHead(MakePlan(3).grasps[0], 3, 1));
+  screen.failed.clear();
+  ASSERT_TRUE(q.PublishHead(MakePlan(3).grasps[0], 3, 2));
+  // A failure reported on it while it fills withdraws it at once.
+  screen.failed = {0};
+  EXPECT_EQ(q.Rescreen(), 1);
+  EXPECT_FALSE(q.Pop().grasp);
+  ASSERT_TRUE(q.Replace(MakePlan(3), 2));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{1, 2}));  // the full queue's screen agrees
+}
+
+// Random plans and stale lists; a head popped or not before the merge,
+// restored or not: every grasp of the plan is handed out or withdrawn
+// exactly once, and the remaining counts the robot reads never rise.
+TEST(GraspQueueHead, NothingIsHandedOutTwiceOrLostAndRemainingNeverRisesAcrossTheMerge) {
+  std::mt19937 rng(40);
+  for (int trial = 0; trial < 300; ++trial) {
+    SCOPED_TRACE("trial " + std::to_string(trial));
+    const int n = 1 + static_cast<int>(rng() % 8);
+    PlanResult plan = MakePlan(n);
+    for (int i = 0; i < n; ++i) {
+      for (int j = 0; j < n; ++j) {
+        if (i != j && rng() % 4 == 0) plan.grasps[i].stale_after.push_back(j);
+      }
+    }
+    const int bound = n + static_cast<int>(rng() % 3);
+    GraspQueue q;
+    ASSERT_TRUE(q.PublishHead(plan.grasps[0], bound, 1));
+    std::vector<int> handed, remaining;
+    std::optional<GraspQueue::Popped> out;
+    if (rng() % 4 != 0) {
+      out = q.Pop();
+      ASSERT_TRUE(out->grasp);
+      if (rng() % 3 == 0) {
+        ASSERT_TRUE(q.Restore(*out));  // written: no
+        out.reset();
+      }
+    }
+    ASSERT_TRUE(q.Replace(plan, 1));
+    if (out && rng() % 3 == 0) {
+      ASSERT_TRUE(q.Restore(*out));  // its write failed after the merge
+      out.reset();
+    }
+    if (out) {
+      handed.push_back(out->grasp->instance_id);
+      remaining.push_back(out->remaining);
+    }
+    for (auto p = q.Pop(); p.grasp; p = q.Pop()) {
+      handed.push_back(p.grasp->instance_id);
+      remaining.push_back(p.remaining);
+    }
+    std::vector<int> all = handed;
+    const std::vector<int> withdrawn = q.contents().withdrawn;
+    all.insert(all.end(), withdrawn.begin(), withdrawn.end());
+    std::sort(all.begin(), all.end());
+    std::vector<int> expected(n);
+    std::iota(expected.begin(), expected.end(), 0);
+    EXPECT_EQ(all, expected);
+    EXPECT_TRUE(std::is_sorted(remaining.rbegin(), remaining.rend()));
+    for (int r : remaining) EXPECT_LE(r, bound);
+    ASSERT_FALSE(handed.empty());
+    EXPECT_EQ(handed.front(), 0);
+  }
+}
+
+// Robots popping while the planner publishes the head and merges the rest.
+TEST(GraspQueueHead, ConcurrentPopsAcrossPublishAndMergeHandEachGraspOutOnce) {
+  for (int round = 0; round < 50; ++round) {
+    GraspQueue q;
+    const PlanResult plan = MakeStalePlan(12);
+    std::atomic<bool> go{false};
+    std::mutex mutex;
+    std::vector<int> handed;
+    std::vector<std::thread> robots;
+    for (int r = 0; r < 3; ++r) {
+      robots.emplace_back([&] {
+        while (!go) std::this_thread::yield();
+        for (int k = 0; k < 40; ++k) {
+          const auto p = q.Pop();
+          if (p.grasp) {
+            std::lock_guard lock(mutex);
+            handed.push_back(p.grasp->instance_id);
+          }
+        }
+      });
+    }
+    go = true;
+    ASSERT_TRUE(q.PublishHead(plan.grasps[0], 12, 1));
+    std::this_thread::yield();
+    ASSERT_TRUE(q.Replace(plan, 1));
+    for (auto& t : robots) t.join();
+    for (auto p = q.Pop(); p.grasp; p = q.Pop()) handed.push_back(p.grasp->instance_id);
+    std::vector<int> all = handed;
+    const std::vector<int> withdrawn = q.contents().withdrawn;
+    all.insert(all.end(), withdrawn.begin(), withdrawn.end());
+    std::sort(all.begin(), all.end());
+    std::vector<int> expected(12);
+    std::iota(expected.begin(), expected.end(), 0);
+    ASSERT_EQ(all, expected) << "round " << round;
+  }
 }
 
 }  // namespace
