@@ -290,6 +290,16 @@ struct PendingDetection {
   bool background = false;
 };
 
+// A robot waiting for a detection: `ready` answers it. A pick pose
+// (takes_head) may be answered from the plan's head before the plan is
+// complete (docs/protocols.md "The first pose early"); a GRI trigger waits
+// for the whole plan.
+struct Waiter {
+  std::function<void()> ready;
+  bool takes_head = false;
+  void operator()() const { ready(); }
+};
+
 // A detection whose capture is done, on its way to the plan.
 struct CapturedDetection {
   uint64_t seq = 0;
@@ -321,7 +331,11 @@ class RequestHandler::Impl {
     uint64_t finished = 0;       // GUARDED_BY(mutex): detections finished since start
     // GUARDED_BY(mutex): pick poses (and GRI triggers) waiting, by the
     // sequence number of the detection they wait for.
-    std::multimap<uint64_t, std::function<void()>> waiters;
+    std::multimap<uint64_t, Waiter> waiters;
+    // GUARDED_BY(mutex): detection N published its head early (the queue
+    // holds it) and no waiting robot took it: the next pick pose that
+    // waits for N takes it at once (0: none).
+    uint64_t head_open_seq = 0;
     // GUARDED_BY(mutex): a captured detection whose plan waits on the
     // BackgroundLane, not started; the first pick that waits takes it to the
     // arena (a plan already running on the lane finishes there).
@@ -358,9 +372,11 @@ class RequestHandler::Impl {
       state->spec = t;
       if (t.kind == TaskSpec::Kind::kPick) {
         state->failed = std::make_unique<FailedPicks>(t.failed_picks, cell_.bin.X_BW);
-        state->queue.SetScreen([failed = state->failed.get()](std::deque<Grasp>& grasps) {
-          return failed->Screen(grasps);
-        });
+        state->queue.SetScreen(
+            [failed = state->failed.get()](std::deque<Grasp>& grasps) { return failed->Screen(grasps); },
+            [failed = state->failed.get()](const Grasp& g) {
+              return failed->Judge(g) == FailedPicks::Verdict::kServe;
+            });
       }
       tasks_.emplace(t.id, std::move(state));
     }
@@ -376,7 +392,7 @@ class RequestHandler::Impl {
     }
     background_.Stop();
     for (auto& [id, t] : tasks_) {
-      std::multimap<uint64_t, std::function<void()>> waiters;
+      std::multimap<uint64_t, Waiter> waiters;
       std::optional<PendingDetection> pending;
       {
         std::lock_guard lock(t->mutex);
@@ -459,6 +475,7 @@ class RequestHandler::Impl {
     s.grasps_discarded = grasps_discarded_.load(std::memory_order_relaxed);
     s.pick_failures = pick_failures_.load(std::memory_order_relaxed);
     s.pick_failures_refused = pick_failures_refused_.load(std::memory_order_relaxed);
+    s.first_poses_early = first_poses_early_.load(std::memory_order_relaxed);
     return s;
   }
   std::vector<FailedPicks::Spot> FailedSpots(int task_id) const {
@@ -584,8 +601,16 @@ class RequestHandler::Impl {
   // Calls each RC 20 answer; one that throws does not stop the others.
   static void AnswerCaptured(const std::vector<std::function<void(bool)>>& answers, bool ok) noexcept;
   // Keeps `ready` (moved from) until the newest detection of `t` requested
-  // so far has finished; @returns false, `ready` untouched, when it has.
-  bool WaitForDetection(TaskState& t, std::function<void()>& ready);
+  // so far has finished; @returns false, `ready` untouched, when it has, or
+  // when `takes_head` (a pick pose) and that detection's head, published
+  // early, waits for a robot (head_open_seq): this one takes it.
+  bool WaitForDetection(TaskState& t, std::function<void()>& ready, bool takes_head = false);
+  // The planner's head of detection `c` (GraspPlanner::PlanWithHead), on the
+  // planning thread: queued (GraspQueue::PublishHead) when it passes the
+  // workspace gate and the screen, then handed to the robot that has waited
+  // longest for this detection with a pick pose, else kept for the next
+  // one (head_open_seq). Never throws.
+  void PublishHead(TaskState& t, const CapturedDetection& c, const PlanHead& head) noexcept;
   // Runs `check` for a batch of 40s or 50s of one task (CheckLane).
   struct Check {
     const char* what = "";  // for the log: "empty-box check"
@@ -746,6 +771,7 @@ class RequestHandler::Impl {
   std::atomic<uint64_t> grasps_discarded_{0};
   std::atomic<uint64_t> pick_failures_{0};
   std::atomic<uint64_t> pick_failures_refused_{0};
+  std::atomic<uint64_t> first_poses_early_{0};
 
   // Calls `notify` on every observer. An observer that throws (it must not)
   // is logged and counted, and the others and the caller carry on: a
@@ -994,7 +1020,9 @@ void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& 
     DetectionEvent event = c.event;
     const PlanRequest& plan_request = c.request;
     const auto t1 = std::chrono::steady_clock::now();
-    Result<PlanResult> plan = Guard("detection", [&] { return planner_->Plan(plan_request, *c.scene); });
+    const HeadReady on_head = [this, &t, &c](const PlanHead& head) { PublishHead(t, c, head); };
+    Result<PlanResult> plan =
+        Guard("detection", [&] { return planner_->PlanWithHead(plan_request, *c.scene, on_head); });
     PlanResult result;
     if (plan.ok()) {
       result = std::move(*plan);
@@ -1097,11 +1125,12 @@ void RequestHandler::Impl::FailDetection(TaskState& t, uint64_t seq, const Detec
 void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) noexcept {
   // The released waiters are moved node by node (no allocation: nothing
   // here throws between marking the detection finished and answering them).
-  std::multimap<uint64_t, std::function<void()>> ready;
+  std::multimap<uint64_t, Waiter> ready;
   std::optional<PendingDetection> next;
   {
     std::lock_guard lock(t.mutex);
     if (t.lane_seq == seq) t.lane_seq = 0;
+    if (t.head_open_seq <= seq) t.head_open_seq = 0;
     if (t.abandoned_seq == seq) {
       // Abandoned while it refilled or failed: the detection after it runs
       // and finishes the task's sequence (running, pending, waiters).
@@ -1135,14 +1164,19 @@ void RequestHandler::Impl::FinishDetection(TaskState& t, uint64_t seq) noexcept 
   }
 }
 
-bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready) {
+bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>& ready, bool takes_head) {
   std::shared_ptr<CapturedDetection> promoted;
   std::optional<PendingDetection> next;
   uint64_t abandoned = 0;
   {
     std::lock_guard lock(t.mutex);
     if (t.requested_seq <= t.finished_seq) return false;
-    t.waiters.emplace(t.requested_seq, std::move(ready));
+    if (takes_head && t.head_open_seq == t.requested_seq) {
+      t.head_open_seq = 0;  // this robot's: answered at once
+      first_poses_early_.fetch_add(1, std::memory_order_relaxed);
+      return false;
+    }
+    t.waiters.emplace(t.requested_seq, Waiter{std::move(ready), takes_head});
     promoted.swap(t.queued_background);
     // The running detection's plan is on the lane (nice +10) and the robot
     // waits for the one pending after it: that one starts now, at the
@@ -1170,6 +1204,49 @@ bool RequestHandler::Impl::WaitForDetection(TaskState& t, std::function<void()>&
     }
   }
   return true;
+}
+
+void RequestHandler::Impl::PublishHead(TaskState& t, const CapturedDetection& c, const PlanHead& head) noexcept {
+  try {
+    if (stopping_) return;
+    {
+      std::lock_guard lock(t.mutex);
+      if (t.abandoned_seq == c.seq) return;  // its plan is dropped: so is its head
+    }
+    // The gate the full plan passes (PlanDetection): a head (or next) it
+    // would drop is not what the full queue holds; the robots wait for it.
+    PlanResult gated;
+    gated.outcome = PlanResult::Outcome::kGrasps;
+    gated.grasps.push_back(head.grasp);
+    if (head.next) gated.grasps.push_back(*head.next);
+    if (DropUnreachable(cell_, t.spec, gated) > 0) return;
+    int discarded = 0;
+    if (!t.queue.PublishHead(head.grasp, head.max_queue, c.seq, &discarded, head.next ? &*head.next : nullptr)) {
+      return;
+    }
+    if (discarded > 0) grasps_discarded_.fetch_add(static_cast<uint64_t>(discarded), std::memory_order_relaxed);
+    std::function<void()> ready;
+    {
+      std::lock_guard lock(t.mutex);
+      for (auto it = t.waiters.begin(); it != t.waiters.end() && it->first <= c.seq; ++it) {
+        if (it->second.takes_head) {
+          ready = std::move(it->second.ready);
+          t.waiters.erase(it);
+          break;
+        }
+      }
+      if (!ready) t.head_open_seq = c.seq;
+    }
+    spdlog::debug("daoai: task {} detection {}: head (part {}) queued early, {}", t.spec.id, c.seq,
+                  head.grasp.instance_id, ready ? "answering the robot waiting longest" : "for the next pick pose");
+    if (ready) {
+      first_poses_early_.fetch_add(1, std::memory_order_relaxed);
+      ready();
+    }
+  } catch (...) {
+    // The full plan still fills the queue and answers the waiting robots.
+    spdlog::error("daoai: task {}: publishing the first grasp early threw: {}", t.spec.id, ExceptionText());
+  }
 }
 
 void RequestHandler::Impl::HandOut(TaskState& t, const GraspQueue::Popped& p,
@@ -1948,7 +2025,7 @@ void RequestHandler::Impl::Dispatch(const Request& req, ClientContext& client, c
       std::function<void()> answer = [done = std::move(done), reply = PickReply(*task, f, &client)] {
         done(reply);
       };
-      if (!WaitForDetection(*task, answer)) answer();
+      if (!WaitForDetection(*task, answer, /*takes_head=*/true)) answer();
       return;
     }
 

@@ -22,6 +22,12 @@
 // once (the lower-priority plan is abandoned). Empty-box
 // (40) and precision checks (50) are batched the same way per task.
 //
+// The first pose early: a pick plan's first grasp is queued the moment it
+// passed every check (GraspPlanner::PlanWithHead, GraspQueue::PublishHead),
+// and the pick pose that has waited longest for that detection (or the next
+// one to arrive) is answered from it while the rest is planned; GRI
+// triggers wait for the whole plan.
+//
 // The pop rule: a grasp leaves its task's queue only when the transport calls
 // the Reply it was given, which it does right before writing the response on
 // a connection still open. A robot that disconnects while waiting loses
@@ -119,6 +125,9 @@ struct RequestHandlerStats {
   uint64_t grasps_discarded = 0;    // left in a queue a later detection replaced (never popped)
   uint64_t pick_failures = 0;       // failed picks reported (command 60), accepted
   uint64_t pick_failures_refused = 0;  // reports refused: no grasp to blame, bad reason, not a pick task
+  // Pick poses answered from a plan's head before the plan was complete
+  // (docs/protocols.md "The first pose early").
+  uint64_t first_poses_early = 0;
 };
 
 class RequestHandler {

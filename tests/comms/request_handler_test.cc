@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
 #include <condition_variable>
 #include <functional>
 #include <map>
@@ -20,6 +21,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/conventions.h"
 #include "core/fault_points.h"
 #include "tests/testing/process_stats.h"
 #include "tests/testing/scripted_planner.h"
@@ -1099,6 +1101,134 @@ TEST(RequestHandler, CalibrationAndTeachJobsBeyondTheQueueBoundAreRefusedAndCoun
   release.set_value();
   handler.Shutdown();
   EXPECT_TRUE(planner->taught().empty());
+}
+
+// ---- the first pose early (docs/protocols.md "The first pose early") -------
+
+// Plans `n` grasps (ScriptedPlanner's poses; parts 1 and 3 touch part 0)
+// and publishes grasp 0 as its head with the bound n + 2, each step behind
+// a gate the test opens: the head, then the rest of the plan.
+class HeadFirstPlanner final : public GraspPlanner {
+ public:
+  explicit HeadFirstPlanner(int n) : n_(n) {}
+  Result<CaptureHandle> Capture(const PlanRequest& request) override { return scripted_.Capture(request); }
+  Result<PlanResult> Plan(const PlanRequest& request, const CapturedScene& scene) override {
+    return PlanWithHead(request, scene, {});
+  }
+  Result<PlanResult> PlanWithHead(const PlanRequest& request, const CapturedScene&, const HeadReady& on_head) override {
+    PlanResult r;
+    r.outcome = PlanResult::Outcome::kGrasps;
+    for (int i = 0; i < n_; ++i) {
+      Grasp g;
+      g.X_BT = g.X_BT_pre = ScriptedPlanner::GraspPose(request.task.id, i);
+      g.X_BO = g.X_BT;
+      g.instance_id = i;
+      g.class_id = i % 3;
+      r.grasps.push_back(g);
+    }
+    if (n_ > 1) r.grasps[1].stale_after = {0};
+    if (n_ > 3) r.grasps[3].stale_after = {0, 2};
+    r.detections = n_;
+    Wait(head_open_);
+    if (on_head) on_head(PlanHead{r.grasps[0], n_ + 2, r.grasps[2]});
+    Wait(rest_open_);
+    return r;
+  }
+  void OpenHead() { Open(head_open_); }
+  void OpenRest() { Open(rest_open_); }
+
+ private:
+  void Wait(const bool& gate) {
+    std::unique_lock lock(mutex_);
+    cv_.wait(lock, [&] { return gate; });
+  }
+  void Open(bool& gate) {
+    std::lock_guard lock(mutex_);
+    gate = true;
+    cv_.notify_all();
+  }
+  const int n_;
+  ScriptedPlanner scripted_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  bool head_open_ = false;  // GUARDED_BY(mutex_)
+  bool rest_open_ = false;  // GUARDED_BY(mutex_)
+};
+
+// The scripted grasp a pick pose answer carries (x = 0.5 + 0.01 i m).
+int InstanceOf(const daoai::Response& r) { return static_cast<int>(std::lround((r.position[0] - 5000) / 100.0)); }
+
+// Answers the pick poses of task 0 until NO_OBJECT_FOUND: (instance, remaining).
+std::vector<std::pair<int, int>> PickAll(RequestHandler& handler, ClientContext& client) {
+  std::vector<std::pair<int, int>> out;
+  for (int k = 0; k < 20; ++k) {
+    const auto r = handler.Handle(Req(daoai::kPickPose, 0), client);
+    if (!r || r->status != daoai::kObjectsFound) break;
+    out.emplace_back(InstanceOf(*r), static_cast<int>(std::lround(FromFixed(r->payload[0]))));
+  }
+  return out;
+}
+
+// A pick that waits for the detection is answered from the head the moment
+// the planner publishes it, while the rest is still planned; the full
+// queue then serves the others, without the head's part and the parts it
+// made stale, with remaining counts that never rise.
+TEST(RequestHandlerFirstPose, APickWaitingForTheDetectionGetsTheHeadBeforeThePlanIsComplete) {
+  auto planner = std::make_shared<HeadFirstPlanner>(5);
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext client;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), client)->status, daoai::kDetection);
+  std::promise<RequestHandler::Reply> answered;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), client,
+                      [&answered](RequestHandler::Reply reply) { answered.set_value(std::move(reply)); });
+  auto future = answered.get_future();
+  EXPECT_EQ(future.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  planner->OpenHead();
+  ASSERT_EQ(future.wait_for(std::chrono::seconds(10)), std::future_status::ready);
+  const std::optional<daoai::Response> head = future.get()();
+  ASSERT_TRUE(head);
+  EXPECT_EQ(head->status, daoai::kObjectsFound);
+  EXPECT_EQ(InstanceOf(*head), 0);
+  EXPECT_EQ(head->payload[0], *ToFixed(7));  // the plan's bound: an upper bound while it fills
+  EXPECT_EQ(handler.Snapshot(0)->in_flight, 1);  // the rest is still being planned
+  planner->OpenRest();
+  const auto rest = PickAll(handler, client);
+  EXPECT_EQ(rest, (std::vector<std::pair<int, int>>{{2, 2}, {4, 1}}));
+  EXPECT_EQ(handler.stats().first_poses_early, 1u);
+  EXPECT_EQ(handler.QueueContents(0)->withdrawn, (std::vector<int>{1, 3}));
+}
+
+// A pick that arrives after the head was published takes it at once; a
+// second pick waiting meanwhile gets the full plan's next grasp, never the
+// head again; a GRI-style wait (WhenDetected) waits for the whole plan.
+TEST(RequestHandlerFirstPose, APickArrivingWhileTheQueueFillsTakesTheHeadAndTheNextWaitsForTheRest) {
+  auto planner = std::make_shared<HeadFirstPlanner>(5);
+  planner->OpenHead();
+  RequestHandler handler(MakeTestCell(), planner, nullptr);
+  ClientContext a, b;
+  ASSERT_EQ(handler.Handle(Req(daoai::kCaptureAndProcess, 0), a)->status, daoai::kDetection);
+  for (int k = 0; k < 1000 && handler.QueueSize(0) != 1; ++k) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  ASSERT_EQ(handler.QueueSize(0), 1);  // the head, published
+  std::atomic<bool> detected{false};
+  ASSERT_TRUE(handler.WhenDetected(0, [&detected] { detected = true; }).ok());
+  const auto head = handler.Handle(Req(daoai::kPickPose, 0), a);
+  ASSERT_TRUE(head);
+  EXPECT_EQ(head->status, daoai::kObjectsFound);
+  EXPECT_EQ(InstanceOf(*head), 0);
+  std::promise<RequestHandler::Reply> second;
+  handler.HandleAsync(Req(daoai::kPickPose, 0), b,
+                      [&second](RequestHandler::Reply reply) { second.set_value(std::move(reply)); });
+  auto future = second.get_future();
+  EXPECT_EQ(future.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  EXPECT_FALSE(detected);
+  planner->OpenRest();
+  ASSERT_EQ(future.wait_for(std::chrono::seconds(10)), std::future_status::ready);
+  const std::optional<daoai::Response> next = future.get()();
+  ASSERT_TRUE(next);
+  EXPECT_EQ(InstanceOf(*next), 2);
+  EXPECT_EQ(next->payload[0], *ToFixed(2));
+  EXPECT_TRUE(detected);
+  EXPECT_EQ(PickAll(handler, a), (std::vector<std::pair<int, int>>{{4, 1}}));
 }
 
 }  // namespace
