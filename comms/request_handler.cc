@@ -1074,7 +1074,8 @@ void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& 
                     t.spec.id, discarded);
     }
     // After the refill (an observer reading the queue sees the new one),
-    // before waiting picks are answered (their answers follow the detection).
+    // before waiting picks are answered (their answers follow the detection;
+    // a pick answered from the plan's head early came before it).
     if (!observers_.empty()) NotifyDetection(event);
   } catch (...) {
     if (!progress.queued) {

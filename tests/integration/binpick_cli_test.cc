@@ -310,9 +310,10 @@ TEST(BinpickCli, BenchCellReportsEveryStepConsistently) {
     EXPECT_GT(plan, 0.0);
     EXPECT_LE(ack, first);
     // binpickd's times lie inside the robot's round trips: 20 is answered
-    // once the capture is done, the first 21 once the plan is.
+    // once the capture is done, the first 21 once the plan's head is known,
+    // which is before the whole plan is when it is published early
+    // (docs/protocols.md "The first pose early": `serving` is then < 0).
     EXPECT_LE(capture, ack);
-    EXPECT_LE(capture + plan, first);
     EXPECT_NEAR(capture + cycle["product"].get<double>(), first, 1e-6);
     EXPECT_NEAR(capture + plan + cycle["serving"].get<double>(), first, 1e-6);
   }
