@@ -11,6 +11,7 @@
 #include <benchmark/benchmark.h>
 #include <tbb/task_arena.h>
 
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 
@@ -135,6 +136,38 @@ void BM_FilterAllCandidates20PartsAllPointsObstacles(benchmark::State& state) {
   Run(state, state.range(1) == 2 ? wuxga : vga);
 }
 BENCHMARK(BM_FilterAllCandidates20PartsAllPointsObstacles)->Apply(Args);
+
+// The first pose early (issue 40 item 3): the same plan with a head wanted
+// (PlanGrasps's on_head) or not; head_ms is when the head was told (from
+// the call's start, mean over the iterations). Args: threads, camera
+// config, head wanted (1) or not (0).
+void BM_PlanWithHead20Parts(benchmark::State& state) {
+  const BenchScene& s = Scene(static_cast<int>(state.range(1)));
+  const TaskSpec task = *s.cell.FindTask(0);
+  tbb::task_arena arena(static_cast<int>(state.range(0)));
+  GraspPlan plan;
+  double head_ms = 0;
+  std::chrono::steady_clock::time_point t0;
+  HeadReady on_head;
+  if (state.range(2) != 0) {
+    on_head = [&](const PlanHead&) {
+      head_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    };
+  }
+  for (auto _ : state) {
+    t0 = std::chrono::steady_clock::now();
+    arena.execute([&] { plan = PlanGrasps(*s.model, task, s.perception, {}, &s.frame, on_head); });
+    benchmark::DoNotOptimize(plan.queue.data());
+  }
+  state.counters["head_ms"] = benchmark::Counter(head_ms, benchmark::Counter::kAvgIterations);
+  state.counters["obstacles_ms"] = plan.stats.obstacles_ms;
+  state.counters["queued_parts"] = static_cast<double>(plan.queue.size());
+}
+BENCHMARK(BM_PlanWithHead20Parts)
+    ->ArgNames({"threads", "config", "head"})
+    ->ArgsProduct({{2}, {1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace bp
