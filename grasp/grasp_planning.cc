@@ -797,30 +797,69 @@ double CandidateScore(const GraspCandidate& c, const TaskSpec& task, const Pose&
          task.ranking.detection * detections[c.detection].score - task.ranking.tilt * tilt_norm;
 }
 
-// Whether handing out the part of detection `head` makes `c` stale, were
-// `c` its part's primary grasp: MarkStaleNeighbours' bounding-box pairs and
-// queries for that one pair, the head first in the queue (the same verdict).
-bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, std::span<const Detection> detections,
-                    const GraspCandidate& c, int head) {
-  const Detection& h = detections[head];
-  const Detection& d = detections[c.detection];
-  const auto part_h = m.parts.find(h.class_id), part_c = m.parts.find(d.class_id);
-  if (part_h == m.parts.end() || part_c == m.parts.end()) return false;
-  auto grown = [](Eigen::AlignedBox3d b, double by) {
-    b.min().array() -= by;
-    b.max().array() += by;
-    return b;
-  };
-  const Eigen::AlignedBox3d box_h = part_h->second->WorldBounds(h.X_BO);
-  const Eigen::AlignedBox3d box_c = part_c->second->WorldBounds(d.X_BO);
-  if (grown(box_h, m.options.touch_distance).intersects(box_c) &&
-      Collides(*m.parts_touch.at(h.class_id), h.X_BO, *part_c->second, d.X_BO)) {
-    return true;
+Eigen::AlignedBox3d Grown(Eigen::AlignedBox3d b, double by) {
+  b.min().array() -= by;
+  b.max().array() += by;
+  return b;
+}
+
+// The parts that may move when the part of detection `head` is handed out,
+// under GraspQueue's transitive stale rule: the head's part and the parts
+// touch-connected to it (within touch_distance at their estimated poses,
+// MarkStaleNeighbours' pair test, either way round since the queue's order
+// is not known yet), over the detections with candidates (`has_candidates`).
+// The queued parts are among those, so the group holds every part that rule
+// can make move (grasps withdrawn or screened out pass it on only through
+// touching). @returns whether each detection is in the group.
+std::vector<bool> TouchGroup(const GraspPlanningModel::Impl& m, std::span<const Detection> detections,
+                             const std::vector<bool>& has_candidates, int head) {
+  const size_t n = detections.size();
+  std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
+  std::vector<Eigen::AlignedBox3d> box(n);
+  for (size_t i = 0; i < n; ++i) {
+    auto p = m.parts.find(detections[i].class_id);
+    if (!has_candidates[i] || p == m.parts.end()) continue;
+    part[i] = p->second.get();
+    part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
+    box[i] = part[i]->WorldBounds(detections[i].X_BO);
   }
-  for (const auto& slab : gripper.slabs) {
-    if (grown(WorldBox(slab, c.X_BT), m.options.approach_margin).intersects(box_h)) {
-      return Collides(*gripper.sweep_margin, c.X_BT, *part_h->second, h.X_BO);
+  std::vector<bool> in(n, false);
+  in[static_cast<size_t>(head)] = true;
+  std::vector<size_t> frontier = {static_cast<size_t>(head)};
+  while (!frontier.empty()) {
+    const size_t i = frontier.back();
+    frontier.pop_back();
+    if (part[i] == nullptr) continue;
+    for (size_t j = 0; j < n; ++j) {
+      if (in[j] || part[j] == nullptr || !Grown(box[i], m.options.touch_distance).intersects(box[j])) continue;
+      if (Collides(*part_touch[i], detections[i].X_BO, *part[j], detections[j].X_BO) ||
+          Collides(*part_touch[j], detections[j].X_BO, *part[i], detections[i].X_BO)) {
+        in[j] = true;
+        frontier.push_back(j);
+      }
     }
+  }
+  return in;
+}
+
+// Whether `c`, were it its part's primary grasp, may be withdrawn when the
+// head is handed out: its part is in the head's touch group (`group`), or
+// its swept gripper passes within approach_margin of a part of the group
+// (MarkStaleNeighbours' bounding-box pairs and queries). A part outside the
+// group touches none in it, so nothing else makes its grasp stale.
+bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, std::span<const Detection> detections,
+                    const GraspCandidate& c, const std::vector<bool>& group) {
+  if (group[static_cast<size_t>(c.detection)]) return true;
+  std::vector<Eigen::AlignedBox3d> sweep_boxes;
+  for (const auto& slab : gripper.slabs) sweep_boxes.push_back(Grown(WorldBox(slab, c.X_BT), m.options.approach_margin));
+  for (size_t j = 0; j < detections.size(); ++j) {
+    if (!group[j]) continue;
+    const auto part = m.parts.find(detections[j].class_id);
+    if (part == m.parts.end()) continue;
+    const Eigen::AlignedBox3d box = part->second->WorldBounds(detections[j].X_BO);
+    const bool near = std::any_of(sweep_boxes.begin(), sweep_boxes.end(),
+                                  [&box](const Eigen::AlignedBox3d& b) { return b.intersects(box); });
+    if (near && Collides(*gripper.sweep_margin, c.X_BT, *part->second, detections[j].X_BO)) return true;
   }
   return false;
 }
@@ -835,8 +874,9 @@ bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, s
 //     last resort is the head of the final queue (a passing seal-only one
 //     ranked above it is refused by stage 3b, since a certain grasp exists);
 //   - the first such candidate of each other part is that part's primary
-//     grasp; the first primary the head's hand-out does not make stale
-//     (`next`) proves that the queue still holds a grasp after the head.
+//     grasp; the first primary the head's hand-out cannot make stale, even
+//     through parts that may move with it (StaleAfterHead, TouchGroup), is
+//     `next`: it proves that the queue still holds a grasp after the head.
 // The head is published only with that proof or with its absence (every
 // candidate checked): the remaining count it is answered with is then
 // never more than 1 where nothing would follow it. head -1: no certain
@@ -862,6 +902,7 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
   });
   EarlyHead found;
   std::set<int> decided;  // parts whose primary was seen after the head (stale ones)
+  std::vector<bool> group;  // TouchGroup of the head's part, once it is found
   size_t block = 1;
   for (size_t begin = 0; begin < order.size(); begin += block, block = std::min<size_t>(block * 2, 32)) {
     const size_t end = std::min(order.size(), begin + block);
@@ -876,10 +917,13 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
       if (found.head < 0) {
         found.head = order[k];
         decided.insert(c.detection);
+        std::vector<bool> has_candidates(detections.size(), false);
+        for (const GraspCandidate& other : candidates) has_candidates[static_cast<size_t>(other.detection)] = true;
+        group = TouchGroup(m, detections, has_candidates, c.detection);
         continue;
       }
       if (!decided.insert(c.detection).second) continue;  // not its part's primary
-      if (!StaleAfterHead(m, gripper, detections, c, candidates[found.head].detection)) {
+      if (!StaleAfterHead(m, gripper, detections, c, group)) {
         found.next = order[k];
         return found;
       }
@@ -971,11 +1015,6 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
     part_touch[i] = m.parts_touch.at(queue[i].class_id).get();
     box[i] = part[i]->WorldBounds(queue[i].X_BO);
   }
-  auto grown = [](Eigen::AlignedBox3d b, double by) {
-    b.min().array() -= by;
-    b.max().array() += by;
-    return b;
-  };
   struct Query {
     size_t i, j;
     bool approach;  // i's swept gripper against part j; else part i against part j (i < j)
@@ -984,10 +1023,10 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
   for (size_t i = 0; i < n; ++i) {
     if (part[i] == nullptr) continue;
     std::vector<Eigen::AlignedBox3d> sweep_boxes;
-    for (const auto& slab : gripper.slabs) sweep_boxes.push_back(grown(WorldBox(slab, queue[i].X_BT), margin));
+    for (const auto& slab : gripper.slabs) sweep_boxes.push_back(Grown(WorldBox(slab, queue[i].X_BT), margin));
     for (size_t j = 0; j < n; ++j) {
       if (j == i || part[j] == nullptr) continue;
-      if (j > i && grown(box[i], touch).intersects(box[j])) queries.push_back({i, j, false});
+      if (j > i && Grown(box[i], touch).intersects(box[j])) queries.push_back({i, j, false});
       for (const auto& b : sweep_boxes) {
         if (b.intersects(box[j])) {
           queries.push_back({i, j, true});

@@ -59,27 +59,32 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
 
 void GraspQueue::TakeMergedHead() {
   head_withdrawn_.clear();
+  head_merged_.reset();
   head_position_ = 0;
   const auto head =
       std::find_if(grasps_.begin(), grasps_.end(), [this](const Grasp& g) { return g.instance_id == head_id_; });
-  if (head == grasps_.end()) {
-    // A failed plan queues nothing, and the screen takes out a head whose
-    // failure was reported meanwhile; else FindEarlyHead's invariant broke.
-    const bool screened = std::find(withdrawn_ids_.begin(), withdrawn_ids_.end(), head_id_) != withdrawn_ids_.end();
-    if (!grasps_.empty() && !screened) {
-      spdlog::error("grasp queue: the plan completed without part {}, whose grasp was handed out early", head_id_);
-    }
-    return;
-  }
-  // As Pop would have taken it from the full queue (the transitive stale
-  // rule included); filling_ is false here, so no bound is counted down.
+  // As Pop would have taken it from the full queue, the transitive stale
+  // rule included (filling_ is false here: no bound counted down).
   Popped p;
-  TakeAt(head, p);
+  if (head != grasps_.end()) {
+    TakeAt(head, p);
+    head_merged_ = std::move(p.grasp);
+  } else if (gone_touching_.erase(head_id_) > 0) {
+    // Screened out by a failure reported on its spot since it was handed
+    // out: that hand-out still makes its neighbours stale.
+    WithdrawStale(head_id_, p);
+  } else if (!grasps_.empty()) {
+    // A failed plan queues nothing; anything else breaks FindEarlyHead's invariant.
+    spdlog::error("grasp queue: the plan completed without part {}, whose grasp was handed out early", head_id_);
+  }
   head_position_ = p.position;
   for (size_t i = 0; i < p.withdrawn.size() && i < p.withdrawn_positions.size(); ++i) {
     head_withdrawn_.emplace_back(p.withdrawn_positions[i], std::move(p.withdrawn[i]));
   }
-  LogWithdrawal(p);
+  if (!head_withdrawn_.empty()) {
+    spdlog::info("grasp queue: the head handed out early (part {}) withdraws {} stale grasps from its plan", head_id_,
+                 head_withdrawn_.size());
+  }
 }
 
 bool GraspQueue::PublishHead(Grasp head, int max_queue, uint64_t capture_seq, int* discarded, const Grasp* next) {
@@ -105,6 +110,7 @@ bool GraspQueue::PublishHead(Grasp head, int max_queue, uint64_t capture_seq, in
   filling_bound_ = std::max(1, max_queue);
   head_taken_ = false;
   head_withdrawn_.clear();
+  head_merged_.reset();
   head_position_ = 0;
   return true;
 }
@@ -148,9 +154,12 @@ bool GraspQueue::Restore(Popped p) {
     if (filling_) {
       ++filling_bound_;  // the robot never got it
     } else {
-      // Taken before its plan merged: back where the full queue had it,
+      // Taken before its plan merged: back where the full queue had it, as
+      // the full plan queued it (the head alone carries no stale lists),
       // with the grasps the merge withdrew because it was out.
       p.position = head_position_;
+      if (head_merged_) p.grasp = std::move(head_merged_);
+      head_merged_.reset();
       for (auto& [position, grasp] : head_withdrawn_) {
         p.withdrawn_positions.push_back(position);
         p.withdrawn.push_back(std::move(grasp));
@@ -191,6 +200,7 @@ void GraspQueue::Reset() {
   filling_ = false;
   head_taken_ = false;
   head_withdrawn_.clear();
+  head_merged_.reset();
 }
 
 std::vector<bool> GraspQueue::StaleSet(int picked) const {
@@ -231,24 +241,7 @@ void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
   p.position = static_cast<int>(it - grasps_.begin());
   p.grasp = std::move(*it);
   grasps_.erase(it);
-  const std::vector<bool> stale = StaleSet(p.grasp->instance_id);
-  if (std::find(stale.begin(), stale.end(), true) != stale.end()) {
-    std::deque<Grasp> kept;
-    int index = 0;  // in the queue after the erase
-    for (Grasp& g : grasps_) {
-      if (stale[static_cast<size_t>(index)]) {
-        withdrawn_ids_.push_back(g.instance_id);
-        gone_touching_[g.instance_id] = g.touching;
-        p.withdrawn_positions.push_back(index < p.position ? index : index + 1);
-        p.withdrawn.push_back(std::move(g));
-      } else {
-        kept.push_back(std::move(g));
-      }
-      ++index;
-    }
-    grasps_.swap(kept);
-    if (summary_) summary_->withdrawn += static_cast<int>(p.withdrawn.size());
-  }
+  WithdrawStale(p.grasp->instance_id, p);
   p.remaining = 1 + static_cast<int>(grasps_.size());
   if (filling_) {
     // The head: what the plan may still queue, counted down (never rises).
@@ -256,6 +249,26 @@ void GraspQueue::TakeAt(std::deque<Grasp>::iterator it, Popped& p) {
     p.remaining = filling_bound_--;
     if (p.grasp->instance_id == head_id_) head_taken_ = true;
   }
+}
+
+void GraspQueue::WithdrawStale(int picked, Popped& p) {
+  const std::vector<bool> stale = StaleSet(picked);
+  if (std::find(stale.begin(), stale.end(), true) == stale.end()) return;
+  std::deque<Grasp> kept;
+  int index = 0;  // in the queue after the erase
+  for (Grasp& g : grasps_) {
+    if (stale[static_cast<size_t>(index)]) {
+      withdrawn_ids_.push_back(g.instance_id);
+      gone_touching_[g.instance_id] = g.touching;
+      p.withdrawn_positions.push_back(index < p.position ? index : index + 1);
+      p.withdrawn.push_back(std::move(g));
+    } else {
+      kept.push_back(std::move(g));
+    }
+    ++index;
+  }
+  grasps_.swap(kept);
+  if (summary_) summary_->withdrawn += static_cast<int>(p.withdrawn.size());
 }
 
 GraspQueue::Popped GraspQueue::Pop() {

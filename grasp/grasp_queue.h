@@ -162,19 +162,23 @@ class GraspQueue {
   // plan's Replace merges; head_id_ its part; head_taken_ while it is out
   // (popped, not restored); head_withdrawn_ the grasps the merge withdrew
   // as stale because the head was out (restored with it), with their
-  // positions in the full queue, head_position_ the head's there.
+  // positions in the full queue, head_position_ the head's there and
+  // head_merged_ its grasp as the full plan queued it (with stale_after and
+  // touching, which the head published alone does not carry).
   bool filling_ = false;
   int filling_bound_ = 0;
   int head_id_ = -1;
   bool head_taken_ = false;
   std::vector<std::pair<int, Grasp>> head_withdrawn_;
   int head_position_ = 0;
+  std::optional<Grasp> head_merged_;
 
   // The merge of a plan whose head was handed out while it filled, once
-  // the full queue is in grasps_ and screened: the head's grasp leaves it
-  // as TakeAt hands a grasp out (the transitive stale rule included), its
-  // grasp and the grasps it makes stale kept in head_withdrawn_ for a
-  // Restore. Needs mutex_.
+  // the full queue is in grasps_ and screened (as a Replace before that
+  // hand-out would have): the head's grasp leaves it as TakeAt hands a
+  // grasp out (the transitive stale rule included), its grasp and the
+  // grasps it makes stale kept for a Restore (head_merged_,
+  // head_withdrawn_). Needs mutex_.
   void TakeMergedHead();
   // Runs screen_ on grasps_. Needs mutex_. @returns the grasps it took out.
   int ApplyScreen();
@@ -190,6 +194,10 @@ class GraspQueue {
   // Hands out *it into p, withdraws the grasps it makes stale, sets
   // p.remaining (after the withdrawal, including p.grasp). Needs mutex_.
   void TakeAt(std::deque<Grasp>::iterator it, Popped& p);
+  // The withdrawal of TakeAt: the queued grasps handing out part `picked`
+  // makes stale leave into p.withdrawn (positions as if p.grasp were still
+  // at p.position). Needs mutex_.
+  void WithdrawStale(int picked, Popped& p);
 };
 
 }  // namespace bp

@@ -670,6 +670,7 @@ TEST(GraspPlan, TheHeadGivenEarlyIsTheQueuesFirstGraspAndChangesNoVerdict) {
         EXPECT_EQ(early.queue[i].instance_id, plain.queue[i].instance_id);
         EXPECT_EQ(early.queue[i].name, plain.queue[i].name);
         EXPECT_EQ(early.queue[i].stale_after, plain.queue[i].stale_after);
+        EXPECT_EQ(early.queue[i].touching, plain.queue[i].touching);
       }
       EXPECT_LE(calls, 1);
       if (plain.queue.empty() || plain.queue.front().last_resort) {
@@ -689,12 +690,19 @@ TEST(GraspPlan, TheHeadGivenEarlyIsTheQueuesFirstGraspAndChangesNoVerdict) {
       EXPECT_TRUE(head->X_BO.isApprox(first.X_BO, 1e-12));
       EXPECT_FALSE(head->last_resort);
       // What the queue holds once the head is handed out (GraspQueue::Pop
-      // withdraws the grasps listing it): none exactly when max_queue is 1,
-      // else `next` among them, as its part's primary grasp.
+      // withdraws the grasps it makes stale, through touching parts too):
+      // none exactly when max_queue is 1, else `next` among them, as its
+      // part's primary grasp.
+      GraspQueue queue;
+      PlanResult full;
+      full.outcome = PlanResult::Outcome::kGrasps;
+      full.grasps = plain.queue;
+      queue.Replace(full);
+      ASSERT_EQ(queue.Pop().grasp->instance_id, first.instance_id);
       std::vector<const Grasp*> after;
-      for (size_t i = 1; i < plain.queue.size(); ++i) {
-        const auto& stale = plain.queue[i].stale_after;
-        if (std::find(stale.begin(), stale.end(), first.instance_id) == stale.end()) after.push_back(&plain.queue[i]);
+      for (int id : queue.contents().queued) {
+        after.push_back(&*std::find_if(plain.queue.begin(), plain.queue.end(),
+                                       [id](const Grasp& g) { return g.instance_id == id; }));
       }
       // The head's remaining count (after the withdrawal) is never under-told.
       EXPECT_GE(published->max_queue, 1 + static_cast<int>(after.size()));

@@ -635,5 +635,110 @@ TEST(GraspQueueHead, ConcurrentPopsAcrossPublishAndMergeHandEachGraspOutOnce) {
   }
 }
 
+// The head as the planner publishes it (PlanGrasps's PrimaryGrasp): no
+// stale lists; the full plan's grasp of that part carries them.
+Grasp Bare(Grasp g) {
+  g.stale_after.clear();
+  g.touching.clear();
+  return g;
+}
+
+// Parts 0..4: 0 and 1 touch, 1 and 2 touch (2 may move when 1 does).
+PlanResult MakeTouchingPlan() {
+  PlanResult plan = MakePlan(5);
+  plan.grasps[0].stale_after = {1};
+  plan.grasps[0].touching = {1};
+  plan.grasps[1].stale_after = {0, 2};
+  plan.grasps[1].touching = {0, 2};
+  plan.grasps[2].stale_after = {1};
+  plan.grasps[2].touching = {1};
+  return plan;
+}
+
+TEST(GraspQueueHead, AHeadTakenEarlyMakesStaleThroughTouchingPartsAtTheMerge) {
+  GraspQueue q;
+  ASSERT_TRUE(q.PublishHead(Bare(MakeTouchingPlan().grasps[0]), 5, 1));
+  const auto head = q.Pop();
+  ASSERT_TRUE(head.grasp);
+  ASSERT_TRUE(q.Replace(MakeTouchingPlan(), 1));
+  // 1 touched the head (withdrawn, it may move), so 2, which touches 1, too.
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{3, 4}));
+  EXPECT_EQ(q.contents().withdrawn, (std::vector<int>{1, 2}));
+  const auto next = q.Pop();
+  ASSERT_TRUE(next.grasp);
+  EXPECT_EQ(next.remaining, 2);
+  EXPECT_LT(next.remaining, head.remaining);
+}
+
+TEST(GraspQueueHead, AHeadRestoredAfterTheMergeIsWithdrawnWhenATouchingPartIsHandedOut) {
+  GraspQueue q;
+  ASSERT_TRUE(q.PublishHead(Bare(MakeTouchingPlan().grasps[0]), 5, 1));
+  const auto head = q.Pop();
+  ASSERT_TRUE(q.Replace(MakeTouchingPlan(), 1));
+  ASSERT_TRUE(q.Restore(head));  // its answer was not written
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 1, 2, 3, 4}));
+  // A robot whose link cannot carry the head's answer takes part 1: the
+  // head (restored as the full plan queued it, stale lists included) and
+  // part 2 touch it, so both leave.
+  const auto p = q.PopFirst([](const Grasp& g, int) { return g.instance_id != 0; });
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 1);
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{3, 4}));
+  EXPECT_EQ(q.contents().withdrawn, (std::vector<int>{0, 2}));
+}
+
+// Random plans with random stale lists and touching pairs (symmetric, each
+// also a stale pair), the head published bare: a head taken early and the
+// plan merged hand out exactly what the plan queued at once hands out, and
+// withdraw the same grasps.
+TEST(GraspQueueHead, AHeadTakenEarlyHandsOutWhatThePlanQueuedAtOnceDoes) {
+  std::mt19937 rng(3);
+  for (int trial = 0; trial < 300; ++trial) {
+    SCOPED_TRACE("trial " + std::to_string(trial));
+    const int n = 1 + static_cast<int>(rng() % 9);
+    PlanResult plan = MakePlan(n);
+    std::vector<std::set<int>> stale(n), touching(n);
+    for (int i = 0; i < n; ++i) {
+      for (int j = i + 1; j < n; ++j) {
+        if (rng() % 4 == 0) {  // touching: stale both ways
+          touching[i].insert(j);
+          touching[j].insert(i);
+          stale[i].insert(j);
+          stale[j].insert(i);
+        } else if (rng() % 5 == 0) {  // one's approach passes the other
+          const bool i_passes_j = rng() % 2 == 0;
+          stale[i_passes_j ? i : j].insert(i_passes_j ? j : i);
+        }
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      plan.grasps[i].stale_after.assign(stale[i].begin(), stale[i].end());
+      plan.grasps[i].touching.assign(touching[i].begin(), touching[i].end());
+    }
+    GraspQueue direct;
+    ASSERT_TRUE(direct.Replace(plan, 1));
+    std::vector<int> want;
+    for (auto p = direct.Pop(); p.grasp; p = direct.Pop()) want.push_back(p.grasp->instance_id);
+    GraspQueue early;
+    ASSERT_TRUE(early.PublishHead(Bare(plan.grasps[0]), n, 1));
+    const auto head = early.Pop();
+    ASSERT_TRUE(head.grasp);
+    std::vector<int> got = {head.grasp->instance_id};
+    ASSERT_TRUE(early.Replace(plan, 1));
+    int last = head.remaining;
+    for (auto p = early.Pop(); p.grasp; p = early.Pop()) {
+      got.push_back(p.grasp->instance_id);
+      EXPECT_LT(p.remaining, last);
+      last = p.remaining;
+    }
+    EXPECT_EQ(got, want);
+    std::vector<int> withdrawn_direct = direct.contents().withdrawn, withdrawn_early = early.contents().withdrawn;
+    std::sort(withdrawn_direct.begin(), withdrawn_direct.end());
+    std::sort(withdrawn_early.begin(), withdrawn_early.end());
+    EXPECT_EQ(withdrawn_early, withdrawn_direct);
+    EXPECT_EQ(early.LastPlan()->withdrawn, direct.LastPlan()->withdrawn);
+  }
+}
+
 }  // namespace
 }  // namespace bp
