@@ -87,6 +87,50 @@ struct CyclePlan {
   const TaskSpec* used = nullptr;
 };
 
+// The first pose early (docs/protocols.md), checked on a plan whose head
+// the planner told early: that head queued alone (GraspQueue::PublishHead)
+// and handed out, then the plan merged in, must hand out the grasps the plan
+// queued at once hands out, in the same order (none twice, none lost), with
+// remaining counts that fall at every answer, the head's bound 1 exactly
+// when nothing follows it. No feedback screen in either queue: the check is
+// of the head and the merge.
+bool EarlyHeadAgrees(const PlanHead& head, const PlanResult& plan) {
+  using Handed = std::pair<int, std::string>;
+  std::vector<Handed> want, got;
+  GraspQueue direct;
+  direct.Replace(plan, 1);
+  for (GraspQueue::Popped p = direct.Pop(); p.grasp; p = direct.Pop()) want.emplace_back(p.grasp->instance_id, p.grasp->name);
+  GraspQueue early;
+  if (!early.PublishHead(head.grasp, head.max_queue, 1, nullptr, head.next ? &*head.next : nullptr)) return false;
+  const GraspQueue::Popped first = early.Pop();
+  if (!first.grasp || first.remaining != head.max_queue) return false;
+  got.emplace_back(first.grasp->instance_id, first.grasp->name);
+  int last = first.remaining;
+  early.Replace(plan, 1);
+  for (GraspQueue::Popped p = early.Pop(); p.grasp; p = early.Pop()) {
+    if (p.remaining >= last) return false;
+    last = p.remaining;
+    got.emplace_back(p.grasp->instance_id, p.grasp->name);
+  }
+  return (head.max_queue == 1) == (got.size() == 1) && got == want;
+}
+
+// Plans `request` as binpickd does, the head told early (PlanWithHead), and
+// counts the heads and those EarlyHeadAgrees refuses (an error log each).
+Result<PlanDetail> PlanCheckingHead(BinPickingPlanner& p, const PlanRequest& request, const CapturedScene& scene,
+                                    uint64_t seed, SceneClearReport& report) {
+  std::optional<PlanHead> head;
+  auto detail = p.PlanDetailed(request, scene, [&head](const PlanHead& h) { head = h; });
+  if (!detail.ok() || !head) return detail;
+  ++report.early_heads;
+  if (!EarlyHeadAgrees(*head, detail->result)) {
+    ++report.early_head_mismatches;
+    spdlog::error("seed {} cycle {} task {}: the head told early (part {}, {}, bound {}) disagrees with its plan", seed,
+                  report.cycles + 1, request.task.id, head->grasp.instance_id, head->grasp.name, head->max_queue);
+  }
+  return detail;
+}
+
 Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, const TaskSpec& task,
                             const std::vector<const TaskSpec*>& fallbacks, uint64_t seed, Feedback& feedback,
                             SceneClearReport& report) {
@@ -110,7 +154,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   request.task = task;
   request.refuted = refuted(task);
   const auto t0 = std::chrono::steady_clock::now();
-  auto detail = p.PlanDetailed(request, scene);
+  auto detail = PlanCheckingHead(p, request, scene, seed, report);
   report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (!detail.ok()) return detail.status();
   log_candidates(task, *detail);
@@ -124,7 +168,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
     fb_request.task = *fb;
     fb_request.refuted = refuted(*fb);
     const auto t1 = std::chrono::steady_clock::now();
-    auto fb_detail = p.PlanDetailed(fb_request, scene);
+    auto fb_detail = PlanCheckingHead(p, fb_request, scene, seed, report);
     report.plan_ms_total += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count();
     if (!fb_detail.ok()) return fb_detail.status();
     log_candidates(*fb, *fb_detail);
@@ -422,6 +466,8 @@ void ClearReport::Add(SceneClearReport scene) {
   truth_collisions += scene.truth_collisions;
   parts_left += scene.parts_left;
   wrong_empty_answers += scene.wrong_empty_answer ? 1 : 0;
+  early_heads += scene.early_heads;
+  early_head_mismatches += scene.early_head_mismatches;
   scenes.push_back(std::move(scene));
 }
 

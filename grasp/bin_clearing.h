@@ -107,6 +107,12 @@ struct SceneClearReport {
   std::vector<std::string> failures;
   std::map<std::string, int> failure_causes;  // cause -> failed picks
   std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty
+  // Plans whose head was told early (every plan is made as binpickd makes
+  // it, GraspPlanner::PlanWithHead), and of those, the ones whose head,
+  // handed out alone and merged with its plan, does not hand out what the
+  // plan queued at once does (docs/protocols.md "The first pose early").
+  int early_heads = 0;
+  int early_head_mismatches = 0;
 };
 
 struct ClearReport {
@@ -115,7 +121,7 @@ struct ClearReport {
   // Totals.
   int parts_placed = 0, attempts = 0, picks = 0, failed_picks = 0, stale_failures = 0, withdrawn = 0, fallback_picks = 0, cycles = 0,
       truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0, slipped = 0, reported = 0, screened = 0,
-      stopped_by_feedback = 0;
+      stopped_by_feedback = 0, early_heads = 0, early_head_mismatches = 0;
   std::map<std::string, int> failure_causes;
   // Appends `scene` and adds it to the totals.
   void Add(SceneClearReport scene);

@@ -75,6 +75,8 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"failures_reported", s.reported},
                       {"screened_by_feedback", s.screened},
                       {"stopped_by_feedback", s.stopped_by_feedback},
+                      {"early_heads", s.early_heads},
+                      {"early_head_mismatches", s.early_head_mismatches},
                       {"failure_causes", s.failure_causes},
                       {"fallback_picks", s.fallback_picks},
                       {"cycles", s.cycles},
@@ -104,6 +106,8 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                 {"failures_reported", r.reported},
                 {"screened_by_feedback", r.screened},
                 {"stopped_by_feedback", r.stopped_by_feedback},
+                {"early_heads", r.early_heads},
+                {"early_head_mismatches", r.early_head_mismatches},
                 {"failure_causes", r.failure_causes},
                 {"fallback_picks", r.fallback_picks},
                 {"cycles", r.cycles},
@@ -178,12 +182,14 @@ int Run(const ClearCliOptions& opt) {
               "%d scenes stopped with every grasp left refused\n",
               options.feedback ? "on" : "off", options.slip_rate, report.slipped, report.reported, report.screened,
               report.stopped_by_feedback);
+  std::printf("first pose early: %d plans told their head early, %d of those disagree with their full plan\n",
+              report.early_heads, report.early_head_mismatches);
   if (!opt.json_out.empty()) {
     std::ofstream out(opt.json_out);
     out << ToJson(report).dump(2) << "\n";
     if (!out) return Error(Status::Internal("cannot write '" + opt.json_out + "'"));
   }
-  const bool pass = report.truth_collisions == 0 && report.wrong_empty_answers == 0;
+  const bool pass = report.truth_collisions == 0 && report.wrong_empty_answers == 0 && report.early_head_mismatches == 0;
   return pass ? kExitOk : kExitFailure;
 }
 
