@@ -877,10 +877,12 @@ bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, s
 //     grasp; the first primary the head's hand-out cannot make stale, even
 //     through parts that may move with it (StaleAfterHead, TouchGroup), is
 //     `next`: it proves that the queue still holds a grasp after the head.
-// The head is published only with that proof or with its absence (every
-// candidate checked): the remaining count it is answered with is then
-// never more than 1 where nothing would follow it. head -1: no certain
-// grasp (the head, if any, is a last resort: never published early).
+// The head is published only with that proof, or when every candidate is
+// checked and no other part has a certain grasp (nothing follows it: the
+// remaining count 1 is exact). Other parts' grasps that may all be made
+// stale (the group is a superset of what moves) leave the count unknown:
+// no head early. head -1: nothing to publish early (also when there is no
+// certain grasp: the head, if any, is a last resort).
 struct EarlyHead {
   int head = -1;
   int next = -1;  // -1 with a head: nothing is queued after its hand-out
@@ -929,6 +931,9 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
       }
     }
   }
+  // Every candidate checked without a next: publishable only when no
+  // other part has a certain grasp.
+  if (decided.size() > 1) found.head = -1;
   return found;
 }
 

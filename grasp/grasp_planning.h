@@ -271,7 +271,9 @@ class GraspPlanningModel {
 // max_queue 1 when there is none). The other candidates are checked after
 // it returns. The head is the grasp the returned queue starts with, without
 // its related poses and stale neighbours; never a seal-only last resort
-// (not called then, nor when nothing passes).
+// (not called then, nor when nothing passes, nor when every candidate is
+// checked and other parts' grasps might all be withdrawn by the head's
+// hand-out: the remaining count is then unknown until the plan is done).
 GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, const PerceptionResult& perception,
                      std::span<const TaughtGrasp> taught = {}, const Frame* frame = nullptr,
                      const HeadReady& on_head = {});

@@ -677,7 +677,12 @@ TEST(GraspPlan, TheHeadGivenEarlyIsTheQueuesFirstGraspAndChangesNoVerdict) {
         EXPECT_EQ(calls, 0);
         continue;
       }
-      ASSERT_TRUE(published);
+      if (!published) {
+        // Only when other parts have grasps whose survival of the head's
+        // hand-out the search could not prove (FindEarlyHead).
+        EXPECT_GT(plain.queue.size(), 1u);
+        continue;
+      }
       ++heads;
       const Grasp* head = &published->grasp;
       const Grasp& first = plain.queue.front();
