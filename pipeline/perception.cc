@@ -14,6 +14,7 @@
 #include "pipeline/internal/acceptance.h"
 #include "pipeline/internal/class_model.h"
 #include "pipeline/internal/depth_smoothing.h"
+#include "pipeline/internal/enclosing_parts.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/model_sampling.h"
 #include "pipeline/internal/own_point_turns.h"
@@ -266,6 +267,12 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
     regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points);
     if (!regions.views.empty()) acceptance.Accept(matcher.Match(regions, internal::MatchPass::kWave).candidates);
     clock.Lap("residual_regions");
+  }
+  if (options_.enclosing_parts) {
+    const std::vector<internal::EnclosingView> enclosing =
+        internal::EnclosingViews(segments, acceptance, models, std::max(1, options_.min_segment_points / 3));
+    internal::ReplaceEnclosed(enclosing, segments, models, matcher, acceptance);
+    clock.Lap("enclosing");
   }
 
   const internal::MatchCounts& counts = matcher.counts();

@@ -209,6 +209,12 @@ struct PerceptionOptions {
   // over segments, or left in pieces, once its neighbours are found
   // (internal::ResidualRegionViews; stage "residual_regions").
   bool residual_regions = true;
+  // After the residual regions, a detection of a class that a larger class
+  // may enclose (a flanged bushing's hub in a pipe tee's arm) is matched
+  // again by the larger class on its samples and the unexplained ones
+  // around it; the larger part replaces it when it explains its samples
+  // and more (internal::ReplaceEnclosed; stage "enclosing").
+  bool enclosing_parts = true;
   // A thorough run (PerceptionEffort::kThorough) tries every class on every
   // view with this wider search; the planner retries with it when a normal
   // run leaves nothing to pick.

@@ -91,6 +91,7 @@ struct EvalCliOptions {
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   bool residual_regions = PerceptionOptions{}.residual_regions;
+  bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
 };
 
 // FNV-1a over the values: a fingerprint of a long label vector.
@@ -293,6 +294,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
+  popt.enclosing_parts = opt.enclosing_parts;
   return popt;
 }
 
@@ -808,6 +810,10 @@ Command EvalCommand() {
                    sub.add_option("--residual-regions", opt->residual_regions,
                                   "1: match the samples no detection explains, grouped by grid connectivity, "
                                   "after the residual pass (PerceptionOptions::residual_regions; tuning)")
+                       ->capture_default_str();
+                   sub.add_option("--enclosing", opt->enclosing_parts,
+                                  "1: a larger class fitted over a detection it may enclose replaces it when it "
+                                  "explains its points and more (PerceptionOptions::enclosing_parts; tuning)")
                        ->capture_default_str();
                    sub.add_flag("--bin-only", opt->bin_only,
                                 "run the bin detection stage alone on each frame and score it against the "

@@ -126,23 +126,43 @@ void Acceptance::Accept(std::vector<Candidate> candidates) {
     if (std::any_of(conflicts.begin(), conflicts.end(), [&](size_t k) { return detections_[k].score >= c.h.score; })) {
       continue;
     }
-    for (size_t k : conflicts) {
-      accepted_[k].dropped = true;
-      for (int32_t i : detections_[k].support) --claims_[static_cast<size_t>(i)];
-    }
-    for (int32_t i : c.support_roi) ++claims_[static_cast<size_t>(i)];
-    const ClassModel* m = ModelOf(c.class_id);
-    accepted_.push_back({c.diameter, c.centre_B, m ? SurfaceAt(*m, c.h.X_BO) : std::vector<Eigen::Vector3f>{}});
-    Detection d;
-    d.class_id = c.class_id;
-    d.X_BO = c.h.X_BO;
-    d.score = c.h.score;
-    d.visible_fraction = c.h.visible_fraction;
-    d.rms_residual = c.h.rms_residual;
-    d.support = std::move(c.support_roi);
-    d.alternatives_X_BO = std::move(c.h.alternatives);
-    detections_.push_back(std::move(d));
+    Add(std::move(c), conflicts);
   }
+}
+
+void Acceptance::Add(Candidate c, const std::vector<size_t>& conflicts) {
+  for (size_t k : conflicts) {
+    accepted_[k].dropped = true;
+    for (int32_t i : detections_[k].support) --claims_[static_cast<size_t>(i)];
+  }
+  for (int32_t i : c.support_roi) ++claims_[static_cast<size_t>(i)];
+  const ClassModel* m = ModelOf(c.class_id);
+  accepted_.push_back({c.diameter, c.centre_B, m ? SurfaceAt(*m, c.h.X_BO) : std::vector<Eigen::Vector3f>{}});
+  Detection d;
+  d.class_id = c.class_id;
+  d.X_BO = c.h.X_BO;
+  d.score = c.h.score;
+  d.visible_fraction = c.h.visible_fraction;
+  d.rms_residual = c.h.rms_residual;
+  d.support = std::move(c.support_roi);
+  d.alternatives_X_BO = std::move(c.h.alternatives);
+  detections_.push_back(std::move(d));
+}
+
+std::vector<size_t> Acceptance::Live() const {
+  std::vector<size_t> live;
+  for (size_t k = 0; k < detections_.size(); ++k) {
+    if (!accepted_[k].dropped) live.push_back(k);
+  }
+  return live;
+}
+
+bool Acceptance::Supersede(size_t k, Candidate c) {
+  if (k >= detections_.size() || accepted_[k].dropped) return false;
+  std::vector<size_t> conflicts = Conflicts(c).value_or(std::vector<size_t>{k});
+  if (std::any_of(conflicts.begin(), conflicts.end(), [k](size_t j) { return j != k; })) return false;
+  Add(std::move(c), {k});
+  return true;
 }
 
 double Acceptance::ExplainedFraction(const Segments& segments, const ViewIndices& view, double min_score) const {

@@ -45,6 +45,14 @@ class Acceptance {
   // detection's surface), else 0.
   std::vector<uint8_t> UnexplainedSamples(const Segments& segments) const;
 
+  // The live detections' indices (for detection()), in acceptance order.
+  std::vector<size_t> Live() const;
+  const Detection& detection(size_t k) const { return detections_[k]; }
+  // Replaces live detection k by c when c conflicts with no other live
+  // detection (a larger part that explains k's points and more,
+  // internal::ReplaceEnclosed), whatever their scores. @returns whether it did.
+  bool Supersede(size_t k, Candidate c);
+
   // True when no candidate was ever accepted (dropped ones included).
   bool never_accepted() const { return detections_.empty(); }
   // How many live detections' support holds the ROI point.
@@ -67,6 +75,8 @@ class Acceptance {
   std::optional<std::vector<size_t>> Conflicts(const Candidate& c);
   // Those c's part interpenetrates.
   std::vector<size_t> Interpenetrated(const Candidate& c) const;
+  // Drops the detections `conflicts` (their support released) and adds c.
+  void Add(Candidate c, const std::vector<size_t>& conflicts);
 
   std::span<const ClassModel* const> models_;
   std::vector<Detection> detections_;  // with accepted_, one per accepted candidate

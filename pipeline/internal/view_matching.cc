@@ -69,6 +69,22 @@ ViewMatcher::ViewMatcher(const PerceptionOptions& options, std::span<const Class
   if (budget != nullptr) budget_.emplace(*budget);
 }
 
+SegmentView ViewMatcher::ViewOf(const ViewIndices& index, std::vector<Eigen::Vector3f>* points,
+                                std::vector<Eigen::Vector3f>* normals) const {
+  points->reserve(index.size());
+  for (int32_t k : index) points->push_back(segments_.points[static_cast<size_t>(k)]);
+  if (!segments_.normals.empty()) {
+    normals->reserve(index.size());
+    for (int32_t k : index) normals->push_back(segments_.normals[static_cast<size_t>(k)]);
+  }
+  SegmentView view;
+  view.points_B = *points;
+  view.normals_B = *normals;
+  view.frame = &frame_;
+  view.floor_plane_B = floor_plane_B_;
+  return view;
+}
+
 void ViewMatcher::RankClasses(const ViewIndices& view, bool region_view, const ViewTrace* earlier,
                               std::vector<int>* order, std::vector<int>* too_small, double* best_cost) const {
   *best_cost = std::numeric_limits<double>::infinity();
@@ -209,22 +225,11 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
   const bool early_exit = options_.early_exit_score > 0.0 && !thorough_;
   out.best.assign(n_views, -1.0);
   if (keep_traces) out.traces.assign(n_views, ViewTrace(models_.size()));
-  const bool have_normals = !segments_.normals.empty();
   tbb::parallel_for(size_t{0}, n_views, [&](size_t) {
     const size_t v = start_order[next_view++];
     const ViewIndices& index = views.views[v];
     std::vector<Eigen::Vector3f> points, normals;
-    points.reserve(index.size());
-    for (int32_t k : index) points.push_back(segments_.points[static_cast<size_t>(k)]);
-    if (have_normals) {
-      normals.reserve(index.size());
-      for (int32_t k : index) normals.push_back(segments_.normals[static_cast<size_t>(k)]);
-    }
-    SegmentView view;
-    view.points_B = points;
-    view.normals_B = normals;
-    view.frame = &frame_;
-    view.floor_plane_B = floor_plane_B_;
+    SegmentView view = ViewOf(index, &points, &normals);
     if (thorough_) view.search = options_.thorough_search;
     if (pass == MatchPass::kSecondLook) view.search = options_.second_look_search;
     view.reuse.keep_prepared = keep_traces;
@@ -257,6 +262,29 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
       RunClasses(view, too_small[v], 0, too_small[v].size(), true, kUncounted, view_earlier, trace, &jobs);
     } else if (!found) {
       counts_.estimates_skipped += static_cast<int>(too_small[v].size());
+    }
+  });
+  counts_.views += static_cast<int>(n_views);
+  for (const std::vector<Job>& jobs : per_view) {
+    for (const Job& job : jobs) counts_.estimator_calls += job.skipped ? 0 : 1;
+  }
+  CollectCandidates(views, per_view, &out.candidates);
+  return out;
+}
+
+MatchOutcome ViewMatcher::MatchClass(const ViewSet& views, const std::vector<int>& model_of_view) {
+  const size_t n_views = views.views.size();
+  MatchOutcome out;
+  out.best.assign(n_views, -1.0);
+  std::vector<std::vector<Job>> per_view(n_views);
+  tbb::parallel_for(size_t{0}, n_views, [&](size_t v) {
+    const ViewIndices& index = views.views[v];
+    std::vector<Eigen::Vector3f> points, normals;
+    SegmentView view = ViewOf(index, &points, &normals);
+    if (thorough_) view.search = options_.thorough_search;
+    RunClasses(view, {model_of_view[v]}, 0, 1, false, kUncounted, nullptr, nullptr, &per_view[v]);
+    for (const Job& job : per_view[v]) {
+      for (const auto& h : job.estimate.hypotheses) out.best[v] = std::max(out.best[v], h.score);
     }
   });
   counts_.views += static_cast<int>(n_views);

@@ -119,10 +119,19 @@ class ViewMatcher {
   MatchOutcome Match(const ViewSet& views, MatchPass pass, const std::vector<ViewTrace>* earlier = nullptr,
                      bool keep_traces = false);
 
+  // Each view by one class model alone (models index model_of_view[v]),
+  // with the estimator's default search, views in parallel: candidates as
+  // Match gives them (fit limit, detection bar, free space).
+  MatchOutcome MatchClass(const ViewSet& views, const std::vector<int>& model_of_view);
+
   const MatchCounts& counts() const { return counts_; }
 
  private:
   struct Job;
+  // The view's samples and normals (filled in) seen as a SegmentView of
+  // this frame.
+  SegmentView ViewOf(const ViewIndices& index, std::vector<Eigen::Vector3f>* points,
+                     std::vector<Eigen::Vector3f>* normals) const;
   // The class ranking of one view: the classes that fit it (best first;
   // model order in a thorough run without a budget) and those too small for it. Empty for a region view no class fits.
   // *best_cost: the ranking cost of the best class that fits (+inf: none).

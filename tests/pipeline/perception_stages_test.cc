@@ -287,6 +287,32 @@ TEST(Acceptance, PartsThatWouldInterpenetrateConflictAndTheBetterOneStays) {
   EXPECT_EQ(touching.TakeDetections().size(), 2u);
 }
 
+// Supersede (the enclosing pass): a larger part replaces a live detection
+// whatever their scores, its support released, unless it also conflicts
+// with another live detection.
+TEST(Acceptance, ALargerPartSupersedesTheDetectionItEnclosesUnlessItMeetsAnother) {
+  const SphereModel small(0, 0.01f), large(1, 0.03f);
+  const std::vector<const ClassModel*> models = {&small, &large};
+  Acceptance acceptance(1000, models);
+  acceptance.Accept({SphereAt(small, Vec3(0, 0, 0.03), 0.95, Range(0, 100)),
+                     SphereAt(small, Vec3(0.3, 0, 0.03), 0.9, Range(100, 200))});
+  ASSERT_EQ(acceptance.Live().size(), 2u);
+  const size_t inner = acceptance.Live()[0], far = acceptance.Live()[1];
+  EXPECT_EQ(acceptance.detection(inner).score, 0.95);
+  // A large sphere about the first, scoring lower: replaces it.
+  EXPECT_TRUE(acceptance.Supersede(inner, SphereAt(large, Vec3(0.002, 0, 0.03), 0.7, Range(50, 400))));
+  EXPECT_EQ(acceptance.claims(10), 0);
+  EXPECT_EQ(acceptance.claims(300), 1);
+  // One over the other detection that would sink into the large one: refused.
+  EXPECT_FALSE(acceptance.Supersede(far, SphereAt(large, Vec3(0.04, 0, 0.03), 0.99, Range(100, 200))));
+  EXPECT_FALSE(acceptance.Supersede(inner, SphereAt(large, Vec3(0, 0, 0.03), 0.99, Range(0, 100))));  // dropped
+  const std::vector<Detection> d = acceptance.TakeDetections();
+  ASSERT_EQ(d.size(), 2u);
+  EXPECT_EQ(d[0].class_id, 0);
+  EXPECT_EQ(d[1].class_id, 1);
+  EXPECT_EQ(d[1].score, 0.7);
+}
+
 TEST(Acceptance, ACandidateWhoseSupportOthersClaimIsDroppedUnlessOneOfThemHoldsATenth) {
   const SphereModel sphere(0, 0.01f);
   const std::vector<const ClassModel*> models = {&sphere};
