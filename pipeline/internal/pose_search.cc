@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <numeric>
 #include <functional>
 #include <sstream>
 #include <utility>
@@ -45,6 +46,8 @@ constexpr double kKeepBetterThanFineBelow = 0.9;
 // The quick look of the near-symmetric turns, the turn axes and the
 // ambiguity screen: every third verification sample.
 constexpr int kQuickStride = 3;
+// ChooseTurn: the grid's best looks examined a step either side.
+constexpr size_t kProbedTurns = 3;
 // Ambiguity: at most this many times max_alternatives poses are refined
 // and verified in full per hypothesis.
 constexpr int kAlternativeTriesPerAlternative = 2;
@@ -649,7 +652,8 @@ TurnChoice ChooseTurn(const PoseModel& m, const SceneView& view, const Pose& X_B
   if (!have_depth || given.below_support || !(step_deg > 0)) return out;
   std::vector<Pose> candidates(others.begin(), others.end());
   const double step = step_deg * M_PI / 180.0;
-  const int turns = static_cast<int>(std::floor(2.0 * M_PI / step - 1e-9));
+  const double coarse = 2.0 * step;
+  const int turns = static_cast<int>(std::floor(2.0 * M_PI / coarse - 1e-9));
   const int given_quick = Net(verify(X_BO, kQuickStride));
   for (const TurnAxis& axis : m.turn_axes) {
     int best = given_quick;
@@ -661,16 +665,34 @@ TurnChoice ChooseTurn(const PoseModel& m, const SceneView& view, const Pose& X_B
         best_angle = angle;
       }
     };
-    // The grid's looks on every thread of the caller's arena, judged in
-    // order afterwards: the same choice as one pass.
-    std::vector<int> grid(static_cast<size_t>(turns), 0);
-    tbb::parallel_for(0, turns, [&](int k) {
-      grid[static_cast<size_t>(k)] = Net(verify(X_BO * axis.Turn((k + 1) * step), kQuickStride));
-    });
-    for (int k = 0; k < turns; ++k) {
-      if (grid[static_cast<size_t>(k)] > best) {
-        best = grid[static_cast<size_t>(k)];
-        best_angle = (k + 1) * step;
+    // The grid every two steps, then a step either side of its best
+    // kProbedTurns looks (a true turn's peak is about 8 deg wide: a grid
+    // look within a step of it rises among the best); all on every thread of
+    // the caller's arena, judged in order afterwards: the same choice as
+    // one pass.
+    std::vector<double> angles;
+    for (int k = 0; k < turns; ++k) angles.push_back((k + 1) * coarse);
+    std::vector<int> nets(angles.size(), 0);
+    tbb::parallel_for(size_t{0}, angles.size(),
+                      [&](size_t k) { nets[k] = Net(verify(X_BO * axis.Turn(angles[k]), kQuickStride)); });
+    std::vector<size_t> order(angles.size());
+    std::iota(order.begin(), order.end(), size_t{0});
+    const size_t probed = std::min(order.size(), kProbedTurns);
+    std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(probed), order.end(),
+                      [&](size_t a, size_t b) { return nets[a] > nets[b] || (nets[a] == nets[b] && a < b); });
+    for (size_t j = 0; j < probed; ++j) {
+      const double a = angles[order[j]];
+      angles.push_back(a - step);
+      angles.push_back(a + step);
+    }
+    const size_t first_probe = nets.size();
+    nets.resize(angles.size(), 0);
+    tbb::parallel_for(first_probe, angles.size(),
+                      [&](size_t k) { nets[k] = Net(verify(X_BO * axis.Turn(angles[k]), kQuickStride)); });
+    for (size_t k = 0; k < angles.size(); ++k) {
+      if (nets[k] > best) {
+        best = nets[k];
+        best_angle = angles[k];
       }
     }
     for (double h = 0.5 * step; h > step / 16.0; h *= 0.5) {

@@ -62,9 +62,10 @@ struct TurnChoice {
 // on a view of its own points (perception: after its neighbours are
 // accepted, the points they explain left out of the view and of its depth
 // image). Looks at X_BO's turns about the model's turn axes as the fine
-// pass does, but every step_deg (> 0; the fine pass's turn_step_deg misses
-// a true turn whose peak is narrower than its step) at a quick look, the
-// best bisected to an eighth of the step; then verifies in full X_BO, the
+// pass does, but finer (step_deg > 0; the fine pass's turn_step_deg misses
+// a true turn whose peak is narrower than its step): quick looks every two
+// steps, a step either side of the best three, the best bisected to an
+// eighth of the step; then verifies in full X_BO, the
 // best turn per axis and `others`; returns the one with the most supported
 // minus free-space samples (X_BO on ties; none that sinks the part into the
 // support plane). Needs the view's depth image: without one, X_BO.
