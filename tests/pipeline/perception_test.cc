@@ -364,7 +364,7 @@ TEST_F(PerceptionTest, FindsASinglePartWithinHalfAMillimetreAndHalfADegree) {
   for (const StageTiming& t : r.timings) stages.push_back(t.stage);
   EXPECT_EQ(stages,
             (std::vector<std::string>{"bin", "roi", "regions", "segment", "pose", "verify", "second_look", "residual",
-                                      "residual_regions", "own_turns"}));
+                                      "residual_regions", "enclosing", "own_turns"}));
 }
 
 // A clock for PerceptionBudget that advances 1 ms at every reading: an
