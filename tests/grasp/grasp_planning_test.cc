@@ -80,6 +80,24 @@ std::vector<std::optional<RejectReason>> Verdicts(const GraspPlan& plan, int det
   return v;
 }
 
+// Renders synthetic pile `seed` of `cell` at camera config `config` and
+// perceives it with the true detections (TruthPerception): the frame and
+// the scene that grasp planning runs on.
+void RenderTruthPile(Cell& cell, int config, uint64_t seed, std::optional<Frame>& frame,
+                     std::optional<PerceptionResult>& perception) {
+  cell.source.seed = seed;
+  auto source = MakeSyntheticSource(cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  CaptureRequest capture;
+  capture.config_id = config;
+  auto captured = (*source)->Capture(capture);
+  ASSERT_TRUE(captured.ok()) << captured.status().ToString();
+  auto perceived = TruthPerception(cell).Run(*captured);
+  ASSERT_TRUE(perceived.ok());
+  frame = std::move(*captured);
+  perception = std::move(*perceived);
+}
+
 int Count(const std::vector<std::optional<RejectReason>>& v, std::optional<RejectReason> r) {
   return static_cast<int>(std::count(v.begin(), v.end(), r));
 }
@@ -592,15 +610,9 @@ TEST(GraspFilter, VoxelisedObstaclesGiveEveryCandidateThePointByPointVerdict) {
   const TaskSpec task = *cell.FindTask(0);
   for (const auto& [config, seed] : std::vector<std::pair<int, uint64_t>>{{1, 1}, {1, 2}, {2, 3}}) {
     SCOPED_TRACE("config " + std::to_string(config) + " seed " + std::to_string(seed));
-    cell.source.seed = seed;
-    auto source = MakeSyntheticSource(cell);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    CaptureRequest capture;
-    capture.config_id = config;
-    auto frame = (*source)->Capture(capture);
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    auto perception = TruthPerception(cell).Run(*frame);
-    ASSERT_TRUE(perception.ok());
+    std::optional<Frame> frame;
+    std::optional<PerceptionResult> perception;
+    ASSERT_NO_FATAL_FAILURE(RenderTruthPile(cell, config, seed, frame, perception));
     for (const bool explained : {true, false}) {
       SCOPED_TRACE(explained ? "parts' points explained" : "no point explained");
       PerceptionResult scene = *perception;
@@ -639,15 +651,9 @@ TEST(GraspPlan, TheHeadGivenEarlyIsTheQueuesFirstGraspAndChangesNoVerdict) {
   int heads = 0;
   for (const auto& [config, seed] : std::vector<std::pair<int, uint64_t>>{{1, 11}, {1, 12}, {1, 13}, {2, 14}}) {
     SCOPED_TRACE("config " + std::to_string(config) + " seed " + std::to_string(seed));
-    cell.source.seed = seed;
-    auto source = MakeSyntheticSource(cell);
-    ASSERT_TRUE(source.ok()) << source.status().ToString();
-    CaptureRequest capture;
-    capture.config_id = config;
-    auto frame = (*source)->Capture(capture);
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    auto perception = TruthPerception(cell).Run(*frame);
-    ASSERT_TRUE(perception.ok());
+    std::optional<Frame> frame;
+    std::optional<PerceptionResult> perception;
+    ASSERT_NO_FATAL_FAILURE(RenderTruthPile(cell, config, seed, frame, perception));
     for (const bool explained : {true, false}) {
       SCOPED_TRACE(explained ? "parts' points explained" : "no point explained");
       PerceptionResult scene = *perception;
