@@ -6,6 +6,7 @@
 #include <numeric>
 #include <optional>
 #include <random>
+#include <set>
 
 #include <Eigen/Geometry>
 
@@ -402,6 +403,154 @@ EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vect
   g.first_fraction = g.frames_with_grasp > 0 ? static_cast<double>(g.first_on_part) / g.frames_with_grasp : 1.0;
   g.all_fraction = g.grasps > 0 ? static_cast<double>(g.on_part) / g.grasps : 1.0;
   return report;
+}
+
+}  // namespace bp
+
+namespace bp {
+
+std::vector<int> RoiPointOwners(const Frame& frame, const PerceptionResult& result) {
+  std::vector<int> owners;
+  if (!frame.truth || frame.truth->labels.empty() || !frame.organized()) return owners;
+  // Each ROI point's pixel: its projection (deprojected from that pixel's
+  // centre, possibly from smoothed depth, so it rounds back).
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_CB = frame.X_BC.inverse();
+  const int w = frame.depth.width, h = frame.depth.height;
+  owners.assign(result.roi_points_B.size(), -1);
+  for (size_t i = 0; i < result.roi_points_B.size(); ++i) {
+    const Eigen::Vector3d q = X_CB * result.roi_points_B[i].cast<double>();
+    if (!(q.z() > 0.0)) continue;
+    const long u = std::lround(K.fx * q.x() / q.z() + K.cx), v = std::lround(K.fy * q.y() / q.z() + K.cy);
+    if (u < 0 || v < 0 || u >= w || v >= h) continue;
+    owners[i] = frame.truth->labels.data[static_cast<size_t>(v) * w + static_cast<size_t>(u)];
+  }
+  return owners;
+}
+
+PartCut CutOfPart(int instance_id, std::span<const int> owners, std::span<const int32_t> segment_of_point) {
+  PartCut cut;
+  std::map<int32_t, int> own_by_segment, all_by_segment;
+  const size_t n = std::min(owners.size(), segment_of_point.size());
+  for (size_t i = 0; i < n; ++i) {
+    const int32_t s = segment_of_point[i];
+    if (s >= 0 && owners[i] >= 0) ++all_by_segment[s];
+    if (owners[i] != instance_id) continue;
+    ++cut.points;
+    if (s < 0) {
+      ++cut.unsegmented;
+    } else {
+      ++own_by_segment[s];
+    }
+  }
+  int segmented = 0, best = 0;
+  int32_t best_segment = -1;
+  for (const auto& [s, c] : own_by_segment) {
+    segmented += c;
+    if (c > best) {
+      best = c;
+      best_segment = s;
+    }
+  }
+  cut.segments = static_cast<int>(own_by_segment.size());
+  cut.largest_share = segmented > 0 ? static_cast<double>(best) / segmented : 0.0;
+  cut.largest_purity = best_segment >= 0 ? static_cast<double>(best) / all_by_segment[best_segment] : 0.0;
+  return cut;
+}
+
+const char* ToString(MissCause cause) {
+  switch (cause) {
+    case MissCause::kWrongDetection: return "wrong_detection";
+    case MissCause::kTruthScoresLow: return "truth_low";
+    case MissCause::kUnsegmented: return "unsegmented";
+    case MissCause::kSplit: return "split";
+    case MissCause::kMerged: return "merged";
+    case MissCause::kNotFound: return "not_found";
+  }
+  return "?";
+}
+
+MissCause ClassifyMiss(const PartCut& cut, bool wrong_detection_on_it, double truth_score, double min_score) {
+  if (wrong_detection_on_it) return MissCause::kWrongDetection;
+  if (truth_score < min_score) return MissCause::kTruthScoresLow;  // false for NaN
+  if (2 * cut.unsegmented > cut.points) return MissCause::kUnsegmented;
+  if (cut.largest_share < 0.8) return MissCause::kSplit;
+  if (cut.largest_purity < 0.8) return MissCause::kMerged;
+  return MissCause::kNotFound;
+}
+
+int SupportOwner(const Detection& detection, std::span<const int> owners) {
+  std::map<int, int> by_owner;
+  for (int32_t k : detection.support) {
+    if (k < 0 || static_cast<size_t>(k) >= owners.size()) continue;
+    ++by_owner[owners[static_cast<size_t>(k)]];
+  }
+  int best = 0, best_n = 0, total = 0;
+  for (const auto& [owner, n] : by_owner) {
+    total += n;
+    if (owner > 0 && owner != GroundTruth::kBinLabel && n > best_n) {
+      best = owner;
+      best_n = n;
+    }
+  }
+  return 2 * best_n > total ? best : 0;
+}
+
+const char* ToString(FalseCause cause) {
+  switch (cause) {
+    case FalseCause::kOnOtherClassFound: return "other_class_found";
+    case FalseCause::kOnOtherClassMissed: return "other_class_missed";
+    case FalseCause::kOnItsClass: return "its_class";
+    case FalseCause::kOnNoPart: return "no_part";
+  }
+  return "?";
+}
+
+void AddFrameCauses(const Frame& frame, const PerceptionResult& result, const FrameEvaluation& fe,
+                    const std::function<double(const PartTruth&, const std::vector<Eigen::Vector3f>&)>& truth_score,
+                    CauseFigures& figures, const EvalOptions& options) {
+  if (!frame.truth) return;
+  const std::vector<int> owners = RoiPointOwners(frame, result);
+  if (owners.empty()) return;
+  std::set<int> found;
+  std::map<int, const PartTruth*> parts;
+  for (const PartTruth& p : frame.truth->parts) parts[p.instance_id] = &p;
+  for (const DetectionOutcome& o : fe.detections) {
+    if (o.verdict == DetectionVerdict::kTrue) found.insert(o.truth_instance);
+  }
+  // The parts a wrong detection sits on, and the false positives' causes.
+  std::set<int> wrong_on;
+  for (const DetectionOutcome& o : fe.detections) {
+    if (o.verdict == DetectionVerdict::kTrue || o.detection >= result.detections.size()) continue;
+    if (o.verdict == DetectionVerdict::kGross) wrong_on.insert(o.near_instance);
+    const int owner = SupportOwner(result.detections[o.detection], owners);
+    if (owner > 0) wrong_on.insert(owner);
+    if (o.verdict != DetectionVerdict::kFalse) continue;
+    FalseCause cause = FalseCause::kOnNoPart;
+    const auto it = parts.find(owner);
+    if (it != parts.end()) {
+      if (it->second->class_id == o.class_id) {
+        cause = FalseCause::kOnItsClass;
+      } else {
+        cause = found.count(owner) ? FalseCause::kOnOtherClassFound : FalseCause::kOnOtherClassMissed;
+      }
+    }
+    ++figures.false_positives[o.class_id][static_cast<size_t>(cause)];
+  }
+  for (const PartTruth& p : frame.truth->parts) {
+    if (p.visible_fraction < options.min_visible_fraction || found.count(p.instance_id)) continue;
+    const PartCut cut = CutOfPart(p.instance_id, owners, result.segment_of_point);
+    double score = std::numeric_limits<double>::quiet_NaN();
+    if (!wrong_on.count(p.instance_id) && truth_score) {
+      std::vector<Eigen::Vector3f> own;
+      for (size_t i = 0; i < owners.size(); ++i) {
+        if (owners[i] == p.instance_id) own.push_back(result.roi_points_B[i]);
+      }
+      if (!own.empty()) score = truth_score(p, own);
+    }
+    const MissCause cause = ClassifyMiss(cut, wrong_on.count(p.instance_id) > 0, score);
+    ++figures.misses[p.class_id][static_cast<size_t>(cause)];
+  }
 }
 
 }  // namespace bp

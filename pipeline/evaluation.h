@@ -18,6 +18,8 @@
 // ADD-S < adds_relative * diameter is counted over all detections.
 #pragma once
 
+#include <array>
+#include <functional>
 #include <map>
 #include <span>
 #include <string>
@@ -187,5 +189,65 @@ SegmentationFigures EvaluateSegmentation(const Frame& frame, const PerceptionRes
                                          const EvalOptions& options = {});
 
 EvalReport Summarize(const std::vector<FrameEvaluation>& frames, const std::vector<EvalPartModel>& models);
+
+// Causes (binpick eval --causes): why a recall target was missed and what a
+// detection matching no part lies on, from the label image (organized
+// synthetic frames; before noise).
+//
+// Each ROI point's true owner: the label of the pixel it projects to (the
+// instance id; 0 nothing, GroundTruth::kBinLabel the bin), -1 outside the
+// image. Empty without labels.
+std::vector<int> RoiPointOwners(const Frame& frame, const PerceptionResult& result);
+
+// How the segmentation cut one part's ROI points.
+struct PartCut {
+  int points = 0;               // its ROI points
+  int unsegmented = 0;          // of those, in no segment (segment -1)
+  int segments = 0;             // segments holding any of them
+  double largest_share = 0.0;   // the largest such segment's share of its segmented points, [0, 1]
+  double largest_purity = 0.0;  // its points' share of that segment, [0, 1]
+};
+PartCut CutOfPart(int instance_id, std::span<const int> owners, std::span<const int32_t> segment_of_point);
+
+// The first that applies, in this order:
+//   kWrongDetection  a detection that is not right sits on it (its support
+//                    mostly the part's points, or a gross error near it);
+//   kTruthScoresLow  its true pose verified on its own points scores below
+//                    `min_score` (no segmentation would have found it);
+//   kUnsegmented     more than half its points in no segment;
+//   kSplit           its largest segment holds < 80% of its segmented points;
+//   kMerged          its points are < 80% of that segment;
+//   kNotFound        one clean segment, a true pose scoring the bar: the
+//                    search or acceptance lost it.
+enum class MissCause { kWrongDetection, kTruthScoresLow, kUnsegmented, kSplit, kMerged, kNotFound };
+inline constexpr int kMissCauses = 6;
+const char* ToString(MissCause cause);  // "wrong_detection", "truth_low", ...
+// truth_score: NaN when not scored (then never kTruthScoresLow).
+MissCause ClassifyMiss(const PartCut& cut, bool wrong_detection_on_it, double truth_score, double min_score = 0.6);
+
+// The instance owning most of a detection's support (> 0), or 0 when most of
+// it is on no part (nothing, the bin, outside the image).
+int SupportOwner(const Detection& detection, std::span<const int> owners);
+
+// A false positive (DetectionVerdict::kFalse) by what its support lies on.
+enum class FalseCause {
+  kOnOtherClassFound,   // a part of another class that a true detection found
+  kOnOtherClassMissed,  // a part of another class no detection found (a bushing in a missed tee)
+  kOnItsClass,          // a part of its class, its origin too far for a gross error
+  kOnNoPart,            // the bin, the floor, nothing
+};
+inline constexpr int kFalseCauses = 4;
+const char* ToString(FalseCause cause);  // "other_class_found", ...
+
+struct CauseFigures {
+  std::map<int, std::array<int, kMissCauses>> misses;          // class -> count per MissCause
+  std::map<int, std::array<int, kFalseCauses>> false_positives;  // class -> count per FalseCause
+};
+// Adds one frame's misses and false positives. truth_score(part, own points)
+// verifies the true pose on the part's own ROI points (NaN: not scored).
+void AddFrameCauses(const Frame& frame, const PerceptionResult& result, const FrameEvaluation& fe,
+                    const std::function<double(const PartTruth&, const std::vector<Eigen::Vector3f>&)>& truth_score,
+                    CauseFigures& figures, const EvalOptions& options = {});
+
 
 }  // namespace bp

@@ -6,9 +6,11 @@
 // figures with every detection's and grasp's pose and verdict in JSON with
 // --json.
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <set>
 #include <memory>
@@ -92,6 +94,7 @@ struct EvalCliOptions {
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
+  bool causes = false;  // --causes: misses and false positives by cause
 };
 
 // FNV-1a over the values: a fingerprint of a long label vector.
@@ -274,6 +277,54 @@ void PrintTable(const EvalReport& report, const SegmentationFigures& seg, const 
   }
 }
 
+// --causes: the misses and false positives by cause (pipeline/evaluation.h,
+// MissCause / FalseCause), per class and in all.
+void PrintCauses(const CauseFigures& causes, const std::vector<EvalPartModel>& models) {
+  const auto name_of = [&](int class_id) {
+    for (const EvalPartModel& m : models) {
+      if (m.class_id == class_id) return m.name;
+    }
+    return std::to_string(class_id);
+  };
+  const auto print = [&](const char* what, const auto& by_class, int n, auto cause_name) {
+    std::array<int, 8> all{};
+    int total = 0;
+    for (const auto& [c, counts] : by_class) {
+      for (int k = 0; k < n; ++k) {
+        all[static_cast<size_t>(k)] += counts[static_cast<size_t>(k)];
+        total += counts[static_cast<size_t>(k)];
+      }
+    }
+    std::printf("\n%s by cause: %d\n", what, total);
+    for (int k = 0; k < n; ++k) {
+      std::string per_class;
+      for (const auto& [c, counts] : by_class) {
+        per_class += fmt::format("{}{} {}", per_class.empty() ? "" : ", ", name_of(c), counts[static_cast<size_t>(k)]);
+      }
+      std::printf("  %-20s %5d  (%s)\n", cause_name(k), all[static_cast<size_t>(k)], per_class.c_str());
+    }
+  };
+  print("misses (targets no detection matched)", causes.misses, kMissCauses,
+        [](int k) { return ToString(static_cast<MissCause>(k)); });
+  print("false positives (on the part their support lies on)", causes.false_positives, kFalseCauses,
+        [](int k) { return ToString(static_cast<FalseCause>(k)); });
+}
+
+nlohmann::ordered_json CausesJson(const CauseFigures& causes) {
+  nlohmann::ordered_json j;
+  for (const auto& [c, counts] : causes.misses) {
+    for (int k = 0; k < kMissCauses; ++k) {
+      j["misses"][std::to_string(c)][ToString(static_cast<MissCause>(k))] = counts[static_cast<size_t>(k)];
+    }
+  }
+  for (const auto& [c, counts] : causes.false_positives) {
+    for (int k = 0; k < kFalseCauses; ++k) {
+      j["false_positives"][std::to_string(c)][ToString(static_cast<FalseCause>(k))] = counts[static_cast<size_t>(k)];
+    }
+  }
+  return j;
+}
+
 // The perception settings: the cell's, with the tuning flags that were given.
 PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   PerceptionOptions popt;
@@ -327,37 +378,13 @@ Result<Frame> EvalFrame(const Cell& cell, const EvalCliOptions& opt, const std::
 void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                             const PartTruth& p,
                             std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
-  if (!frame.organized() || frame.truth->labels.empty()) return;
-  const Intrinsics& K = frame.intrinsics;
-  const Pose X_CB = frame.X_BC.inverse();
-  const int w = frame.depth.width, h = frame.depth.height;
+  const std::vector<int> owners = RoiPointOwners(frame, result);
+  if (owners.empty()) return;
   std::vector<Eigen::Vector3f> own;
-  std::map<int32_t, int> own_by_segment, all_by_segment;
-  const size_t n = std::min(result.roi_points_B.size(), result.segment_of_point.size());
-  for (size_t k = 0; k < n; ++k) {
-    const Eigen::Vector3d q = X_CB * result.roi_points_B[k].cast<double>();
-    if (!(q.z() > 0.0)) continue;
-    const long u = std::lround(K.fx * q.x() / q.z() + K.cx), v = std::lround(K.fy * q.y() / q.z() + K.cy);
-    if (u < 0 || v < 0 || u >= w || v >= h) continue;
-    const int32_t s = result.segment_of_point[k];
-    ++all_by_segment[s];
-    if (frame.truth->labels.data[static_cast<size_t>(v) * w + static_cast<size_t>(u)] != p.instance_id) continue;
-    own.push_back(result.roi_points_B[k]);
-    ++own_by_segment[s];
+  for (size_t k = 0; k < owners.size(); ++k) {
+    if (owners[k] == p.instance_id) own.push_back(result.roi_points_B[k]);
   }
-  int segmented = 0, best = 0, segments = 0;
-  int32_t best_segment = -1;
-  for (const auto& [s, c] : own_by_segment) {
-    if (s < 0) continue;
-    segmented += c;
-    ++segments;
-    if (c > best) {
-      best = c;
-      best_segment = s;
-    }
-  }
-  const double own_share = segmented > 0 ? static_cast<double>(best) / segmented : 0.0;
-  const double purity = best_segment >= 0 ? static_cast<double>(best) / all_by_segment[best_segment] : 0.0;
+  const PartCut cut = CutOfPart(p.instance_id, owners, result.segment_of_point);
   std::string scored = "not scored";
   const PoseEstimator* est = DiagnosticEstimator(cell, p.class_id, diagnostic_estimators);
   if (est != nullptr && !own.empty()) {
@@ -388,8 +415,8 @@ void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const P
   }
   spdlog::debug("frame {} missed inst {}: own points {}, unsegmented {}, in {} segments, the largest holds {:.2f} "
                 "of them and they {:.2f} of it; truth on own points: {}",
-                i, p.instance_id, own.size(), own_by_segment.count(-1) ? own_by_segment[-1] : 0, segments, own_share,
-                purity, scored);
+                i, p.instance_id, own.size(), cut.unsegmented, cut.segments, cut.largest_share, cut.largest_purity,
+                scored);
 }
 
 // --log-level debug: each visible part no detection matched, and how a
@@ -667,6 +694,7 @@ int Run(const EvalCliOptions& opt) {
   std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
+  CauseFigures causes;
   BinFigures bin_figures;
   nlohmann::json frame_detections = nlohmann::json::array();
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
@@ -706,6 +734,22 @@ int Run(const EvalCliOptions& opt) {
     if (spdlog::should_log(spdlog::level::debug)) {
       LogFrameDiagnostics(*cell, i, *frame, *result, evaluations.back(), diagnostic_estimators);
     }
+    if (opt.causes) {
+      // The true pose verified on the part's own points (the estimator's
+      // default options, as --log-level debug scores it).
+      const auto truth_score = [&](const PartTruth& p, const std::vector<Eigen::Vector3f>& own) {
+        const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id, diagnostic_estimators);
+        if (est == nullptr) return std::numeric_limits<double>::quiet_NaN();
+        SceneView view;
+        view.points_B = own;
+        view.X_BC = frame->X_BC;
+        view.depth = &frame->depth;
+        view.intrinsics = frame->intrinsics;
+        const Result<PoseHypothesis> t = est->Score(view, p.X_BO);
+        return t.ok() ? t->score : std::numeric_limits<double>::quiet_NaN();
+      };
+      AddFrameCauses(*frame, *result, evaluations.back(), truth_score, causes);
+    }
     const SegmentationFigures seg = EvaluateSegmentation(*frame, *result, *cell);
     seg_total.parts += seg.parts;
     seg_total.split += seg.split;
@@ -715,11 +759,13 @@ int Run(const EvalCliOptions& opt) {
   }
   const EvalReport report = Summarize(evaluations, *models);
   PrintTable(report, seg_total, opt);
+  if (opt.causes) PrintCauses(causes, *models);
   PrintBin(bin_figures);
   if (!opt.json_path.empty()) {
     std::ofstream out(opt.json_path);
     nlohmann::ordered_json j = ToJson(report, seg_total, opt, std::move(frames_json));
     if (bin_figures.frames > 0) j["bin_detection"] = BinSummary(bin_figures);
+    if (opt.causes) j["causes"] = CausesJson(causes);
     out << j.dump(2) << "\n";
     if (!out) return Fail(cmd, Status::Internal("cannot write '" + opt.json_path + "'"));
   }
@@ -811,6 +857,10 @@ Command EvalCommand() {
                                   "1: match the samples no detection explains, grouped by grid connectivity, "
                                   "after the residual pass (PerceptionOptions::residual_regions; tuning)")
                        ->capture_default_str();
+                   sub.add_flag("--causes", opt->causes,
+                                "also count the misses and false positives by cause (segmentation cut, the true "
+                                "pose's score on the part's own points, what a wrong detection sits on; "
+                                "organized synthetic frames)");
                    sub.add_option("--enclosing", opt->enclosing_parts,
                                   "1: a larger class fitted over a detection it may enclose replaces it when it "
                                   "explains its points and more (PerceptionOptions::enclosing_parts; tuning)")

@@ -7,6 +7,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
+#include <numeric>
 #include <random>
 
 namespace bp {
@@ -243,6 +245,102 @@ TEST(GraspLandingOnTruth, PrefersTheCopyApproachedFromTheSameSideNearAnAxis) {
   EXPECT_EQ(off.truth_instance, 3);
   EXPECT_NEAR(off.position_error, 0.003, 1e-9);
   EXPECT_NEAR(off.approach_error, 7 * kDeg, 1e-6);
+}
+
+// The cause report (binpick eval --causes) on a frame made by hand: ten
+// columns of pixels per part in a label image, each ROI point at its pixel,
+// segments and detection supports set per column. Every miss cause and
+// every false-positive cause occurs once (the bracket's wrong detection
+// twice), and the true pose is scored on exactly the part's own points.
+TEST(EvaluationCauses, EachMissAndFalsePositiveIsCountedUnderItsCause) {
+  constexpr int kW = 90, kH = 4;
+  Frame frame;
+  frame.intrinsics.width = kW;
+  frame.intrinsics.height = kH;
+  frame.intrinsics.fx = frame.intrinsics.fy = 500.0;
+  frame.intrinsics.cx = 45.0;
+  frame.intrinsics.cy = 2.0;
+  frame.depth = DepthImage(kW, kH, 1.0f);
+  GroundTruth truth;
+  truth.labels = LabelImage(kW, kH, 0);
+  // Parts 1-8 at columns 10(i-1) .. 10i-1; columns 60-69 are nothing.
+  const int classes[] = {kBushing, kTee, kBushing, kBracket, kBracket, kTee, kBushing, kBracket};
+  for (int i = 1; i <= 8; ++i) {
+    truth.parts.push_back(Truth(i, classes[i - 1], Rotated(Vec3(1.0 * i, 0, 0), Vec3::UnitZ(), 0)));
+  }
+  PerceptionResult result;
+  std::map<int, std::vector<int32_t>> points_of_column_block;  // block u / 10 -> ROI indices
+  for (int v = 0; v < kH; ++v) {
+    for (int u = 0; u < kW; ++u) {
+      const int block = u / 10;
+      if (block != 6) truth.labels.at(u, v) = static_cast<uint16_t>(block < 6 ? block + 1 : block);
+      points_of_column_block[block].push_back(static_cast<int32_t>(result.roi_points_B.size()));
+      result.roi_points_B.emplace_back(static_cast<float>((u - 45.0) / 500.0), static_cast<float>((v - 2.0) / 500.0),
+                                       1.0f);
+      int32_t segment = -1;
+      if (block == 0) segment = u % 10 < 5 ? 0 : 1;  // part 1 split in halves
+      if (block == 1) segment = 2;
+      if (block == 3) segment = 3;
+      if (block == 4) segment = 4;
+      if (block == 5 || block == 6) segment = 5;  // part 6 merged with as much background
+      if (block == 7) segment = 6;
+      if (block == 8) segment = 7;
+      result.segment_of_point.push_back(segment);
+    }
+  }
+  frame.truth = truth;
+  // Labels for blocks 7 and 8 are parts 7 and 8.
+  const Pose far = Rotated(Vec3(5, 5, 5), Vec3::UnitZ(), 0);
+  const auto detection = [&](int class_id, const Pose& X_BO, int block) {
+    Detection d = Detected(class_id, X_BO, 0.9);
+    d.support = points_of_column_block[block];
+    result.detections.push_back(d);
+  };
+  detection(kBushing, truth.parts[6].X_BO, 7);  // part 7 found
+  detection(kBushing, far, 1);                  // on tee 2, missed: other_class_missed; tee 2 wrong_detection
+  detection(kBracket, far, 6);                  // on nothing: no_part
+  detection(kTee, far, 7);                      // on bushing 7, found: other_class_found
+  detection(kBracket, far, 8);                  // on bracket 8: its_class; bracket 8 wrong_detection
+  const FrameEvaluation fe = EvaluateFrame(result, truth, Models());
+  std::map<int, size_t> scored_points;
+  const auto truth_score = [&](const PartTruth& p, const std::vector<Eigen::Vector3f>& own) {
+    scored_points[p.instance_id] = own.size();
+    return p.instance_id == 4 ? 0.3 : 0.9;
+  };
+  CauseFigures causes;
+  AddFrameCauses(frame, result, fe, truth_score, causes);
+  const auto misses = [&](int class_id, MissCause cause) {
+    return causes.misses[class_id][static_cast<size_t>(cause)];
+  };
+  EXPECT_EQ(misses(kBushing, MissCause::kSplit), 1);
+  EXPECT_EQ(misses(kBushing, MissCause::kUnsegmented), 1);
+  EXPECT_EQ(misses(kTee, MissCause::kWrongDetection), 1);
+  EXPECT_EQ(misses(kTee, MissCause::kMerged), 1);
+  EXPECT_EQ(misses(kBracket, MissCause::kTruthScoresLow), 1);
+  EXPECT_EQ(misses(kBracket, MissCause::kNotFound), 1);
+  EXPECT_EQ(misses(kBracket, MissCause::kWrongDetection), 1);
+  int all_misses = 0;
+  for (const auto& [c, counts] : causes.misses) all_misses += std::accumulate(counts.begin(), counts.end(), 0);
+  EXPECT_EQ(all_misses, 7);
+  const auto fps = [&](int class_id, FalseCause cause) {
+    return causes.false_positives[class_id][static_cast<size_t>(cause)];
+  };
+  EXPECT_EQ(fps(kBushing, FalseCause::kOnOtherClassMissed), 1);
+  EXPECT_EQ(fps(kBracket, FalseCause::kOnNoPart), 1);
+  EXPECT_EQ(fps(kTee, FalseCause::kOnOtherClassFound), 1);
+  EXPECT_EQ(fps(kBracket, FalseCause::kOnItsClass), 1);
+  // Scored on its own 40 points; not scored when a wrong detection sits on it.
+  EXPECT_EQ(scored_points[4], 10u * kH);
+  EXPECT_EQ(scored_points.count(2), 0u);
+  EXPECT_EQ(scored_points.count(8), 0u);
+  // The cut of the split part.
+  const std::vector<int> owners = RoiPointOwners(frame, result);
+  const PartCut cut = CutOfPart(1, owners, result.segment_of_point);
+  EXPECT_EQ(cut.points, 10 * kH);
+  EXPECT_EQ(cut.segments, 2);
+  EXPECT_DOUBLE_EQ(cut.largest_share, 0.5);
+  EXPECT_DOUBLE_EQ(cut.largest_purity, 1.0);
+  EXPECT_DOUBLE_EQ(CutOfPart(6, owners, result.segment_of_point).largest_purity, 0.5);
 }
 
 }  // namespace
