@@ -435,6 +435,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   reference.max_support_penetration = options.max_support_penetration;
   reference.ambiguity_net_gain = options.ambiguity_net_gain;
   reference.arm_swaps = options.arm_swaps;
+  reference.unmeasured_is_no_evidence = options.unmeasured_is_no_evidence;
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());

@@ -175,6 +175,12 @@ struct PerceptionOptions {
   // PoseEstimatorOptions::arm_swaps, handed to every class's estimator
   // (docs/tuning.md).
   bool arm_swaps = PoseEstimatorOptions{}.arm_swaps;
+  // PoseEstimatorOptions::unmeasured_is_no_evidence, handed to every class's
+  // estimator (the waves', residual and enclosing searches); the second
+  // look's and thorough searches set their own (true). A grazing face over
+  // pixels the camera dropped is no evidence against a pose: without it
+  // true L-brackets seen edge-on scored 0.43-0.6 (docs/tuning.md).
+  bool unmeasured_is_no_evidence = true;
   // After every pass, a detection of a class nearly round about an axis (a
   // pipe tee about its run) is turned again on its own points, those its
   // accepted neighbours explain left out (internal::RedecideTurns): a turn
@@ -196,7 +202,7 @@ struct PerceptionOptions {
   double second_look_below = 0.9;
   int second_look_min_points = 450;
   PoseSearch second_look_search{.max_reference_points = 20, .max_coarse_poses = 12, .peaks_per_reference = 2,
-                                .peaks_examined = 16, .stop_score = 0.9};
+                                .peaks_examined = 16, .unmeasured_is_no_evidence = true, .stop_score = 0.9};
   // The second look does not refine again the coarse poses its wave refined
   // for the same view and class.
   bool second_look_skip_tried = true;

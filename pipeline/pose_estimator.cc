@@ -267,6 +267,7 @@ PoseSearch PoseEstimator::default_search() const {
   search.max_reference_points = impl_->options.max_reference_points;
   search.max_coarse_poses = impl_->options.max_coarse_poses;
   search.stop_score = impl_->options.coarse_stop_score;
+  search.unmeasured_is_no_evidence = impl_->options.unmeasured_is_no_evidence;
   return search;
 }
 

@@ -129,6 +129,10 @@ struct PoseEstimatorOptions {
   // run end and branch end). A tee seen as an L, one arm hidden, fits with
   // its branch on either seen arm.
   bool arm_swaps = true;
+  // The default search's PoseSearch::unmeasured_is_no_evidence (Estimate
+  // without a search). Direct users keep false; perception hands it
+  // PerceptionOptions::unmeasured_is_no_evidence.
+  bool unmeasured_is_no_evidence = false;
   // Turn axes (turn_axes()): axes the part is nearly round about, found at
   // multiples of this step (degrees, in [0, 180]; 0 = none). Each final
   // hypothesis is also tried turned about them by every multiple, then
@@ -201,8 +205,10 @@ struct PoseSearch {
   // precision on normal runs: thorough search only.
   bool keep_better_than_fine = false;
   // Depth image only: a visible model point on a grazing face (more than 60
-  // deg off the line of sight) over a pixel without depth is no evidence.
-  // Costs precision on piles: thorough search only.
+  // deg off the line of sight) over a pixel without depth is no evidence
+  // (left out of the score's denominator). Perception sets it on every
+  // search (PerceptionOptions::unmeasured_is_no_evidence: grazing dropout
+  // leaves true poses below the bar otherwise; docs/tuning.md).
   bool unmeasured_is_no_evidence = false;
   // A view that is one plane also gets this many face seeds (the part with
   // one of its large planar faces on the view's plane); 0 = none.

@@ -94,6 +94,7 @@ struct EvalCliOptions {
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
+  bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
 };
 
@@ -346,6 +347,8 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
   popt.enclosing_parts = opt.enclosing_parts;
+  popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
+  popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   return popt;
 }
 
@@ -861,6 +864,11 @@ Command EvalCommand() {
                                 "also count the misses and false positives by cause (segmentation cut, the true "
                                 "pose's score on the part's own points, what a wrong detection sits on; "
                                 "organized synthetic frames)");
+                   sub.add_option("--unmeasured-no-evidence", opt->unmeasured_no_evidence,
+                                  "1: a grazing face over pixels without depth is no evidence against a pose in "
+                                  "the normal and second-look searches; 0: it counts against (before issue 37's "
+                                  "eighth session; PerceptionOptions::unmeasured_is_no_evidence; tuning)")
+                       ->capture_default_str();
                    sub.add_option("--enclosing", opt->enclosing_parts,
                                   "1: a larger class fitted over a detection it may enclose replaces it when it "
                                   "explains its points and more (PerceptionOptions::enclosing_parts; tuning)")

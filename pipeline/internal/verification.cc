@@ -240,7 +240,12 @@ VerifyStats Verify(const PoseModel& m, const Pose& X_BO, const SceneView& view, 
       const Eigen::Vector3f pc = R_CB * cands[i].p + t_CB;
       const Intrinsics& K = view.intrinsics;
       int u = 0, v = 0;
-      if (PixelOf(K, *view.depth, pc, &u, &v)) {
+      if (!PixelOf(K, *view.depth, pc, &u, &v)) {
+        // Outside the image: no depth there, as at a dropped pixel (a cloud's
+        // image is the crop's window of the camera's).
+        supported = scene.hash.AnyWithin(cands[i].p, support);
+        if (!supported && cs < kGrazingCos) ++s.unmeasured;
+      } else {
         const float zm = view.depth->at(u, v);
         if (std::isfinite(zm) && zm > 0) {
           // Slanted surfaces change depth by about a pixel footprint * tan(theta).
