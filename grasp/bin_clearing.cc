@@ -137,6 +137,16 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   // Every candidate of a task's plan and why it was rejected (debug log).
   const auto log_candidates = [&](const TaskSpec& t, const PlanDetail& plan) {
     if (!spdlog::should_log(spdlog::level::debug)) return;
+    const auto& truth = static_cast<const CapturedFrame&>(scene).frame().truth;
+    for (size_t i = 0; i < plan.perception.detections.size(); ++i) {
+      const Detection& d = plan.perception.detections[i];
+      const int instance = p.TruthInstanceOf(t.id, static_cast<int>(i));
+      const PartTruth* part = truth ? FindInstance(truth->parts, instance) : nullptr;
+      spdlog::debug("seed {} cycle {} task {}: detection {} class {} (truth {}, class {}): score {:.3f}, visible {:.2f}, "
+                    "rms {:.2f} mm, support {}, alternatives {}",
+                    seed, report.cycles + 1, t.id, i, d.class_id, instance, part ? part->class_id : -1, d.score,
+                    d.visible_fraction, 1000 * d.rms_residual, d.support.size(), d.alternatives_X_BO.size());
+    }
     for (const GraspCandidate& c : plan.plan.candidates) {
       // The cycle as the picks of this plan are logged (numbered from 1).
       spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}{}", seed, report.cycles + 1,
@@ -224,7 +234,8 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
   if (l.hit) {
     ++report.truth_collisions;
     std::string line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
-                       " on instance " + std::to_string(l.outcome.truth_instance) + ": " + std::string(ToString(*l.hit));
+                       " (detection " + std::to_string(grasp.instance_id) + ") on instance " +
+                       std::to_string(l.outcome.truth_instance) + ": " + std::string(ToString(*l.hit));
     for (size_t j = 0; j < now.size(); ++j) {
       if (static_cast<int>(j) == l.target) continue;
       const Detection pair[] = {l.parts[j]};
@@ -282,9 +293,13 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   for (GraspQueue::Popped popped = queue.Pop(); popped.grasp; popped = queue.Pop()) {
     report.withdrawn += static_cast<int>(popped.withdrawn.size());
+    const int collisions_before = report.truth_collisions;
     PickVerdict v = JudgePick(s.planner, s.used, *popped.grasp, report.cycles, s.at_capture, PileTruth(s.pile),
                               s.pile.X_BW(), s.options.judge, report);
     ++report.attempts;
+    GraspTally& tally = report.by_grasp[GraspBaseName(popped.grasp->name)];
+    ++tally.attempts;
+    tally.collisions += report.truth_collisions - collisions_before;
     const bool slip = uniform(s.slip_rng) < s.options.slip_rate;  // drawn for every pick
     if (v.success && slip) {
       v.success = false;
@@ -299,6 +314,7 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
                   popped.grasp->stale_after.size(), v.landed, v.success ? "picked" : v.cause);
     if (v.success) {
       ++report.picks;
+      ++tally.picks;
       if (s.fallback) ++report.fallback_picks;
       const std::vector<PartTruth> before = PileTruth(s.pile);
       s.pile.NotifyPicked(v.landed);  // removes it and lets the rest resettle
@@ -352,6 +368,8 @@ Status SaveLeft(const Frame& frame, const std::string& dir, uint64_t seed, Scene
 }
 
 }  // namespace
+
+std::string GraspBaseName(const std::string& name) { return name.substr(0, name.find_first_of("@~")); }
 
 Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::shared_ptr<const Perception> perception,
                                     const ClearOptions& options) {
@@ -461,6 +479,7 @@ void ClearReport::Add(SceneClearReport scene) {
   screened += scene.screened;
   stopped_by_feedback += scene.stopped_by_feedback ? 1 : 0;
   for (const auto& [cause, n] : scene.failure_causes) failure_causes[cause] += n;
+  for (const auto& [name, t] : scene.by_grasp) by_grasp[name].Add(t);
   fallback_picks += scene.fallback_picks;
   cycles += scene.cycles;
   truth_collisions += scene.truth_collisions;

@@ -74,6 +74,23 @@ struct ClearOptions {
   bool feedback = true;
 };
 
+// A grasp's taken picks (its name without the "@N" / "~v" suffixes:
+// "hub_side@12~v" counts as "hub_side"), to weigh each grasp's share of the
+// picks against its share of the collisions.
+struct GraspTally {
+  int attempts = 0;    // grasps taken
+  int picks = 0;       // successful picks
+  int collisions = 0;  // truth collisions (failed picks with cause collision, or a stale one that also hit)
+  void Add(const GraspTally& o) {
+    attempts += o.attempts;
+    picks += o.picks;
+    collisions += o.collisions;
+  }
+};
+
+// "hub_side@12~v" -> "hub_side": the cell's grasp name.
+std::string GraspBaseName(const std::string& name);
+
 struct SceneClearReport {
   uint64_t seed = 0;
   int parts_placed = 0;         // parts in the pile at the start
@@ -100,12 +117,13 @@ struct SceneClearReport {
   std::string final_outcome;    // the last plan's outcome and filter summary
   std::vector<std::string> left;  // "instance 7 (l_bracket): part z axis (0.00, 1.00, 0.00), 83% visible"
   double plan_ms_total = 0;     // perception + planning over all cycles
-  std::vector<std::string> collisions;  // "cycle 3: grasp hub_top@5 on instance 7: part"
+  std::vector<std::string> collisions;  // "cycle 3: task 0 grasp hub_top@5 (detection 2) on instance 7: part; hits ..."
   // Every failed pick: "cycle 3: task 0 grasp run_top@1~v (detection 4): off_part, 7.3 mm / 2.1 deg from instance 9's grasp point"
   // (", a last resort" after the detection: Grasp::last_resort; ", on a pose
   // left by a failed last resort": Grasp::reposed)
   std::vector<std::string> failures;
   std::map<std::string, int> failure_causes;  // cause -> failed picks
+  std::map<std::string, GraspTally> by_grasp;  // GraspBaseName -> its picks
   std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty
   // Plans whose head was told early (every plan is made as binpickd makes
   // it, GraspPlanner::PlanWithHead), and of those, the ones whose head,
@@ -123,6 +141,7 @@ struct ClearReport {
       truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0, slipped = 0, reported = 0, screened = 0,
       stopped_by_feedback = 0, early_heads = 0, early_head_mismatches = 0;
   std::map<std::string, int> failure_causes;
+  std::map<std::string, GraspTally> by_grasp;
   // Appends `scene` and adds it to the totals.
   void Add(SceneClearReport scene);
   double CyclesPerPick() const { return picks > 0 ? static_cast<double>(cycles) / picks : 0.0; }

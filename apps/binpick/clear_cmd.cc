@@ -14,7 +14,9 @@
 
 #include <spdlog/spdlog.h>
 #include <fstream>
+#include <map>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -59,6 +61,14 @@ int Error(const Status& s) {
   }
 }
 
+nlohmann::ordered_json ToJson(const std::map<std::string, GraspTally>& by_grasp) {
+  nlohmann::ordered_json j = nlohmann::ordered_json::object();
+  for (const auto& [name, t] : by_grasp) {
+    j[name] = {{"attempts", t.attempts}, {"picks", t.picks}, {"collisions", t.collisions}};
+  }
+  return j;
+}
+
 nlohmann::ordered_json ToJson(const ClearReport& r) {
   nlohmann::ordered_json j;
   j["detector"] = r.oracle ? "ground-truth oracle (does not measure perception)" : "perception";
@@ -78,6 +88,7 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"early_heads", s.early_heads},
                       {"early_head_mismatches", s.early_head_mismatches},
                       {"failure_causes", s.failure_causes},
+                      {"by_grasp", ToJson(s.by_grasp)},
                       {"fallback_picks", s.fallback_picks},
                       {"cycles", s.cycles},
                       {"truth_collisions", s.truth_collisions},
@@ -109,6 +120,7 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                 {"early_heads", r.early_heads},
                 {"early_head_mismatches", r.early_head_mismatches},
                 {"failure_causes", r.failure_causes},
+                {"by_grasp", ToJson(r.by_grasp)},
                 {"fallback_picks", r.fallback_picks},
                 {"cycles", r.cycles},
                 {"cycles_per_pick", r.CyclesPerPick()},
@@ -182,6 +194,12 @@ int Run(const ClearCliOptions& opt) {
               "%d scenes stopped with every grasp left refused\n",
               options.feedback ? "on" : "off", options.slip_rate, report.slipped, report.reported, report.screened,
               report.stopped_by_feedback);
+  std::string grasps;
+  for (const auto& [name, t] : report.by_grasp) {
+    grasps += (grasps.empty() ? "" : ", ") + name + " " + std::to_string(t.picks) + "/" + std::to_string(t.attempts) +
+              (t.collisions > 0 ? " (" + std::to_string(t.collisions) + " collisions)" : "");
+  }
+  std::printf("by grasp (picks/taken): %s\n", grasps.c_str());
   std::printf("first pose early: %d plans told their head early, %d of those disagree with their full plan\n",
               report.early_heads, report.early_head_mismatches);
   if (!opt.json_out.empty()) {

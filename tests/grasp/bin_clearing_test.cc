@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <memory>
+#include <string>
 
 #include "pipeline/truth_perception.h"
 
@@ -77,6 +78,20 @@ TEST(StrictClearing, PicksOffTheGraspPointFailAndTheirPartsStay) {
   EXPECT_EQ(close->failed_picks, 0);
   EXPECT_GT(close->picks, 0);
   EXPECT_EQ(close->picks, exact->picks);
+  // The per-grasp tally adds up to the scene's counts, by the cell's names.
+  for (const SceneClearReport* r : {&*report, &*exact}) {
+    GraspTally sum;
+    for (const auto& [name, t] : r->by_grasp) {
+      EXPECT_EQ(name.find_first_of("@~"), std::string::npos) << name;
+      sum.Add(t);
+    }
+    EXPECT_EQ(sum.attempts, r->attempts);
+    EXPECT_EQ(sum.picks, r->picks);
+    EXPECT_EQ(sum.collisions, r->truth_collisions);
+  }
+  EXPECT_EQ(GraspBaseName("hub_side@12~v"), "hub_side");
+  EXPECT_EQ(GraspBaseName("upright_outer~v"), "upright_outer");
+  EXPECT_EQ(GraspBaseName("base_top"), "base_top");
 }
 
 // Serving a whole queue, a pick lets the pile resettle under the grasps still
