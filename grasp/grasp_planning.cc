@@ -37,6 +37,7 @@ std::string_view ToString(RejectReason reason) {
     case RejectReason::kPart: return "part";
     case RejectReason::kSelf: return "self";
     case RejectReason::kPoints: return "points";
+    case RejectReason::kHidden: return "hidden";
   }
   return "?";
 }
@@ -710,9 +711,10 @@ class CandidateFilter {
   }
 
   // The first check `c` fails, nullopt when it passes every one. Sets
-  // c.seal_only and c.seen_fraction on the way.
+  // c.deferred, c.seal_only and c.seen_fraction on the way.
   std::optional<RejectReason> Verdict(GraspCandidate& c) const {
     const Detection& det = detections_[c.detection];
+    c.deferred = det.visible_fraction < m_.options.defer_below_visible;
     const Eigen::AlignedBox3d& workspace = m_.cell.robot.workspace;
     if (c.tilt_rad > max_tilt_ + 1e-9) return RejectReason::kTilt;
     if (!workspace.contains((c.X_BT * X_TF_).translation()) || !workspace.contains((c.X_BT_pre * X_TF_).translation())) {
@@ -870,9 +872,10 @@ bool StaleAfterHead(const GraspPlanningModel::Impl& m, const Gripper& gripper, s
 // (1, 2, 4, ... up to 32 candidates, each block in parallel; every verdict
 // kept in `checked` for stage 3). Filtering only removes and a score
 // depends on its candidate alone, so in that order:
-//   - the first candidate that passes every check and is not a seal-only
-//     last resort is the head of the final queue (a passing seal-only one
-//     ranked above it is refused by stage 3b, since a certain grasp exists);
+//   - the first candidate that passes every check and is not a last resort
+//     (seal-only, or deferred on a mostly hidden part) is the head of the
+//     final queue (a passing last resort ranked above it is refused by stage
+//     3b, since a certain grasp exists);
 //   - the first such candidate of each other part is that part's primary
 //     grasp; the first primary the head's hand-out cannot make stale, even
 //     through parts that may move with it (StaleAfterHead, TouchGroup), is
@@ -915,7 +918,7 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
     });
     for (size_t k = begin; k < end; ++k) {
       const GraspCandidate& c = candidates[order[k]];
-      if (c.rejected || c.seal_only) continue;
+      if (c.rejected || c.seal_only || c.deferred) continue;
       if (found.head < 0) {
         found.head = order[k];
         decided.insert(c.detection);
@@ -937,16 +940,24 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
   return found;
 }
 
-// Stage 3b: the last resort. Grasps kept only because the cup seals under
+// Stage 3b: the last resorts. Grasps kept only because the cup seals under
 // every alternative pose (seal_only) would land off their grasp point were
-// an alternative true: they are refused (kAmbiguous) while the plan keeps
-// any other grasp, so that a part whose landing is certain is picked first.
-void KeepSealOnlyAsLastResort(std::vector<GraspCandidate>& candidates) {
-  const bool certain = std::any_of(candidates.begin(), candidates.end(),
-                                   [](const GraspCandidate& c) { return !c.rejected && !c.seal_only; });
+// an alternative true, and grasps on a mostly hidden part (deferred) pass
+// near what hides it: they are refused (kAmbiguous, kHidden) while the plan
+// keeps any other grasp, so that a part whose landing is certain and whose
+// surroundings are seen is picked first.
+void KeepLastResortsLast(std::vector<GraspCandidate>& candidates) {
+  const bool certain = std::any_of(candidates.begin(), candidates.end(), [](const GraspCandidate& c) {
+    return !c.rejected && !c.seal_only && !c.deferred;
+  });
   if (!certain) return;
   for (GraspCandidate& c : candidates) {
-    if (!c.rejected && c.seal_only) c.rejected = RejectReason::kAmbiguous;
+    if (c.rejected) continue;
+    if (c.seal_only) {
+      c.rejected = RejectReason::kAmbiguous;
+    } else if (c.deferred) {
+      c.rejected = RejectReason::kHidden;
+    }
   }
 }
 
@@ -1136,7 +1147,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     }
   }
   FilterCandidates(filter, plan.candidates, checked);
-  KeepSealOnlyAsLastResort(plan.candidates);
+  KeepLastResortsLast(plan.candidates);
   RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);
   const auto t_neighbours = std::chrono::steady_clock::now();

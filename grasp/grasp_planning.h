@@ -34,6 +34,12 @@
 // capture; when no part has one, the plan is kNoCollisionFree, which the
 // robot hears as "no collision-free grasp" (docs/protocols.md, pick pose).
 //
+// Hidden parts. A grasp on a part whose camera-facing surface lies mostly
+// behind measured points (Detection::visible_fraction below
+// defer_below_visible) passes near what hides it, which is often no
+// detection: it is deferred like a seal-only grasp, offered only when the
+// plan keeps no other grasp (kHidden).
+//
 // Seen contact (issue 37 item 2). A grasp is kept only when this frame's
 // depth shows its contact region, by the rule of the task's gripper
 // (grippers[].seen_contact, SeenContactRule in core/cell.h): the model
@@ -90,8 +96,13 @@ enum class RejectReason : int {
   kPart,       // swept gripper hits another detected part
   kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
   kPoints,     // lifted swept gripper hits scene points no detection explains
+  // Passed every check, but its part is mostly hidden (Detection::
+  // visible_fraction below GraspPlanningOptions::defer_below_visible) while
+  // the plan keeps a grasp on a better-seen part (stage 3b, as the seal-only
+  // last resorts).
+  kHidden,
 };
-inline constexpr int kNumRejectReasons = 9;
+inline constexpr int kNumRejectReasons = 10;
 std::string_view ToString(RejectReason reason);
 
 struct GraspPlanningOptions {
@@ -158,6 +169,14 @@ struct GraspPlanningOptions {
   // measured wall would hit the true one. The judge's check
   // (CheckAgainstParts) takes the exact bin.
   double bin_margin = 0.0005;
+  // A part whose camera-facing surface lies mostly behind measured points
+  // (Detection::visible_fraction, in [0, 1], below this) is grasped only
+  // when no better-seen part has a grasp (GraspCandidate::deferred): what
+  // hides it is near its grasp and often no detection (an undetected
+  // neighbour, or a bushing fitted into a tee's arm whose other points the
+  // false fit explains away), and picking the rest first uncovers it
+  // (docs/tuning.md, "defer_below_visible"). 0 disables.
+  double defer_below_visible = 0.75;
 };
 
 namespace internal {
@@ -194,6 +213,9 @@ struct GraspCandidate {
   // alternative pose, but the cup seals on the part under each. Kept only
   // when no other candidate of the plan is (else rejected as kAmbiguous).
   bool seal_only = false;
+  // Its detection is mostly hidden (defer_below_visible): kept only when no
+  // candidate of the plan is neither this nor seal_only (else kHidden).
+  bool deferred = false;
   double score = 0.0;       // ranking score (accepted candidates)
 };
 

@@ -62,6 +62,7 @@ Detection Bushing(double x_W, double y_W, double z_W = 0.0, double tilt_deg = 0.
   d.X_BO = DefaultCell().bin.X_BW *
            MakePose(Mat3(Eigen::AngleAxisd(tilt_deg * M_PI / 180, Vec3::UnitY())), Vec3(x_W, y_W, z_W));
   d.score = 0.9;
+  d.visible_fraction = 1.0;
   return d;
 }
 
@@ -481,6 +482,37 @@ TEST(GraspFilter, TheSpaceUnderAnUnexplainedEdgeBlocksATiltedToolThatPassesBelow
   ASSERT_TRUE(flat.ok()) << flat.status().ToString();
   EXPECT_EQ(hub_top(PlanGrasps(**flat, PickTask(), scene), std::nullopt), 24);
   EXPECT_EQ(hub_top(PlanGrasps(Model(), PickTask(), scene), RejectReason::kPoints), 24);
+}
+
+// A part seen mostly behind other measured points (visible_fraction 0.5)
+// has what hides it near its grasp, often undetected: it waits while a
+// better-seen part has a grasp, even ranked above it (higher), and is
+// offered once it is the only part with one.
+TEST(GraspFilter, AMostlyHiddenPartWaitsWhileABetterSeenPartHasAGrasp) {
+  Detection hidden = Bushing(-0.1, 0, 0.03);
+  hidden.visible_fraction = 0.5;
+  const PerceptionResult scene = Scene({hidden, Bushing(0.1, 0)});
+  std::optional<PlanHead> head;
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), scene, {}, nullptr, [&head](const PlanHead& h) { head = h; });
+  ASSERT_EQ(plan.queue.size(), 1u) << plan.stats.Describe();
+  EXPECT_EQ(plan.queue[0].instance_id, 1);
+  EXPECT_EQ(Count(Verdicts(plan, 0, "hub_top@"), RejectReason::kHidden), 24);
+  EXPECT_EQ(plan.stats.rejected[static_cast<int>(RejectReason::kHidden)], 24);  // counted by reason
+  ASSERT_TRUE(head.has_value());
+  EXPECT_EQ(head->grasp.instance_id, 1);
+  EXPECT_EQ(head->max_queue, 1);
+  const GraspPlan alone = PlanGrasps(Model(), PickTask(), Scene({hidden}));
+  ASSERT_EQ(alone.queue.size(), 1u);
+  EXPECT_EQ(alone.queue[0].instance_id, 0);
+  EXPECT_EQ(Count(Verdicts(alone, 0, "hub_top@"), std::nullopt), 24);
+  // The rule off: the higher part first, as its height ranks it.
+  GraspPlanningOptions off;
+  off.defer_below_visible = 0;
+  auto model = GraspPlanningModel::Build(CellWithoutSeenContact(), off);
+  ASSERT_TRUE(model.ok()) << model.status().ToString();
+  const GraspPlan ranked = PlanGrasps(**model, PickTask(), scene);
+  ASSERT_EQ(ranked.queue.size(), 2u);
+  EXPECT_EQ(ranked.queue[0].instance_id, 0);
 }
 
 TEST(GraspPlan, NoDetectionsIsNoObjectsAndBlockedPartsAreNoCollisionFree) {

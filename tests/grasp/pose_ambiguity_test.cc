@@ -351,6 +351,8 @@ TEST(PoseAmbiguity, ASealOnlySuctionGraspWaitsWhileAnotherPartHasAGraspThatLands
   detections[0].alternatives_X_BO = {TurnedAboutTheRun(standing, 6.8), TurnedAboutTheRun(standing, 14.3)};
   detections[1].X_BO = lying;
   detections[0].score = detections[1].score = 1.0;
+  // Both in full view (a mostly hidden part waits as well: defer_below_visible).
+  detections[0].visible_fraction = detections[1].visible_fraction = 1.0;
   p.detections = detections;
   TaskSpec task = *DefaultCell().FindTask(0);
   task.part_classes = {kTee};
