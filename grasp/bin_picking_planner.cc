@@ -123,6 +123,10 @@ Result<std::unique_ptr<BinPickingPlanner>> BinPickingPlanner::Create(const Cell&
   if (options.thorough_retry_estimates < 0) {
     return Status::InvalidArgument("grasp planner: thorough_retry_estimates must be >= 0 (0: no count)");
   }
+  // A support sample stands for its perception grid cell (GraspPlanningOptions::support_grid_spacing).
+  if (options.planning.support_grid_spacing > 0) {
+    options.planning.support_grid_spacing = perception->options().grid_spacing;
+  }
   auto model = GraspPlanningModel::Build(cell, options.planning);
   if (!model.ok()) return model.status();
   std::string teach_file = options.teach_file.empty() ? DefaultTeachFile(cell) : options.teach_file;

@@ -129,6 +129,28 @@ struct GraspPlanningOptions {
   // the top edge of an undetected plate standing on end, not the plate below
   // it, and a tilted tool passing beside that edge hits the hidden part.
   bool occluded_columns = true;
+  // Perception's grid spacing (PerceptionOptions::grid_spacing, m; the
+  // BinPickingPlanner copies its perception's): the ROI points within twice
+  // this of a detection's support point are explained too, no obstacle. 0:
+  // the support points alone (as before 2026-12-06).
+  // Why: perception fits one sample per grid cell, the cell's top-left pixel
+  // (stride = grid_spacing / the pixel footprint on the floor, rounded), and
+  // a detection's support is those samples: at 1920 x 1200 (stride 3) the
+  // other eight pixels of every supported cell were obstacles, and a part's
+  // own surface refused its own grasps (kPoints). A sample stands for the
+  // points of its own cell; they lie within sqrt(2) * (stride - 1) pixels of
+  // it across the view, under sqrt(2) * grid_spacing at any stride (1.1 mm
+  // at 1920 x 1200), so twice the spacing holds the cell on a surface tilted
+  // up to 45 deg from the view (60 deg at 1920 x 1200; steeper cells keep
+  // some points as obstacles, the safe side). The plan has no pixel
+  // coordinates, hence a distance in B rather than the cell itself.
+  // No other part loses a verdict: a point explained lies within 2 * spacing
+  // (2.4 mm) in 3D of a support sample, which lies on the detected part's
+  // fitted surface within the fit's residual limit; another part's point is
+  // dropped only where that part touches the detected one (a neighbour below
+  // an edge differs in depth by more), and its points farther away stay, in
+  // octree_resolution voxels (4 mm) that move each point by up to 2 mm.
+  double support_grid_spacing = 0.0012;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg -

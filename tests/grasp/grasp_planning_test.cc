@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <optional>
 #include <random>
@@ -667,6 +668,101 @@ TEST(GraspFilter, VoxelisedObstaclesGiveEveryCandidateThePointByPointVerdict) {
       }
     }
   }
+}
+
+// Perception's support: one sample per grid cell, the top-left pixel of
+// each stride x stride block (pipeline/internal/segmentation.cc LabelGrid:
+// stride = grid_spacing / the pixel footprint on the bin floor, rounded).
+// Thins the true detections' every-pixel support (TruthPerception) to it.
+PerceptionResult GridSupportOnly(const PerceptionResult& truth, const Frame& frame, const Cell& cell) {
+  const double z_floor = std::abs((frame.X_BC.inverse() * cell.bin.X_BW.translation()).z());
+  const int stride = std::clamp(
+      static_cast<int>(std::lround(PerceptionOptions{}.grid_spacing / (z_floor / frame.intrinsics.fx))), 1, 8);
+  const Eigen::Isometry3f X_CB = frame.X_BC.inverse().cast<float>();
+  PerceptionResult out = truth;
+  for (Detection& d : out.detections) {
+    std::vector<int32_t> kept;
+    for (int32_t i : d.support) {
+      const Eigen::Vector3f p_C = X_CB * truth.roi_points_B[static_cast<size_t>(i)];
+      const long u = std::lround(frame.intrinsics.fx * p_C.x() / p_C.z() + frame.intrinsics.cx);
+      const long v = std::lround(frame.intrinsics.fy * p_C.y() / p_C.z() + frame.intrinsics.cy);
+      if (u % stride == 0 && v % stride == 0) kept.push_back(i);
+    }
+    d.support = std::move(kept);
+  }
+  return out;
+}
+
+// Every candidate's verdict by (detection, name); `skipped` is a detection
+// left out of the scene (the later detections' indices are one lower).
+std::map<std::pair<int, std::string>, std::optional<RejectReason>> VerdictMap(const GraspPlan& plan,
+                                                                                int skipped = -1) {
+  std::map<std::pair<int, std::string>, std::optional<RejectReason>> v;
+  for (const GraspCandidate& c : plan.candidates) {
+    const int d = skipped >= 0 && c.detection >= skipped ? c.detection + 1 : c.detection;
+    v[{d, c.name}] = c.rejected;
+  }
+  return v;
+}
+
+PerceptionResult Without(PerceptionResult scene, int detection) {
+  scene.detections.erase(scene.detections.begin() + detection);
+  return scene;
+}
+
+// A support sample stands for its grid cell (GraspPlanningOptions::
+// support_grid_spacing). On a 1920 x 1200 pile (stride 3) with the true
+// detections' support thinned to perception's grid: with the support alone
+// some detected part's grasps are refused by its own points, with the rule
+// they are accepted; and the rule accepts nothing that the true explanation
+// (every pixel of the detected parts, nothing else) refuses, with all parts
+// detected and with each neighbour in turn left undetected (its points and
+// no mesh: they must stay obstacles).
+TEST(GraspPlan, ASupportSampleExplainsItsGridCellAndNoOtherPartsPoints) {
+  Cell cell = DefaultCell();
+  cell.source.kind = SourceSpec::Kind::kSynthetic;
+  cell.source.num_parts = 12;
+  GraspPlanningOptions support_only;
+  support_only.support_grid_spacing = 0;
+  auto with_rule = GraspPlanningModel::Build(cell);
+  auto without = GraspPlanningModel::Build(cell, support_only);
+  ASSERT_TRUE(with_rule.ok() && without.ok());
+  const TaskSpec task = *cell.FindTask(0);
+  std::optional<Frame> frame;
+  std::optional<PerceptionResult> truth;
+  ASSERT_NO_FATAL_FAILURE(RenderTruthPile(cell, 2, 3, frame, truth));
+  const PerceptionResult grid = GridSupportOnly(*truth, *frame, cell);
+  ASSERT_GE(grid.detections.size(), 3u);
+  // Stride 3: about one pixel in nine of a part is a support sample.
+  EXPECT_LT(grid.detections[0].support.size() * 5, truth->detections[0].support.size());
+  const auto alone = VerdictMap(PlanGrasps(**without, task, grid, {}, &*frame));
+  const auto ruled = VerdictMap(PlanGrasps(**with_rule, task, grid, {}, &*frame));
+  const auto ideal = VerdictMap(PlanGrasps(**without, task, *truth, {}, &*frame));
+  int recovered = 0;
+  for (const auto& [key, verdict] : ruled) {
+    if (verdict) continue;
+    EXPECT_FALSE(ideal.at(key).has_value()) << key.second << " on detection " << key.first;
+    if (alone.at(key) == RejectReason::kPoints) ++recovered;
+  }
+  EXPECT_GT(recovered, 0);
+  // Each detection in turn left undetected until one refuses another's
+  // grasps by its points: those stay refused under the rule.
+  int kept_refused = 0;
+  for (int k = 0; k < static_cast<int>(truth->detections.size()) && kept_refused == 0; ++k) {
+    SCOPED_TRACE("detection " + std::to_string(k) + " undetected");
+    const auto ruled_k = VerdictMap(PlanGrasps(**with_rule, task, Without(grid, k), {}, &*frame), k);
+    const auto ideal_k = VerdictMap(PlanGrasps(**without, task, Without(*truth, k), {}, &*frame), k);
+    for (const auto& [key, verdict] : ruled_k) {
+      if (!verdict) {
+        EXPECT_FALSE(ideal_k.at(key).has_value()) << key.second << " on detection " << key.first;
+      }
+      if (ideal_k.at(key) == RejectReason::kPoints && !ideal.at(key)) {
+        EXPECT_TRUE(verdict.has_value()) << key.second << " on detection " << key.first;
+        ++kept_refused;
+      }
+    }
+  }
+  EXPECT_GT(kept_refused, 0);
 }
 
 // The first pose early (GraspPlanner::PlanWithHead): on synthetic piles
