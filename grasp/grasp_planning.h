@@ -132,7 +132,7 @@ struct GraspPlanningOptions {
   // Perception's grid spacing (PerceptionOptions::grid_spacing, m; the
   // BinPickingPlanner copies its perception's): the ROI points within twice
   // this of a detection's support point are explained too, no obstacle. 0:
-  // the support points alone (as before 2026-12-06).
+  // the support points alone.
   // Why: perception fits one sample per grid cell, the cell's top-left pixel
   // (stride = grid_spacing / the pixel footprint on the floor, rounded), and
   // a detection's support is those samples: at 1920 x 1200 (stride 3) the
