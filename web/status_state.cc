@@ -424,72 +424,8 @@ class StatusState::Impl {
     }
     j["tasks"] = tasks;
 
-    if (detections > 0) {
-      json det;
-      det["seq"] = d.seq;
-      det["queued"] = d.queued;
-      det["task"] = d.task_id;
-      det["time"] = IsoTime(d.time);
-      det["outcome"] = d.outcome;
-      det["capture_ms"] = d.capture_ms;
-      det["plan_ms"] = d.plan_ms;
-      det["capture_status"] = d.capture_status;
-      det["plan_status"] = d.plan_status;
-      det["message"] = d.message;
-      det["detections"] = d.detections;
-      det["roi_points"] = d.roi_points;
-      json stages = json::array();
-      for (const StageTime& s : d.stages) stages.push_back({{"stage", s.stage}, {"ms", s.ms}});
-      det["stages"] = stages;
-      json parts = json::array();
-      for (const DetectedPart& p : d.parts) {
-        json pj = PoseJson(p.X_BO);
-        pj["class_id"] = p.class_id;
-        auto it = part_names_.find(p.class_id);
-        pj["class"] = it == part_names_.end() ? "" : it->second;
-        pj["score"] = p.score;
-        parts.push_back(pj);
-      }
-      det["parts"] = parts;
-      det["bin"] = BinJson(d.bin);
-      det["fill"] = d.fill ? json{{"mean_height_m", d.fill->mean_height},
-                                  {"max_height_m", d.fill->max_height},
-                                  {"occupied_fraction", d.fill->occupied_fraction}}
-                           : json(nullptr);
-      j["detection"] = det;
-    } else {
-      j["detection"] = nullptr;
-    }
-
-    // The queue: the grasps of the last plan that refilled a queue, each
-    // handed out, next, queued or withdrawn (GraspStates).
-    if (queue.seq > 0) {
-      const int total = static_cast<int>(queue.grasps.size());
-      int left = total;
-      if (queue_size) left = std::clamp(queue_size(queue.task_id), 0, total);
-      const std::vector<internal::GraspState> states =
-          GraspStates(queue.grasps, left, queue_contents ? queue_contents(queue.task_id) : std::nullopt);
-      int withdrawn = 0;
-      for (internal::GraspState s : states) withdrawn += s == internal::GraspState::kWithdrawn;
-      json grasps = json::array();
-      for (int i = 0; i < total; ++i) {
-        const Grasp& g = queue.grasps[static_cast<size_t>(i)];
-        json gj = PoseJson(g.X_BT);
-        gj["index"] = i + 1;
-        gj["class_id"] = g.class_id;
-        auto it = part_names_.find(g.class_id);
-        gj["class"] = it == part_names_.end() ? "" : it->second;
-        gj["instance_id"] = g.instance_id;
-        gj["score"] = g.score;
-        gj["name"] = g.name;
-        gj["state"] = StateName(states[static_cast<size_t>(i)]);
-        grasps.push_back(gj);
-      }
-      j["queue"] = {{"seq", queue.seq}, {"task", queue.task_id}, {"total", total},
-                    {"remaining", left}, {"withdrawn", withdrawn}, {"grasps", grasps}};
-    } else {
-      j["queue"] = nullptr;
-    }
+    j["detection"] = detections > 0 ? DetectionJson(d) : json(nullptr);
+    j["queue"] = queue.seq > 0 ? QueueJson(queue, queue_size, queue_contents) : json(nullptr);
 
     json rl = json::array();
     for (const auto& [peer, r] : robots) {
@@ -598,6 +534,72 @@ class StatusState::Impl {
     int task_id = 0;
     std::vector<Grasp> grasps;
   };
+
+  // The last detection: its outcome, stage times, parts, bin and fill level.
+  json DetectionJson(const Detection& d) const {
+    json det;
+    det["seq"] = d.seq;
+    det["queued"] = d.queued;
+    det["task"] = d.task_id;
+    det["time"] = IsoTime(d.time);
+    det["outcome"] = d.outcome;
+    det["capture_ms"] = d.capture_ms;
+    det["plan_ms"] = d.plan_ms;
+    det["capture_status"] = d.capture_status;
+    det["plan_status"] = d.plan_status;
+    det["message"] = d.message;
+    det["detections"] = d.detections;
+    det["roi_points"] = d.roi_points;
+    json stages = json::array();
+    for (const StageTime& s : d.stages) stages.push_back({{"stage", s.stage}, {"ms", s.ms}});
+    det["stages"] = stages;
+    json parts = json::array();
+    for (const DetectedPart& p : d.parts) {
+      json pj = PoseJson(p.X_BO);
+      pj["class_id"] = p.class_id;
+      auto it = part_names_.find(p.class_id);
+      pj["class"] = it == part_names_.end() ? "" : it->second;
+      pj["score"] = p.score;
+      parts.push_back(pj);
+    }
+    det["parts"] = parts;
+    det["bin"] = BinJson(d.bin);
+    det["fill"] = d.fill ? json{{"mean_height_m", d.fill->mean_height},
+                                {"max_height_m", d.fill->max_height},
+                                {"occupied_fraction", d.fill->occupied_fraction}}
+                         : json(nullptr);
+    return det;
+  }
+
+  // The queue: the grasps of the last plan that refilled a queue, each
+  // handed out, next, queued or withdrawn (GraspStates). `queue.seq` > 0.
+  json QueueJson(const Queue& queue, const std::function<int(int)>& queue_size,
+                 const QueueContentsProbe& queue_contents) const {
+    const int total = static_cast<int>(queue.grasps.size());
+    int left = total;
+    if (queue_size) left = std::clamp(queue_size(queue.task_id), 0, total);
+    const std::vector<internal::GraspState> states =
+        GraspStates(queue.grasps, left, queue_contents ? queue_contents(queue.task_id) : std::nullopt);
+    int withdrawn = 0;
+    for (internal::GraspState s : states) withdrawn += s == internal::GraspState::kWithdrawn;
+    json grasps = json::array();
+    for (int i = 0; i < total; ++i) {
+      const Grasp& g = queue.grasps[static_cast<size_t>(i)];
+      json gj = PoseJson(g.X_BT);
+      gj["index"] = i + 1;
+      gj["class_id"] = g.class_id;
+      auto it = part_names_.find(g.class_id);
+      gj["class"] = it == part_names_.end() ? "" : it->second;
+      gj["instance_id"] = g.instance_id;
+      gj["score"] = g.score;
+      gj["name"] = g.name;
+      gj["state"] = StateName(states[static_cast<size_t>(i)]);
+      grasps.push_back(gj);
+    }
+    return {{"seq", queue.seq}, {"task", queue.task_id}, {"total", total},
+            {"remaining", left}, {"withdrawn", withdrawn}, {"grasps", grasps}};
+  }
+
   struct Robot {
     uint64_t client_id = 0;
     Clock::time_point first_seen{}, last_seen{};
