@@ -2,8 +2,11 @@
 
 namespace bp::internal {
 
-std::string_view StatusPageHtml() {
-  static constexpr std::string_view kHtml = R"HTML(<!DOCTYPE html>
+namespace {
+
+// The whole page: layout, styles and the script that polls the status JSON
+// and the overlay images.
+constexpr std::string_view kStatusPage = R"HTML(<!DOCTYPE html>
 <html lang="en">
 <head>
 <meta charset="utf-8">
@@ -171,7 +174,9 @@ poll();
 </body>
 </html>
 )HTML";
-  return kHtml;
-}
+
+}  // namespace
+
+std::string_view StatusPageHtml() { return kStatusPage; }
 
 }  // namespace bp::internal
