@@ -2,8 +2,10 @@
 //   ./build/bin/bp_bench --benchmark_filter='Pile|Capture|RenderOnly|DepthNoise'
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 #include <string>
 
 #include "core/mesh_gen.h"
@@ -84,6 +86,61 @@ BENCHMARK(BM_Capture)
     ->Args({2, 1})
     ->Args({1, 0})
     ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->MeasureProcessCPUTime()
+    ->UseRealTime();
+
+// The capture after a pick, as a robot's cycle makes it (binpick bench-cell,
+// binpick clear): the top part (the most visible) is taken out, the pile
+// resettles, then the capture. A pile left with 5 parts is dropped anew
+// (untimed, with its first capture).
+void BM_CaptureAfterPick(benchmark::State& state) {
+  Cell cell = BenchCell();
+  cell.source.simulate_picks = true;
+  CaptureRequest r;
+  r.config_id = static_cast<int>(state.range(0));
+  std::unique_ptr<CaptureSource> source;
+  std::optional<Frame> last;
+  const auto refill = [&]() -> bool {
+    auto s = MakeSyntheticSource(cell);
+    if (!s.ok()) return false;
+    source = std::move(*s);
+    auto f = source->Capture(r);
+    if (!f.ok()) return false;
+    last = std::move(*f);
+    return true;
+  };
+  if (!refill()) {
+    state.SkipWithError("setup failed");
+    return;
+  }
+  for (auto _ : state) {
+    if (last->truth->parts.size() <= 5) {
+      state.PauseTiming();
+      const bool ok = refill();
+      state.ResumeTiming();
+      if (!ok) {
+        state.SkipWithError("refill failed");
+        return;
+      }
+    }
+    const auto& parts = last->truth->parts;
+    const auto top = std::max_element(parts.begin(), parts.end(), [](const PartTruth& a, const PartTruth& b) {
+      return a.visible_pixels < b.visible_pixels;
+    });
+    source->NotifyPicked(top->instance_id);
+    auto f = source->Capture(r);
+    if (!f.ok()) {
+      state.SkipWithError("capture failed");
+      return;
+    }
+    last = std::move(*f);
+  }
+  state.SetLabel(r.config_id == 1 ? "640x480" : "1920x1200");
+}
+BENCHMARK(BM_CaptureAfterPick)
+    ->Arg(1)
+    ->Arg(2)
     ->Unit(benchmark::kMillisecond)
     ->MeasureProcessCPUTime()
     ->UseRealTime();
