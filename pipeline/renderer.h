@@ -8,6 +8,7 @@
 // y down). Depth is the metric z in C (not the ray length).
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -37,6 +38,23 @@ struct RenderScene {
   double ambient = 0.15;        // intensity of a surface facing away from the light, [0, 1]
 };
 
+// The pixels u0..u1 x v0..v1 of an image (inclusive; empty when u1 < u0 or
+// v1 < v0).
+struct PixelRect {
+  int u0 = 0, v0 = 0, u1 = -1, v1 = -1;
+  bool empty() const { return u1 < u0 || v1 < v0; }
+  int64_t area() const { return empty() ? 0 : int64_t{u1 - u0 + 1} * (v1 - v0 + 1); }
+  // The smallest rect holding both.
+  void Extend(const PixelRect& r) {
+    if (r.empty()) return;
+    if (empty()) {
+      *this = r;
+      return;
+    }
+    u0 = std::min(u0, r.u0), v0 = std::min(v0, r.v0), u1 = std::max(u1, r.u1), v1 = std::max(v1, r.v1);
+  }
+};
+
 struct RenderOutput {
   DepthImage depth;          // metres (z in C); NaN where nothing was hit
   LabelImage labels;         // RenderInstance::label of the nearest surface, 0 = nothing
@@ -55,6 +73,14 @@ class DepthRenderer {
   // As Render, filling `out` in place (its buffers are reused between calls).
   virtual Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC,
                             RenderOutput& out) = 0;
+  // As RenderInto for the pixels of `region` only (clipped to the image):
+  // `out` must already hold an image of K's size, and its pixels outside
+  // `region` are left as they are. The pixels inside get the bytes RenderInto
+  // would give them: the same triangles are set up over the same viewport and
+  // projection, only fragments outside `region` are dropped (GL's scissor
+  // test). InvalidArgument when `out` is not of K's size.
+  virtual Status RenderRegion(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC,
+                              const PixelRect& region, RenderOutput& out) = 0;
 };
 
 // @returns Unavailable if no OSMesa context can be created.

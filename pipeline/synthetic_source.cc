@@ -116,6 +116,84 @@ bool SameIntrinsics(const Intrinsics& a, const Intrinsics& b) {
          a.cy == b.cy;
 }
 
+// The image bounds (u, v, real) of a mesh's vertices at X_CO seen through
+// K, or nullopt when a vertex is at or behind z_near (its projection is not
+// bounded). Every pixel the mesh's triangles cover has its centre inside
+// them (GL samples pixel (u, v) at the ray through (u, v)).
+struct ProjectedBounds {
+  double u_min, v_min, u_max, v_max;
+  // The pixels within, widened by `margin` and clipped to K's image.
+  PixelRect Pixels(const Intrinsics& K, int margin) const {
+    return PixelRect{std::max(0, static_cast<int>(std::floor(u_min)) - margin),
+                     std::max(0, static_cast<int>(std::floor(v_min)) - margin),
+                     std::min(K.width - 1, static_cast<int>(std::ceil(u_max)) + margin),
+                     std::min(K.height - 1, static_cast<int>(std::ceil(v_max)) + margin)};
+  }
+};
+
+std::optional<ProjectedBounds> Project(const TriangleMesh& mesh, const Pose& X_CO, const Intrinsics& K,
+                                       double z_near) {
+  ProjectedBounds b;
+  b.u_min = std::numeric_limits<double>::infinity(), b.v_min = b.u_min, b.u_max = -b.u_min, b.v_max = -b.u_min;
+  for (const auto& p : mesh.vertices) {
+    const Vec3 q = X_CO * p.cast<double>();
+    if (q.z() <= z_near) return std::nullopt;
+    const double u = K.fx * q.x() / q.z() + K.cx, v = K.fy * q.y() / q.z() + K.cy;
+    b.u_min = std::min(b.u_min, u);
+    b.u_max = std::max(b.u_max, u);
+    b.v_min = std::min(b.v_min, v);
+    b.v_max = std::max(b.v_max, v);
+  }
+  return b;
+}
+
+// The pixels where a render of `now` can differ from one of `before` through
+// the same view (K, X_WC, clip planes, light and meshes: the caller checks):
+// the projected bounds, 1 pixel wider, of every instance that moved, came or
+// went, where it was and where it is. Outside them the same triangles of the
+// same instances cover every pixel, drawn in the same order (depth ties go to
+// the first drawn), so the pixel is the same. nullopt when that does not
+// hold: a label twice, the unchanged instances in another order, a changed
+// one reaching behind the near plane.
+std::optional<PixelRect> ChangedPixels(const RenderScene& before, const RenderScene& now, const Intrinsics& K,
+                                       const Pose& X_WC) {
+  std::map<uint16_t, size_t> was;  // label -> index in before
+  for (size_t i = 0; i < before.instances.size(); ++i) {
+    if (!was.emplace(before.instances[i].label, i).second) return std::nullopt;
+  }
+  const Pose X_CW = X_WC.inverse();
+  PixelRect changed;
+  const auto add = [&](const RenderScene& scene, const RenderInstance& inst) {
+    const auto b = Project(*scene.meshes[inst.mesh_index], X_CW * inst.X_WO, K, scene.z_near);
+    if (!b) return false;
+    changed.Extend(b->Pixels(K, 1));
+    return true;
+  };
+  std::vector<bool> kept(before.instances.size(), false);
+  std::map<uint16_t, bool> seen;
+  size_t last_kept = 0;
+  bool any_kept = false;
+  for (const RenderInstance& inst : now.instances) {
+    if (!seen.emplace(inst.label, true).second) return std::nullopt;
+    const auto w = was.find(inst.label);
+    if (w != was.end()) {
+      const RenderInstance& old = before.instances[w->second];
+      if (old.mesh_index == inst.mesh_index && SameBits(old.X_WO, inst.X_WO)) {
+        if (any_kept && w->second <= last_kept) return std::nullopt;
+        last_kept = w->second;
+        any_kept = true;
+        kept[w->second] = true;
+        continue;
+      }
+    }
+    if (!add(now, inst)) return std::nullopt;
+  }
+  for (size_t i = 0; i < before.instances.size(); ++i) {
+    if (!kept[i] && !add(before, before.instances[i])) return std::nullopt;
+  }
+  return changed;
+}
+
 // Everything a render reads: the scene (meshes by identity, instances with
 // their pose bits and labels, clip planes, light), the intrinsics and the
 // camera pose. Holding the meshes keeps their addresses from being reused.
@@ -124,12 +202,14 @@ struct RenderKey {
   Intrinsics K;
   Pose X_WC = Pose::Identity();
 
+  // The same view: all but the instances.
+  bool SameView(const RenderScene& s, const Intrinsics& k, const Pose& x_wc) const {
+    return SameIntrinsics(K, k) && SameBits(X_WC, x_wc) && scene.z_near == s.z_near && scene.z_far == s.z_far &&
+           scene.light_C == s.light_C && scene.ambient == s.ambient && scene.meshes == s.meshes;
+  }
+
   bool Matches(const RenderScene& s, const Intrinsics& k, const Pose& x_wc) const {
-    if (!SameIntrinsics(K, k) || !SameBits(X_WC, x_wc) || scene.z_near != s.z_near || scene.z_far != s.z_far ||
-        scene.light_C != s.light_C || scene.ambient != s.ambient || scene.meshes != s.meshes ||
-        scene.instances.size() != s.instances.size()) {
-      return false;
-    }
+    if (!SameView(s, k, x_wc) || scene.instances.size() != s.instances.size()) return false;
     for (size_t i = 0; i < s.instances.size(); ++i) {
       const RenderInstance &a = scene.instances[i], &b = s.instances[i];
       if (a.mesh_index != b.mesh_index || a.label != b.label || !SameBits(a.X_WO, b.X_WO)) return false;
@@ -173,6 +253,11 @@ class SyntheticSource::Impl {
   int captures = 0;
   RenderOutput full, solo, projector;  // buffers reused between captures
   RenderCache cache;                   // what full / projector / the solo counts were rendered from
+  // The noise's seed-independent part of each pixel, and where full.depth
+  // and projector.depth changed since it was computed.
+  internal::NoiseGeometry noise_geometry;
+  internal::NoiseChanges noise_changes;
+  int64_t rendered_pixels = 0;  // by the last capture, full and projector
   SceneMeshes scene_meshes;
   int picks = 0;  // NotifyPicked calls with a tool pose (the slip's draw)
 
@@ -269,11 +354,23 @@ class SyntheticSource::Impl {
 
   // Renders `scene` into `out` unless `key` says `out` already holds that
   // render; `key` is updated (cleared while `out` is being overwritten).
+  // When `out` holds a render of the same view whose instances partly
+  // changed (a pick, a resettle), only the pixels they can reach are
+  // rendered again (ChangedPixels; the other pixels are the same bytes).
+  // `changed` is extended by the pixels rendered (the whole image for a
+  // whole render), for the noise's geometry.
   Status RenderCached(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, RenderOutput& out,
-                      std::optional<RenderKey>& key) {
+                      std::optional<RenderKey>& key, PixelRect& changed) {
     if (key && key->Matches(scene, K, X_WC)) return Status::Ok();
+    std::optional<PixelRect> region;
+    if (key && key->SameView(scene, K, X_WC)) region = ChangedPixels(key->scene, scene, K, X_WC);
     key.reset();
-    if (Status s = renderer->RenderInto(scene, K, X_WC, out); !s.ok()) return s;
+    const PixelRect rendered = region.value_or(PixelRect{0, 0, K.width - 1, K.height - 1});
+    changed.Extend(rendered);
+    rendered_pixels += rendered.area();
+    const Status s = region ? renderer->RenderRegion(scene, K, X_WC, *region, out)
+                            : renderer->RenderInto(scene, K, X_WC, out);
+    if (!s.ok()) return s;
     key = RenderKey{scene, K, X_WC};
     return Status::Ok();
   }
@@ -304,33 +401,15 @@ class SyntheticSource::Impl {
   Result<int> UnoccludedPixels(const RenderScene& scene, const RenderInstance& instance,
                                const Intrinsics& K, const Pose& X_WC) {
     const TriangleMesh& mesh = *scene.meshes[instance.mesh_index];
-    const Pose X_CO = X_WC.inverse() * instance.X_WO;
-    double u_min = std::numeric_limits<double>::infinity(), v_min = u_min, u_max = -u_min,
-           v_max = -u_min;
-    bool behind = false;
-    for (const auto& p : mesh.vertices) {
-      const Vec3 q = X_CO * p.cast<double>();
-      if (q.z() <= scene.z_near) {
-        behind = true;
-        break;
-      }
-      const double u = K.fx * q.x() / q.z() + K.cx, v = K.fy * q.y() / q.z() + K.cy;
-      u_min = std::min(u_min, u);
-      u_max = std::max(u_max, u);
-      v_min = std::min(v_min, v);
-      v_max = std::max(v_max, v);
-    }
+    const auto bounds = Project(mesh, X_WC.inverse() * instance.X_WO, K, scene.z_near);
     Intrinsics crop = K;
-    if (!behind) {
-      const int u0 = std::max(0, static_cast<int>(std::floor(u_min)) - 1);
-      const int v0 = std::max(0, static_cast<int>(std::floor(v_min)) - 1);
-      const int u1 = std::min(K.width - 1, static_cast<int>(std::ceil(u_max)) + 1);
-      const int v1 = std::min(K.height - 1, static_cast<int>(std::ceil(v_max)) + 1);
-      if (u1 < u0 || v1 < v0) return 0;
-      crop.width = u1 - u0 + 1;
-      crop.height = v1 - v0 + 1;
-      crop.cx -= u0;
-      crop.cy -= v0;
+    if (bounds) {
+      const PixelRect r = bounds->Pixels(K, 1);
+      if (r.empty()) return 0;
+      crop.width = r.u1 - r.u0 + 1;
+      crop.height = r.v1 - r.v0 + 1;
+      crop.cx -= r.u0;
+      crop.cy -= r.v0;
     }
     RenderScene alone;
     alone.meshes = scene.meshes;
@@ -420,7 +499,8 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
   std::vector<std::shared_ptr<const TriangleMesh>> extra_meshes;
   if (Status s = m.Extras(request, &extras, &extra_meshes); !s.ok()) return s;
   const RenderScene scene = m.Scene(*config, &extras, std::move(extra_meshes));
-  if (Status s = m.RenderCached(scene, K, X_WC, m.full, m.cache.full); !s.ok()) return s;
+  m.rendered_pixels = 0;
+  if (Status s = m.RenderCached(scene, K, X_WC, m.full, m.cache.full, m.noise_changes.depth); !s.ok()) return s;
 
   Frame frame;
   frame.intrinsics = K;
@@ -476,13 +556,18 @@ Result<Frame> SyntheticSource::Capture(const CaptureRequest& request) {
     K_P = internal::ProjectorIntrinsics(K, noise.projector_offset, config->min_depth);
     Pose X_CP = Pose::Identity();
     X_CP.translation() = noise.projector_offset;
-    if (Status s = m.RenderCached(scene, K_P, X_WC * X_CP, m.projector, m.cache.projector); !s.ok()) return s;
+    if (Status s = m.RenderCached(scene, K_P, X_WC * X_CP, m.projector, m.cache.projector,
+                                  m.noise_changes.projector);
+        !s.ok()) {
+      return s;
+    }
     in.projector_depth = &m.projector.depth;
     in.K_projector = &K_P;
     in.projector_offset = noise.projector_offset;
   }
   const uint64_t noise_seed = Mix(m.cell.source.seed ^ Mix(static_cast<uint64_t>(m.captures)));
-  internal::ApplyDepthNoise(noise, in, noise_seed, m.full.depth, frame.depth);
+  internal::ApplyDepthNoise(noise, in, noise_seed, m.full.depth, frame.depth, m.noise_geometry, m.noise_changes);
+  m.noise_changes = internal::NoiseChanges::None();
 
   frame.source = "synthetic seed=" + std::to_string(m.cell.source.seed) +
                  " capture=" + std::to_string(m.captures);
@@ -514,7 +599,10 @@ void SyntheticSource::NotifyPicked(int instance_id, const std::optional<Pose>& X
   if (taken) m.held = taken;
 }
 
-void SyntheticSource::ForgetRenders() { impl_->cache = {}; }
+void SyntheticSource::ForgetRenders() {
+  impl_->cache = {};
+  impl_->noise_changes = internal::NoiseChanges{};  // all
+}
 
 void SyntheticSource::NotifyReleased() {
   std::lock_guard lock(impl_->world_mutex);
@@ -553,5 +641,6 @@ const Pose& SyntheticSource::X_BW() const { return impl_->X_BW; }
 const std::optional<SceneVariety>& SyntheticSource::variety() const { return impl_->variety; }
 const CameraSpec& SyntheticSource::camera() const { return impl_->cell.camera; }
 int SyntheticSource::capture_count() const { return impl_->captures; }
+int64_t SyntheticSource::rendered_pixels() const { return impl_->rendered_pixels; }
 
 }  // namespace bp

@@ -105,6 +105,11 @@ class SyntheticSource final : public CaptureSource {
   const Pose& X_BW() const;
   // Number of frames captured so far.
   int capture_count() const;
+  // Pixels the last capture rendered of the scene and of the projector's
+  // depth map (solo renders aside): 0 for a pile untouched since the capture
+  // before, the pixels the moved parts can reach after a pick, both images
+  // whole for a new view or after ForgetRenders.
+  int64_t rendered_pixels() const;
   // What this scene drew (cell.source.variety), else nullopt.
   const std::optional<SceneVariety>& variety() const;
   // The camera the frames are rendered from (with variety: the varied one).

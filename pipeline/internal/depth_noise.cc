@@ -66,7 +66,7 @@ double ViewCosine(const DepthImage& d, const Pinhole& K, int u, int v, double ab
     }
     return std::isfinite(best);
   };
-  Eigen::Vector3d tx, ty;
+  Eigen::Vector3d tx = Eigen::Vector3d::Zero(), ty = Eigen::Vector3d::Zero();  // set when tangent() is true
   if (!tangent(1, 0, tx) || !tangent(0, 1, ty)) return std::numeric_limits<double>::quiet_NaN();
   const Eigen::Vector3d n = tx.cross(ty);
   const double dot = n.dot(P);
@@ -102,7 +102,11 @@ int FloorInt(double x) {
 
 // True if the projector sees the camera point P_C (depth test against the
 // projector's depth map; the 2x2 neighbourhood tolerates steep slopes).
-bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
+// `*u_read`, `*v_read`: the top-left pixel of the 2x2 block read, u = -1
+// when none was.
+bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C, int* u_read, int* v_read) {
+  *u_read = -1;
+  *v_read = -1;
   const Eigen::Vector3d P = P_C - in.projector_offset;
   if (P.z() <= 0) return false;
   const Intrinsics& K = *in.K_projector;
@@ -112,6 +116,8 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
   const int u0 = FloorInt(x), v0 = FloorInt(y);
   if (u0 < 0 || v0 < 0 || u0 + 1 >= K.width || v0 + 1 >= K.height)
     return true;  // outside the map: lit
+  *u_read = u0;
+  *v_read = v0;
   double far_z = -1;
   for (int dv = 0; dv <= 1; ++dv) {
     for (int du = 0; du <= 1; ++du) {
@@ -123,16 +129,38 @@ bool Illuminated(const NoiseInputs& in, const Eigen::Vector3d& P_C) {
   return P.z() <= far_z + tolerance;
 }
 
+bool SameIntrinsics(const Intrinsics& a, const Intrinsics& b) {
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
+         a.cy == b.cy;
+}
+
+// True when `g` was computed for these inputs (the images aside).
+bool GeometryFits(const NoiseGeometry& g, const NoiseModel& model, const NoiseInputs& in, bool shadow, int w,
+                  int h) {
+  if (g.width != w || g.height != h || g.grazing_start_deg != model.grazing_start_deg ||
+      g.grazing_full_deg != model.grazing_full_deg || g.shadow != shadow || !SameIntrinsics(g.K, *in.K)) {
+    return false;
+  }
+  return !shadow || (SameIntrinsics(g.K_projector, *in.K_projector) && g.projector_offset == in.projector_offset);
+}
+
 }  // namespace
 
 void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, const DepthImage& depth,
                      DepthImage& noisy) {
+  NoiseGeometry geometry;
+  ApplyDepthNoise(model, in, seed, depth, noisy, geometry, NoiseChanges{});
+}
+
+void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t seed, const DepthImage& depth,
+                     DepthImage& noisy, NoiseGeometry& geometry, const NoiseChanges& changes) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const int w = depth.width, h = depth.height;
   if (noisy.width != w || noisy.height != h) noisy = DepthImage(w, h);
   // The depth range, applied last to what the noise left.
   const auto in_range = [&](float z) { return std::isfinite(z) && (z < in.min_depth || z > in.max_depth) ? nan : z; };
   if (!model.enabled) {
+    geometry.width = 0;  // its inputs' changes are not followed meanwhile
     for (size_t i = 0; i < depth.data.size(); ++i) noisy.data[i] = in_range(depth.data[i]);
     return;
   }
@@ -142,6 +170,44 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
   const bool shadow = model.projector_shadow && in.projector_depth && in.K_projector;
   const double above_sq =
       cos_start > 0 ? cos_start * cos_start * (1 + 1e-9) : std::numeric_limits<double>::infinity();
+
+  // The cached geometry: where to compute it again.
+  const bool all = changes.all || !GeometryFits(geometry, model, in, shadow, w, h) ||
+                   (shadow && (in.K_projector->width > 32767 || in.K_projector->height > 32767));
+  if (all) {
+    geometry.code.assign(static_cast<size_t>(w) * h, NoiseGeometry::kNoDepth);
+    geometry.projector_u.assign(static_cast<size_t>(w) * h, -1);
+    geometry.projector_v.assign(static_cast<size_t>(w) * h, -1);
+    geometry.width = w;
+    geometry.height = h;
+    geometry.grazing_start_deg = model.grazing_start_deg;
+    geometry.grazing_full_deg = model.grazing_full_deg;
+    geometry.shadow = shadow;
+    geometry.K = *in.K;
+    if (shadow) {
+      geometry.K_projector = *in.K_projector;
+      geometry.projector_offset = in.projector_offset;
+    }
+  }
+  // A pixel's grazing class reads its 4-neighbours' depth; its shadow, its
+  // own depth and the 2 x 2 projector block it falls on.
+  const PixelRect& dd = changes.depth;
+  const PixelRect depth_rect = dd.empty() ? dd : PixelRect{dd.u0 - 1, dd.v0 - 1, dd.u1 + 1, dd.v1 + 1};
+  const PixelRect& pr = changes.projector;
+  const bool projector_changed = shadow && !pr.empty();
+  // The seed-independent verdicts of pixel (u, v), clean depth z (finite).
+  const auto classify = [&](int u, int v, double z, size_t i) {
+    const double c = ViewCosine(depth, K, u, v, above_sq);
+    uint8_t code = !(std::isfinite(c) && c < cos_start) ? NoiseGeometry::kFacing
+                   : c <= cos_full                      ? NoiseGeometry::kDropped
+                                                        : NoiseGeometry::kRamp;
+    int pu = -1, pv = -1;
+    if (shadow && !Illuminated(in, Point(K, u, v, z), &pu, &pv)) code |= NoiseGeometry::kShadowed;
+    geometry.code[i] = code;
+    geometry.projector_u[i] = static_cast<int16_t>(pu);
+    geometry.projector_v[i] = static_cast<int16_t>(pv);
+  };
+
   // Rows in parallel; each row has its own RNG stream (seed, row), so the
   // result does not depend on the schedule.
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
@@ -151,19 +217,34 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
       std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
       N.reset();
       float* row = &noisy.at(0, v);
+      const size_t row_start = static_cast<size_t>(v) * w;
+      const bool row_in_depth_rect = v >= depth_rect.v0 && v <= depth_rect.v1;
       for (int u = 0; u < w; ++u) {
         row[u] = nan;
         const double z = depth.at(u, v);
+        const size_t i = row_start + u;
+        if (all || (row_in_depth_rect && u >= depth_rect.u0 && u <= depth_rect.u1)) {
+          if (std::isfinite(z)) {
+            classify(u, v, z, i);
+          } else {
+            geometry.code[i] = NoiseGeometry::kNoDepth;
+            geometry.projector_u[i] = -1;
+          }
+        } else if (projector_changed && geometry.projector_u[i] >= 0) {
+          const int pu = geometry.projector_u[i], pv = geometry.projector_v[i];
+          if (pu + 1 >= pr.u0 && pu <= pr.u1 && pv + 1 >= pr.v0 && pv <= pr.v1) classify(u, v, z, i);
+        }
         if (!std::isfinite(z)) continue;
-        // Grazing dropout: probability ramps linearly in angle from start to full.
-        const double c = ViewCosine(depth, K, u, v, above_sq);
-        if (std::isfinite(c) && c < cos_start) {
-          if (c <= cos_full) continue;
+        const uint8_t code = geometry.code[i];
+        if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kDropped) continue;
+        if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kRamp) {
+          // Grazing dropout: probability ramps linearly in angle from start to full.
+          const double c = ViewCosine(depth, K, u, v, above_sq);
           const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
           const double span = model.grazing_full_deg - model.grazing_start_deg;
           if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
         }
-        if (shadow && !Illuminated(in, Point(K, u, v, z))) continue;
+        if (shadow && (code & NoiseGeometry::kShadowed)) continue;
         if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
         const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
         double value = z + sigma * N(rng);

@@ -60,6 +60,34 @@ class OsMesaRenderer final : public DepthRenderer {
   Status RenderInto(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC,
                     RenderOutput& out) override {
     if (!K.valid()) return Status::InvalidArgument("render: invalid intrinsics");
+    if (out.depth.width != K.width || out.depth.height != K.height) {
+      out.depth = DepthImage(K.width, K.height);
+      out.labels = LabelImage(K.width, K.height);
+      out.intensity = IntensityImage(K.width, K.height);
+    }
+    return Draw(scene, K, X_WC, PixelRect{0, 0, K.width - 1, K.height - 1}, out);
+  }
+
+  Status RenderRegion(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, const PixelRect& region,
+                      RenderOutput& out) override {
+    if (!K.valid()) return Status::InvalidArgument("render: invalid intrinsics");
+    if (out.depth.width != K.width || out.depth.height != K.height || out.labels.width != K.width ||
+        out.labels.height != K.height || out.intensity.width != K.width || out.intensity.height != K.height) {
+      return Status::InvalidArgument("render: a region is rendered into an image of the intrinsics' size");
+    }
+    const PixelRect clipped{std::max(region.u0, 0), std::max(region.v0, 0), std::min(region.u1, K.width - 1),
+                            std::min(region.v1, K.height - 1)};
+    if (clipped.empty()) return Status::Ok();
+    return Draw(scene, K, X_WC, clipped, out);
+  }
+
+ private:
+  // Renders the scene and writes the pixels of `region` (inside the image,
+  // not empty) into `out` (of K's size). Fragments outside `region` are
+  // dropped by the scissor test; the clear, the draw and the readback cover
+  // `region` only.
+  Status Draw(const RenderScene& scene, const Intrinsics& K, const Pose& X_WC, const PixelRect& region,
+              RenderOutput& out) {
     if (!(scene.z_near > 0 && scene.z_far > scene.z_near)) {
       return Status::InvalidArgument("render: need 0 < z_near < z_far");
     }
@@ -85,7 +113,12 @@ class OsMesaRenderer final : public DepthRenderer {
     OSMesaPixelStore(OSMESA_Y_UP, 1);
     if (!configured_) Configure();
 
+    // GL rows go bottom-up: image row v is GL row h - 1 - v.
+    const int rw = region.u1 - region.u0 + 1, rh = region.v1 - region.v0 + 1;
+    const int gl_y0 = h - 1 - region.v1;
     glViewport(0, 0, w, h);
+    glEnable(GL_SCISSOR_TEST);
+    glScissor(region.u0, gl_y0, rw, rh);
     glClearColor(0, 0, 0, 0);
     glClearDepth(1.0);
     glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
@@ -117,31 +150,28 @@ class OsMesaRenderer final : public DepthRenderer {
       glLoadMatrixd(M.data());
       glCallList(list);
     }
-    glReadPixels(0, 0, w, h, GL_DEPTH_COMPONENT, GL_FLOAT, depth_.data());
+    // depth_ holds the region's rows bottom-up, rw floats each.
+    glReadPixels(region.u0, gl_y0, rw, rh, GL_DEPTH_COMPONENT, GL_FLOAT, depth_.data());
     glFinish();
+    glDisable(GL_SCISSOR_TEST);
     if (GLenum err = glGetError(); err != GL_NO_ERROR) {
       return Status::Internal("render: GL error " + std::to_string(err));
     }
 
-    if (out.depth.width != w || out.depth.height != h) {
-      out.depth = DepthImage(w, h);
-      out.labels = LabelImage(w, h);
-      out.intensity = IntensityImage(w, h);
-    }
     // Rows in parallel bands (oneTBB): each output pixel depends on its own
     // buffer pixel only, so the result does not depend on the schedule.
     const double n = scene.z_near, f = scene.z_far;
     const float nan = std::numeric_limits<float>::quiet_NaN();
-    tbb::parallel_for(tbb::blocked_range<int>(0, h, 64), [&](const tbb::blocked_range<int>& rows) {
-      for (int r = rows.begin(); r < rows.end(); ++r) {
-        const int v = h - 1 - r;  // GL rows are bottom-up
-        const float* drow = depth_.data() + static_cast<size_t>(r) * w;
+    tbb::parallel_for(tbb::blocked_range<int>(region.v0, region.v1 + 1, 64), [&](const tbb::blocked_range<int>& rows) {
+      for (int v = rows.begin(); v < rows.end(); ++v) {
+        const int r = h - 1 - v;  // GL rows are bottom-up
+        const float* drow = depth_.data() + static_cast<size_t>(r - gl_y0) * rw;  // from u0
         const uint8_t* crow = color_.data() + static_cast<size_t>(r) * w * 4;
         float* zo = &out.depth.at(0, v);
         uint16_t* lo = &out.labels.at(0, v);
         uint8_t* io = &out.intensity.at(0, v);
-        for (int u = 0; u < w; ++u) {
-          const double d = drow[u];
+        for (int u = region.u0; u <= region.u1; ++u) {
+          const double d = drow[u - region.u0];
           if (d >= 1.0) {
             zo[u] = nan;
             lo[u] = 0;
@@ -158,7 +188,6 @@ class OsMesaRenderer final : public DepthRenderer {
     return Status::Ok();
   }
 
- private:
   void Configure() {
     glDisable(GL_DITHER);
     glDisable(GL_BLEND);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <set>
 
 #include "tests/test_meshes.h"
@@ -151,6 +152,52 @@ TEST(OsMesaRenderer, TiltedSurfacesAreDarkerThanFacingOnes) {
   ASSERT_EQ(out->labels.at(ub, v), 2);
   EXPECT_GT(out->intensity.at(ua, v), out->intensity.at(ub, v) + 50);
   EXPECT_GT(out->intensity.at(ub, v), 0);
+}
+
+// A region rendered into an image of another scene: inside, the bytes of a
+// render of the whole image; outside, the old image untouched. Tilted boxes
+// with edges crossing the region's border, labels in depth ties.
+TEST(OsMesaRenderer, ARegionGetsTheBytesOfAWholeRenderAndLeavesTheRestAlone) {
+  auto renderer = Renderer();
+  ASSERT_TRUE(renderer);
+  const Intrinsics K = SmallK();
+  RenderScene before, after;
+  before.meshes.push_back(std::make_shared<TriangleMesh>(testing::BoxMesh({0.06f, 0.05f, 0.04f})));
+  after.meshes = before.meshes;
+  for (int i = 0; i < 12; ++i) {
+    Pose p = At(-0.3 + 0.055 * i, 0.03 * (i % 3) - 0.03, 0.9 + 0.01 * (i % 4));
+    p.linear() = Eigen::AngleAxisd(0.3 * i, Vec3(1, 0.5 * i, 0.2).normalized()).toRotationMatrix();
+    before.instances.push_back({0, p, static_cast<uint16_t>(i + 1)});
+    p.translation().z() += i % 2 ? 0.02 : -0.015;  // every part moved, same labels
+    after.instances.push_back({0, p, static_cast<uint16_t>(i + 1)});
+  }
+  after.instances.push_back({0, At(0.0, 0.0, 0.9), 7});  // a duplicate tie at the same place as part 7's: first drawn wins
+  auto whole = renderer->Render(after, K, Pose::Identity());
+  auto old = renderer->Render(before, K, Pose::Identity());
+  ASSERT_TRUE(whole.ok() && old.ok());
+  for (const PixelRect region : {PixelRect{37, 21, 203, 170}, PixelRect{0, 0, K.width - 1, K.height - 1},
+                                 PixelRect{-20, 100, 40, 400}, PixelRect{150, 110, 150, 110}}) {
+    RenderOutput out = *old;
+    ASSERT_TRUE(renderer->RenderRegion(after, K, Pose::Identity(), region, out).ok());
+    int inside = 0, differs_from_old = 0;
+    for (int v = 0; v < K.height; ++v) {
+      for (int u = 0; u < K.width; ++u) {
+        const bool in = u >= region.u0 && u <= region.u1 && v >= region.v0 && v <= region.v1;
+        const RenderOutput& want = in ? *whole : *old;
+        inside += in;
+        differs_from_old += in && std::memcmp(&whole->depth.at(u, v), &old->depth.at(u, v), sizeof(float)) != 0;
+        ASSERT_EQ(std::memcmp(&out.depth.at(u, v), &want.depth.at(u, v), sizeof(float)), 0) << u << "," << v;
+        ASSERT_EQ(out.labels.at(u, v), want.labels.at(u, v)) << u << "," << v;
+        ASSERT_EQ(out.intensity.at(u, v), want.intensity.at(u, v)) << u << "," << v;
+      }
+    }
+    EXPECT_GT(inside, 0);
+    if (region.area() > 20000) {
+      EXPECT_GT(differs_from_old, 1000) << "the scenes hardly differ in the region";
+    }
+  }
+  RenderOutput wrong_size;
+  EXPECT_FALSE(renderer->RenderRegion(after, K, Pose::Identity(), PixelRect{0, 0, 10, 10}, wrong_size).ok());
 }
 
 TEST(OsMesaRenderer, RejectsBadInput) {

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 #include "core/mesh.h"
 #include "pipeline/synthetic_source.h"
@@ -63,6 +64,62 @@ TEST(SyntheticDefaultCell, CapturesAConsistentPileOfTheShippedParts) {
   }
   EXPECT_GT(checked, 100);
   EXPECT_EQ(off, 0);
+}
+
+// A robot's cycle: capture, pick, capture. After a pick only the pixels the
+// moved parts can reach are rendered again (scene and projector), and the
+// noise recomputes its seed-independent part (normals, projector shadow)
+// only there: the frames are the bytes of a source rendering everything
+// anew, through picks of top parts and of parts under others (resettles),
+// on the shipped meshes with the default noise.
+TEST(SyntheticDefaultCell, CapturesAfterPicksGiveTheFramesOfFreshOnes) {
+  auto cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  cell->source.num_parts = 20;
+  cell->source.seed = 7;
+  cell->source.simulate_picks = true;
+  auto cached = MakeSyntheticSource(*cell);
+  auto fresh = MakeSyntheticSource(*cell);
+  ASSERT_TRUE(cached.ok() && fresh.ok());
+  auto* c = dynamic_cast<SyntheticSource*>(cached->get());
+  auto* f = dynamic_cast<SyntheticSource*>(fresh->get());
+  ASSERT_TRUE(c != nullptr && f != nullptr);
+  const auto same = [](const auto& a, const auto& b) {
+    return a.width == b.width && a.height == b.height &&
+           std::memcmp(a.data.data(), b.data.data(), a.data.size() * sizeof(a.data[0])) == 0;
+  };
+  int64_t whole = 0, partial_captures = 0;
+  for (int pick = 0; pick < 12; ++pick) {
+    f->ForgetRenders();
+    auto a = c->Capture({});
+    auto b = f->Capture({});
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_TRUE(same(a->depth, b->depth)) << "pick " << pick;
+    ASSERT_TRUE(same(a->intensity, b->intensity)) << "pick " << pick;
+    ASSERT_TRUE(same(a->truth->labels, b->truth->labels)) << "pick " << pick;
+    ASSERT_EQ(a->truth->parts.size(), b->truth->parts.size());
+    for (size_t i = 0; i < a->truth->parts.size(); ++i) {
+      EXPECT_EQ(a->truth->parts[i].visible_pixels, b->truth->parts[i].visible_pixels);
+      EXPECT_EQ(a->truth->parts[i].unoccluded_pixels, b->truth->parts[i].unoccluded_pixels);
+    }
+    if (pick == 0) whole = f->rendered_pixels();
+    EXPECT_EQ(f->rendered_pixels(), whole);
+    if (pick > 0 && c->rendered_pixels() < whole) ++partial_captures;
+    // Top parts (the most visible) mostly; every third pick the least
+    // visible part seen, so that parts above it resettle.
+    const auto& parts = a->truth->parts;
+    std::vector<PartTruth> seen;
+    for (const PartTruth& t : parts) {
+      if (t.visible_pixels > 0) seen.push_back(t);
+    }
+    ASSERT_FALSE(seen.empty());
+    const auto by_visible = [](const PartTruth& x, const PartTruth& y) { return x.visible_pixels < y.visible_pixels; };
+    const int id = pick % 3 == 2 ? std::min_element(seen.begin(), seen.end(), by_visible)->instance_id
+                                 : std::max_element(seen.begin(), seen.end(), by_visible)->instance_id;
+    c->NotifyPicked(id);
+    f->NotifyPicked(id);
+  }
+  EXPECT_GE(partial_captures, 8) << "the captures after picks rendered the whole images";
 }
 
 }  // namespace
