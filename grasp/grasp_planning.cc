@@ -1,6 +1,7 @@
 #include "grasp/grasp_planning.h"
 
 #include <spdlog/spdlog.h>
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -622,7 +623,11 @@ void AppendOccludedColumns(const Pose& X_BW_d, double res_d, bool dense, std::ve
 // (support) point (GraspPlanningOptions::support_grid_spacing has the rule
 // and why). The support points are bucketed in cubes of edge `reach` over
 // their bounds (counting sort: a start per cube, indices in cube order); a
-// point looks at its own cube first, then the other 26 around it.
+// point looks at its own cube first, then the other 26 around it, unless its
+// cube is marked as having no support point in those 27 (most of the points
+// no detection explains: the bin's floor and walls, a missed part). The
+// points are looked at in parallel: each writes its own flag and reads the
+// support points only.
 void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, std::vector<uint8_t>& explained) {
   const double inv = 1.0 / reach;
   const float reach2 = static_cast<float>(reach * reach);
@@ -667,20 +672,39 @@ void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, 
     }
     return false;
   };
-  for (size_t i = 0; i < points.size(); ++i) {
-    if (explained[i] || !points[i].allFinite()) continue;
-    const Eigen::Vector3f& p = points[i];
-    const Eigen::Array3<int64_t> k = key(p);
-    bool near = near_in(k, p);
-    for (int dz = -1; dz <= 1 && !near; ++dz) {
-      for (int dy = -1; dy <= 1 && !near; ++dy) {
-        for (int dx = -1; dx <= 1 && !near; ++dx) {
-          if (dx != 0 || dy != 0 || dz != 0) near = near_in(k + Eigen::Array3<int64_t>(dx, dy, dz), p);
+  // Per cube of the bounds: 1 when it or one of its 26 neighbours holds a
+  // support point.
+  std::vector<uint8_t> near_support(static_cast<size_t>(dims.prod()), 0);
+  for (int32_t i : seeds) {
+    const Eigen::Array3<int64_t> k = key(points[i]);
+    for (int dz = -1; dz <= 1; ++dz) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const Eigen::Array3<int64_t> n = k + Eigen::Array3<int64_t>(dx, dy, dz);
+          if ((n >= lo).all() && (n <= hi).all()) near_support[index(n)] = 1;
         }
       }
     }
-    if (near) explained[i] = 1;
   }
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i) {
+      if (explained[i] || !points[i].allFinite()) continue;
+      const Eigen::Vector3f& p = points[i];
+      const Eigen::Array3<int64_t> k = key(p);
+      // Beyond the bounds by more than a cube: no support point within reach.
+      if ((k < lo - 1).any() || (k > hi + 1).any()) continue;
+      if ((k >= lo).all() && (k <= hi).all() && !near_support[index(k)]) continue;
+      bool near = near_in(k, p);
+      for (int dz = -1; dz <= 1 && !near; ++dz) {
+        for (int dy = -1; dy <= 1 && !near; ++dy) {
+          for (int dx = -1; dx <= 1 && !near; ++dx) {
+            if (dx != 0 || dy != 0 || dz != 0) near = near_in(k + Eigen::Array3<int64_t>(dx, dy, dz), p);
+          }
+        }
+      }
+      if (near) explained[i] = 1;
+    }
+  });
 }
 
 // Stage 2: the other parts as meshes, the points no detection explains (and
