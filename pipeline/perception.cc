@@ -264,7 +264,8 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
     // second look's wider one added more wrong detections than right ones:
     // docs/tuning.md, "residual_regions").
     internal::ViewSet regions;
-    regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points);
+    regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points,
+                                                  options_.residual_across_jumps);
     if (!regions.views.empty()) acceptance.Accept(matcher.Match(regions, internal::MatchPass::kWave).candidates);
     clock.Lap("residual_regions");
   }

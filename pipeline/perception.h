@@ -215,6 +215,11 @@ struct PerceptionOptions {
   // over segments, or left in pieces, once its neighbours are found
   // (internal::ResidualRegionViews; stage "residual_regions").
   bool residual_regions = true;
+  // The residual regions' groups whose grid cells touch across a depth jump
+  // are also matched joined, one more view per union (a part whose nearer
+  // arm hides part of its own farther surface: a pipe tee's branch in front
+  // of its run; internal::ResidualRegionViews).
+  bool residual_across_jumps = true;
   // After the residual regions, a detection of a class that a larger class
   // may enclose (a flanged bushing's hub in a pipe tee's arm) is matched
   // again by the larger class on its samples and the unexplained ones

@@ -93,6 +93,7 @@ struct EvalCliOptions {
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   bool residual_regions = PerceptionOptions{}.residual_regions;
+  bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
   bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
@@ -346,6 +347,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
+  popt.residual_across_jumps = opt.residual_across_jumps;
   popt.enclosing_parts = opt.enclosing_parts;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
@@ -859,6 +861,10 @@ Command EvalCommand() {
                    sub.add_option("--residual-regions", opt->residual_regions,
                                   "1: match the samples no detection explains, grouped by grid connectivity, "
                                   "after the residual pass (PerceptionOptions::residual_regions; tuning)")
+                       ->capture_default_str();
+                   sub.add_option("--residual-across-jumps", opt->residual_across_jumps,
+                                  "1: also match the residual regions' groups whose grid cells touch across a "
+                                  "depth jump, joined (PerceptionOptions::residual_across_jumps; tuning)")
                        ->capture_default_str();
                    sub.add_flag("--causes", opt->causes,
                                 "also count the misses and false positives by cause (segmentation cut, the true "

@@ -70,6 +70,66 @@ bool RepeatsASegment(const Segments& segments, const ViewIndices& group) {
   return static_cast<double>(group.size()) >= kSameSegmentFraction * (e - b);
 }
 
+// The unions of residual groups whose cells lie within kResidualReach of
+// each other whatever their depths (ResidualRegionViews, across_jumps): per
+// union of two or more groups whose largest holds less than
+// kSameSegmentFraction of it, its samples in sample order, when at least
+// min_segment_points. sample_of_cell: the unexplained sample of each grid
+// cell, -1 for none.
+std::vector<ViewIndices> JoinedAcrossJumps(const Segments& segments, const std::vector<int32_t>& sample_of_cell,
+                                           const std::vector<ViewIndices>& groups, int min_segment_points) {
+  std::vector<ViewIndices> out;
+  if (groups.size() < 2) return out;
+  std::vector<int32_t> group_of_sample(segments.points.size(), -1);
+  for (size_t g = 0; g < groups.size(); ++g) {
+    for (int32_t k : groups[g]) group_of_sample[static_cast<size_t>(k)] = static_cast<int32_t>(g);
+  }
+  std::vector<int32_t> parent(groups.size());
+  std::iota(parent.begin(), parent.end(), 0);
+  const int32_t w = segments.grid_width;
+  const auto max_cell = static_cast<int32_t>(sample_of_cell.size()) - 1;
+  for (const ViewIndices& group : groups) {
+    for (int32_t k : group) {
+      const int32_t c = segments.cell_of_sample[static_cast<size_t>(k)];
+      const int32_t cu = c % w, cv = c / w;
+      for (int32_t dv = 0; dv <= kResidualReach; ++dv) {
+        for (int32_t du = dv == 0 ? 1 : -kResidualReach; du <= kResidualReach; ++du) {
+          const int32_t u = cu + du, d = (cv + dv) * w + u;
+          if (u < 0 || u >= w || d > max_cell) continue;
+          const int32_t j = sample_of_cell[static_cast<size_t>(d)];
+          if (j < 0) continue;
+          const int32_t a = Root(parent, group_of_sample[static_cast<size_t>(k)]);
+          const int32_t b = Root(parent, group_of_sample[static_cast<size_t>(j)]);
+          if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+        }
+      }
+    }
+  }
+  // Per union (by its root): its groups, in group order.
+  std::vector<std::vector<int32_t>> members(groups.size());
+  for (size_t g = 0; g < groups.size(); ++g) {
+    members[static_cast<size_t>(Root(parent, static_cast<int32_t>(g)))].push_back(static_cast<int32_t>(g));
+  }
+  for (const std::vector<int32_t>& m : members) {
+    if (m.size() < 2) continue;
+    size_t total = 0, largest = 0;
+    for (int32_t g : m) {
+      total += groups[static_cast<size_t>(g)].size();
+      largest = std::max(largest, groups[static_cast<size_t>(g)].size());
+    }
+    if (static_cast<int>(total) < min_segment_points ||
+        static_cast<double>(largest) >= kSameSegmentFraction * static_cast<double>(total)) {
+      continue;
+    }
+    ViewIndices view;
+    view.reserve(total);
+    for (int32_t g : m) view.insert(view.end(), groups[static_cast<size_t>(g)].begin(), groups[static_cast<size_t>(g)].end());
+    std::sort(view.begin(), view.end());
+    out.push_back(std::move(view));
+  }
+  return out;
+}
+
 }  // namespace
 
 WaveResult MatchInWaves(ViewSet views, const PerceptionOptions& options, bool thorough, const Segments& segments,
@@ -164,7 +224,7 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
 }
 
 std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
-                                             int min_segment_points) {
+                                             int min_segment_points, bool across_jumps) {
   std::vector<ViewIndices> out;
   const size_t n = segments.points.size();
   if (segments.grid_width <= 0 || segments.cell_of_sample.size() != n) return out;
@@ -210,9 +270,12 @@ std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acc
     }
     groups[static_cast<size_t>(g)].push_back(static_cast<int32_t>(k));
   }
+  std::vector<ViewIndices> joined;
+  if (across_jumps) joined = JoinedAcrossJumps(segments, sample_of_cell, groups, min_segment_points);
   for (ViewIndices& g : groups) {
     if (static_cast<int>(g.size()) >= min_segment_points && !RepeatsASegment(segments, g)) out.push_back(std::move(g));
   }
+  for (ViewIndices& j : joined) out.push_back(std::move(j));
   return out;
 }
 

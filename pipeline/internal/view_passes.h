@@ -57,9 +57,14 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
 // at least min_segment_points samples is a view, unless it is nearly one
 // kept segment that the waves matched already (90% of its samples and none
 // from elsewhere). Joins the pieces of a part the segmentation split or left
-// unsegmented once its neighbours are found. Organized frames only (none
-// otherwise).
+// unsegmented once its neighbours are found. With across_jumps
+// (PerceptionOptions::residual_across_jumps), the groups whose cells touch
+// (within the same reach) across a depth jump are joined too, and each such
+// union of two or more groups, none holding 90% of it, is one more view
+// after the groups': a part whose nearer arm hides part of its own farther
+// surface (a pipe tee's branch in front of its run) leaves pieces the jump
+// separates. Organized frames only (none otherwise).
 std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
-                                             int min_segment_points);
+                                             int min_segment_points, bool across_jumps = false);
 
 }  // namespace bp::internal

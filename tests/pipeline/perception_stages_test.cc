@@ -444,6 +444,51 @@ TEST(ViewPasses, AResidualRegionBridgesAHoleOfUpToTwoCells) {
   }
 }
 
+// Two patches whose cells touch, the second 12 mm nearer the camera than
+// the first (a part's arm in front of its own farther surface): grid
+// connectivity keeps them apart; with across_jumps their union is one more
+// view, after the groups'. A union one group holds 90% of adds none.
+TEST(ViewPasses, ResidualGroupsTouchingAcrossADepthJumpAreAlsoMatchedJoined) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  // Patch A: rows 0-9, columns 0-19 at z = 0; patch B: rows 0-9 from
+  // column 20 on, `b_columns` wide, at z = 12 mm.
+  const auto grid = [](int b_columns) {
+    Segments s;
+    for (int row = 0; row < 10; ++row) {
+      for (int col = 0; col < 20 + b_columns; ++col) {
+        s.points.emplace_back(0.001f * static_cast<float>(col), 0.001f * static_cast<float>(row),
+                              col < 20 ? 0.f : 0.012f);
+        s.cell_of_sample.push_back(row * 40 + col);
+      }
+    }
+    s.roi_index = Range(0, static_cast<int32_t>(s.points.size()));
+    s.grid_width = 40;
+    s.grid_jump = 0.003f;
+    return s;
+  };
+  // Sample order is row-major: A's and B's samples interleave by row.
+  const Segments s = grid(10);
+  std::vector<int32_t> a, b;
+  for (int32_t k = 0; k < 300; ++k) (k % 30 < 20 ? a : b).push_back(k);
+  Acceptance none(300, models);
+  const std::vector<ViewIndices> apart = ResidualRegionViews(s, none, 150, false);
+  ASSERT_EQ(apart.size(), 1u);  // B (100 samples) is below min_segment_points
+  EXPECT_EQ(apart[0], a);
+  const std::vector<ViewIndices> joined = ResidualRegionViews(s, none, 150, true);
+  ASSERT_EQ(joined.size(), 2u);
+  EXPECT_EQ(joined[0], a);
+  EXPECT_EQ(joined[1], Range(0, 300));
+  // B two columns wide: A holds 200 of 220 samples (91%), no union view.
+  const Segments narrow = grid(2);
+  Acceptance none2(220, models);
+  EXPECT_EQ(ResidualRegionViews(narrow, none2, 150, true).size(), 1u);
+  // B claimed by a detection: nothing to join A with.
+  Acceptance claimed(300, models);
+  claimed.Accept({SphereAt(sphere, Vec3(1, 1, 1), 0.9, b)});
+  EXPECT_EQ(ResidualRegionViews(s, claimed, 150, true).size(), 1u);
+}
+
 TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   std::mt19937 rng{11};
   for (const double sigma : {0.0003, 0.001, 0.0025}) {  // 0.0025: past the fixed 4 mm edge limit

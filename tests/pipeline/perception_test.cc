@@ -1379,6 +1379,42 @@ TEST(PerceptionEval, TheSamplesNoDetectionExplainsAreMatchedAsRegions) {
   }
 }
 
+// A pipe tee whose nearer arm hides part of its own run: the depth jump at
+// the arm's outline splits its samples into pieces no grid connectivity
+// joins, each too little of the tee for a hypothesis. The residual groups
+// touching across a depth jump, matched joined
+// (PerceptionOptions::residual_across_jumps), hold the tee. Piles of the
+// tuning range (--variety): 1034 (tee 18, fully visible: groups of 1017 and
+// 453 samples 29 mm apart in depth across one cell) and 1072 (tee 12, fully
+// visible: four pieces 16-27 mm apart in depth across 1-3 cells). Each tee is
+// found only with the joined views, and they add no wrong detection.
+TEST(PerceptionEval, ATeeSplitByItsOwnDepthJumpIsMatchedJoined) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  PerceptionOptions off;
+  off.residual_across_jumps = false;
+  const std::unique_ptr<Perception> without = Perception::Build(f.cell, off).value();
+  for (const std::pair<unsigned, int>& pile : {std::pair{1034u, 18}, std::pair{1072u, 12}}) {
+    const unsigned seed = pile.first;
+    const int instance = pile.second;
+    Result<Frame> frame = VariedPile(f.cell, seed);
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    const auto judge = [&](const PerceptionResult& r) {
+      std::pair<bool, int> found_and_wrong{false, 0};
+      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
+        found_and_wrong.first |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
+        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++found_and_wrong.second;
+      }
+      return found_and_wrong;
+    };
+    const std::pair<bool, int> before = judge(Fixture::RunWith(*without, *frame));
+    const std::pair<bool, int> after = judge(f.Run(*frame));
+    EXPECT_FALSE(before.first) << "pile " << seed << ": tee " << instance << " found without the joined views";
+    EXPECT_TRUE(after.first) << "pile " << seed << ": tee " << instance;
+    EXPECT_LE(after.second, before.second) << "pile " << seed;
+  }
+}
+
 // A flanged bushing fitted into a pipe tee's arm (its hub in the arm, the
 // tee otherwise unexplained) is replaced by the tee fitted over its samples
 // and the unexplained ones around it, once every other pass is done
