@@ -189,8 +189,11 @@ TEST(CloudPerception, CloudsFromOtherToolsFindWhatTheirDepthImagesFind) {
   // The merged cloud (no lattice) finds fewer than its depth image: 2 of its
   // 3 at the 0.7 detection bar, 2 of 4 at 0.6 (binpick eval --source
   // files:tests/pipeline/data/clouds[/depth] --min-score S: 28 / 29 and
-  // 29 / 31 over the five frames).
-  EXPECT_GE(found_cloud, found_depth - 2);
+  // 29 / 31 over the five frames). The residual groups joined across depth
+  // jumps (PerceptionOptions::residual_across_jumps) find 2 parts more in
+  // the depth images and 1 in the clouds (--residual-across-jumps 0 / 1:
+  // 37 -> 39 and 35 -> 36 detections, none wrong more): 3 fewer.
+  EXPECT_GE(found_cloud, found_depth - 3);
 }
 
 }  // namespace
