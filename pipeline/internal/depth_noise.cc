@@ -178,6 +178,7 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
     geometry.code.assign(static_cast<size_t>(w) * h, NoiseGeometry::kNoDepth);
     geometry.projector_u.assign(static_cast<size_t>(w) * h, -1);
     geometry.projector_v.assign(static_cast<size_t>(w) * h, -1);
+    geometry.ramp_drop.resize(static_cast<size_t>(w) * h);  // read only where classify wrote it
     geometry.width = w;
     geometry.height = h;
     geometry.grazing_start_deg = model.grazing_start_deg;
@@ -195,12 +196,18 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
   const PixelRect depth_rect = dd.empty() ? dd : PixelRect{dd.u0 - 1, dd.v0 - 1, dd.u1 + 1, dd.v1 + 1};
   const PixelRect& pr = changes.projector;
   const bool projector_changed = shadow && !pr.empty();
+  const double span = model.grazing_full_deg - model.grazing_start_deg;
   // The seed-independent verdicts of pixel (u, v), clean depth z (finite).
   const auto classify = [&](int u, int v, double z, size_t i) {
     const double c = ViewCosine(depth, K, u, v, above_sq);
     uint8_t code = !(std::isfinite(c) && c < cos_start) ? NoiseGeometry::kFacing
                    : c <= cos_full                      ? NoiseGeometry::kDropped
                                                         : NoiseGeometry::kRamp;
+    if (code == NoiseGeometry::kRamp) {
+      // Grazing dropout: probability ramps linearly in angle from start to full.
+      const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
+      geometry.ramp_drop[i] = (angle - model.grazing_start_deg) / span;
+    }
     int pu = -1, pv = -1;
     if (shadow && !Illuminated(in, Point(K, u, v, z), &pu, &pv)) code |= NoiseGeometry::kShadowed;
     geometry.code[i] = code;
@@ -237,12 +244,9 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
         if (!std::isfinite(z)) continue;
         const uint8_t code = geometry.code[i];
         if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kDropped) continue;
-        if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kRamp) {
-          // Grazing dropout: probability ramps linearly in angle from start to full.
-          const double c = ViewCosine(depth, K, u, v, above_sq);
-          const double angle = std::acos(std::clamp(c, 0.0, 1.0)) * 180.0 / M_PI;
-          const double span = model.grazing_full_deg - model.grazing_start_deg;
-          if (span <= 0 || U(rng) < (angle - model.grazing_start_deg) / span) continue;
+        if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kRamp &&
+            (span <= 0 || U(rng) < geometry.ramp_drop[i])) {
+          continue;
         }
         if (shadow && (code & NoiseGeometry::kShadowed)) continue;
         if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;

@@ -26,8 +26,8 @@ struct NoiseInputs {
 
 // What the noise computes from the clean depth and the projector's depth map
 // alone, not from the seed, kept between captures: per pixel of the clean
-// depth, its grazing class (from the normal, ViewCosine) and whether the
-// projector lights it. A capture recomputes it only where its inputs changed
+// depth, its grazing class (from the normal, ViewCosine; on the ramp, its
+// dropout probability) and whether the projector lights it. A capture recomputes it only where its inputs changed
 // (NoiseChanges); the noisy image is the same bytes either way.
 struct NoiseGeometry {
   // Per pixel: bits 0-1 the grazing class (kNoDepth, kFacing, kRamp: dropped
@@ -37,6 +37,9 @@ struct NoiseGeometry {
   // The projector pixel (u, v) whose 2 x 2 block the shadow test read, or
   // u = -1 when it read none (the pixel is outside the map, or no depth).
   std::vector<int16_t> projector_u, projector_v;
+  // kRamp pixels: the probability of the grazing dropout, (angle from the
+  // normal - grazing_start_deg) / (grazing_full_deg - grazing_start_deg).
+  std::vector<double> ramp_drop;
   // What it was computed with: recomputed whole when any of it differs.
   int width = 0, height = 0;
   double grazing_start_deg = 0, grazing_full_deg = 0;
