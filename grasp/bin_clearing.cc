@@ -17,6 +17,7 @@
 #include "grasp/grasp_planning.h"
 #include "grasp/grasp_queue.h"
 #include "pipeline/capture_source.h"
+#include "pipeline/evaluation.h"
 #include "pipeline/frame_io.h"
 #include "pipeline/synthetic_source.h"
 
@@ -68,6 +69,33 @@ class Feedback {
   const bool on_;
   std::map<int, std::unique_ptr<FailedPicks>> by_task_;
 };
+
+// An ambiguous detection's other poses and its true pose X_BO_true, each
+// as the turn from its X_BO (rotation vector in the part frame, deg, and the
+// shift, mm; the symmetric copy nearest X_BO), for the debug log: where the
+// truth lies in the span of the poses the view allows. Empty when the
+// detection is not ambiguous.
+std::string TurnsFromBestPose(const Detection& d, const PartSpec& part, const Pose& X_BO_true) {
+  if (d.alternatives_X_BO.empty()) return {};
+  const auto turn = [&](const Pose& X) {
+    Eigen::AngleAxisd best(Eigen::Matrix3d::Identity());
+    Vec3 shift = Vec3::Zero();
+    const int order = part.symmetry.kind == Symmetry::Kind::kDiscrete ? part.symmetry.order : 1;
+    for (int k = 0; k < order; ++k) {
+      const Pose rel = d.X_BO.inverse() * X * Pose(Eigen::AngleAxisd(2 * M_PI * k / order, part.symmetry.axis));
+      const Eigen::AngleAxisd aa(rel.linear());
+      if (k == 0 || aa.angle() < best.angle()) {
+        best = aa;
+        shift = rel.translation();
+      }
+    }
+    const Vec3 r = best.axis() * best.angle() * 180 / M_PI;
+    return fmt::format("({:.1f}, {:.1f}, {:.1f}) deg {:.1f} mm", r.x(), r.y(), r.z(), 1000 * shift.norm());
+  };
+  std::string line = "poses from X_BO: truth " + turn(X_BO_true) + "; others";
+  for (const Pose& a : d.alternatives_X_BO) line += " " + turn(a);
+  return line;
+}
 
 // A task's plan as its queue would hold it: the failed-pick feedback's
 // screen applied (the queue applies it at Replace too, to the same effect).
@@ -146,6 +174,10 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
                     "rms {:.2f} mm, support {}, alternatives {}",
                     seed, report.cycles + 1, t.id, i, d.class_id, instance, part ? part->class_id : -1, d.score,
                     d.visible_fraction, 1000 * d.rms_residual, d.support.size(), d.alternatives_X_BO.size());
+      if (const PartSpec* spec = part ? p.model().cell().FindPart(part->class_id) : nullptr; spec != nullptr) {
+        const std::string turns = TurnsFromBestPose(d, *spec, part->X_BO);
+        if (!turns.empty()) spdlog::debug("seed {} cycle {} task {}: detection {} {}", seed, report.cycles + 1, t.id, i, turns);
+      }
     }
     for (const GraspCandidate& c : plan.plan.candidates) {
       // The cycle as the picks of this plan are logged (numbered from 1).
