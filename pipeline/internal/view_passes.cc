@@ -53,6 +53,32 @@ int32_t Root(std::vector<int32_t>& parent, int32_t a) {
   return a;
 }
 
+// Joins the sets of x and y (union-find; the smaller root is kept).
+void Unite(std::vector<int32_t>& parent, int32_t x, int32_t y) {
+  const int32_t a = Root(parent, x), b = Root(parent, y);
+  if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+}
+
+// Calls visit(j) with the unexplained sample j of each grid cell up to
+// kResidualReach cells below cell c, or right of it on its row. The cells
+// above c and to its left reach c from their side, so one pass over all
+// cells visits every pair of cells within reach once. sample_of_cell: -1
+// for a cell with none.
+template <typename Visit>
+void ForEachLaterCellInReach(int32_t c, int32_t grid_width, const std::vector<int32_t>& sample_of_cell,
+                             Visit&& visit) {
+  const auto max_cell = static_cast<int32_t>(sample_of_cell.size()) - 1;
+  const int32_t cu = c % grid_width, cv = c / grid_width;
+  for (int32_t dv = 0; dv <= kResidualReach; ++dv) {
+    for (int32_t du = dv == 0 ? 1 : -kResidualReach; du <= kResidualReach; ++du) {
+      const int32_t u = cu + du, d = (cv + dv) * grid_width + u;
+      if (u < 0 || u >= grid_width || d > max_cell) continue;
+      const int32_t j = sample_of_cell[static_cast<size_t>(d)];
+      if (j >= 0) visit(j);
+    }
+  }
+}
+
 // The kept segment holding sample k, -1 for a piece's sample.
 int32_t SegmentOfSample(const Segments& segments, int32_t k) {
   const auto it = std::upper_bound(segments.range.begin(), segments.range.end(), k,
@@ -86,23 +112,11 @@ std::vector<ViewIndices> JoinedAcrossJumps(const Segments& segments, const std::
   }
   std::vector<int32_t> parent(groups.size());
   std::iota(parent.begin(), parent.end(), 0);
-  const int32_t w = segments.grid_width;
-  const auto max_cell = static_cast<int32_t>(sample_of_cell.size()) - 1;
   for (const ViewIndices& group : groups) {
     for (int32_t k : group) {
-      const int32_t c = segments.cell_of_sample[static_cast<size_t>(k)];
-      const int32_t cu = c % w, cv = c / w;
-      for (int32_t dv = 0; dv <= kResidualReach; ++dv) {
-        for (int32_t du = dv == 0 ? 1 : -kResidualReach; du <= kResidualReach; ++du) {
-          const int32_t u = cu + du, d = (cv + dv) * w + u;
-          if (u < 0 || u >= w || d > max_cell) continue;
-          const int32_t j = sample_of_cell[static_cast<size_t>(d)];
-          if (j < 0) continue;
-          const int32_t a = Root(parent, group_of_sample[static_cast<size_t>(k)]);
-          const int32_t b = Root(parent, group_of_sample[static_cast<size_t>(j)]);
-          if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
-        }
-      }
+      const int32_t gk = group_of_sample[static_cast<size_t>(k)];
+      ForEachLaterCellInReach(segments.cell_of_sample[static_cast<size_t>(k)], segments.grid_width, sample_of_cell,
+                              [&](int32_t j) { Unite(parent, gk, group_of_sample[static_cast<size_t>(j)]); });
     }
   }
   // Per union (by its root): its groups, in group order.
@@ -238,25 +252,16 @@ std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acc
   for (size_t k = 0; k < n; ++k) {
     if (left[k]) sample_of_cell[static_cast<size_t>(segments.cell_of_sample[k])] = static_cast<int32_t>(k);
   }
-  const int32_t w = segments.grid_width;
   const float jump2 = segments.grid_jump * segments.grid_jump;
-  // Each unexplained sample joins those of the cells up to kResidualReach
-  // cells below it or beside it (the cells above, and to its left on its
-  // row, joined it before) within the grid's neighbour distance.
+  // Each unexplained sample joins those of the cells within kResidualReach
+  // that lie within the grid's neighbour distance of it.
   for (size_t k = 0; k < n; ++k) {
     if (!left[k]) continue;
-    const int32_t c = segments.cell_of_sample[k];
-    const int32_t cu = c % w, cv = c / w;
-    for (int32_t dv = 0; dv <= kResidualReach; ++dv) {
-      for (int32_t du = dv == 0 ? 1 : -kResidualReach; du <= kResidualReach; ++du) {
-        const int32_t u = cu + du, d = (cv + dv) * w + u;
-        if (u < 0 || u >= w || d > max_cell) continue;
-        const int32_t j = sample_of_cell[static_cast<size_t>(d)];
-        if (j < 0 || (segments.points[k] - segments.points[static_cast<size_t>(j)]).squaredNorm() > jump2) continue;
-        const int32_t a = Root(parent, static_cast<int32_t>(k)), b = Root(parent, j);
-        if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+    ForEachLaterCellInReach(segments.cell_of_sample[k], segments.grid_width, sample_of_cell, [&](int32_t j) {
+      if ((segments.points[k] - segments.points[static_cast<size_t>(j)]).squaredNorm() <= jump2) {
+        Unite(parent, static_cast<int32_t>(k), j);
       }
-    }
+    });
   }
   // Groups in order of their first sample, each in sample order.
   std::vector<int32_t> group_of_root(n, -1);

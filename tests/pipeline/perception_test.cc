@@ -1379,6 +1379,22 @@ TEST(PerceptionEval, TheSamplesNoDetectionExplainsAreMatchedAsRegions) {
   }
 }
 
+// Whether a frame's result finds truth instance `instance` strictly, and how
+// many of its detections are wrong (gross or false).
+struct InstanceVerdict {
+  bool found = false;
+  int wrong = 0;
+};
+InstanceVerdict JudgeInstance(const PerceptionResult& result, const Frame& frame,
+                              const std::vector<EvalPartModel>& models, int instance) {
+  InstanceVerdict v;
+  for (const DetectionOutcome& o : EvaluateFrame(result, *frame.truth, models).detections) {
+    v.found |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
+    if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++v.wrong;
+  }
+  return v;
+}
+
 // A pipe tee whose nearer arm hides part of its own run: the depth jump at
 // the arm's outline splits its samples into pieces no grid connectivity
 // joins, each too little of the tee for a hypothesis. The residual groups
@@ -1399,19 +1415,11 @@ TEST(PerceptionEval, ATeeSplitByItsOwnDepthJumpIsMatchedJoined) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const auto judge = [&](const PerceptionResult& r) {
-      std::pair<bool, int> found_and_wrong{false, 0};
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        found_and_wrong.first |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++found_and_wrong.second;
-      }
-      return found_and_wrong;
-    };
-    const std::pair<bool, int> before = judge(Fixture::RunWith(*without, *frame));
-    const std::pair<bool, int> after = judge(f.Run(*frame));
-    EXPECT_FALSE(before.first) << "pile " << seed << ": tee " << instance << " found without the joined views";
-    EXPECT_TRUE(after.first) << "pile " << seed << ": tee " << instance;
-    EXPECT_LE(after.second, before.second) << "pile " << seed;
+    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(*without, *frame), *frame, f.models, instance);
+    const InstanceVerdict after = JudgeInstance(f.Run(*frame), *frame, f.models, instance);
+    EXPECT_FALSE(before.found) << "pile " << seed << ": tee " << instance << " found without the joined views";
+    EXPECT_TRUE(after.found) << "pile " << seed << ": tee " << instance;
+    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
   }
 }
 
@@ -1486,19 +1494,11 @@ TEST(PerceptionEval, ABracketWhoseGrazingFacesDroppedOutIsFound) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const auto judge = [&](const PerceptionResult& r) {
-      std::pair<bool, int> found_and_wrong{false, 0};
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        found_and_wrong.first |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++found_and_wrong.second;
-      }
-      return found_and_wrong;
-    };
-    const std::pair<bool, int> before = judge(Fixture::RunWith(*without, *frame));
-    const std::pair<bool, int> after = judge(f.Run(*frame));
-    EXPECT_FALSE(before.first) << "pile " << seed;
-    EXPECT_TRUE(after.first) << "pile " << seed;
-    EXPECT_LE(after.second, before.second) << "pile " << seed;
+    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(*without, *frame), *frame, f.models, instance);
+    const InstanceVerdict after = JudgeInstance(f.Run(*frame), *frame, f.models, instance);
+    EXPECT_FALSE(before.found) << "pile " << seed;
+    EXPECT_TRUE(after.found) << "pile " << seed;
+    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
   }
 }
 
