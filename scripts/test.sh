@@ -136,14 +136,12 @@ run_tsan() {
 # (record), the status page and its HTTP thread and the binpickd end-to-end
 # tests (web), the calibration sequence behind the servers (calib). The
 # tests run binpickd, binpick and binpick-robot, built here with TSan too.
-# Until 2026-12-06 only comms and grasp, for CI's time (docs/reliability.md,
-# "Timings"). ReplayShards (recorded in-process like RecordReplay, then six
+# ReplayShards (recorded in-process like RecordReplay, then six
 # single-threaded `binpick replay` processes and their merges) runs under
-# ASan only: under TSan it was two thirds of the record tests' CPU (108 of
-# 164 s) and checks no thread the other record tests do not.
+# ASan only: under TSan it is two thirds of the record tests' CPU and checks
+# no thread the other record tests do not (docs/reliability.md, "Timings").
 stage_tsan() {
-  # The longest first (wall seconds at load average 9 on 2026-12-06: grasp
-  # 305, web 266, calib 178, comms 170, record 136).
+  # The longest first, so the two cores finish together.
   GTEST_FILTER='-ReplayShards.*' \
     run_tsan bp_grasp_tests bp_web_tests bp_calib_tests bp_comms_tests bp_record_tests
 }
