@@ -72,9 +72,11 @@ class Feedback {
 
 // An ambiguous detection's other poses and its true pose X_BO_true, each
 // as the turn from its X_BO (rotation vector in the part frame, deg, and the
-// shift, mm; the symmetric copy nearest X_BO), for the debug log: where the
-// truth lies in the span of the poses the view allows. Empty when the
-// detection is not ambiguous.
+// shift, mm), for the debug log: where the truth lies in the span of the
+// poses the view allows. Empty when the detection is not ambiguous. Only a
+// discrete symmetry's copies are tried (the nearest one is given); a
+// revolute part's free spin and Symmetry::extra stay in the turn, unlike
+// SymmetricRotationError, which gives the angle alone.
 std::string TurnsFromBestPose(const Detection& d, const PartSpec& part, const Pose& X_BO_true) {
   if (d.alternatives_X_BO.empty()) return {};
   const auto turn = [&](const Pose& X) {
