@@ -9,6 +9,7 @@
 #include <mutex>
 #include <numbers>
 #include <random>
+#include <set>
 #include <string>
 #include <utility>
 
@@ -170,11 +171,11 @@ std::optional<PixelRect> ChangedPixels(const RenderScene& before, const RenderSc
     return true;
   };
   std::vector<bool> kept(before.instances.size(), false);
-  std::map<uint16_t, bool> seen;
+  std::set<uint16_t> seen;  // labels of `now`: each once
   size_t last_kept = 0;
   bool any_kept = false;
   for (const RenderInstance& inst : now.instances) {
-    if (!seen.emplace(inst.label, true).second) return std::nullopt;
+    if (!seen.insert(inst.label).second) return std::nullopt;
     const auto w = was.find(inst.label);
     if (w != was.end()) {
       const RenderInstance& old = before.instances[w->second];
