@@ -19,6 +19,7 @@
 #include "pipeline/capture_source.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/frame_io.h"
+#include "pipeline/pose_estimator.h"
 #include "pipeline/synthetic_source.h"
 
 namespace bp {
@@ -172,11 +173,20 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
       const Detection& d = plan.perception.detections[i];
       const int instance = p.TruthInstanceOf(t.id, static_cast<int>(i));
       const PartTruth* part = truth ? FindInstance(truth->parts, instance) : nullptr;
+      const PartSpec* spec = part ? p.model().cell().FindPart(part->class_id) : nullptr;
+      // The detection's pose against its truth, modulo symmetry (a gross
+      // error: the right part in a wrong pose).
+      const std::string off =
+          spec != nullptr && part->class_id == d.class_id
+              ? fmt::format(", off its truth {:.1f} mm / {:.1f} deg",
+                            1000 * SymmetricTranslationError(d.X_BO, part->X_BO, spec->symmetry),
+                            SymmetricRotationError(d.X_BO, part->X_BO, spec->symmetry) * 180 / M_PI)
+              : std::string();
       spdlog::debug("seed {} cycle {} task {}: detection {} class {} (truth {}, class {}): score {:.3f}, visible {:.2f}, "
-                    "rms {:.2f} mm, support {}, alternatives {}",
+                    "rms {:.2f} mm, support {}, alternatives {}{}",
                     seed, report.cycles + 1, t.id, i, d.class_id, instance, part ? part->class_id : -1, d.score,
-                    d.visible_fraction, 1000 * d.rms_residual, d.support.size(), d.alternatives_X_BO.size());
-      if (const PartSpec* spec = part ? p.model().cell().FindPart(part->class_id) : nullptr; spec != nullptr) {
+                    d.visible_fraction, 1000 * d.rms_residual, d.support.size(), d.alternatives_X_BO.size(), off);
+      if (spec != nullptr) {
         const std::string turns = TurnsFromBestPose(d, *spec, part->X_BO);
         if (!turns.empty()) spdlog::debug("seed {} cycle {} task {}: detection {} {}", seed, report.cycles + 1, t.id, i, turns);
       }
@@ -236,26 +246,27 @@ struct PickVerdict {
 
 // The grasp's verdict on one view of the pile: where it lands, and what the
 // swept gripper hits (the bin where it truly stands, X_BW, another true
-// part), if anything.
+// part), if anything (CheckPickOnTruth).
 struct Landing {
   GraspOutcome outcome;
   std::optional<RejectReason> hit;
   std::vector<Detection> parts;  // the pile as detections (for the collision report)
-  int target = -1;               // index of the landed part in `parts`
+  int target = -1;               // index in `parts` of the part the tool touches down on, -1 none
 };
 
 Landing Land(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& grasp, const std::vector<PartTruth>& pile,
              const Pose& X_BW, const GraspJudgeOptions& options) {
   Landing l;
   l.outcome = JudgeGrasp(p.model(), used.gripper, grasp, pile, options);
+  const PickContact contact = CheckPickOnTruth(p.model(), used.gripper, grasp, pile, l.outcome, X_BW);
+  l.hit = contact.hit;
+  l.target = contact.touched;
   for (const PartTruth& t : pile) {
-    if (t.instance_id == l.outcome.truth_instance) l.target = static_cast<int>(l.parts.size());
     Detection d;
     d.class_id = t.class_id;
     d.X_BO = t.X_BO;
     l.parts.push_back(std::move(d));
   }
-  l.hit = p.model().CheckAgainstParts(used.gripper, grasp.X_BT, l.parts, l.target, X_BW);
   return l;
 }
 
@@ -292,8 +303,10 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
                 stale ? " (it would have landed on the pile as captured)" : "");
   v.line = "cycle " + std::to_string(cycle) + ": task " + std::to_string(used.id) + " grasp " + grasp.name +
            " (detection " + std::to_string(grasp.instance_id) + (grasp.last_resort ? ", a last resort" : "") +
-           (grasp.reposed ? ", on a pose left by a failed last resort" : "") +
-           "): " + detail;
+           (grasp.reposed ? ", on a pose left by a failed last resort" : "") + "): " + detail +
+           (l.target >= 0 && now[l.target].instance_id != l.outcome.truth_instance
+                ? "; the tool touches down on instance " + std::to_string(now[l.target].instance_id)
+                : "");
   return v;
 }
 
@@ -434,6 +447,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   planner_options.teach_file = "-";  // clearing never teaches
   planner_options.thorough_retry_ms = options.thorough_retry_ms;
   planner_options.thorough_retry_estimates = options.thorough_retry_estimates;
+  planner_options.planning.part_margin = options.part_margin;
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
   if (!planner.ok()) return planner.status();
   BinPickingPlanner& p = **planner;

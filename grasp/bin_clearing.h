@@ -59,6 +59,9 @@ struct ClearOptions {
   // machine; a large one makes a clear repeatable whatever the load).
   int thorough_retry_estimates = BinPickingPlannerOptions{}.thorough_retry_estimates;
   double thorough_retry_ms = BinPickingPlannerOptions{}.thorough_retry_ms;
+  // The plan's margin from the other detected parts, m
+  // (GraspPlanningOptions::part_margin; `--part-margin-mm`, to measure it).
+  double part_margin = GraspPlanningOptions{}.part_margin;
   GraspJudgeOptions judge;
   // Fraction in [0, 1] of the picks the judge lets succeed that the
   // simulated robot fails anyway, at random (`--slip`: the vacuum breaks, the

@@ -1,6 +1,8 @@
 #include "grasp/grasp_judge.h"
 
 #include <cmath>
+#include <limits>
+#include <vector>
 
 namespace bp {
 
@@ -50,6 +52,31 @@ GraspOutcome JudgeGrasp(const GraspPlanningModel& model, const std::string& grip
   } else {
     out.on_part = true;
   }
+  return out;
+}
+
+PickContact CheckPickOnTruth(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp,
+                             std::span<const PartTruth> truth, const GraspOutcome& outcome, const Pose& X_BW) {
+  PickContact out;
+  const Vec3 tool_B = grasp.X_BT.translation();
+  double nearest = std::numeric_limits<double>::infinity();
+  std::vector<Detection> parts;
+  parts.reserve(truth.size());
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const PartTruth& t = truth[i];
+    if (outcome.on_part) {
+      if (t.instance_id == outcome.truth_instance) out.touched = static_cast<int>(i);
+    } else if (const std::optional<double> d = model.SurfaceDistance(t.class_id, t.X_BO, tool_B);
+               d && *d <= model.options().contact_margin && *d < nearest) {
+      nearest = *d;
+      out.touched = static_cast<int>(i);
+    }
+    Detection d;
+    d.class_id = t.class_id;
+    d.X_BO = t.X_BO;
+    parts.push_back(std::move(d));
+  }
+  out.hit = model.CheckAgainstParts(gripper, grasp.X_BT, parts, out.touched, X_BW);
   return out;
 }
 

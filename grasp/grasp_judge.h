@@ -39,4 +39,20 @@ struct GraspJudgeOptions {
 GraspOutcome JudgeGrasp(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp,
                         std::span<const PartTruth> truth, const GraspJudgeOptions& options = {});
 
+// What the swept gripper of a pick hits in the true scene: the bin standing
+// at X_BW and the true parts. The part the tool touches down on is checked
+// as the plan checks a grasp's own part, with the gripper lifted by the
+// planner's contact_margin (the cup meets its surface by design); every
+// other part is checked whole. The part touched down on is the landing's
+// part when the grasp lands at its grasp point (`outcome.on_part`), else
+// the true part whose surface lies nearest the tool centre, if within
+// contact_margin (a grasp planned on a wrong pose puts the cup on the part
+// off its grasp point: a failed pick, not a collision with it), else none.
+struct PickContact {
+  std::optional<RejectReason> hit;  // nullopt: collision-free
+  int touched = -1;                 // index into the truth of the part touched down on, -1 none
+};
+PickContact CheckPickOnTruth(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp,
+                             std::span<const PartTruth> truth, const GraspOutcome& outcome, const Pose& X_BW);
+
 }  // namespace bp

@@ -227,6 +227,7 @@ class GraspPlanningModel::Impl {
   GraspPlanningOptions options;
   std::map<int, CollisionGeometryPtr> parts;     // by class id, in O
   std::map<int, CollisionGeometryPtr> parts_touch;  // `parts` grown by options.touch_distance
+  std::map<int, CollisionGeometryPtr> parts_planning;  // `parts` grown by options.part_margin (the plan's other parts)
   std::map<int, TriangleMesh> part_meshes;       // by class id, in O (contact ray casts)
   CollisionGeometryPtr bin;                      // in W
   CollisionGeometryPtr bin_planning;             // `bin` grown by options.bin_margin (the plan's walls)
@@ -296,7 +297,7 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
                                                                             const GraspPlanningOptions& options) {
   if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
       !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0) ||
-      !(options.bin_margin >= 0)) {
+      !(options.bin_margin >= 0) || !(options.part_margin >= 0)) {
     return Status::InvalidArgument(
         "grasp planning options: steps and resolution must be > 0, margins and distances >= 0");
   }
@@ -320,6 +321,12 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
     auto grown = CollisionGeometry::FromMesh(Inflated(*mesh, options.touch_distance));
     if (!grown.ok()) return Status::InvalidArgument("part '" + part.name + "': " + grown.status().message());
     impl->parts_touch[part.class_id] = *grown;
+    impl->parts_planning[part.class_id] = *geometry;
+    if (options.part_margin > 0) {
+      auto kept = CollisionGeometry::FromMesh(Inflated(*mesh, options.part_margin));
+      if (!kept.ok()) return Status::InvalidArgument("part '" + part.name + "': " + kept.status().message());
+      impl->parts_planning[part.class_id] = *kept;
+    }
     impl->part_meshes[part.class_id] = std::move(*mesh);
   }
   TriangleMesh bin_mesh;
@@ -371,7 +378,7 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
 namespace {
 
 struct FrameObstacles {
-  CollisionScene parts;         // detections by index
+  CollisionScene parts;         // detections by index, grown by part_margin
   PointObstaclePtr points;      // ROI points no detection explains
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
@@ -442,6 +449,12 @@ std::optional<RejectReason> GraspPlanningModel::CheckAgainstParts(const std::str
     }
   }
   return std::nullopt;
+}
+
+std::optional<double> GraspPlanningModel::SurfaceDistance(int class_id, const Pose& X_BO, const Vec3& p_B) const {
+  auto p = impl_->parts.find(class_id);
+  if (p == impl_->parts.end()) return std::nullopt;
+  return NearestSurfacePoint(*p->second, X_BO, p_B).distance;
 }
 
 namespace {
@@ -707,7 +720,7 @@ void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, 
   });
 }
 
-// Stage 2: the other parts as meshes, the points no detection explains (and
+// Stage 2: the other parts as meshes (grown by part_margin), the points no detection explains (and
 // the occluded columns under them) as an OcTree and an occupancy bitmap.
 FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception) {
   const auto& detections = perception.detections;
@@ -715,8 +728,8 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   {
     std::lock_guard lock(m.scene_build_mutex);
     for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
-      auto p = m.parts.find(detections[d].class_id);
-      if (p != m.parts.end()) (void)obstacles.parts.Add(d, p->second, detections[d].X_BO);
+      auto p = m.parts_planning.find(detections[d].class_id);
+      if (p != m.parts_planning.end()) (void)obstacles.parts.Add(d, p->second, detections[d].X_BO);
     }
   }
   std::vector<uint8_t> explained(perception.roi_points_B.size(), 0);

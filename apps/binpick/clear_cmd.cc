@@ -41,6 +41,7 @@ struct ClearCliOptions {
   std::string save_left_dir;
   double thorough_retry_ms = ClearOptions{}.thorough_retry_ms;
   int thorough_retry_estimates = ClearOptions{}.thorough_retry_estimates;
+  double part_margin_mm = 1000 * ClearOptions{}.part_margin;
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
@@ -154,6 +155,7 @@ int Run(const ClearCliOptions& opt) {
   options.withdraw_stale = !opt.keep_stale;
   options.thorough_retry_ms = opt.thorough_retry_ms;
   options.thorough_retry_estimates = opt.thorough_retry_estimates;
+  options.part_margin = opt.part_margin_mm / 1000;
   options.slip_rate = opt.slip;
   options.slip_seed = opt.slip_seed;
   options.feedback = !opt.no_feedback;
@@ -238,6 +240,11 @@ Command ClearCommand() {
     sub.add_option("--thorough-retry-estimates", opt->thorough_retry_estimates,
                    "budget of the planner's thorough perception retry in pose estimates, the same at any load "
                    "(0: no count, the time cap alone)")
+        ->capture_default_str()
+        ->check(CLI::NonNegativeNumber);
+    sub.add_option("--part-margin-mm", opt->part_margin_mm,
+                   "the distance the plan keeps the swept gripper from the other detected parts, mm "
+                   "(GraspPlanningOptions::part_margin: a neighbour detected a few tenths of a mm off is not grazed)")
         ->capture_default_str()
         ->check(CLI::NonNegativeNumber);
     sub.add_flag("--variety", opt->variety,

@@ -133,5 +133,50 @@ TEST(GraspJudge, AParallelJawAllowsFiveDegrees) {
   EXPECT_EQ(JudgeGrasp(Model(), "parallel", g, truth).failure, "approach");
 }
 
+// A pick whose tool touches down on a true part off its grasp point is a
+// failed pick, not a collision with that part: the cup meets that part's
+// surface as it meets any part it lands on (clear seed 12786: an L-bracket
+// detected turned over put upright_inner's cup on the real bracket's plate,
+// while the grasp point nearest the tool was another bracket's 73 mm away,
+// and the cup's touchdown was counted as hitting the real bracket). Every
+// other part is still checked whole. Here a false bushing fitted on a
+// bracket's plate puts hub_top's tool centre on the plate; the only true
+// bushing stands 200 mm away.
+TEST(GraspJudge, ACupTouchingDownOnAPartOffItsGraspPointIsNoCollisionWithIt) {
+  const Pose& X_BW = DefaultCell().bin.X_BW;
+  const Pose X_BO_bracket = X_BW * Rotated(Vec3(-0.05, 0.0, 0.0), Vec3::UnitZ(), 0);  // flat, base on the floor
+  const Pose X_BO_far = X_BW * Rotated(Vec3(0.15, 0.1, 0.0), Vec3::UnitZ(), 0);
+  // hub_top@0's tool centre (12, 0, 40) mm in the bushing: 1 mm into the
+  // plate's top at (25, 0, 5) mm in the bracket (the cup pressed on it, as
+  // in 12786), clear of its holes and upright.
+  const Pose X_BO_false = X_BO_bracket * Rotated(Vec3(0.025 - 0.012, 0.0, 0.004 - 0.040), Vec3::UnitZ(), 0);
+  const Grasp g = Planned(kBushing, "suction", "hub_top@0", X_BO_false);
+  std::vector<PartTruth> truth = {Truth(3, kBracket, X_BO_bracket), Truth(6, kBushing, X_BO_far)};
+  const GraspOutcome landing = JudgeGrasp(Model(), "suction", g, truth);
+  EXPECT_EQ(landing.failure, "off_part");
+  EXPECT_EQ(landing.truth_instance, 6);
+  // The swept cup does touch the plate: checked whole, the bracket is hit.
+  Detection plate[1];
+  plate[0].class_id = kBracket;
+  plate[0].X_BO = X_BO_bracket;
+  EXPECT_EQ(Model().CheckAgainstParts("suction", g.X_BT, plate, -1, X_BW), RejectReason::kPart);
+  const PickContact on_plate = CheckPickOnTruth(Model(), "suction", g, truth, landing, X_BW);
+  EXPECT_EQ(on_plate.touched, 0);
+  EXPECT_EQ(on_plate.hit, std::nullopt);
+  // A bushing standing on the plate whose flange (r 30 mm) reaches 2 mm
+  // under the cup (r 8 mm): hit, though the tool centre is 6 mm from it.
+  truth.push_back(Truth(7, kBushing, X_BO_bracket * Rotated(Vec3(0.061, 0.0, 0.005), Vec3::UnitZ(), 0)));
+  const PickContact beside = CheckPickOnTruth(Model(), "suction", g, truth, JudgeGrasp(Model(), "suction", g, truth), X_BW);
+  EXPECT_EQ(beside.touched, 0);
+  EXPECT_EQ(beside.hit, RejectReason::kPart);
+  // The tool 7 mm above the plate touches down on nothing: every part whole.
+  Grasp high = g;
+  high.X_BT = g.X_BT * Rotated(Vec3(0, 0, -0.008), Vec3::UnitZ(), 0);
+  truth.pop_back();
+  const PickContact air = CheckPickOnTruth(Model(), "suction", high, truth, JudgeGrasp(Model(), "suction", high, truth), X_BW);
+  EXPECT_EQ(air.touched, -1);
+  EXPECT_EQ(air.hit, std::nullopt);
+}
+
 }  // namespace
 }  // namespace bp

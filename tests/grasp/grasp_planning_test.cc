@@ -281,6 +281,72 @@ TEST(GraspFilter, KeepsTheBinMarginFromTheWallsSoAWallMeasuredSlightlyOffIsNotHi
             std::nullopt);
 }
 
+// A neighbour detected off its true pose by less than part_margin never
+// lets a grasp through that hits the true neighbour (clear seed 12746: an
+// L-bracket detected 0.3 mm / 0.2 deg off, a bushing's hub_top planned
+// 0.05 mm from its estimated surface hit the true one). A bushing upright
+// at the origin, its neighbour a bushing lying on its side at x: x_edge is
+// the nearest position (0.2 mm steps) where the exact neighbour lets
+// hub_top@0 through.
+TEST(GraspFilter, KeepsThePartMarginFromTheNeighboursSoANeighbourDetectedSlightlyOffIsNotHit) {
+  TaskSpec task = PickTask();
+  GraspPlanningOptions exact_options;
+  exact_options.suction_compliance_deg = 0;  // judge the grasp as defined
+  exact_options.part_margin = 0.0;
+  GraspPlanningOptions margin_options = exact_options;
+  margin_options.part_margin = GraspPlanningOptions{}.part_margin;
+  ASSERT_GT(margin_options.part_margin, 0.0);
+  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), exact_options);
+  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), margin_options);
+  ASSERT_TRUE(exact.ok() && margin.ok());
+  const auto neighbour = [](double x) { return Bushing(x, 0, 0.03, 90); };
+  const auto hub = [&](const GraspPlanningModel& model, double x) -> const GraspCandidate {
+    const GraspPlan plan = PlanGrasps(model, task, Scene({Bushing(0, 0), neighbour(x)}));
+    for (const GraspCandidate& c : plan.candidates) {
+      if (c.detection == 0 && c.name == "hub_top@0") return c;
+    }
+    ADD_FAILURE() << "no hub_top@0";
+    return {};
+  };
+  double x_edge = -1;
+  for (double x = 0.15; x > 0.0; x -= 0.005) {  // coarse, then 0.2 mm steps
+    if (hub(**exact, x).rejected) break;
+    x_edge = x;
+  }
+  ASSERT_GT(x_edge, 0.0);
+  ASSERT_LT(x_edge, 0.15);
+  while (!hub(**exact, x_edge - 0.0002).rejected) x_edge -= 0.0002;
+  // At the edge the exact neighbour lets it through, the grown one does not.
+  EXPECT_EQ(hub(**exact, x_edge).rejected, std::nullopt);
+  EXPECT_EQ(hub(**margin, x_edge).rejected, RejectReason::kPart);
+  // The nearest position the margin lets through keeps clear of a true
+  // neighbour up to 0.8 margin off its detection, in x, y or z.
+  double x_kept = -1;
+  for (double x = x_edge; x < x_edge + 0.01; x += 0.0002) {
+    if (!hub(**margin, x).rejected) {
+      x_kept = x;
+      break;
+    }
+  }
+  ASSERT_GT(x_kept, 0.0);
+  EXPECT_GT(x_kept - x_edge, 0.5 * margin_options.part_margin);
+  const GraspCandidate kept = hub(**margin, x_kept);
+  const double d = 0.8 * margin_options.part_margin;
+  for (const Vec3& off : {Vec3(-d, 0, 0), Vec3(d, 0, 0), Vec3(0, d, 0), Vec3(0, -d, 0), Vec3(0, 0, d), Vec3(0, 0, -d)}) {
+    Detection moved = neighbour(x_kept);
+    moved.X_BO = MakePose(Mat3::Identity(), off) * moved.X_BO;
+    const Detection parts[] = {Bushing(0, 0), moved};
+    EXPECT_EQ((*margin)->CheckAgainstParts(task.gripper, kept.X_BT, parts, 0, DefaultCell().bin.X_BW), std::nullopt)
+        << "true neighbour " << off.transpose() * 1000 << " mm off";
+  }
+  // The edge grasp against a neighbour truly 0.8 margin nearer: hit.
+  const GraspCandidate edge = hub(**exact, x_edge);
+  Detection nearer = neighbour(x_edge);
+  nearer.X_BO = MakePose(Mat3::Identity(), Vec3(-d, 0, 0)) * nearer.X_BO;
+  const Detection at_edge[] = {Bushing(0, 0), nearer};
+  EXPECT_EQ((*exact)->CheckAgainstParts(task.gripper, edge.X_BT, at_edge, 0, DefaultCell().bin.X_BW), RejectReason::kPart);
+}
+
 // The default cell's L-bracket lying on its side (+y up) near the +x wall,
 // its base turned 40 deg toward the wall. The parallel jaw closes across a
 // plate, so its 90 mm palm spans the plate's normal: at the middle of either
@@ -722,9 +788,14 @@ TEST(GraspPlan, ASupportSampleExplainsItsGridCellAndNoOtherPartsPoints) {
   Cell cell = DefaultCell();
   cell.source.kind = SourceSpec::Kind::kSynthetic;
   cell.source.num_parts = 12;
-  GraspPlanningOptions support_only;
+  // The exact neighbours (no part_margin): this pile's grasps that only a
+  // neighbour's points refuse pass within the margin of its mesh, which
+  // would refuse them whether or not the neighbour is detected.
+  GraspPlanningOptions rule;
+  rule.part_margin = 0;
+  GraspPlanningOptions support_only = rule;
   support_only.support_grid_spacing = 0;
-  auto with_rule = GraspPlanningModel::Build(cell);
+  auto with_rule = GraspPlanningModel::Build(cell, rule);
   auto without = GraspPlanningModel::Build(cell, support_only);
   ASSERT_TRUE(with_rule.ok() && without.ok());
   const TaskSpec task = *cell.FindTask(0);
