@@ -289,6 +289,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
                             &result.detections);
     clock.Lap("own_turns");
   }
+  result.withheld_ambiguous = internal::WithholdAmbiguous(options_.ambiguous_min_visible, &result.detections);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(segments.range.size()) + " segments" +
                     (counts.rejected_low_score > 0
@@ -298,6 +299,9 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
                          ? " (" + std::to_string(counts.rejected_free_space) + " too much in free space)"
                          : std::string()) +
                     (counts.first_reason.empty() ? "" : " (e.g. " + counts.first_reason + ")") +
+                    (result.withheld_ambiguous > 0
+                         ? " (" + std::to_string(result.withheld_ambiguous) + " withheld: ambiguous, mostly hidden)"
+                         : std::string()) +
                     (result.budget_exhausted()
                          ? " (budget used: " + std::to_string(result.estimates_skipped) + " estimates not run)"
                          : std::string());
@@ -412,6 +416,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.max_free_space_fraction >= 0.0 && options.max_free_space_fraction <= 1.0)) {
     return Status::InvalidArgument("perception: max_free_space_fraction must be in [0, 1]");
+  }
+  if (!(options.ambiguous_min_visible >= 0.0 && options.ambiguous_min_visible <= 1.0)) {
+    return Status::InvalidArgument("perception: ambiguous_min_visible must be in [0, 1]");
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.max_support_penetration >= 0.0) || !std::isfinite(options.max_support_penetration)) {

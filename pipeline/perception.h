@@ -75,6 +75,9 @@ struct PerceptionResult {
   // A run within a PerceptionBudget: (view, class) estimates not started
   // because the budget would have been exceeded (not in estimator_calls).
   int estimates_skipped = 0;
+  // Detections withheld as ambiguous and mostly hidden
+  // (PerceptionOptions::ambiguous_min_visible).
+  int withheld_ambiguous = 0;
   bool budget_exhausted() const { return estimates_skipped > 0; }
   std::string reason;                   // why there are no detections, when there are none
   // The bin detection stage of a run into the bin (bin.detect on or
@@ -187,6 +190,15 @@ struct PerceptionOptions {
   // that explains more than (1 + own_turn_gain) times what its pose does
   // replaces it (stage "own_turns"). < 0 = off (docs/tuning.md).
   double own_turn_gain = 0.01;
+  // Last, a detection whose pose is ambiguous (Detection::pose_ambiguous:
+  // poses beyond the tolerance explain the view about as well) and of which
+  // less than this fraction of the camera-facing surface is seen
+  // (Detection::visible_fraction) is withheld: a part mostly hidden whose
+  // distinguishing feature is among the hidden (a pipe tee's branch) is
+  // left for a later capture, not answered in a guessed pose
+  // (PerceptionResult::withheld_ambiguous). In [0, 1]; 0 = off
+  // (docs/tuning.md).
+  double ambiguous_min_visible = 0.5;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

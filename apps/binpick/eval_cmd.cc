@@ -95,6 +95,7 @@ struct EvalCliOptions {
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
+  double ambiguous_min_visible = PerceptionOptions{}.ambiguous_min_visible;
   bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
 };
@@ -176,7 +177,12 @@ nlohmann::ordered_json FrameJson(const std::string& name, const Frame& frame, co
                     {"rotation_error_deg", o.rotation_error * 180.0 / M_PI},
                     {"alternatives", o.alternatives},
                     {"carried", o.carried},
+                    {"visible_fraction", d.visible_fraction},
                     {"X_BO", PoseToJson(d.X_BO)}});
+    // The poses the detection carries as ambiguous (Detection::alternatives_X_BO).
+    nlohmann::ordered_json alternatives = nlohmann::ordered_json::array();
+    for (const Pose& X_BO : d.alternatives_X_BO) alternatives.push_back(PoseToJson(X_BO));
+    dets.back()["alternatives_X_BO"] = std::move(alternatives);
   }
   j["detections"] = std::move(dets);
   nlohmann::ordered_json grasps = nlohmann::ordered_json::array();
@@ -349,6 +355,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.residual_regions = opt.residual_regions;
   popt.residual_across_jumps = opt.residual_across_jumps;
   popt.enclosing_parts = opt.enclosing_parts;
+  popt.ambiguous_min_visible = opt.ambiguous_min_visible;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   return popt;
@@ -701,6 +708,7 @@ int Run(const EvalCliOptions& opt) {
   SegmentationFigures seg_total;
   CauseFigures causes;
   BinFigures bin_figures;
+  int withheld_ambiguous = 0;  // PerceptionResult::withheld_ambiguous over the frames
   nlohmann::json frame_detections = nlohmann::json::array();
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
   Progress(0, total, 0.0);
@@ -712,6 +720,7 @@ int Run(const EvalCliOptions& opt) {
     arena.execute([&] { result = (*perception)->Run(*frame, {}, effort); });
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
+    withheld_ambiguous += result->withheld_ambiguous;
     const std::string frame_name = files.empty() ? "seed " + std::to_string(opt.seed + static_cast<uint64_t>(i))
                                                  : files[static_cast<size_t>(i)];
     nlohmann::ordered_json bin_json = NoteBin(result->bin, *frame, frame_name, bin_figures);
@@ -734,6 +743,7 @@ int Run(const EvalCliOptions& opt) {
                                              : files[static_cast<size_t>(i)];
       frames_json.push_back(FrameJson(name, *frame, *result, evaluations.back(), eval_options));
       if (!bin_json.is_null()) frames_json.back()["bin"] = std::move(bin_json);
+      frames_json.back()["withheld_ambiguous"] = result->withheld_ambiguous;
     }
     if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
@@ -764,6 +774,8 @@ int Run(const EvalCliOptions& opt) {
   }
   const EvalReport report = Summarize(evaluations, *models);
   PrintTable(report, seg_total, opt);
+  std::printf("withheld as ambiguous and mostly hidden (PerceptionOptions::ambiguous_min_visible): %d\n",
+              withheld_ambiguous);
   if (opt.causes) PrintCauses(causes, *models);
   PrintBin(bin_figures);
   if (!opt.json_path.empty()) {
@@ -874,6 +886,12 @@ Command EvalCommand() {
                                   "1: a grazing face over pixels without depth is no evidence against a pose in "
                                   "the normal and second-look searches; 0: it counts against (before issue 37's "
                                   "eighth session; PerceptionOptions::unmeasured_is_no_evidence; tuning)")
+                       ->capture_default_str();
+                   sub.add_option("--ambiguous-min-visible", opt->ambiguous_min_visible,
+                                  "withhold a detection whose pose is ambiguous when less than this fraction of its "
+                                  "camera-facing surface is seen (PerceptionOptions::ambiguous_min_visible; 0 = "
+                                  "off, tuning)")
+                       ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();
                    sub.add_option("--enclosing", opt->enclosing_parts,
                                   "1: a larger class fitted over a detection it may enclose replaces it when it "

@@ -233,4 +233,10 @@ std::vector<Detection> Acceptance::TakeDetections() {
   return live;
 }
 
+int WithholdAmbiguous(double min_visible, std::vector<Detection>* detections) {
+  return static_cast<int>(std::erase_if(*detections, [&](const Detection& d) {
+    return d.pose_ambiguous() && d.visible_fraction < min_visible;
+  }));
+}
+
 }  // namespace bp::internal

@@ -85,6 +85,14 @@ class Acceptance {
   std::vector<uint8_t> mark_;     // scratch: a candidate's support
 };
 
+// Removes the detections whose pose is ambiguous (Detection::pose_ambiguous)
+// and of which less than min_visible of the camera-facing surface is seen
+// (Detection::visible_fraction): mostly hidden, the feature that tells
+// their poses apart is likely among the hidden (PerceptionOptions::
+// ambiguous_min_visible). min_visible 0 keeps all. The others keep their
+// order. @returns how many were removed.
+int WithholdAmbiguous(double min_visible, std::vector<Detection>* detections);
+
 // The model's surface samples at X_BO, in B.
 std::vector<Eigen::Vector3f> SurfaceAt(const ClassModel& model, const Pose& X_BO);
 
