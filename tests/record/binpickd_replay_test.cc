@@ -15,6 +15,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "comms/daoai_message.h"
+#include "core/conventions.h"
 #include "tests/record/record_test_util.h"
 #include "tests/testing/files.h"
 #include "tests/testing/run_command.h"
@@ -111,11 +113,25 @@ TEST(BinpickdReplay, RecordsReplaysAndServesARecordedSessionToARobot) {
     }
     EXPECT_TRUE(ra == rb) << cap << " differs";
   }
-  // The robot got the same answers (statuses and poses) both times.
+  // The robot got the same answers (statuses and poses) both times. One field
+  // may differ: a pick pose answered from the plan's head before the rest of
+  // the queue was checked carries an upper bound on the grasps left, not the
+  // exact count (docs/protocols.md "The first pose early"), and whether a 21
+  // arrives before or after its plan completes is timing. Both are a count
+  // of at least one grasp (payload_1 >= 1 x MULT).
   const json la = ReadJson(s1 + "/answers_000001.json")["answers"];
   const json lb = ReadJson(s2 + "/answers_000001.json")["answers"];
   ASSERT_EQ(la.size(), lb.size());
-  for (size_t i = 0; i < la.size(); ++i) EXPECT_EQ(la[i]["response"], lb[i]["response"]) << i;
+  const int one_grasp = static_cast<int>(kMult);  // payload_1 = grasps left x MULT
+  for (size_t i = 0; i < la.size(); ++i) {
+    json ra = la[i]["response"], rb = lb[i]["response"];
+    if (ra["status"] == daoai::kObjectsFound && rb["status"] == daoai::kObjectsFound) {
+      EXPECT_GE(ra["payload"][0].get<int>(), one_grasp) << i;
+      EXPECT_GE(rb["payload"][0].get<int>(), one_grasp) << i;
+      ra["payload"][0] = rb["payload"][0] = 0;
+    }
+    EXPECT_EQ(ra, rb) << i;
+  }
 
   // 4. A changed recorded result is a regression: exit 1, named.
   const std::string manifest = s1 + "/cap_000001/record.json";
