@@ -508,7 +508,7 @@ const char* ToString(FalseCause cause) {
 
 void AddFrameCauses(const Frame& frame, const PerceptionResult& result, const FrameEvaluation& fe,
                     const std::function<double(const PartTruth&, const std::vector<Eigen::Vector3f>&)>& truth_score,
-                    CauseFigures& figures, const EvalOptions& options) {
+                    CauseFigures& figures, const EvalOptions& options, int frame_index) {
   if (!frame.truth) return;
   const std::vector<int> owners = RoiPointOwners(frame, result);
   if (owners.empty()) return;
@@ -550,6 +550,7 @@ void AddFrameCauses(const Frame& frame, const PerceptionResult& result, const Fr
     }
     const MissCause cause = ClassifyMiss(cut, wrong_on.count(p.instance_id) > 0, score);
     ++figures.misses[p.class_id][static_cast<size_t>(cause)];
+    figures.missed.push_back(MissRecord{frame_index, p.instance_id, p.class_id, cause});
   }
 }
 

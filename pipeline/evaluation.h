@@ -239,15 +239,26 @@ enum class FalseCause {
 inline constexpr int kFalseCauses = 4;
 const char* ToString(FalseCause cause);  // "other_class_found", ...
 
+// One missed target and its cause (the eval's JSON lists them, so that a
+// cause can be traced to its frames and parts).
+struct MissRecord {
+  int frame = 0;  // the frame's index in the run (as --log-level debug names it)
+  int instance_id = 0;
+  int class_id = 0;
+  MissCause cause = MissCause::kNotFound;
+};
+
 struct CauseFigures {
   std::map<int, std::array<int, kMissCauses>> misses;          // class -> count per MissCause
   std::map<int, std::array<int, kFalseCauses>> false_positives;  // class -> count per FalseCause
+  std::vector<MissRecord> missed;                               // every miss, in frame order
 };
 // Adds one frame's misses and false positives. truth_score(part, own points)
 // verifies the true pose on the part's own ROI points (NaN: not scored).
+// frame_index: the frame's index in the run, for MissRecord::frame.
 void AddFrameCauses(const Frame& frame, const PerceptionResult& result, const FrameEvaluation& fe,
                     const std::function<double(const PartTruth&, const std::vector<Eigen::Vector3f>&)>& truth_score,
-                    CauseFigures& figures, const EvalOptions& options = {});
+                    CauseFigures& figures, const EvalOptions& options = {}, int frame_index = 0);
 
 
 }  // namespace bp

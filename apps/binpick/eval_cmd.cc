@@ -330,6 +330,11 @@ nlohmann::ordered_json CausesJson(const CauseFigures& causes) {
       j["false_positives"][std::to_string(c)][ToString(static_cast<FalseCause>(k))] = counts[static_cast<size_t>(k)];
     }
   }
+  j["missed"] = nlohmann::ordered_json::array();
+  for (const MissRecord& m : causes.missed) {
+    j["missed"].push_back(
+        {{"frame", m.frame}, {"instance", m.instance_id}, {"class", m.class_id}, {"cause", ToString(m.cause)}});
+  }
   return j;
 }
 
@@ -763,7 +768,7 @@ int Run(const EvalCliOptions& opt) {
         const Result<PoseHypothesis> t = est->Score(view, p.X_BO);
         return t.ok() ? t->score : std::numeric_limits<double>::quiet_NaN();
       };
-      AddFrameCauses(*frame, *result, evaluations.back(), truth_score, causes);
+      AddFrameCauses(*frame, *result, evaluations.back(), truth_score, causes, eval_options, i);
     }
     const SegmentationFigures seg = EvaluateSegmentation(*frame, *result, *cell);
     seg_total.parts += seg.parts;

@@ -308,7 +308,7 @@ TEST(EvaluationCauses, EachMissAndFalsePositiveIsCountedUnderItsCause) {
     return p.instance_id == 4 ? 0.3 : 0.9;
   };
   CauseFigures causes;
-  AddFrameCauses(frame, result, fe, truth_score, causes);
+  AddFrameCauses(frame, result, fe, truth_score, causes, EvalOptions{}, 17);
   const auto misses = [&](int class_id, MissCause cause) {
     return causes.misses[class_id][static_cast<size_t>(cause)];
   };
@@ -322,6 +322,14 @@ TEST(EvaluationCauses, EachMissAndFalsePositiveIsCountedUnderItsCause) {
   int all_misses = 0;
   for (const auto& [c, counts] : causes.misses) all_misses += std::accumulate(counts.begin(), counts.end(), 0);
   EXPECT_EQ(all_misses, 7);
+  // Each miss listed with its frame, part and cause, in the truth's order.
+  ASSERT_EQ(causes.missed.size(), 7u);
+  EXPECT_EQ(causes.missed.front().frame, 17);
+  EXPECT_EQ(causes.missed.front().instance_id, 1);
+  EXPECT_EQ(causes.missed.front().class_id, kBushing);
+  EXPECT_EQ(causes.missed.front().cause, MissCause::kSplit);
+  EXPECT_EQ(causes.missed.back().instance_id, 8);
+  EXPECT_EQ(causes.missed.back().cause, MissCause::kWrongDetection);
   const auto fps = [&](int class_id, FalseCause cause) {
     return causes.false_positives[class_id][static_cast<size_t>(cause)];
   };
