@@ -92,6 +92,7 @@ struct EvalCliOptions {
   double own_turn_gain = PerceptionOptions{}.own_turn_gain;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
+  int second_look_min_points = 0;  // --second-look-min-points; 0: the default
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
@@ -350,6 +351,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
+  if (opt.second_look_min_points > 0) popt.second_look_min_points = opt.second_look_min_points;
   popt.max_fit_rms_sigmas = opt.fit_rms;
   popt.max_free_space_fraction = opt.max_free_space;
   popt.max_support_penetration = opt.max_penetration;
@@ -427,7 +429,7 @@ void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const P
                             1000.0 * (b.X_BO.translation() - p.X_BO.translation()).norm(),
                             SymmetricRotationError(b.X_BO, p.X_BO, sym) * 180.0 / M_PI);
     } else {
-      scored += "; estimate alone: none";
+      scored += fmt::format("; estimate alone: none ({})", e.ok() ? e->no_result_reason : e.status().message());
     }
   }
   spdlog::debug("frame {} missed inst {}: own points {}, unsegmented {}, in {} segments, the largest holds {:.2f} "
@@ -844,6 +846,10 @@ Command EvalCommand() {
                                   "match views whose best score is below this again with a wider coarse search "
                                   "(PerceptionOptions::second_look_below; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 2.0));
+                   sub.add_option("--second-look-min-points", opt->second_look_min_points,
+                                  "smallest view (grid points) the second look matches again "
+                                  "(PerceptionOptions::second_look_min_points; 0 = the default, tuning)")
+                       ->check(CLI::Range(0, 100000));
                    sub.add_option("--fit-rms", opt->fit_rms,
                                   "largest fit residual, in sigma_z of the depth noise "
                                   "(PerceptionOptions::max_fit_rms_sigmas; 0 = off, tuning)")
