@@ -444,6 +444,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   reference.ambiguity_net_gain = options.ambiguity_net_gain;
   reference.arm_swaps = options.arm_swaps;
   reference.unmeasured_is_no_evidence = options.unmeasured_is_no_evidence;
+  reference.turns_below_bar = options.turns_below_bar;
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());

@@ -244,6 +244,12 @@ struct PerceptionOptions {
   PoseSearch thorough_search{.max_reference_points = 20, .max_coarse_poses = 24, .peaks_per_reference = 2,
                              .peaks_examined = 30, .resting_seeds = true, .keep_better_than_fine = true,
                              .unmeasured_is_no_evidence = true};
+  // PoseSearch::turns_below_bar on the classes' default search (the waves,
+  // the residual passes, enclosing); second_look_search and thorough_search
+  // carry their own. Off: it finds tees standing on their branch but turns
+  // about a third of them 5-17 deg off (more gross errors; docs/tuning.md,
+  // `turns_below_bar`).
+  bool turns_below_bar = false;
 };
 
 // Where perception looks, when not into the bin: a box in a frame R (X_BR in

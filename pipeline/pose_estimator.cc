@@ -268,6 +268,7 @@ PoseSearch PoseEstimator::default_search() const {
   search.max_coarse_poses = impl_->options.max_coarse_poses;
   search.stop_score = impl_->options.coarse_stop_score;
   search.unmeasured_is_no_evidence = impl_->options.unmeasured_is_no_evidence;
+  search.turns_below_bar = impl_->options.turns_below_bar;
   return search;
 }
 

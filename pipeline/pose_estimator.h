@@ -133,6 +133,9 @@ struct PoseEstimatorOptions {
   // without a search). Direct users keep false; perception hands it
   // PerceptionOptions::unmeasured_is_no_evidence.
   bool unmeasured_is_no_evidence = false;
+  // The default search's PoseSearch::turns_below_bar. Direct users keep
+  // false; perception hands it PerceptionOptions::turns_below_bar.
+  bool turns_below_bar = false;
   // Turn axes (turn_axes()): axes the part is nearly round about, found at
   // multiples of this step (degrees, in [0, 180]; 0 = none). Each final
   // hypothesis is also tried turned about them by every multiple, then
@@ -210,6 +213,12 @@ struct PoseSearch {
   // search (PerceptionOptions::unmeasured_is_no_evidence: grazing dropout
   // leaves true poses below the bar otherwise; docs/tuning.md).
   bool unmeasured_is_no_evidence = false;
+  // A fine-pass pose of a part with turn axes (PoseModel::turn_axes) that
+  // scores below the bar is turned about them (the same turn grid as a
+  // passing pose) before it is rejected: a part nearly round about an axis
+  // (a pipe tee about its run) is seen as that round body, and a coarse pose
+  // turned the wrong way puts its branch where the camera saw nothing.
+  bool turns_below_bar = false;
   // A view that is one plane also gets this many face seeds (the part with
   // one of its large planar faces on the view's plane); 0 = none.
   int face_seeds = 2;

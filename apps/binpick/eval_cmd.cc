@@ -93,6 +93,7 @@ struct EvalCliOptions {
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   int second_look_min_points = 0;  // --second-look-min-points; 0: the default
+  bool turns_below_bar = PerceptionOptions{}.turns_below_bar;
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
@@ -365,6 +366,9 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.ambiguous_min_visible = opt.ambiguous_min_visible;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
+  popt.turns_below_bar = opt.turns_below_bar;
+  popt.second_look_search.turns_below_bar = opt.turns_below_bar;
+  popt.thorough_search.turns_below_bar = opt.turns_below_bar;
   return popt;
 }
 
@@ -846,6 +850,9 @@ Command EvalCommand() {
                                   "match views whose best score is below this again with a wider coarse search "
                                   "(PerceptionOptions::second_look_below; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 2.0));
+                   sub.add_option("--turns-below-bar", opt->turns_below_bar,
+                                  "1: a pose below the bar of a part nearly round about an axis is turned about it "
+                                  "before it is rejected (PerceptionOptions::turns_below_bar; tuning)");
                    sub.add_option("--second-look-min-points", opt->second_look_min_points,
                                   "smallest view (grid points) the second look matches again "
                                   "(PerceptionOptions::second_look_min_points; 0 = the default, tuning)")

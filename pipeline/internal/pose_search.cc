@@ -169,6 +169,9 @@ class SearchRun {
   std::optional<Candidate> FinePass(Candidate c);
   void TryNearSymmetries(Candidate& c);
   void TryTurns(Candidate& c);
+  // PoseSearch::turns_below_bar: c, below the bar, turned by TryTurns;
+  // whether it was tried.
+  bool TurnBelowBar(Candidate& c);
   // Refines a pose another look found, from X_BO; nullopt when ICP fails.
   std::optional<Candidate> RefineAt(const Pose& X_BO);
   // c replaced by `by` (a turn that explains more), c's pose kept as tried.
@@ -350,6 +353,7 @@ std::optional<Candidate> SearchRun::FinePass(Candidate c) {
       c.stats = st;
     }
   }
+  const bool turned_below_bar = !Passes(c.stats, min_score_) && TurnBelowBar(c);
   if (!Passes(c.stats, min_score_)) {
     Reject(c.stats);
     return std::nullopt;
@@ -357,7 +361,7 @@ std::optional<Candidate> SearchRun::FinePass(Candidate c) {
   if (search_.near_symmetries) {
     Timed(verify_ms_, [&] { c.quick = VerifyAt(c.X_BO, kQuickStride); });
     if (!m_.near_symmetries.empty()) TryNearSymmetries(c);
-    if (!m_.turn_axes.empty()) TryTurns(c);
+    if (!m_.turn_axes.empty() && !turned_below_bar) TryTurns(c);
   }
   if (opt_.hole_max_filled < 1 && have_depth_) {
     Timed(verify_ms_, [&] { c.holes = HoleStats(m_, c.X_BO, view_); });
@@ -439,6 +443,13 @@ void SearchRun::TryTurns(Candidate& c) {
       Replace(c, std::move(*alt));
     }
   }
+}
+
+bool SearchRun::TurnBelowBar(Candidate& c) {
+  if (!search_.turns_below_bar || m_.turn_axes.empty() || !have_depth_) return false;
+  Timed(verify_ms_, [&] { c.quick = VerifyAt(c.X_BO, kQuickStride); });
+  TryTurns(c);
+  return true;
 }
 
 std::optional<Candidate> SearchRun::RefineAt(const Pose& X_BO) {
