@@ -1402,6 +1402,14 @@ InstanceVerdict JudgeInstance(const PerceptionResult& result, const Frame& frame
   return v;
 }
 
+// The truth of instance `instance` in a frame with truth, or nullptr.
+const PartTruth* TruthInstance(const Frame& frame, int instance) {
+  for (const PartTruth& p : frame.truth->parts) {
+    if (p.instance_id == instance) return &p;
+  }
+  return nullptr;
+}
+
 // A pipe tee whose nearer arm hides part of its own run: the depth jump at
 // the arm's outline splits its samples into pieces no grid connectivity
 // joins, each too little of the tee for a hypothesis. The residual groups
@@ -1451,10 +1459,7 @@ TEST(PerceptionEval, ATeeStandingOnItsBranchIsTurnedBeforeItIsRejected) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const PartTruth* tee = nullptr;
-    for (const PartTruth& p : frame->truth->parts) {
-      if (p.instance_id == instance) tee = &p;
-    }
+    const PartTruth* tee = TruthInstance(*frame, instance);
     ASSERT_NE(tee, nullptr) << "pile " << seed;
     ASSERT_EQ(tee->class_id, 2) << "pile " << seed;
     // The branch (the tee's z) points down, away from the camera.
@@ -1486,10 +1491,7 @@ TEST(PerceptionEval, ABushingInsideATeeIsReplacedByTheTee) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const PartTruth* tee = nullptr;
-    for (const PartTruth& p : frame->truth->parts) {
-      if (p.instance_id == instance) tee = &p;
-    }
+    const PartTruth* tee = TruthInstance(*frame, instance);
     ASSERT_NE(tee, nullptr) << "pile " << seed;
     ASSERT_EQ(tee->class_id, 2) << "pile " << seed;
     struct Counts {
