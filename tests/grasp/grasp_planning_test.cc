@@ -217,6 +217,21 @@ TEST(GraspFilter, WallsAtTheMeasuredBinPoseRejectAGraspTheNominalWallsLetThrough
   EXPECT_EQ((*model)->CheckAgainstParts(task.gripper, hub->X_BT, parts, 0, bin.X_BW), RejectReason::kBin);
 }
 
+// Planning options that judge a grasp as defined (no cup compliance), with
+// one margin (a GraspPlanningOptions member, metres) at 0 in `exact` and at
+// its default in `grown`.
+struct MarginOptions {
+  GraspPlanningOptions exact, grown;
+};
+MarginOptions ExactAndGrown(double GraspPlanningOptions::*margin) {
+  MarginOptions o;
+  o.exact.suction_compliance_deg = 0;
+  o.exact.*margin = 0.0;
+  o.grown = o.exact;
+  o.grown.*margin = GraspPlanningOptions{}.*margin;
+  return o;
+}
+
 // A bin measured off its true pose by less than bin_margin never lets a
 // grasp through that hits the true wall (clear seed 10259: the bin measured
 // 0.3 mm off, a run_bottom grasp planned to graze the measured wall hit the
@@ -224,14 +239,10 @@ TEST(GraspFilter, WallsAtTheMeasuredBinPoseRejectAGraspTheNominalWallsLetThrough
 // toward the +x wall where the exact walls let hub_top through.
 TEST(GraspFilter, KeepsTheBinMarginFromTheWallsSoAWallMeasuredSlightlyOffIsNotHit) {
   TaskSpec task = PickTask();
-  GraspPlanningOptions exact_options;
-  exact_options.suction_compliance_deg = 0;  // judge the grasp as defined
-  exact_options.bin_margin = 0.0;
-  GraspPlanningOptions margin_options = exact_options;
-  margin_options.bin_margin = GraspPlanningOptions{}.bin_margin;
-  ASSERT_GT(margin_options.bin_margin, 0.0);
-  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), exact_options);
-  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), margin_options);
+  const MarginOptions options = ExactAndGrown(&GraspPlanningOptions::bin_margin);
+  ASSERT_GT(options.grown.bin_margin, 0.0);
+  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), options.exact);
+  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), options.grown);
   ASSERT_TRUE(exact.ok() && margin.ok());
   const auto hub = [&](const GraspPlanningModel& model, double x) -> const GraspCandidate {
     const GraspPlan plan = PlanGrasps(model, task, Scene({Bushing(x, 0, 0.02, 30)}));
@@ -262,10 +273,10 @@ TEST(GraspFilter, KeepsTheBinMarginFromTheWallsSoAWallMeasuredSlightlyOffIsNotHi
     }
   }
   ASSERT_GT(x_kept, 0.0);
-  EXPECT_GT(x_edge - x_kept, 0.5 * margin_options.bin_margin);
+  EXPECT_GT(x_edge - x_kept, 0.5 * options.grown.bin_margin);
   const GraspCandidate kept = hub(**margin, x_kept);
   const Detection part[] = {Bushing(x_kept, 0, 0.02, 30)};
-  const double d = 0.8 * margin_options.bin_margin;
+  const double d = 0.8 * options.grown.bin_margin;
   for (const Vec3& off : {Vec3(-d, 0, 0), Vec3(d, 0, 0), Vec3(0, d, 0), Vec3(0, -d, 0), Vec3(0, 0, d)}) {
     const Pose X_BW_true = DefaultCell().bin.X_BW * MakePose(Mat3::Identity(), off);
     EXPECT_EQ((*margin)->CheckAgainstParts(task.gripper, kept.X_BT, part, 0, X_BW_true), std::nullopt)
@@ -290,14 +301,10 @@ TEST(GraspFilter, KeepsTheBinMarginFromTheWallsSoAWallMeasuredSlightlyOffIsNotHi
 // hub_top@0 through.
 TEST(GraspFilter, KeepsThePartMarginFromTheNeighboursSoANeighbourDetectedSlightlyOffIsNotHit) {
   TaskSpec task = PickTask();
-  GraspPlanningOptions exact_options;
-  exact_options.suction_compliance_deg = 0;  // judge the grasp as defined
-  exact_options.part_margin = 0.0;
-  GraspPlanningOptions margin_options = exact_options;
-  margin_options.part_margin = GraspPlanningOptions{}.part_margin;
-  ASSERT_GT(margin_options.part_margin, 0.0);
-  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), exact_options);
-  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), margin_options);
+  const MarginOptions options = ExactAndGrown(&GraspPlanningOptions::part_margin);
+  ASSERT_GT(options.grown.part_margin, 0.0);
+  auto exact = GraspPlanningModel::Build(CellWithoutSeenContact(), options.exact);
+  auto margin = GraspPlanningModel::Build(CellWithoutSeenContact(), options.grown);
   ASSERT_TRUE(exact.ok() && margin.ok());
   const auto neighbour = [](double x) { return Bushing(x, 0, 0.03, 90); };
   const auto hub = [&](const GraspPlanningModel& model, double x) -> const GraspCandidate {
@@ -329,9 +336,9 @@ TEST(GraspFilter, KeepsThePartMarginFromTheNeighboursSoANeighbourDetectedSlightl
     }
   }
   ASSERT_GT(x_kept, 0.0);
-  EXPECT_GT(x_kept - x_edge, 0.5 * margin_options.part_margin);
+  EXPECT_GT(x_kept - x_edge, 0.5 * options.grown.part_margin);
   const GraspCandidate kept = hub(**margin, x_kept);
-  const double d = 0.8 * margin_options.part_margin;
+  const double d = 0.8 * options.grown.part_margin;
   for (const Vec3& off : {Vec3(-d, 0, 0), Vec3(d, 0, 0), Vec3(0, d, 0), Vec3(0, -d, 0), Vec3(0, 0, d), Vec3(0, 0, -d)}) {
     Detection moved = neighbour(x_kept);
     moved.X_BO = MakePose(Mat3::Identity(), off) * moved.X_BO;

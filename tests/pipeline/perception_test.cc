@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <functional>
+#include <initializer_list>
 #include <limits>
 #include <map>
 #include <memory>
@@ -1410,6 +1411,31 @@ const PartTruth* TruthInstance(const Frame& frame, int instance) {
   return nullptr;
 }
 
+// A rule that finds a missed part: on each pile of the tuning range
+// (--variety; seed, true instance) the part is missed by `without` and
+// found strictly by `with`, and `with` answers no more wrong detections.
+// check_truth, if given, first checks that the pile's part shows the
+// mechanism the rule is for.
+void ExpectFoundOnlyWith(const Perception& without, const Perception& with,
+                         std::initializer_list<std::pair<unsigned, int>> piles,
+                         const std::function<void(const PartTruth&, unsigned)>& check_truth = {}) {
+  const Fixture& f = Fixture::Get();
+  for (const auto& [seed, instance] : piles) {
+    Result<Frame> frame = VariedPile(f.cell, seed);
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    if (check_truth) {
+      const PartTruth* part = TruthInstance(*frame, instance);
+      ASSERT_NE(part, nullptr) << "pile " << seed;
+      check_truth(*part, seed);
+    }
+    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(without, *frame), *frame, f.models, instance);
+    const InstanceVerdict after = JudgeInstance(Fixture::RunWith(with, *frame), *frame, f.models, instance);
+    EXPECT_FALSE(before.found) << "pile " << seed << ": instance " << instance << " found without the rule";
+    EXPECT_TRUE(after.found) << "pile " << seed << ": instance " << instance;
+    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
+  }
+}
+
 // A pipe tee whose nearer arm hides part of its own run: the depth jump at
 // the arm's outline splits its samples into pieces no grid connectivity
 // joins, each too little of the tee for a hypothesis. The residual groups
@@ -1425,17 +1451,7 @@ TEST(PerceptionEval, ATeeSplitByItsOwnDepthJumpIsMatchedJoined) {
   PerceptionOptions off;
   off.residual_across_jumps = false;
   const std::unique_ptr<Perception> without = Perception::Build(f.cell, off).value();
-  for (const std::pair<unsigned, int>& pile : {std::pair{1034u, 18}, std::pair{1072u, 12}}) {
-    const unsigned seed = pile.first;
-    const int instance = pile.second;
-    Result<Frame> frame = VariedPile(f.cell, seed);
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(*without, *frame), *frame, f.models, instance);
-    const InstanceVerdict after = JudgeInstance(f.Run(*frame), *frame, f.models, instance);
-    EXPECT_FALSE(before.found) << "pile " << seed << ": tee " << instance << " found without the joined views";
-    EXPECT_TRUE(after.found) << "pile " << seed << ": tee " << instance;
-    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
-  }
+  ExpectFoundOnlyWith(*without, *f.perception, {{1034u, 18}, {1072u, 12}});
 }
 
 // A pipe tee standing on its branch, seen from above, shows only its run:
@@ -1454,22 +1470,11 @@ TEST(PerceptionEval, ATeeStandingOnItsBranchIsTurnedBeforeItIsRejected) {
   on.turns_below_bar = true;
   on.second_look_search.turns_below_bar = true;
   const std::unique_ptr<Perception> with = Perception::Build(f.cell, on).value();
-  for (const std::pair<unsigned, int>& pile : {std::pair{1011u, 8}, std::pair{1033u, 3}}) {
-    const unsigned seed = pile.first;
-    const int instance = pile.second;
-    Result<Frame> frame = VariedPile(f.cell, seed);
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const PartTruth* tee = TruthInstance(*frame, instance);
-    ASSERT_NE(tee, nullptr) << "pile " << seed;
-    ASSERT_EQ(tee->class_id, 2) << "pile " << seed;
+  ExpectFoundOnlyWith(*f.perception, *with, {{1011u, 8}, {1033u, 3}}, [](const PartTruth& tee, unsigned seed) {
+    ASSERT_EQ(tee.class_id, 2) << "pile " << seed;
     // The branch (the tee's z) points down, away from the camera.
-    EXPECT_LT(tee->X_BO.rotation().col(2).z(), -0.9) << "pile " << seed;
-    const InstanceVerdict before = JudgeInstance(f.Run(*frame), *frame, f.models, instance);
-    const InstanceVerdict after = JudgeInstance(Fixture::RunWith(*with, *frame), *frame, f.models, instance);
-    EXPECT_FALSE(before.found) << "pile " << seed << ": tee " << instance << " found without the turns";
-    EXPECT_TRUE(after.found) << "pile " << seed << ": tee " << instance;
-    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
-  }
+    EXPECT_LT(tee.X_BO.rotation().col(2).z(), -0.9) << "pile " << seed;
+  });
 }
 
 // A flanged bushing fitted into a pipe tee's arm (its hub in the arm, the
@@ -1585,17 +1590,7 @@ TEST(PerceptionEval, ABracketWhoseGrazingFacesDroppedOutIsFound) {
   off.unmeasured_is_no_evidence = false;
   off.second_look_search.unmeasured_is_no_evidence = false;
   const std::unique_ptr<Perception> without = Perception::Build(f.cell, off).value();
-  for (const std::pair<unsigned, int>& pile : {std::pair{1012u, 13}, std::pair{1020u, 15}}) {
-    const unsigned seed = pile.first;
-    const int instance = pile.second;
-    Result<Frame> frame = VariedPile(f.cell, seed);
-    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(*without, *frame), *frame, f.models, instance);
-    const InstanceVerdict after = JudgeInstance(f.Run(*frame), *frame, f.models, instance);
-    EXPECT_FALSE(before.found) << "pile " << seed;
-    EXPECT_TRUE(after.found) << "pile " << seed;
-    EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
-  }
+  ExpectFoundOnlyWith(*without, *f.perception, {{1012u, 13}, {1020u, 15}});
 }
 
 }  // namespace
