@@ -258,15 +258,10 @@ Landing Land(const BinPickingPlanner& p, const TaskSpec& used, const Grasp& gras
              const Pose& X_BW, const GraspJudgeOptions& options) {
   Landing l;
   l.outcome = JudgeGrasp(p.model(), used.gripper, grasp, pile, options);
-  const PickContact contact = CheckPickOnTruth(p.model(), used.gripper, grasp, pile, l.outcome, X_BW);
+  PickContact contact = CheckPickOnTruth(p.model(), used.gripper, grasp, pile, l.outcome, X_BW);
   l.hit = contact.hit;
   l.target = contact.touched;
-  for (const PartTruth& t : pile) {
-    Detection d;
-    d.class_id = t.class_id;
-    d.X_BO = t.X_BO;
-    l.parts.push_back(std::move(d));
-  }
+  l.parts = std::move(contact.parts);
   return l;
 }
 

@@ -2,7 +2,6 @@
 
 #include <cmath>
 #include <limits>
-#include <vector>
 
 namespace bp {
 
@@ -60,8 +59,7 @@ PickContact CheckPickOnTruth(const GraspPlanningModel& model, const std::string&
   PickContact out;
   const Vec3 tool_B = grasp.X_BT.translation();
   double nearest = std::numeric_limits<double>::infinity();
-  std::vector<Detection> parts;
-  parts.reserve(truth.size());
+  out.parts.reserve(truth.size());
   for (size_t i = 0; i < truth.size(); ++i) {
     const PartTruth& t = truth[i];
     if (outcome.on_part) {
@@ -74,9 +72,9 @@ PickContact CheckPickOnTruth(const GraspPlanningModel& model, const std::string&
     Detection d;
     d.class_id = t.class_id;
     d.X_BO = t.X_BO;
-    parts.push_back(std::move(d));
+    out.parts.push_back(std::move(d));
   }
-  out.hit = model.CheckAgainstParts(gripper, grasp.X_BT, parts, out.touched, X_BW);
+  out.hit = model.CheckAgainstParts(gripper, grasp.X_BT, out.parts, out.touched, X_BW);
   return out;
 }
 

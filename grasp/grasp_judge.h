@@ -14,6 +14,7 @@
 
 #include <span>
 #include <string>
+#include <vector>
 
 #include "core/cell.h"
 #include "grasp/grasp.h"
@@ -51,6 +52,7 @@ GraspOutcome JudgeGrasp(const GraspPlanningModel& model, const std::string& grip
 struct PickContact {
   std::optional<RejectReason> hit;  // nullopt: collision-free
   int touched = -1;                 // index into the truth of the part touched down on, -1 none
+  std::vector<Detection> parts;     // the truth as detections, in its order (what `hit` was checked against)
 };
 PickContact CheckPickOnTruth(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp,
                              std::span<const PartTruth> truth, const GraspOutcome& outcome, const Pose& X_BW);
