@@ -63,6 +63,11 @@ class PpfClassModel final : public ClassModel {
   }
   std::span<const Eigen::Vector3f> surface_points_O() const override { return estimator_->surface_points_O(); }
 
+  bool DistinctPoses(const Pose& a, const Pose& b) const override {
+    const PoseEstimatorOptions& o = estimator_options();
+    return SymmetricTranslationError(a, b, estimator_->symmetry()) > o.ambiguity_translation ||
+           SymmetricRotationError(a, b, estimator_->symmetry()) > o.ambiguity_rotation_deg * M_PI / 180.0;
+  }
   bool has_turn_axes() const override { return !PoseEstimatorAccess::Model(*estimator_).turn_axes.empty(); }
   TurnChoice ChooseTurn(const SegmentView& view, const Pose& X_BO, std::span<const Pose> others,
                         double step_deg) const override {
@@ -122,6 +127,13 @@ constexpr double kPlanarShareSampleSpacing = 0.002;
 constexpr float kPlanarShareMinCos = 0.17f;
 
 }  // namespace
+
+bool ClassModel::DistinctPoses(const Pose& a, const Pose& b) const {
+  const PoseEstimatorOptions& o = estimator_options();
+  const Symmetry none;
+  return SymmetricTranslationError(a, b, none) > o.ambiguity_translation ||
+         SymmetricRotationError(a, b, none) > o.ambiguity_rotation_deg * M_PI / 180.0;
+}
 
 Eigen::Vector3f PrincipalExtents(std::span<const Eigen::Vector3f> points) {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();

@@ -84,6 +84,13 @@ class ClassModel {
   virtual double lowest_upward_face() const = 0;
   // The estimator's options in use (scaled to the part and the camera).
   virtual const PoseEstimatorOptions& estimator_options() const = 0;
+  // Whether two poses of the part differ by more than the ambiguity
+  // tolerance (PoseEstimatorOptions::ambiguity_translation and
+  // ambiguity_rotation_deg, the strict evaluation tolerance) modulo the
+  // part's symmetry: whether one may be the other's alternative
+  // (Detection::alternatives_X_BO). A model without a symmetry compares the
+  // poses as they are.
+  virtual bool DistinctPoses(const Pose& a, const Pose& b) const;
   // Whether the part is nearly round about an axis (PoseEstimator::turn_axes).
   virtual bool has_turn_axes() const { return false; }
   // internal::ChooseTurn on the view; a model without turn axes returns X_BO

@@ -132,8 +132,12 @@ int RedecideTurns(std::span<const ClassModel* const> models, const Frame& frame,
                   blanked.size());
     const Pose old = det.X_BO;
     det.X_BO = choice.X_BO;
-    std::erase_if(det.alternatives_X_BO, [&](const Pose& X) { return X.isApprox(choice.X_BO); });
-    det.alternatives_X_BO.insert(det.alternatives_X_BO.begin(), old);
+    // An alternative the new pose lies within the tolerance of is the new
+    // pose; the old pose is an alternative only when it is another pose (a
+    // turn of a few degrees refines the pose, it does not make it ambiguous).
+    const ClassModel& model = *model_of[d];
+    std::erase_if(det.alternatives_X_BO, [&](const Pose& X) { return !model.DistinctPoses(X, choice.X_BO); });
+    if (model.DistinctPoses(old, choice.X_BO)) det.alternatives_X_BO.insert(det.alternatives_X_BO.begin(), old);
     const size_t max_alternatives =
         static_cast<size_t>(std::max(1, model_of[d]->estimator_options().max_alternatives));
     if (det.alternatives_X_BO.size() > max_alternatives) det.alternatives_X_BO.resize(max_alternatives);

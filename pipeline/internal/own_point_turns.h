@@ -24,8 +24,10 @@ namespace bp::internal {
 // the others' pixels blanked is its view. ClassModel::ChooseTurn on that
 // view; a pose that explains more than (1 + min_gain) times what the
 // detection's pose does (supported minus free-space samples) becomes the
-// pose, the detection's pose its first alternative (at most the class's
-// max_alternatives kept), its support the old support on the new surface;
+// pose, the detection's pose its first alternative when the two are
+// distinct (ClassModel::DistinctPoses; at most the class's max_alternatives
+// kept; alternatives within the tolerance of the new pose are dropped), its
+// support the old support on the new surface;
 // its score stays the one acceptance ranked it by. A part whose neighbours
 // hold less than a tenth of the points within its reach is left as it is.
 // Detections are judged in order, each against its neighbours as they

@@ -1338,6 +1338,63 @@ TEST(PerceptionEval, ATeeIsTurnedAgainOnItsOwnPointsOnceItsNeighboursAreFound) {
   }
 }
 
+// Two poses of a part are alternatives of each other only beyond the strict
+// tolerance (5 mm, 5 deg) modulo its symmetry: a pipe tee turned half a turn
+// about its branch (its declared symmetry) or a few degrees about its run is
+// the same pose; 6 deg about its run or 6 mm along it is another.
+TEST(PerceptionEval, PosesAreDistinctBeyondTheToleranceModuloTheSymmetry) {
+  Fixture& f = Fixture::Get();
+  const std::unique_ptr<internal::ClassModel> tee = internal::BuildClassModel(f.cell.parts[2]).value();
+  const Pose X = MakePose(Mat3(Eigen::AngleAxisd(0.7, Vec3(1, 2, 3).normalized())), Vec3(0.6, 0.05, 0.08));
+  const auto turned = [&](const Vec3& axis, double deg) {
+    return X * MakePose(Mat3(Eigen::AngleAxisd(deg * kDeg, axis)), Vec3::Zero());
+  };
+  EXPECT_FALSE(tee->DistinctPoses(X, X));
+  EXPECT_FALSE(tee->DistinctPoses(X, turned(Vec3::UnitZ(), 180.0)));
+  EXPECT_FALSE(tee->DistinctPoses(X, turned(Vec3::UnitX(), 4.0)));
+  EXPECT_FALSE(tee->DistinctPoses(turned(Vec3::UnitZ(), 180.0), turned(Vec3::UnitX(), -4.0)));
+  EXPECT_TRUE(tee->DistinctPoses(X, turned(Vec3::UnitX(), 6.0)));
+  EXPECT_TRUE(tee->DistinctPoses(X, turned(Vec3::UnitZ(), 90.0)));
+  EXPECT_TRUE(tee->DistinctPoses(X, X * MakePose(Mat3::Identity(), Vec3(0.006, 0, 0))));
+}
+
+// The own-point turn of a tee that moves it by less than the tolerance
+// refines its pose; it does not make it ambiguous (the old pose is no
+// alternative of the new one). Piles of the tuning range (--variety): in
+// 1002 tees 7, 10 and 11 (56-93% seen) were each turned 1-4 deg and carried
+// their old pose as their one alternative; in 1017 tee 5 (seen 49%), so
+// marked, was withheld as ambiguous and mostly hidden. Each is found
+// strictly and unambiguous, and no detection carries an alternative within
+// the tolerance of its pose.
+TEST(PerceptionEval, ATeeTurnedWithinTheToleranceOnItsOwnPointsIsNotAmbiguous) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  const std::vector<std::pair<unsigned, std::vector<int>>> piles = {{1002u, {7, 10, 11}}, {1017u, {5}}};
+  for (const auto& pile : piles) {
+    const unsigned seed = pile.first;
+    Result<Frame> frame = VariedPile(f.cell, seed);
+    ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+    const PerceptionResult result = f.Run(*frame);
+    for (const Detection& d : result.detections) {
+      const Symmetry& symmetry = f.cell.parts[static_cast<size_t>(d.class_id)].symmetry;
+      for (const Pose& X : d.alternatives_X_BO) {
+        EXPECT_TRUE(SymmetricTranslationError(X, d.X_BO, symmetry) > 0.005 ||
+                    SymmetricRotationError(X, d.X_BO, symmetry) > 5.0 * kDeg)
+            << "pile " << seed << ": class " << d.class_id << " carries its own pose as an alternative";
+      }
+    }
+    for (const int instance : pile.second) {
+      bool found_unambiguous = false;
+      for (const DetectionOutcome& o : EvaluateFrame(result, *frame->truth, f.models).detections) {
+        if (o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance) {
+          found_unambiguous = !result.detections[o.detection].pose_ambiguous();
+        }
+      }
+      EXPECT_TRUE(found_unambiguous) << "pile " << seed << ": tee " << instance;
+    }
+  }
+}
+
 // Parts the segmentation split over segments, left in pieces below
 // min_segment_points or merged with a neighbour: once the neighbours are
 // found, the samples no detection explains, grouped by grid connectivity,
