@@ -29,7 +29,8 @@ namespace bp::internal {
 // kept; alternatives within the tolerance of the new pose are dropped), its
 // support the old support on the new surface;
 // its score stays the one acceptance ranked it by. A part whose neighbours
-// hold less than a tenth of the points within its reach is left as it is.
+// hold less than a tenth of the points within its reach is left as it is
+// unless its pose is ambiguous (Detection::pose_ambiguous).
 // Detections are judged in order, each against its neighbours as they
 // stand. Organized frames only (point_of_pixel: RoiCloud::point_of_pixel);
 // an unorganized frame changes nothing. @returns how many poses changed.

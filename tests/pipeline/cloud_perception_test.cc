@@ -192,8 +192,12 @@ TEST(CloudPerception, CloudsFromOtherToolsFindWhatTheirDepthImagesFind) {
   // 29 / 31 over the five frames). The residual groups joined across depth
   // jumps (PerceptionOptions::residual_across_jumps) find 2 parts more in
   // the depth images and 1 in the clouds (--residual-across-jumps 0 / 1:
-  // 37 -> 39 and 35 -> 36 detections, none wrong more): 3 fewer.
-  EXPECT_GE(found_cloud, found_depth - 3);
+  // 37 -> 39 and 35 -> 36 detections, none wrong more): 3 fewer. An
+  // ambiguous tee turned again on its own points (RedecideTurns, organized
+  // frames only: not the merged cloud) is right in the merged frame's depth
+  // image (binpick eval --source files:tests/pipeline/data/clouds/depth:
+  // gross 2 -> 1, the clouds' 2 both): 4 fewer.
+  EXPECT_GE(found_cloud, found_depth - 4);
 }
 
 }  // namespace
