@@ -246,7 +246,8 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   for (const internal::ViewIndices& view : segments.region_views) views.views.push_back(view);
 
   internal::ViewMatcher matcher(options_, models, thorough, frame, floor_plane_B, segments, fit_limit, budget);
-  internal::Acceptance acceptance(result.roi_points_B.size(), models);
+  internal::Acceptance acceptance(result.roi_points_B.size(), models, options_.near_centre_min_shared,
+                                  result.roi_points_B);
   internal::WaveResult waves = internal::MatchInWaves(std::move(views), options_, thorough, segments, matcher,
                                                       acceptance);
   result.timings.push_back({"pose", waves.match_ms});
@@ -419,6 +420,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.ambiguous_min_visible >= 0.0 && options.ambiguous_min_visible <= 1.0)) {
     return Status::InvalidArgument("perception: ambiguous_min_visible must be in [0, 1]");
+  }
+  if (!(options.near_centre_min_shared >= 0.0 && options.near_centre_min_shared <= 1.0)) {
+    return Status::InvalidArgument("perception: near_centre_min_shared must be in [0, 1]");
   }
   if (!(options.segment_max_jump > 0.0)) return Status::InvalidArgument("perception: segment_max_jump must be > 0");
   if (!(options.max_support_penetration >= 0.0) || !std::isfinite(options.max_support_penetration)) {

@@ -199,6 +199,16 @@ struct PerceptionOptions {
   // (PerceptionResult::withheld_ambiguous). In [0, 1]; 0 = off
   // (docs/tuning.md).
   double ambiguous_min_visible = 0.5;
+  // Acceptance: a candidate whose surface centre lies within 0.3 of the
+  // larger diameter of an accepted detection's conflicts with it only when
+  // at least this fraction of the candidate's support lies on that
+  // detection's surface (within 2.5 mm; or they interpenetrate, which
+  // conflicts anyway). The same part found again from another of its
+  // segments lies on it; two true neighbours may have close surface
+  // centres (a bushing in an L-bracket's corner, two brackets side by
+  // side) but each one's points lie on its own surface. In [0, 1]; 0 =
+  // centre closeness alone conflicts (docs/tuning.md).
+  double near_centre_min_shared = 0.3;
   // Score a class too small for the view needs, in [0, 1].
   double too_small_class_min_score = 0.85;
   // Views are matched in waves of at least view_waves[i] grid points

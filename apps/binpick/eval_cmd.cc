@@ -98,6 +98,7 @@ struct EvalCliOptions {
   bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
   double ambiguous_min_visible = PerceptionOptions{}.ambiguous_min_visible;
+  double near_centre_min_shared = PerceptionOptions{}.near_centre_min_shared;
   bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
 };
@@ -364,6 +365,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.residual_across_jumps = opt.residual_across_jumps;
   popt.enclosing_parts = opt.enclosing_parts;
   popt.ambiguous_min_visible = opt.ambiguous_min_visible;
+  popt.near_centre_min_shared = opt.near_centre_min_shared;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.turns_below_bar = opt.turns_below_bar;
@@ -909,6 +911,12 @@ Command EvalCommand() {
                                   "withhold a detection whose pose is ambiguous when less than this fraction of its "
                                   "camera-facing surface is seen (PerceptionOptions::ambiguous_min_visible; 0 = "
                                   "off, tuning)")
+                       ->check(CLI::Range(0.0, 1.0))
+                       ->capture_default_str();
+                   sub.add_option("--near-centre-min-shared", opt->near_centre_min_shared,
+                                  "acceptance: a candidate whose surface centre is near an accepted detection's "
+                                  "conflicts with it only when that detection holds this fraction of its support "
+                                  "(PerceptionOptions::near_centre_min_shared; 0 = centre closeness alone, tuning)")
                        ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();
                    sub.add_option("--enclosing", opt->enclosing_parts,

@@ -37,8 +37,10 @@ std::vector<Eigen::Vector3f> SurfaceAt(const ClassModel& model, const Pose& X_BO
   return out;
 }
 
-Acceptance::Acceptance(size_t roi_points, std::span<const ClassModel* const> models)
-    : models_(models), claims_(roi_points, 0), mark_(roi_points, 0) {}
+Acceptance::Acceptance(size_t roi_points, std::span<const ClassModel* const> models, double near_centre_min_shared,
+                       std::span<const Eigen::Vector3f> roi_points_B)
+    : models_(models), claims_(roi_points, 0), mark_(roi_points, 0), near_centre_min_shared_(near_centre_min_shared),
+      roi_points_B_(roi_points_B) {}
 
 const ClassModel* Acceptance::ModelOf(int class_id) const {
   for (const ClassModel* m : models_) {
@@ -78,6 +80,18 @@ std::vector<size_t> Acceptance::Interpenetrated(const Candidate& c) const {
   return hit;
 }
 
+bool Acceptance::SamePart(size_t k, const Candidate& c) const {
+  const ClassModel* km = ModelOf(detections_[k].class_id);
+  if (!(near_centre_min_shared_ > 0.0) || roi_points_B_.empty() || c.support_roi.empty() || km == nullptr) return true;
+  std::vector<Eigen::Vector3f> support;
+  support.reserve(c.support_roi.size());
+  for (int32_t i : c.support_roi) support.push_back(roi_points_B_[static_cast<size_t>(i)]);
+  std::vector<uint8_t> on(support.size(), 0);
+  km->MarkOnSurface(detections_[k].X_BO, support, kExplainedDistance, &on);
+  const auto n_on = static_cast<double>(std::count(on.begin(), on.end(), uint8_t{1}));
+  return n_on >= near_centre_min_shared_ * static_cast<double>(support.size());
+}
+
 std::optional<std::vector<size_t>> Acceptance::Conflicts(const Candidate& c) {
   std::vector<size_t> conflicts;
   const auto conflict = [&conflicts](size_t k) {
@@ -85,7 +99,8 @@ std::optional<std::vector<size_t>> Acceptance::Conflicts(const Candidate& c) {
   };
   for (size_t k = 0; k < accepted_.size(); ++k) {
     const Accepted& a = accepted_[k];
-    if (!a.dropped && (a.centre_B - c.centre_B).norm() < kNmsRelativeDistance * std::max(c.diameter, a.diameter)) {
+    if (!a.dropped && (a.centre_B - c.centre_B).norm() < kNmsRelativeDistance * std::max(c.diameter, a.diameter) &&
+        SamePart(k, c)) {
       conflicts.push_back(k);
     }
   }

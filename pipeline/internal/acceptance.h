@@ -19,7 +19,8 @@ namespace bp::internal {
 
 // The detections of one frame so far. A candidate conflicts with an accepted
 // detection whose surface centre is within 0.3 of the larger diameter of its
-// own, that holds a tenth of its support when more than half of that is
+// own (and, with near_centre_min_shared > 0, on whose surface that fraction
+// of the candidate's support lies), that holds a tenth of its support when more than half of that is
 // already claimed, or that it interpenetrates (3% of either's surface
 // samples inside the other, ClassModel::inside_depth: parts of a pile never
 // do). It is
@@ -30,7 +31,11 @@ class Acceptance {
  public:
   // roi_points: the frame's ROI point count (support indices are below it).
   // models: the class models candidates may name (must outlive this).
-  Acceptance(size_t roi_points, std::span<const ClassModel* const> models);
+  // near_centre_min_shared: PerceptionOptions::near_centre_min_shared,
+  // with roi_points_B the frame's ROI points (support indices point into
+  // them; must outlive this); ignored when they are empty.
+  Acceptance(size_t roi_points, std::span<const ClassModel* const> models, double near_centre_min_shared = 0.0,
+             std::span<const Eigen::Vector3f> roi_points_B = {});
 
   // Accepts `candidates` in order of score (stable).
   void Accept(std::vector<Candidate> candidates);
@@ -69,6 +74,10 @@ class Acceptance {
     bool dropped = false;                    // replaced by a later, better candidate
   };
   const ClassModel* ModelOf(int class_id) const;
+  // Whether at least near_centre_min_shared_ of c's support lies on live
+  // detection k's surface (within kExplainedDistance): the same part.
+  // Always true when that is 0, without ROI points or support.
+  bool SamePart(size_t k, const Candidate& c) const;
   // The live detections c conflicts with; nullopt when most of its support
   // is claimed, but by no live detection holding a tenth of it (c adds
   // nothing).
@@ -83,6 +92,8 @@ class Acceptance {
   std::vector<Accepted> accepted_;
   std::vector<uint16_t> claims_;  // per ROI point: live detections supported by it
   std::vector<uint8_t> mark_;     // scratch: a candidate's support
+  double near_centre_min_shared_ = 0.0;
+  std::span<const Eigen::Vector3f> roi_points_B_;
 };
 
 // Removes the detections whose pose is ambiguous (Detection::pose_ambiguous)

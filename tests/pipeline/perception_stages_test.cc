@@ -272,6 +272,44 @@ TEST(Acceptance, ReplacingADetectionReleasesItsSupport) {
   EXPECT_FALSE(acceptance.never_accepted());
 }
 
+// PerceptionOptions::near_centre_min_shared: candidates whose surface
+// centres lie within the NMS distance conflict only when the candidate's
+// support lies on the detection's surface. Two touching spheres given the
+// same surface centre (parts whose centroids lie off their material, an
+// L-bracket's corner) are both kept; the same sphere found again from
+// other points of its surface is still one part; without the rule the
+// closeness alone makes them one.
+TEST(Acceptance, CloseCentresConflictOnlyWhenTheSupportLiesOnTheDetection) {
+  const SphereModel sphere(0, 0.02f);
+  const std::vector<const ClassModel*> models = {&sphere};
+  std::vector<Eigen::Vector3f> roi;
+  const Vec3 a(0, 0, 0.02), b(0.04, 0, 0.02), centre(0.02, 0, 0.02);
+  for (const Vec3& c : {a, b}) {  // 0-399 on a, 400-799 on b
+    for (const Eigen::Vector3f& p : sphere.surface_points_O()) roi.push_back(p + c.cast<float>());
+  }
+  const auto at = [&](const Vec3& x, double score, std::vector<int32_t> support) {
+    Candidate c = SphereAt(sphere, x, score, std::move(support));
+    c.centre_B = centre;  // the two surface centres coincide
+    return c;
+  };
+  const auto kept = [&](double min_shared, const Candidate& second) {
+    Acceptance acceptance(roi.size(), models, min_shared, roi);
+    acceptance.Accept({at(a, 0.95, Range(0, 200))});
+    acceptance.Accept({second});
+    return acceptance.TakeDetections().size();
+  };
+  const Candidate neighbour = at(b, 0.9, Range(400, 600));
+  const Candidate again = at(a + Vec3(0.001, 0, 0), 0.9, Range(200, 400));  // a's other points
+  EXPECT_EQ(kept(0.3, neighbour), 2u);
+  EXPECT_EQ(kept(0.3, again), 1u);
+  EXPECT_EQ(kept(0.0, neighbour), 1u);
+  // Without the ROI points the rule cannot judge and closeness decides.
+  Acceptance blind(roi.size(), models, 0.3);
+  blind.Accept({at(a, 0.95, Range(0, 200))});
+  blind.Accept({neighbour});
+  EXPECT_EQ(blind.TakeDetections().size(), 1u);
+}
+
 TEST(Acceptance, PartsThatWouldInterpenetrateConflictAndTheBetterOneStays) {
   const SphereModel sphere(0, 0.02f);
   const std::vector<const ClassModel*> models = {&sphere};
