@@ -12,12 +12,14 @@
 #   asan   every test under AddressSanitizer + UBSan (build-asan/; each test
 #          binary once, all its tests in one process). The tests run here
 #          only, not also in the normal build: compiling them twice cost
-#          about 4 min of CI (docs/reliability.md, "Timings"). The benches
-#          are compiled and linked here too, at -O0 without sanitizers, as
-#          a check only (never run; their -O2 build is the normal one's)
+#          about 4 min of CI (docs/reliability.md, "Timings"); the longest
+#          binaries first. The benches are compiled and linked here too, at
+#          -O0 without sanitizers, as a check only (never run; their -O2
+#          build is the normal one's), at nice 19 beside the test runs
 #   tsan   the server and queue tests (bp_comms_tests, bp_grasp_tests) under
 #          ThreadSanitizer (build-tsan/; oneTBB runs serially there, see
-#          tests/testing/tsan_serial_tbb.cc and scripts/tsan.supp)
+#          tests/testing/tsan_serial_tbb.cc and scripts/tsan.supp); the fuzz
+#          stage's tree is built at nice 19 beside the runs when it follows
 #   fuzz   every libFuzzer target, gate mode: seed 1, a fixed number of
 #          inputs per target, the same on every machine (scripts/fuzz.sh,
 #          build-fuzz/)
