@@ -915,7 +915,8 @@ Command EvalCommand() {
                        ->capture_default_str();
                    sub.add_option("--near-centre-min-shared", opt->near_centre_min_shared,
                                   "acceptance: a candidate whose surface centre is near an accepted detection's "
-                                  "conflicts with it only when that detection holds this fraction of its support "
+                                  "conflicts with it only when this fraction of its support lies on that "
+                                  "detection's surface "
                                   "(PerceptionOptions::near_centre_min_shared; 0 = centre closeness alone, tuning)")
                        ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();

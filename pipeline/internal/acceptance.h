@@ -19,13 +19,12 @@ namespace bp::internal {
 
 // The detections of one frame so far. A candidate conflicts with an accepted
 // detection whose surface centre is within 0.3 of the larger diameter of its
-// own (and, with near_centre_min_shared > 0, on whose surface that fraction
-// of the candidate's support lies), that holds a tenth of its support when more than half of that is
-// already claimed, or that it interpenetrates (3% of either's surface
-// samples inside the other, ClassModel::inside_depth: parts of a pile never
-// do). It is
-// dropped when a detection it conflicts with scores as well, else it
-// replaces them all. Not thread-safe; Accept runs its interpenetration
+// own (and, with near_centre_min_shared > 0, on whose surface that
+// fraction of the candidate's support lies), that holds a tenth of its
+// support when more than half of that is already claimed, or that it
+// interpenetrates (3% of either's surface samples inside the other,
+// ClassModel::inside_depth: parts of a pile never do). It is dropped when a
+// detection it conflicts with scores as well, else it replaces them all. Not thread-safe; Accept runs its interpenetration
 // tests in parallel on the caller's oneTBB arena.
 class Acceptance {
  public:
