@@ -37,3 +37,15 @@ function(bp_add_test name dir)
   gtest_discover_tests(${name} DISCOVERY_MODE PRE_TEST
     PROPERTIES ENVIRONMENT "BINPICK_ASSETS=${PROJECT_SOURCE_DIR}/assets")
 endfunction()
+
+# bp_depend_on_executables(TARGET DIR): TARGET (a custom target) depends on
+# every executable target defined in source directory DIR (already added).
+function(bp_depend_on_executables target dir)
+  get_property(_targets DIRECTORY ${dir} PROPERTY BUILDSYSTEM_TARGETS)
+  foreach(t ${_targets})
+    get_target_property(_type ${t} TYPE)
+    if(_type STREQUAL "EXECUTABLE")
+      add_dependencies(${target} ${t})
+    endif()
+  endforeach()
+endfunction()
