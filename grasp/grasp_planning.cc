@@ -220,6 +220,10 @@ class GraspPlanningModel::Impl {
     const GripperSpec* spec = nullptr;
     CollisionGeometryPtr sweep;               // swept along the approach, in T
     CollisionGeometryPtr sweep_margin;        // `sweep` grown by options.approach_margin
+    // How far up (m, along -z of T) the point check holds the sweep:
+    // contact_margin for a suction cup (it meets the surface at the grasp
+    // point), 0 for a jaw (its open fingers touch nothing there).
+    double points_lift = 0.0;
     std::vector<Eigen::AlignedBox3d> slabs;   // boxes covering `sweep`, in T
     internal::ContactShape contact;           // where it touches a part, in T
   };
@@ -360,6 +364,7 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
     auto grown = CollisionGeometry::FromMesh(Inflated(sweep, options.approach_margin));
     if (!grown.ok()) return Status::InvalidArgument("gripper '" + g.name + "': " + grown.status().message());
     entry.sweep_margin = *grown;
+    entry.points_lift = g.kind == GripperSpec::Kind::kSuction ? options.contact_margin : 0.0;
     entry.slabs = SlabBoxes(sweep, 12);
     entry.contact = *contact;
     impl->grippers[g.name] = std::move(entry);
@@ -853,10 +858,11 @@ class CandidateFilter {
       return RejectReason::kSelf;
     }
     if (obstacles_.points) {
+      const Pose X_BT_points = c.X_BT * TranslateZ(-gripper_.points_lift);
       const double pad = m_.options.octree_resolution;
       bool near = false;
       for (const auto& slab : gripper_.slabs) {
-        Eigen::AlignedBox3d box = WorldBox(slab, X_BT_lift);
+        Eigen::AlignedBox3d box = WorldBox(slab, X_BT_points);
         box.min().array() -= pad;
         box.max().array() += pad;
         if (obstacles_.grid.AnyIn(box)) {
@@ -864,7 +870,7 @@ class CandidateFilter {
           break;
         }
       }
-      if (near && obstacles_.points->Collides(sweep, X_BT_lift)) return RejectReason::kPoints;
+      if (near && obstacles_.points->Collides(sweep, X_BT_points)) return RejectReason::kPoints;
     }
     return std::nullopt;
   }

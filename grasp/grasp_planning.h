@@ -17,9 +17,13 @@
 // against its own part
 // and against the scene points not explained by any detection (an FCL
 // OcTree built once per frame, behind a dense occupancy-bitmap pre-filter).
-// Its own part and the points are checked
-// with the gripper lifted by contact_margin along -z: the tool touches the part
-// at the grasp point by design, and the points are inflated by a voxel.
+// Its own part is checked with the gripper lifted by contact_margin along
+// -z, and so are the points for a suction gripper: the cup touches the part
+// at the grasp point by design, and the points are inflated by a voxel. A
+// parallel jaw's points are checked without the lift: its open fingers
+// straddle the part and touch nothing until they close, and their tips
+// reach past the grasp point, beside the part, where an undetected
+// neighbour is hit like any other.
 //
 // Pose ambiguity (issue 37 item 3). A detection whose view other poses
 // explain as well (Detection::alternatives_X_BO: a tee turned about its run
@@ -109,7 +113,7 @@ std::string_view ToString(RejectReason reason);
 struct GraspPlanningOptions {
   double revolute_step_deg = 15.0;  // samples about a revolute symmetry axis
   double approach_step = 0.005;     // m between swept copies of the gripper
-  double contact_margin = 0.005;    // m the gripper is lifted for self / point checks
+  double contact_margin = 0.005;    // m the gripper is lifted for self checks (and point checks of a suction cup)
   // m, voxel edge of the scene-point OcTree: the points no detection
   // explains are that obstacle inflated by up to one voxel. Derived from
   // the clearance of the point check and the depth noise: the gripper is

@@ -526,6 +526,46 @@ TEST(GraspFilter, RejectsGraspsThroughUnexplainedScenePointsButIgnoresThePartsOw
   EXPECT_EQ(blocked.outcome, PlanResult::Outcome::kNoCollisionFree);
 }
 
+// A parallel jaw's open fingers reach 10 mm past the tool centre, beside the
+// plate they pinch. An undetected part whose top lies there, just above the
+// finger tips' depth, is hit (clear seed 13164: upright_pinch_top on an
+// L-bracket standing on its base, a tip onto an undetected bracket beside
+// it): its points are checked against the fingers where they go, not with
+// the gripper lifted off them as a suction cup is. The same part 5 mm
+// lower is clear of the tips and blocks nothing.
+TEST(GraspFilter, AJawsFingerTipsAreCheckedAgainstUnexplainedPointsWhereTheyReach) {
+  const TaskSpec task = *DefaultCell().FindTask(4);
+  Detection bracket;
+  bracket.class_id = 1;
+  bracket.X_BO = DefaultCell().bin.X_BW;  // standing on its base at the floor's centre
+  bracket.score = 0.9;
+  bracket.visible_fraction = 1.0;
+  // upright_pinch_top: tool centre 5 mm below the upright's top (60 mm),
+  // straight down, the fingers across x at 27.5-37.5 mm either side of the
+  // plate's middle (2.5 mm), their tips at z = 45 mm.
+  const auto pinch = [&](std::optional<double> top_z) -> std::optional<RejectReason> {
+    PerceptionResult scene = Scene({bracket});
+    if (top_z) {
+      // A neighbour's top under the -x finger: 20 x 30 mm at 1 mm.
+      for (int i = 0; i <= 20; ++i) {
+        for (int j = 0; j <= 30; ++j) {
+          const Vec3 p_W(-0.045 + 0.001 * i, -0.015 + 0.001 * j, *top_z);
+          scene.roi_points_B.push_back((DefaultCell().bin.X_BW * p_W).cast<float>());
+        }
+      }
+    }
+    const GraspPlan plan = PlanGrasps(Model(), task, scene);
+    for (const GraspCandidate& c : plan.candidates) {
+      if (c.name == "upright_pinch_top") return c.rejected;
+    }
+    ADD_FAILURE() << "no upright_pinch_top";
+    return RejectReason::kTilt;
+  };
+  EXPECT_EQ(pinch(std::nullopt), std::nullopt);
+  EXPECT_EQ(pinch(0.0462), RejectReason::kPoints);  // its voxel [44, 48) mm: the tips go 1-3 mm into it
+  EXPECT_EQ(pinch(0.0395), std::nullopt);           // [36, 40) mm: 5 mm under the tips
+}
+
 // A plate standing on end next to the part shows the camera only its top
 // edge. A tool tilted toward it passes under that edge, through the plate's
 // hidden body: only the space below the unexplained points (the occluded
