@@ -6,9 +6,25 @@
 #include <Eigen/Geometry>
 #include <limits>
 
+#include "pipeline/internal/table_memo.h"
+
 namespace bp::internal {
 
 void ClosestPointField::Build(std::span<const Eigen::Vector3f> points, float voxel, float band) {
+  if (!ModelTableMemoOn()) {
+    Compute(points, voxel, band);
+    return;
+  }
+  static TableMemo<ClosestPointField> memo;
+  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float));  // no padding in the key
+  TableMemoKey key;
+  key.AddSpan(points).Add(voxel).Add(band);
+  if (memo.Find(key, this)) return;
+  Compute(points, voxel, band);
+  memo.Store(key, *this);
+}
+
+void ClosestPointField::Compute(std::span<const Eigen::Vector3f> points, float voxel, float band) {
   cells_.clear();
   cells16_.clear();
   dims_.setZero();

@@ -16,7 +16,8 @@ namespace bp::internal {
 
 class ClosestPointField {
  public:
-  // REQUIRES: voxel > 0, band >= voxel.
+  // REQUIRES: voxel > 0, band >= voxel. With the model table memo on
+  // (internal/table_memo.h), a copy of an earlier build from the same inputs.
   void Build(std::span<const Eigen::Vector3f> points, float voxel, float band);
 
   // Index of the sample nearest to the voxel containing q, or -1 outside the band.
@@ -61,6 +62,8 @@ class ClosestPointField {
   size_t memory_bytes() const { return cells16_.size() * sizeof(uint16_t) + cells_.size() * sizeof(int32_t); }
 
  private:
+  // Build without the memo.
+  void Compute(std::span<const Eigen::Vector3f> points, float voxel, float band);
   Eigen::Vector3f extent() const { return dims_.cast<float>() / inv_voxel_; }
   // Voxels are stored in bricks of kBrick^3 (brick after brick, x fastest
   // within and between bricks): the 8 voxels around a point, and the voxels

@@ -8,6 +8,7 @@
 #include <string>
 #include <utility>
 
+#include "pipeline/internal/table_memo.h"
 #include "pipeline/pose_estimator.h"
 
 namespace bp::internal {
@@ -63,6 +64,22 @@ int PpfModel::Key(const Eigen::Vector3f& p1, const Eigen::Vector3f& n1, const Ei
 
 Status PpfModel::Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
                        const PpfParams& params, float max_distance) {
+  if (!ModelTableMemoOn()) return Compute(points, normals, params, max_distance);
+  static TableMemo<PpfModel> memo;
+  // Every field of PpfParams is in the key: one added needs adding here.
+  static_assert(sizeof(PpfParams) == sizeof(float) + 3 * sizeof(int));
+  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float));  // no padding in the key
+  TableMemoKey key;
+  key.AddSpan(points).AddSpan(normals).Add(params.distance_step).Add(params.angle_bins).Add(params.alpha_bins);
+  key.Add(params.max_bucket_entries).Add(max_distance);
+  if (memo.Find(key, this)) return Status::Ok();
+  Status s = Compute(points, normals, params, max_distance);
+  if (s.ok()) memo.Store(key, *this);
+  return s;
+}
+
+Status PpfModel::Compute(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+                         const PpfParams& params, float max_distance) {
   if (points.size() > kMaxModelPoints || normals.size() != points.size()) {
     return Status::InvalidArgument("PPF model: " + std::to_string(points.size()) + " points and " +
                                    std::to_string(normals.size()) + " normals; at most " +

@@ -99,7 +99,9 @@ struct PpfMatchOptions {
 class PpfModel {
  public:
   // points / normals: the sampled model in O (unit normals). At most
-  // kMaxModelPoints points (InvalidArgument beyond).
+  // kMaxModelPoints points (InvalidArgument beyond). With the model table
+  // memo on (internal/table_memo.h), a copy of an earlier build from the same
+  // inputs.
   static constexpr size_t kMaxModelPoints = 65536;
   Status Build(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
                const PpfParams& params, float max_distance);
@@ -118,6 +120,9 @@ class PpfModel {
   size_t pair_count() const { return entries_.size(); }
 
  private:
+  // Build without the memo.
+  Status Compute(std::span<const Eigen::Vector3f> points, std::span<const Eigen::Vector3f> normals,
+                 const PpfParams& params, float max_distance);
   struct MatchRun;
   int Vote(MatchRun& run, size_t r, uint16_t* acc) const;
   void Peaks(MatchRun& run, size_t r, int best, uint16_t* acc) const;
