@@ -267,7 +267,16 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
     internal::ViewSet regions;
     regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points,
                                                   options_.residual_across_jumps);
-    if (!regions.views.empty()) acceptance.Accept(matcher.Match(regions, internal::MatchPass::kWave).candidates);
+    if (!regions.views.empty()) {
+      internal::MatchOutcome matched = matcher.Match(regions, internal::MatchPass::kWave);
+      acceptance.Accept(std::move(matched.candidates));
+      // The views nothing was found in, again with the estimator's own
+      // normals (residual_own_normals; docs/tuning.md).
+      if (options_.residual_own_normals) {
+        const internal::ViewSet again = internal::NothingFound(regions, matched, options_.min_detection_score);
+        if (!again.views.empty()) acceptance.Accept(matcher.Match(again, internal::MatchPass::kWave).candidates);
+      }
+    }
     clock.Lap("residual_regions");
   }
   if (options_.enclosing_parts) {

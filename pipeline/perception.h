@@ -242,6 +242,14 @@ struct PerceptionOptions {
   // arm hides part of its own farther surface: a pipe tee's branch in front
   // of its run; internal::ResidualRegionViews).
   bool residual_across_jumps = true;
+  // The residual regions' views no class found a detection in are matched
+  // once more without the grid's normals: the estimator estimates its own
+  // (PCA over each subsampled voxel's neighbours within a PPF step). The
+  // grid's normals come from central differences about 2.5 mm away and, on
+  // noisy or grazing surfaces, are too rough for point-pair voting; the
+  // part's points alone, with the estimator's normals, often find it
+  // (internal::NothingFound; stage "residual_regions").
+  bool residual_own_normals = true;
   // After the residual regions, a detection of a class that a larger class
   // may enclose (a flanged bushing's hub in a pipe tee's arm) is matched
   // again by the larger class on its samples and the unexplained ones

@@ -96,6 +96,7 @@ struct EvalCliOptions {
   bool turns_below_bar = PerceptionOptions{}.turns_below_bar;
   bool residual_regions = PerceptionOptions{}.residual_regions;
   bool residual_across_jumps = PerceptionOptions{}.residual_across_jumps;
+  bool residual_own_normals = PerceptionOptions{}.residual_own_normals;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
   double ambiguous_min_visible = PerceptionOptions{}.ambiguous_min_visible;
   double near_centre_min_shared = PerceptionOptions{}.near_centre_min_shared;
@@ -363,6 +364,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
   popt.residual_across_jumps = opt.residual_across_jumps;
+  popt.residual_own_normals = opt.residual_own_normals;
   popt.enclosing_parts = opt.enclosing_parts;
   popt.ambiguous_min_visible = opt.ambiguous_min_visible;
   popt.near_centre_min_shared = opt.near_centre_min_shared;
@@ -897,6 +899,10 @@ Command EvalCommand() {
                    sub.add_option("--residual-across-jumps", opt->residual_across_jumps,
                                   "1: also match the residual regions' groups whose grid cells touch across a "
                                   "depth jump, joined (PerceptionOptions::residual_across_jumps; tuning)")
+                       ->capture_default_str();
+                   sub.add_option("--residual-own-normals", opt->residual_own_normals,
+                                  "1: match the residual regions' views nothing was found in once more with the "
+                                  "estimator's own normals (PerceptionOptions::residual_own_normals; tuning)")
                        ->capture_default_str();
                    sub.add_flag("--causes", opt->causes,
                                 "also count the misses and false positives by cause (segmentation cut, the true "

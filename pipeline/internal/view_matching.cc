@@ -69,11 +69,11 @@ ViewMatcher::ViewMatcher(const PerceptionOptions& options, std::span<const Class
   if (budget != nullptr) budget_.emplace(*budget);
 }
 
-SegmentView ViewMatcher::ViewOf(const ViewIndices& index, std::vector<Eigen::Vector3f>* points,
+SegmentView ViewMatcher::ViewOf(const ViewIndices& index, bool own_normals, std::vector<Eigen::Vector3f>* points,
                                 std::vector<Eigen::Vector3f>* normals) const {
   points->reserve(index.size());
   for (int32_t k : index) points->push_back(segments_.points[static_cast<size_t>(k)]);
-  if (!segments_.normals.empty()) {
+  if (!segments_.normals.empty() && !own_normals) {
     normals->reserve(index.size());
     for (int32_t k : index) normals->push_back(segments_.normals[static_cast<size_t>(k)]);
   }
@@ -229,7 +229,7 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     const size_t v = start_order[next_view++];
     const ViewIndices& index = views.views[v];
     std::vector<Eigen::Vector3f> points, normals;
-    SegmentView view = ViewOf(index, &points, &normals);
+    SegmentView view = ViewOf(index, views.own_normals, &points, &normals);
     if (thorough_) view.search = options_.thorough_search;
     if (pass == MatchPass::kSecondLook) view.search = options_.second_look_search;
     view.reuse.keep_prepared = keep_traces;
@@ -280,7 +280,7 @@ MatchOutcome ViewMatcher::MatchClass(const ViewSet& views, const std::vector<int
   tbb::parallel_for(size_t{0}, n_views, [&](size_t v) {
     const ViewIndices& index = views.views[v];
     std::vector<Eigen::Vector3f> points, normals;
-    SegmentView view = ViewOf(index, &points, &normals);
+    SegmentView view = ViewOf(index, views.own_normals, &points, &normals);
     if (thorough_) view.search = options_.thorough_search;
     RunClasses(view, {model_of_view[v]}, 0, 1, false, kUncounted, nullptr, nullptr, &per_view[v]);
     for (const Job& job : per_view[v]) {

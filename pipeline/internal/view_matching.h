@@ -40,6 +40,10 @@ struct Candidate {
 struct ViewSet {
   std::vector<ViewIndices> views;
   size_t first_region = 0;
+  // Match without the segmentation's normals (Segments::normals): the
+  // estimator estimates its own from the points
+  // (PerceptionOptions::residual_own_normals).
+  bool own_normals = false;
 };
 
 // What one (view, class) estimate of a wave leaves for the second look.
@@ -128,9 +132,9 @@ class ViewMatcher {
 
  private:
   struct Job;
-  // The view's samples and normals (filled in) seen as a SegmentView of
-  // this frame.
-  SegmentView ViewOf(const ViewIndices& index, std::vector<Eigen::Vector3f>* points,
+  // The view's samples and normals (filled in; none with own_normals) seen
+  // as a SegmentView of this frame.
+  SegmentView ViewOf(const ViewIndices& index, bool own_normals, std::vector<Eigen::Vector3f>* points,
                      std::vector<Eigen::Vector3f>* normals) const;
   // The class ranking of one view: the classes that fit it (best first;
   // model order in a thorough run without a budget) and those too small for it. Empty for a region view no class fits.

@@ -237,6 +237,17 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
   return residual;
 }
 
+ViewSet NothingFound(ViewSet& views, const MatchOutcome& matched, double min_score) {
+  ViewSet out;
+  out.own_normals = true;
+  for (size_t v = 0; v < views.views.size() && v < matched.best.size(); ++v) {
+    if (matched.best[v] >= min_score) continue;
+    out.first_region += v < views.first_region ? 1 : 0;
+    out.views.push_back(std::move(views.views[v]));
+  }
+  return out;
+}
+
 std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
                                              int min_segment_points, bool across_jumps) {
   std::vector<ViewIndices> out;

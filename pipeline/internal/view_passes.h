@@ -67,4 +67,11 @@ std::vector<ViewIndices> ResidualViews(const Segments& segments, const Acceptanc
 std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acceptance& acceptance,
                                              int min_segment_points, bool across_jumps = false);
 
+// The views of a match in which no class found a hypothesis scoring
+// min_score (matched.best, -1 for none), moved out of `views` (in order,
+// region views again after the segment views), to be matched once more
+// with the estimator's own normals (ViewSet::own_normals;
+// PerceptionOptions::residual_own_normals).
+ViewSet NothingFound(ViewSet& views, const MatchOutcome& matched, double min_score);
+
 }  // namespace bp::internal

@@ -527,6 +527,32 @@ TEST(ViewPasses, ResidualGroupsTouchingAcrossADepthJumpAreAlsoMatchedJoined) {
   EXPECT_EQ(ResidualRegionViews(s, claimed, 150, true).size(), 1u);
 }
 
+// The views of a match nothing passing the bar was found in (best below it,
+// -1 for no hypothesis) are taken out, in order, to be matched again with
+// the estimator's own normals; the others stay.
+TEST(ViewPasses, NothingFoundTakesTheViewsBelowTheBarForALookWithOwnNormals) {
+  ViewSet views;
+  views.views = {{0, 1}, {2, 3}, {4}, {5, 6}, {7}};
+  views.first_region = 3;  // {5, 6} and {7} are region views
+  MatchOutcome matched;
+  matched.best = {0.9, -1.0, 0.59, 0.6, -1.0};
+  const ViewSet again = NothingFound(views, matched, 0.6);
+  EXPECT_TRUE(again.own_normals);
+  ASSERT_EQ(again.views.size(), 3u);
+  EXPECT_EQ(again.views[0], (ViewIndices{2, 3}));
+  EXPECT_EQ(again.views[1], (ViewIndices{4}));
+  EXPECT_EQ(again.views[2], (ViewIndices{7}));
+  EXPECT_EQ(again.first_region, 2u);
+  EXPECT_EQ(views.views[0], (ViewIndices{0, 1}));  // found: left in place
+  EXPECT_EQ(views.views[3], (ViewIndices{5, 6}));
+  // Every view found something: nothing to look at again.
+  ViewSet all_found;
+  all_found.views = {{0}, {1}};
+  MatchOutcome good;
+  good.best = {0.7, 0.95};
+  EXPECT_TRUE(NothingFound(all_found, good, 0.6).views.empty());
+}
+
 TEST(FitLimit, TheMeasuredDepthNoiseOfANoisyPlaneIsItsSigma) {
   std::mt19937 rng{11};
   for (const double sigma : {0.0003, 0.001, 0.0025}) {  // 0.0025: past the fixed 4 mm edge limit
