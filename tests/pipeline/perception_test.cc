@@ -1159,9 +1159,12 @@ TEST(PerceptionEval, ATeeTurnedIntoTheFloorIsRefused) {
   // Both without the own-point turns (which turn some of these tees right
   // whatever the limit) and with unmeasured samples counting against, as when
   // the limit was chosen (as no evidence, pile 1004's search path moves and
-  // the loose run finds one part more): the limit's effect alone.
+  // the loose run finds one part more) and without the residual regions'
+  // look with the estimator's own normals (with it, too, the loose run finds
+  // one part more in pile 1004): the limit's effect alone.
   PerceptionOptions no_own_turns;
   no_own_turns.own_turn_gain = -1.0;
+  no_own_turns.residual_own_normals = false;
   no_own_turns.unmeasured_is_no_evidence = false;
   no_own_turns.second_look_search.unmeasured_is_no_evidence = false;
   const std::unique_ptr<Perception> limited = Perception::Build(f.cell, no_own_turns).value();
@@ -1523,10 +1526,17 @@ TEST(PerceptionEval, AnAmbiguousTeeWithFewNeighboursIsTurnedAgainOnItsOwnPoints)
 TEST(PerceptionEval, ATeeSplitByItsOwnDepthJumpIsMatchedJoined) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  // Without the residual regions' look with the estimator's own normals too
+  // (it finds the tee of pile 1034 in one of its pieces): the joined views'
+  // effect alone.
   PerceptionOptions off;
   off.residual_across_jumps = false;
+  off.residual_own_normals = false;
+  PerceptionOptions on = off;
+  on.residual_across_jumps = true;
   const std::unique_ptr<Perception> without = Perception::Build(f.cell, off).value();
-  ExpectFoundOnlyWith(*without, *f.perception, {{1034u, 18}, {1072u, 12}});
+  const std::unique_ptr<Perception> with = Perception::Build(f.cell, on).value();
+  ExpectFoundOnlyWith(*without, *with, {{1034u, 18}, {1072u, 12}});
 }
 
 // A part whose residual region (its unexplained samples, once its
