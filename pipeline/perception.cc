@@ -300,6 +300,8 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
     clock.Lap("own_turns");
   }
   result.withheld_ambiguous = internal::WithholdAmbiguous(options_.ambiguous_min_visible, &result.detections);
+  result.withheld_one_plane =
+      internal::WithholdOnePlane(options_.one_plane_min_visible, result.roi_points_B, &result.detections);
   if (result.detections.empty()) {
     result.reason = "no hypothesis passed verification in " + std::to_string(segments.range.size()) + " segments" +
                     (counts.rejected_low_score > 0
@@ -311,6 +313,9 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
                     (counts.first_reason.empty() ? "" : " (e.g. " + counts.first_reason + ")") +
                     (result.withheld_ambiguous > 0
                          ? " (" + std::to_string(result.withheld_ambiguous) + " withheld: ambiguous, mostly hidden)"
+                         : std::string()) +
+                    (result.withheld_one_plane > 0
+                         ? " (" + std::to_string(result.withheld_one_plane) + " withheld: one plane seen, mostly hidden)"
                          : std::string()) +
                     (result.budget_exhausted()
                          ? " (budget used: " + std::to_string(result.estimates_skipped) + " estimates not run)"
@@ -429,6 +434,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.ambiguous_min_visible >= 0.0 && options.ambiguous_min_visible <= 1.0)) {
     return Status::InvalidArgument("perception: ambiguous_min_visible must be in [0, 1]");
+  }
+  if (!(options.one_plane_min_visible >= 0.0 && options.one_plane_min_visible <= 1.0)) {
+    return Status::InvalidArgument("perception: one_plane_min_visible must be in [0, 1]");
   }
   if (!(options.near_centre_min_shared >= 0.0 && options.near_centre_min_shared <= 1.0)) {
     return Status::InvalidArgument("perception: near_centre_min_shared must be in [0, 1]");

@@ -78,6 +78,9 @@ struct PerceptionResult {
   // Detections withheld as ambiguous and mostly hidden
   // (PerceptionOptions::ambiguous_min_visible).
   int withheld_ambiguous = 0;
+  // Detections withheld as seen on one plane and mostly hidden
+  // (PerceptionOptions::one_plane_min_visible).
+  int withheld_one_plane = 0;
   bool budget_exhausted() const { return estimates_skipped > 0; }
   std::string reason;                   // why there are no detections, when there are none
   // The bin detection stage of a run into the bin (bin.detect on or
@@ -199,6 +202,15 @@ struct PerceptionOptions {
   // (PerceptionResult::withheld_ambiguous). In [0, 1]; 0 = off
   // (docs/tuning.md).
   double ambiguous_min_visible = 0.5;
+  // Then a detection of which less than this fraction of the camera-facing
+  // surface is seen and whose support lies on one plane (95% of it within
+  // 1.5 mm) is withheld: one flat face seen alone fixes the plane, but
+  // which flat face of the part it is and where on it the part lies come
+  // from an outline the occluders cut (an L-bracket's seen base fitted by
+  // its upright, 30 mm along). PerceptionResult::withheld_one_plane. In
+  // [0, 1]; 0 = off. 0.4: above it the rule took parts the recall counts
+  // (docs/tuning.md, `one_plane_min_visible`).
+  double one_plane_min_visible = 0.4;
   // Acceptance: a candidate whose surface centre lies within 0.3 of the
   // larger diameter of an accepted detection's conflicts with it only when
   // at least this fraction of the candidate's support lies on that

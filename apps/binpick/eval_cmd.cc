@@ -99,6 +99,7 @@ struct EvalCliOptions {
   bool residual_own_normals = PerceptionOptions{}.residual_own_normals;
   bool enclosing_parts = PerceptionOptions{}.enclosing_parts;
   double ambiguous_min_visible = PerceptionOptions{}.ambiguous_min_visible;
+  double one_plane_min_visible = PerceptionOptions{}.one_plane_min_visible;
   double near_centre_min_shared = PerceptionOptions{}.near_centre_min_shared;
   bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
@@ -367,6 +368,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.residual_own_normals = opt.residual_own_normals;
   popt.enclosing_parts = opt.enclosing_parts;
   popt.ambiguous_min_visible = opt.ambiguous_min_visible;
+  popt.one_plane_min_visible = opt.one_plane_min_visible;
   popt.near_centre_min_shared = opt.near_centre_min_shared;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
@@ -724,6 +726,7 @@ int Run(const EvalCliOptions& opt) {
   CauseFigures causes;
   BinFigures bin_figures;
   int withheld_ambiguous = 0;  // PerceptionResult::withheld_ambiguous over the frames
+  int withheld_one_plane = 0;  // PerceptionResult::withheld_one_plane over the frames
   nlohmann::json frame_detections = nlohmann::json::array();
   const int total = files.empty() ? opt.scenes : static_cast<int>(files.size());
   Progress(0, total, 0.0);
@@ -736,6 +739,7 @@ int Run(const EvalCliOptions& opt) {
     if (!result.ok()) return Fail(cmd, result.status());
     if (result->detections.empty()) spdlog::info("frame {}: {}", i, result->reason);
     withheld_ambiguous += result->withheld_ambiguous;
+    withheld_one_plane += result->withheld_one_plane;
     const std::string frame_name = files.empty() ? "seed " + std::to_string(opt.seed + static_cast<uint64_t>(i))
                                                  : files[static_cast<size_t>(i)];
     nlohmann::ordered_json bin_json = NoteBin(result->bin, *frame, frame_name, bin_figures);
@@ -759,6 +763,7 @@ int Run(const EvalCliOptions& opt) {
       frames_json.push_back(FrameJson(name, *frame, *result, evaluations.back(), eval_options));
       if (!bin_json.is_null()) frames_json.back()["bin"] = std::move(bin_json);
       frames_json.back()["withheld_ambiguous"] = result->withheld_ambiguous;
+      frames_json.back()["withheld_one_plane"] = result->withheld_one_plane;
     }
     if (!opt.detections_path.empty()) frame_detections.push_back(DetectionsJson(i, *result));
     if (spdlog::should_log(spdlog::level::debug)) {
@@ -791,6 +796,8 @@ int Run(const EvalCliOptions& opt) {
   PrintTable(report, seg_total, opt);
   std::printf("withheld as ambiguous and mostly hidden (PerceptionOptions::ambiguous_min_visible): %d\n",
               withheld_ambiguous);
+  std::printf("withheld as seen on one plane and mostly hidden (PerceptionOptions::one_plane_min_visible): %d\n",
+              withheld_one_plane);
   if (opt.causes) PrintCauses(causes, *models);
   PrintBin(bin_figures);
   if (!opt.json_path.empty()) {
@@ -917,6 +924,12 @@ Command EvalCommand() {
                                   "withhold a detection whose pose is ambiguous when less than this fraction of its "
                                   "camera-facing surface is seen (PerceptionOptions::ambiguous_min_visible; 0 = "
                                   "off, tuning)")
+                       ->check(CLI::Range(0.0, 1.0))
+                       ->capture_default_str();
+                   sub.add_option("--one-plane-min-visible", opt->one_plane_min_visible,
+                                  "withhold a detection whose support lies on one plane when less than this "
+                                  "fraction of its camera-facing surface is seen "
+                                  "(PerceptionOptions::one_plane_min_visible; 0 = off, tuning)")
                        ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();
                    sub.add_option("--near-centre-min-shared", opt->near_centre_min_shared,

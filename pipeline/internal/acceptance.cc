@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <optional>
 
+#include <Eigen/Eigenvalues>
 #include <tbb/parallel_for.h>
 
 namespace bp::internal {
@@ -25,6 +26,11 @@ constexpr double kSharedOwner = 0.1;
 constexpr double kMaxInsideFraction = 0.03;
 // A view point is explained by a detection within this of its surface.
 constexpr float kExplainedDistance = 0.0025f;
+// A detection's support lies on one plane when this share of its points is
+// within kOnePlaneDistance of their least-squares plane (metres: the
+// estimator's 1.5 mm support distance; a 5 mm plate's edges lie beyond it).
+constexpr double kOnePlaneShare = 0.95;
+constexpr double kOnePlaneDistance = 0.0015;
 
 }  // namespace
 
@@ -251,6 +257,34 @@ std::vector<Detection> Acceptance::TakeDetections() {
 int WithholdAmbiguous(double min_visible, std::vector<Detection>* detections) {
   return static_cast<int>(std::erase_if(*detections, [&](const Detection& d) {
     return d.pose_ambiguous() && d.visible_fraction < min_visible;
+  }));
+}
+
+double ShareOnOnePlane(std::span<const Eigen::Vector3f> points, double distance) {
+  if (points.size() < 3) return 1.0;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3f& p : points) mean += p.cast<double>();
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3f& p : points) {
+    const Eigen::Vector3d d = p.cast<double>() - mean;
+    cov += d * d.transpose();
+  }
+  // The eigenvalues come in increasing order: the first vector is the normal.
+  const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+  size_t on = 0;
+  for (const Eigen::Vector3f& p : points) on += std::abs(normal.dot(p.cast<double>() - mean)) <= distance ? 1 : 0;
+  return static_cast<double>(on) / static_cast<double>(points.size());
+}
+
+int WithholdOnePlane(double min_visible, std::span<const Eigen::Vector3f> roi_points_B,
+                     std::vector<Detection>* detections) {
+  return static_cast<int>(std::erase_if(*detections, [&](const Detection& d) {
+    if (!(d.visible_fraction < min_visible) || d.support.empty()) return false;
+    std::vector<Eigen::Vector3f> support;
+    support.reserve(d.support.size());
+    for (int32_t i : d.support) support.push_back(roi_points_B[static_cast<size_t>(i)]);
+    return ShareOnOnePlane(support, kOnePlaneDistance) >= kOnePlaneShare;
   }));
 }
 

@@ -103,6 +103,22 @@ class Acceptance {
 // order. @returns how many were removed.
 int WithholdAmbiguous(double min_visible, std::vector<Detection>* detections);
 
+// The share of `points` within `distance` (metres) of their least-squares
+// plane, in [0, 1]; 1 for fewer than 3 points.
+double ShareOnOnePlane(std::span<const Eigen::Vector3f> points, double distance);
+
+// Removes the detections of which less than min_visible of the
+// camera-facing surface is seen (Detection::visible_fraction) and whose
+// support (indices into roi_points_B) lies on one plane: kOnePlaneShare of
+// it within kOnePlaneDistance of its least-squares plane. One flat face
+// seen alone fixes only the plane; where on it the part lies and which of
+// its flat faces it is come from an outline the occluders cut (an
+// L-bracket's seen base matched by its upright, 30 mm along; a bushing's
+// flange face). PerceptionOptions::one_plane_min_visible; 0 keeps all. The
+// others keep their order. @returns how many were removed.
+int WithholdOnePlane(double min_visible, std::span<const Eigen::Vector3f> roi_points_B,
+                     std::vector<Detection>* detections);
+
 // The model's surface samples at X_BO, in B.
 std::vector<Eigen::Vector3f> SurfaceAt(const ClassModel& model, const Pose& X_BO);
 

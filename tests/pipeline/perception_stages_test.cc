@@ -407,6 +407,59 @@ TEST(Acceptance, ASampleIsUnexplainedOffEveryLiveDetectionsSurfaceAndOutOfItsSup
   EXPECT_EQ(acceptance.UnexplainedSamples(segments), (std::vector<uint8_t>{0, 0, 0, 1}));
 }
 
+// A 50 x 50 mm plate sampled every 2 mm (z = 0, with +-0.5 mm of
+// alternating noise), and an L of two such plates (z = 0 and x = 0).
+std::vector<Eigen::Vector3f> PlatePoints(bool l_shape) {
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 25; ++i) {
+    for (int j = 0; j < 25; ++j) {
+      const float a = 0.002f * static_cast<float>(i), b = 0.002f * static_cast<float>(j);
+      const float noise = (i + j) % 2 == 0 ? 0.0005f : -0.0005f;
+      points.emplace_back(a + 0.002f, b, noise);
+      if (l_shape) points.emplace_back(noise, b, a + 0.002f);
+    }
+  }
+  return points;
+}
+
+TEST(Acceptance, ShareOnOnePlaneCountsThePointsNearTheirLeastSquaresPlane) {
+  const std::vector<Eigen::Vector3f> plate = PlatePoints(false);
+  const std::vector<Eigen::Vector3f> l_shape = PlatePoints(true);
+  EXPECT_DOUBLE_EQ(ShareOnOnePlane(plate, 0.0015), 1.0);
+  EXPECT_LT(ShareOnOnePlane(plate, 0.0004), 0.01);  // the noise lies 0.5 mm off it
+  // The best plane through an L cuts both plates: far fewer than 95% on it.
+  EXPECT_LT(ShareOnOnePlane(l_shape, 0.0015), 0.6);
+  EXPECT_DOUBLE_EQ(ShareOnOnePlane(std::vector<Eigen::Vector3f>(plate.begin(), plate.begin() + 2), 0.0015), 1.0);
+}
+
+TEST(Acceptance, ADetectionMostlyHiddenWhoseSupportLiesOnOnePlaneIsWithheld) {
+  std::vector<Eigen::Vector3f> roi = PlatePoints(false);
+  const auto plate_end = static_cast<int32_t>(roi.size());
+  for (const Eigen::Vector3f& p : PlatePoints(true)) roi.push_back(p + Eigen::Vector3f(0.2f, 0.f, 0.f));
+  const auto l_end = static_cast<int32_t>(roi.size());
+  const auto detection = [](int class_id, double visible, std::vector<int32_t> support) {
+    Detection d;
+    d.class_id = class_id;
+    d.visible_fraction = visible;
+    d.support = std::move(support);
+    return d;
+  };
+  std::vector<Detection> detections = {
+      detection(0, 0.4, Range(0, plate_end)),      // one plane, mostly hidden: withheld
+      detection(1, 0.6, Range(0, plate_end)),      // one plane, seen more than half: kept
+      detection(2, 0.4, Range(plate_end, l_end)),  // two planes: kept
+      detection(3, 0.4, {}),                       // no support: kept
+  };
+  std::vector<Detection> off = detections;
+  EXPECT_EQ(WithholdOnePlane(0.0, roi, &off), 0);
+  EXPECT_EQ(off.size(), 4u);
+  EXPECT_EQ(WithholdOnePlane(0.5, roi, &detections), 1);
+  ASSERT_EQ(detections.size(), 3u);
+  EXPECT_EQ(detections[0].class_id, 1);
+  EXPECT_EQ(detections[1].class_id, 2);
+  EXPECT_EQ(detections[2].class_id, 3);
+}
+
 // Grid of 40 x 30 cells, 1 mm apart: segments 0 and 1 side by side (rows
 // 0-9), pieces below min_segment_points under them (rows 10-14, the last two
 // 10 mm higher: a depth jump), segment 2 apart (rows 20-29).
