@@ -12,6 +12,13 @@ function(bp_add_module name)
   add_library(${name} STATIC ${_srcs} ${ARG_EXTRA_SOURCES})
   target_include_directories(${name} PUBLIC ${PROJECT_SOURCE_DIR})
   target_link_libraries(${name} PUBLIC ${ARG_PUBLIC_DEPS} PRIVATE ${ARG_PRIVATE_DEPS} bp_warnings)
+  # A light module (BINPICK_LIGHT_MODULES: code that waits on sockets, timers
+  # and files in the tests) at BINPICK_LIGHT_MODULE_OPT, after the build's
+  # level on the command line so it wins; only the module's own files, the
+  # modules it calls keep theirs.
+  if(BINPICK_LIGHT_MODULE_OPT AND name IN_LIST BINPICK_LIGHT_MODULES)
+    target_compile_options(${name} PRIVATE $<$<CONFIG:RelWithDebInfo,Release>:${BINPICK_LIGHT_MODULE_OPT}>)
+  endif()
 endfunction()
 
 # bp_add_test(NAME DIR DEPS ...): one GoogleTest executable from DIR/*_test.cc.
