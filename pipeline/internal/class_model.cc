@@ -21,20 +21,6 @@ namespace {
 constexpr double kInsideDepth = 0.001;
 constexpr double kInsideWallFraction = 0.4;
 
-SceneView ToScene(const SegmentView& view) {
-  SceneView scene;
-  scene.points_B = view.points_B;
-  scene.normals_B = view.normals_B;
-  if (view.frame != nullptr) {
-    scene.X_BC = view.frame->X_BC;
-    if (view.frame->organized()) {
-      scene.depth = &view.frame->depth;
-      scene.intrinsics = view.frame->intrinsics;
-    }
-  }
-  scene.support_plane_B = view.floor_plane_B;
-  return scene;
-}
 
 class PpfClassModel final : public ClassModel {
  public:
@@ -71,15 +57,15 @@ class PpfClassModel final : public ClassModel {
   bool has_turn_axes() const override { return !PoseEstimatorAccess::Model(*estimator_).turn_axes.empty(); }
   TurnChoice ChooseTurn(const SegmentView& view, const Pose& X_BO, std::span<const Pose> others,
                         double step_deg) const override {
-    return internal::ChooseTurn(PoseEstimatorAccess::Model(*estimator_), ToScene(view), X_BO, others, step_deg);
+    return internal::ChooseTurn(PoseEstimatorAccess::Model(*estimator_), SceneOf(view), X_BO, others, step_deg);
   }
 
   Result<PoseHypothesis> Score(const SegmentView& view, const Pose& X_BO) const override {
-    return estimator_->Score(ToScene(view), X_BO);
+    return estimator_->Score(SceneOf(view), X_BO);
   }
 
   ClassEstimate Estimate(const SegmentView& view) const override {
-    const SceneView scene = ToScene(view);
+    const SceneView scene = SceneOf(view);
     ClassEstimate out;
     const PoseSearch search = view.search ? *view.search : estimator_->default_search();
     Result<PoseEstimates> est =
@@ -127,6 +113,21 @@ constexpr double kPlanarShareSampleSpacing = 0.002;
 constexpr float kPlanarShareMinCos = 0.17f;
 
 }  // namespace
+
+SceneView SceneOf(const SegmentView& view) {
+  SceneView scene;
+  scene.points_B = view.points_B;
+  scene.normals_B = view.normals_B;
+  if (view.frame != nullptr) {
+    scene.X_BC = view.frame->X_BC;
+    if (view.frame->organized()) {
+      scene.depth = &view.frame->depth;
+      scene.intrinsics = view.frame->intrinsics;
+    }
+  }
+  scene.support_plane_B = view.floor_plane_B;
+  return scene;
+}
 
 bool ClassModel::DistinctPoses(const Pose& a, const Pose& b) const {
   const PoseEstimatorOptions& o = estimator_options();

@@ -33,6 +33,10 @@ struct SegmentView {
   SearchReuse reuse;                             // from an earlier estimate of the same view
 };
 
+// The estimator's view of it: the points and normals, the frame's camera
+// pose and (organized frames) depth image and intrinsics, the floor plane.
+SceneView SceneOf(const SegmentView& view);
+
 struct ClassHypothesis {
   Pose X_BO = Pose::Identity();
   double score = 0.0;

@@ -115,10 +115,11 @@ class SearchRun {
     FirstPass(coarse);
     // Face seeds come last, and only when no coarse pose ended the pass:
     // each costs a quick verification of its own.
-    if (!stopped_ && search_.face_seeds > 0 && p_.view_plane && !m_.faces.empty()) {
+    if (!stopped_ && search_.face_seeds > 0 && p_.base->view_plane() && !m_.faces.empty()) {
       std::vector<CoarsePose> seeds;
       Timed(verify_ms_, [&] {
-        AppendFaceSeeds(m_, p_.pts, *p_.view_plane, view_, p_.support, p_.segment_depth, search_.face_seeds, seeds);
+        AppendFaceSeeds(m_, p_.pts(), *p_.base->view_plane(), view_, *p_.support, p_.segment_depth, search_.face_seeds,
+                        seeds);
       });
       FirstPass(seeds);
     }
@@ -147,7 +148,7 @@ class SearchRun {
            st.score >= min_score;
   }
   VerifyStats VerifyAt(const Pose& X_BO, int stride) const {
-    return Verify(m_, X_BO, view_, p_.support, p_.segment_depth, stride, search_.unmeasured_is_no_evidence);
+    return Verify(m_, X_BO, view_, *p_.support, p_.segment_depth, stride, search_.unmeasured_is_no_evidence);
   }
   bool DuplicateOf(const Pose& X, const std::vector<Candidate>& kept) const {
     const double nms = opt_.nms_relative_distance * m_.diameter;
@@ -252,7 +253,7 @@ std::vector<CoarsePose> SearchRun::Coarse() {
   }
   if (static_cast<int>(coarse.size()) > search_.max_coarse_poses) coarse.resize(search_.max_coarse_poses);
   if (search_.resting_seeds && view_.support_plane_B) {
-    AppendRestingSeeds(m_, p_.pts, p_.sub_p, p_.sub_n, *view_.support_plane_B, coarse);
+    AppendRestingSeeds(m_, p_.pts(), p_.sub_p, p_.sub_n, *view_.support_plane_B, coarse);
   }
   return coarse;
 }
@@ -538,8 +539,9 @@ std::vector<int> SearchRun::ViewPointsOn(const Pose& X_BO) const {
   const Pose X_OB = X_BO.inverse();
   const Eigen::Matrix3f R = X_OB.linear().cast<float>();
   const Eigen::Vector3f t = X_OB.translation().cast<float>();
-  for (size_t i = 0; i < p_.pts.size(); ++i) {
-    if (m_.OnSurface(R * p_.pts[i] + t, sup)) on.push_back(p_.index[i]);
+  const std::vector<Eigen::Vector3f>& pts = p_.pts();
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (m_.OnSurface(R * pts[i] + t, sup)) on.push_back(p_.index()[i]);
   }
   return on;
 }
@@ -629,19 +631,6 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     os << ")";
     out_.no_result_reason = os.str();
   }
-}
-
-// A fingerprint of the view's points: their count and the sums of their
-// coordinates (a prepared view must come from the same points).
-std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
-  std::array<double, 4> f{static_cast<double>(points.size()), 0.0, 0.0, 0.0};
-  for (const Eigen::Vector3f& p : points) {
-    if (!p.allFinite()) continue;
-    f[1] += p.x();
-    f[2] += p.y();
-    f[3] += p.z();
-  }
-  return f;
 }
 
 }  // namespace
@@ -750,8 +739,14 @@ Result<PoseEstimates> EstimatePose(const PoseModel& m, const SceneView& view, co
       return Status::InvalidArgument("SearchReuse: prepared comes from another estimator or view");
     }
   } else {
+    // The count only: a fingerprint would cost what sharing the base saves.
+    if (reuse.base != nullptr && reuse.base->view_points() != view.points_B.size()) {
+      return Status::InvalidArgument("SearchReuse: base comes from another view (" +
+                                     std::to_string(reuse.base->view_points()) + " points, the view has " +
+                                     std::to_string(view.points_B.size()) + ")");
+    }
     owned = std::make_shared<PreparedView>();
-    const Preparation p = PrepareView(m, view, owned.get());
+    const Preparation p = PrepareView(m, view, reuse.base, owned.get());
     out.scene_points = p.scene_points;
     out.sampled_points = p.sampled_points;
     out.timings.prepare_ms = p.ms;
@@ -762,7 +757,7 @@ Result<PoseEstimates> EstimatePose(const PoseModel& m, const SceneView& view, co
     if (reuse.keep_prepared) owned->fingerprint = Fingerprint(view.points_B);
     prepared = owned.get();
   }
-  out.scene_points = static_cast<int>(prepared->pts.size());
+  out.scene_points = static_cast<int>(prepared->pts().size());
   out.sampled_points = static_cast<int>(prepared->sub_p.size());
   SearchRun run(m, view, search, reuse, *prepared, owned.get(), &out);
   run.Run();

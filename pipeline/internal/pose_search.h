@@ -34,6 +34,12 @@ struct SearchReuse {
   std::shared_ptr<const PreparedView> prepared = nullptr;
   // Return this estimate's prepared view in SearchTrace::prepared.
   bool keep_prepared = false;
+  // What preparing this view derives whatever the estimator (the finite
+  // points, their spread, the support structure), made by another estimate
+  // of it or for it (ViewMatcher: once per view); not derived again. Must
+  // come from the view's points (a base of another count of points is
+  // refused). Unused with `prepared`.
+  std::shared_ptr<const ViewBase> base = nullptr;
 };
 
 // What an estimate leaves for a later estimate of the same view.

@@ -224,6 +224,7 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
   std::vector<std::vector<Job>> per_view(n_views);
   const bool early_exit = options_.early_exit_score > 0.0 && !thorough_;
   out.best.assign(n_views, -1.0);
+  out.bases.resize(n_views);
   if (keep_traces) out.traces.assign(n_views, ViewTrace(models_.size()));
   tbb::parallel_for(size_t{0}, n_views, [&](size_t) {
     const size_t v = start_order[next_view++];
@@ -233,6 +234,12 @@ MatchOutcome ViewMatcher::Match(const ViewSet& views, MatchPass pass, const std:
     if (thorough_) view.search = options_.thorough_search;
     if (pass == MatchPass::kSecondLook) view.search = options_.second_look_search;
     view.reuse.keep_prepared = keep_traces;
+    // What preparing the view derives whatever the class, once for all of them.
+    if (!order[v].empty() || !too_small[v].empty()) {
+      const bool given = v < views.bases.size() && views.bases[v] != nullptr;
+      view.reuse.base = given ? views.bases[v] : std::make_shared<const ViewBase>(SceneOf(view));
+      out.bases[v] = view.reuse.base;
+    }
     const ViewTrace* view_earlier = earlier != nullptr ? &(*earlier)[v] : nullptr;
     ViewTrace* trace = keep_traces ? &out.traces[v] : nullptr;
     std::vector<Job>& jobs = per_view[v];

@@ -44,6 +44,9 @@ struct ViewSet {
   // estimator estimates its own from the points
   // (PerceptionOptions::residual_own_normals).
   bool own_normals = false;
+  // Per view (optional; null: none): the base an earlier Match of the same
+  // view made (MatchOutcome::bases), shared instead of made again.
+  std::vector<std::shared_ptr<const ViewBase>> bases;
 };
 
 // What one (view, class) estimate of a wave leaves for the second look.
@@ -63,6 +66,9 @@ struct MatchOutcome {
   std::vector<Candidate> candidates;  // in view order, then class order, then hypothesis order
   std::vector<double> best;           // per view: the best score over the classes tried; -1: none
   std::vector<ViewTrace> traces;      // with keep_traces: per view
+  // Per view: the base its estimates shared (SearchReuse::base; null when
+  // no class was run on it), for a later Match of the same view.
+  std::vector<std::shared_ptr<const ViewBase>> bases;
 };
 
 // Counts over every Match of one frame (PerceptionResult's fields of the
@@ -113,7 +119,8 @@ class ViewMatcher {
               const Frame& frame, const std::optional<Eigen::Vector4d>& floor_plane_B, const Segments& segments,
               const FitRmsLimit& fit_limit, const PerceptionBudget* budget = nullptr);
 
-  // Per view, in parallel: the classes that fit it ranked (RankClasses), the
+  // Per view, in parallel: its base (ViewBase: the views.bases one, else
+  // made once for all its classes), the classes that fit it ranked (RankClasses), the
   // first alone, the others unless it gave a confident hypothesis
   // (PerceptionOptions::early_exit_score; thorough: every class), then the
   // classes too small for the view when none found a detection.

@@ -244,6 +244,7 @@ ViewSet NothingFound(ViewSet& views, const MatchOutcome& matched, double min_sco
     if (matched.best[v] >= min_score) continue;
     out.first_region += v < views.first_region ? 1 : 0;
     out.views.push_back(std::move(views.views[v]));
+    out.bases.push_back(v < matched.bases.size() ? matched.bases[v] : nullptr);
   }
   return out;
 }

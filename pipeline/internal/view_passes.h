@@ -71,7 +71,9 @@ std::vector<ViewIndices> ResidualRegionViews(const Segments& segments, const Acc
 // min_score (matched.best, -1 for none), moved out of `views` (in order,
 // region views again after the segment views), to be matched once more
 // with the estimator's own normals (ViewSet::own_normals;
-// PerceptionOptions::residual_own_normals).
+// PerceptionOptions::residual_own_normals), with the bases the match made
+// of them (ViewSet::bases: the finite points and support structure are the
+// same whatever the normals).
 ViewSet NothingFound(ViewSet& views, const MatchOutcome& matched, double min_score);
 
 }  // namespace bp::internal

@@ -24,43 +24,12 @@ constexpr int kMinSampledPoints = 8;
 // this, metres (depth noise on the default cell: ~0.45 mm).
 constexpr double kPlanarViewRms = 0.0010;
 
-// The view's finite points and their indices in SceneView::points_B.
-void TakeFinitePoints(const SceneView& view, PreparedView* w) {
-  w->pts.reserve(view.points_B.size());
-  w->index.reserve(view.points_B.size());
-  for (size_t i = 0; i < view.points_B.size(); ++i) {
-    if (view.points_B[i].allFinite()) {
-      w->pts.push_back(view.points_B[i]);
-      w->index.push_back(static_cast<int>(i));
-    }
-  }
-}
-
 // Degenerate geometry: spread along fewer than two directions, or much
 // smaller than the part (the reason; empty when the view can be searched).
-// A view that is one plane gets its normal, towards the camera, in
-// w->view_plane (PoseSearch::face_seeds).
-std::string CheckShape(const PoseModel& m, const SceneView& view, PreparedView* w) {
-  const std::vector<Eigen::Vector3f>& pts = w->pts;
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const auto& p : pts) mean += p.cast<double>();
-  mean /= static_cast<double>(pts.size());
-  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-  for (const auto& p : pts) {
-    const Eigen::Vector3d d = p.cast<double>() - mean;
-    C += d * d.transpose();
-  }
-  C /= static_cast<double>(pts.size());
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
-  const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
-  if (std::sqrt(ev[0]) < kPlanarViewRms) {
-    Eigen::Vector3f n = es.eigenvectors().col(0).cast<float>();
-    if (n.dot(view.X_BC.translation().cast<float>() - mean.cast<float>()) < 0) n = -n;
-    w->view_plane = n;
-  }
+std::string CheckShape(const PoseModel& m, const ViewBase& base) {
   const double min_spread = 0.05 * m.step;
-  if (std::sqrt(ev[1]) < min_spread) return "degenerate segment: points are (nearly) collinear";
-  if (std::sqrt(ev[2]) < 0.05 * m.diameter) return "segment is much smaller than the part";
+  if (base.spread()[1] < min_spread) return "degenerate segment: points are (nearly) collinear";
+  if (base.spread()[2] < 0.05 * m.diameter) return "segment is much smaller than the part";
   return {};
 }
 
@@ -70,8 +39,8 @@ std::string CheckShape(const PoseModel& m, const SceneView& view, PreparedView* 
 // @returns per finite point the index of its voxel's subsampled point, -1
 // if the voxel has no normal.
 std::vector<int> Subsample(const PoseModel& m, const SceneView& view, PreparedView* w) {
-  const std::vector<Eigen::Vector3f>& pts = w->pts;
-  const std::vector<int>& index = w->index;
+  const std::vector<Eigen::Vector3f>& pts = w->pts();
+  const std::vector<int>& index = w->index();
   PointHash hash;  // normal estimation: radius step visits 2 x 2 x 2 cells
   if (view.normals_B.empty()) hash.Build(pts, 2.f * m.step);
   const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
@@ -137,12 +106,19 @@ std::vector<int> Subsample(const PoseModel& m, const SceneView& view, PreparedVi
 // few millimetres of interior next to an edge costs nothing).
 void PrepareSupport(const PoseModel& m, const SceneView& view, const std::vector<int>& sub_of, PreparedView* w) {
   const PoseEstimatorOptions& opt = m.options;
-  const std::vector<Eigen::Vector3f>& pts = w->pts;
+  const std::vector<Eigen::Vector3f>& pts = w->pts();
   const Eigen::Vector3f cam = view.X_BC.translation().cast<float>();
   const bool have_depth = view.depth != nullptr && !view.depth->empty() && view.intrinsics.valid();
   if (!have_depth) w->segment_depth = BuildSegmentDepth(pts, cam, 1.5f * static_cast<float>(opt.verify_model_spacing));
   // Support queries (radius support_distance) visit 2 x 2 x 2 cells of this.
-  w->support.Build(pts, 2.f * static_cast<float>(opt.support_distance), view);
+  const float cell = 2.f * static_cast<float>(opt.support_distance);
+  if (const SceneSupport* shared = w->base->Support(cell, view)) {
+    w->support = std::shared_ptr<const SceneSupport>(w->base, shared);  // keeps the base alive
+  } else {
+    auto own = std::make_shared<SceneSupport>();
+    own->Build(pts, cell, view);
+    w->support = std::move(own);
+  }
   PointHash sub_hash;
   sub_hash.Build(w->sub_p, 4.f * m.step);
   std::vector<uint8_t>& sub_boundary = w->sub_boundary;
@@ -166,6 +142,54 @@ void PrepareSupport(const PoseModel& m, const SceneView& view, const std::vector
 
 }  // namespace
 
+std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
+  std::array<double, 4> f{static_cast<double>(points.size()), 0.0, 0.0, 0.0};
+  for (const Eigen::Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    f[1] += p.x();
+    f[2] += p.y();
+    f[3] += p.z();
+  }
+  return f;
+}
+
+ViewBase::ViewBase(const SceneView& view) : view_points_(view.points_B.size()) {
+  pts_.reserve(view.points_B.size());
+  index_.reserve(view.points_B.size());
+  for (size_t i = 0; i < view.points_B.size(); ++i) {
+    if (view.points_B[i].allFinite()) {
+      pts_.push_back(view.points_B[i]);
+      index_.push_back(static_cast<int>(i));
+    }
+  }
+  if (pts_.size() < 2) return;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : pts_) mean += p.cast<double>();
+  mean /= static_cast<double>(pts_.size());
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (const auto& p : pts_) {
+    const Eigen::Vector3d d = p.cast<double>() - mean;
+    C += d * d.transpose();
+  }
+  C /= static_cast<double>(pts_.size());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C);
+  const Eigen::Vector3d ev = es.eigenvalues().cwiseMax(0.0);  // ascending
+  spread_ = ev.cwiseSqrt();
+  if (spread_[0] < kPlanarViewRms) {
+    Eigen::Vector3f n = es.eigenvectors().col(0).cast<float>();
+    if (n.dot(view.X_BC.translation().cast<float>() - mean.cast<float>()) < 0) n = -n;
+    view_plane_ = n;
+  }
+}
+
+const SceneSupport* ViewBase::Support(float cell, const SceneView& view) const {
+  std::call_once(support_once_, [&] {
+    support_cell_ = cell;
+    support_.Build(pts_, cell, view);
+  });
+  return support_cell_ == cell ? &support_ : nullptr;
+}
+
 std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std::span<const Eigen::Vector3f> hashed,
                                    const PointHash& hash, float radius) {
   std::vector<uint8_t> flags(queries.size(), 0);
@@ -181,18 +205,19 @@ std::vector<uint8_t> BoundaryFlags(std::span<const Eigen::Vector3f> queries, std
   return flags;
 }
 
-Preparation PrepareView(const PoseModel& m, const SceneView& view, PreparedView* w) {
+Preparation PrepareView(const PoseModel& m, const SceneView& view, std::shared_ptr<const ViewBase> base,
+                        PreparedView* w) {
   Preparation out;
   w->model_id = m.id;
   const auto t0 = Clock::now();
-  TakeFinitePoints(view, w);
-  out.scene_points = static_cast<int>(w->pts.size());
-  if (static_cast<int>(w->pts.size()) < kMinScenePoints) {
-    out.reason = "too few finite points in the segment (" + std::to_string(w->pts.size()) + ", need " +
+  w->base = base ? std::move(base) : std::make_shared<const ViewBase>(view);
+  out.scene_points = static_cast<int>(w->pts().size());
+  if (static_cast<int>(w->pts().size()) < kMinScenePoints) {
+    out.reason = "too few finite points in the segment (" + std::to_string(w->pts().size()) + ", need " +
                  std::to_string(kMinScenePoints) + ")";
     return out;
   }
-  out.reason = CheckShape(m, view, w);
+  out.reason = CheckShape(m, *w->base);
   if (!out.reason.empty()) return out;
   const std::vector<int> sub_of = Subsample(m, view, w);
   out.sampled_points = static_cast<int>(w->sub_p.size());

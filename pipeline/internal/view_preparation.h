@@ -6,7 +6,10 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
+#include <mutex>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -18,6 +21,49 @@
 
 namespace bp::internal {
 
+// A fingerprint of a view's points: their count and the sums of their
+// finite coordinates (what was derived from a view must come from the same
+// points).
+std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points);
+
+// What preparing a view derives whatever the estimator: its finite points,
+// their spread, a planar view's normal, and the support structure. The
+// estimates of one view share it (SearchReuse::base: every class a view is
+// matched with, and a view matched once more with the estimator's own
+// normals), each otherwise derived it again, the same. Thread-safe:
+// read-only but for the support structure, built once by its first caller.
+class ViewBase {
+ public:
+  explicit ViewBase(const SceneView& view);
+  ViewBase(const ViewBase&) = delete;
+  ViewBase& operator=(const ViewBase&) = delete;
+
+  size_t view_points() const { return view_points_; }  // SceneView::points_B.size(), finite or not
+  const std::vector<Eigen::Vector3f>& pts() const { return pts_; }  // the finite points
+  const std::vector<int>& index() const { return index_; }          // their indices in SceneView::points_B
+  // Square roots of the eigenvalues of the finite points' covariance
+  // (their spread along the principal axes, metres), ascending; zero for
+  // fewer than 2 points.
+  const Eigen::Vector3d& spread() const { return spread_; }
+  // A planar view's normal (RMS off its plane below 1 mm), towards the camera.
+  const std::optional<Eigen::Vector3f>& view_plane() const { return view_plane_; }
+  // The support structure of pts() with cells of `cell` (2 support_distance)
+  // against `view` (the one the base was made from): built by the first
+  // call, shared by later calls with the same cell; nullptr for another
+  // cell (an estimator with another support_distance builds its own).
+  const SceneSupport* Support(float cell, const SceneView& view) const;
+
+ private:
+  size_t view_points_ = 0;
+  std::vector<Eigen::Vector3f> pts_;
+  std::vector<int> index_;
+  Eigen::Vector3d spread_ = Eigen::Vector3d::Zero();
+  std::optional<Eigen::Vector3f> view_plane_;
+  mutable std::once_flag support_once_;
+  mutable float support_cell_ = 0.f;
+  mutable SceneSupport support_;
+};
+
 // An estimate of the same view by the same estimator may reuse it
 // (SearchReuse::prepared: the perception's second look). Shared read-only
 // once its estimate has returned it.
@@ -25,12 +71,13 @@ struct PreparedView {
   uint64_t model_id = 0;  // PoseModel::id of the estimator that made it
   // Of the view's points (count, coordinate sums), with SearchReuse::keep_prepared.
   std::array<double, 4> fingerprint{};
-  std::vector<Eigen::Vector3f> pts;  // finite points
-  std::vector<int> index;            // their indices in SceneView::points_B
-  std::optional<Eigen::Vector3f> view_plane;  // a planar view's normal, towards the camera
+  std::shared_ptr<const ViewBase> base;  // the finite points (pts, index), the view plane
+  const std::vector<Eigen::Vector3f>& pts() const { return base->pts(); }
+  const std::vector<int>& index() const { return base->index(); }
   std::vector<Eigen::Vector3f> sub_p, sub_n;  // subsampled at the PPF step, with normals towards the camera
   SegmentDepth segment_depth;                 // without a depth image only
-  SceneSupport support;                       // of pts, for the support queries
+  // Of pts, for the support queries: the base's, or (another cell) its own.
+  std::shared_ptr<const SceneSupport> support;
   std::vector<uint8_t> sub_boundary;          // per subsampled point: on the view's boundary
   std::vector<Eigen::Vector3f> fine;          // the fine ICP pass's points
   std::vector<uint8_t> fine_boundary;         // per fine point
@@ -51,10 +98,13 @@ struct Preparation {
   double ms = 0.0;
 };
 
-// Fills *w from the view (w->model_id included). Not ok
+// Fills *w from the view (w->model_id included), on `base` when given
+// (REQUIRES: made from the same points: EstimatePose checks their count)
+// else on a base of its own. Not ok
 // for fewer than 30 finite points, (nearly) collinear points, a view much
 // smaller than the part or fewer than 8 subsampled points with a normal.
-Preparation PrepareView(const PoseModel& model, const SceneView& view, PreparedView* w);
+Preparation PrepareView(const PoseModel& model, const SceneView& view, std::shared_ptr<const ViewBase> base,
+                        PreparedView* w);
 
 // 1 for points on the boundary of a sampled surface: the centroid of their
 // neighbours within radius is off-centre by more than a quarter radius (a

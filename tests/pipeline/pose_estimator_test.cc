@@ -289,6 +289,74 @@ TEST(PoseEstimator, ReusesWhatAnEarlierEstimateDerivedFromTheView) {
             Status::Code::kInvalidArgument);
 }
 
+// internal::SearchReuse::base: what preparing a view derives whatever the
+// estimator (its finite points, their spread, the support structure), made
+// once and shared by every estimator's estimate of the view, also one of
+// the same points with other normals (the perception's residual views
+// matched again with the estimator's own normals). Each finds exactly what
+// it finds deriving it alone. A base of another view is refused.
+TEST(PoseEstimator, SharesAViewsBaseBetweenItsEstimates) {
+  const TestCamera cam = DefaultCamera();
+  const std::vector<PartCase> parts = TestParts();
+  const TriangleMesh floor = Floor();
+  const Pose X_BO = Resting(parts[0].mesh, Mat3(Eigen::AngleAxisd(0.4, Vec3::UnitZ())), 0.01, 0.0);
+  const RenderedScene scene = Render({{&parts[0].mesh, X_BO}, {&floor, Pose::Identity()}}, cam, 0.0003, 4);
+  std::vector<Eigen::Vector3f> segment = testing::PointsWithLabels(scene, {1});
+  // Non-finite points are left out of the base as of a derived view.
+  segment.insert(segment.begin() + static_cast<std::ptrdiff_t>(segment.size() / 2),
+                 Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+  SceneView view = OnFloor(ViewOf(segment, cam));
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  // The same points with normals (the estimator then averages them instead
+  // of estimating its own): another view of the same base.
+  std::vector<Eigen::Vector3f> normals(segment.size(), Eigen::Vector3f::UnitZ());
+  SceneView with_normals = view;
+  with_normals.normals_B = normals;
+
+  const auto base = std::make_shared<const internal::ViewBase>(view);
+  EXPECT_EQ(base->view_points(), segment.size());
+  EXPECT_EQ(base->pts().size(), segment.size() - 1);
+  int found = 0;
+  for (const SceneView* v : {&view, &with_normals}) {
+    for (size_t k = 0; k < parts.size(); ++k) {
+      const internal::PoseModel& model = internal::PoseEstimatorAccess::Model(Estimator(static_cast<int>(k)));
+      const PoseSearch search = Estimator(static_cast<int>(k)).default_search();
+      auto alone = internal::EstimatePose(model, *v, search);
+      auto shared = internal::EstimatePose(model, *v, search, {.base = base});
+      ASSERT_TRUE(alone.ok() && shared.ok()) << parts[k].name;
+      EXPECT_EQ(shared->scene_points, alone->scene_points) << parts[k].name;
+      EXPECT_EQ(shared->sampled_points, alone->sampled_points) << parts[k].name;
+      EXPECT_EQ(shared->coarse_refined, alone->coarse_refined) << parts[k].name;
+      EXPECT_EQ(shared->no_result_reason, alone->no_result_reason) << parts[k].name;
+      ASSERT_EQ(shared->hypotheses.size(), alone->hypotheses.size()) << parts[k].name;
+      for (size_t i = 0; i < alone->hypotheses.size(); ++i) {
+        const PoseHypothesis& a = alone->hypotheses[i];
+        const PoseHypothesis& b = shared->hypotheses[i];
+        EXPECT_EQ(b.X_BO.matrix(), a.X_BO.matrix()) << parts[k].name << " " << i;
+        EXPECT_EQ(b.score, a.score) << parts[k].name << " " << i;
+        EXPECT_EQ(b.supporting_indices, a.supporting_indices) << parts[k].name << " " << i;
+        EXPECT_EQ(b.alternatives.size(), a.alternatives.size()) << parts[k].name << " " << i;
+      }
+      found += alone->hypotheses.empty() ? 0 : 1;
+    }
+  }
+  EXPECT_GE(found, 2);  // the bracket at least, with either normals
+  // The support structure: built once, for one cell.
+  const float cell = 2.f * static_cast<float>(PoseEstimatorOptions{}.support_distance);
+  const internal::SceneSupport* support = base->Support(cell, view);
+  ASSERT_NE(support, nullptr);
+  EXPECT_EQ(base->Support(cell, view), support);
+  EXPECT_EQ(base->Support(2.f * cell, view), nullptr);
+  // Another view's base: InvalidArgument.
+  const std::vector<Eigen::Vector3f> half(segment.begin(), segment.begin() + static_cast<std::ptrdiff_t>(segment.size() / 2));
+  const internal::PoseModel& model = internal::PoseEstimatorAccess::Model(Estimator(0));
+  EXPECT_EQ(internal::EstimatePose(model, OnFloor(ViewOf(half, cam)), Estimator(0).default_search(), {.base = base})
+                .status()
+                .code(),
+            Status::Code::kInvalidArgument);
+}
+
 TEST(PoseEstimator, FindsPartLyingFlatSeenHeadOn) {
   // The stable resting poses: plane faces seen head-on leave the in-plane
   // position to the silhouette only.
