@@ -546,8 +546,60 @@ void LogDetections(int i, const Frame& frame, const PerceptionResult& result, co
   }
 }
 
-// --log-level debug: the frame's pipeline counts, its missed parts and its
-// detections.
+// --log-level debug, for a gross detection: its pose, each of its
+// alternatives and the true pose verified on the part's own points (its
+// pixels of the label image) against the whole depth image: whether the
+// view holds evidence for the truth the search did not use (the truth
+// explains more) or none (it explains as much or less).
+void LogGrossOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
+                       const FrameEvaluation& fe,
+                       std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+  std::vector<int> owners;
+  for (const DetectionOutcome& o : fe.detections) {
+    if (o.verdict != DetectionVerdict::kGross) continue;
+    if (owners.empty()) owners = RoiPointOwners(frame, result);
+    const PartTruth* p = nullptr;
+    for (const PartTruth& t : frame.truth->parts) {
+      if (t.instance_id == o.near_instance) p = &t;
+    }
+    const PoseEstimator* est = p != nullptr ? DiagnosticEstimator(cell, p->class_id, diagnostic_estimators) : nullptr;
+    if (est == nullptr) continue;
+    std::vector<Eigen::Vector3f> own;
+    for (size_t k = 0; k < owners.size(); ++k) {
+      if (owners[k] == p->instance_id) own.push_back(result.roi_points_B[k]);
+    }
+    SceneView view;
+    view.points_B = own;
+    view.X_BC = frame.X_BC;
+    view.depth = &frame.depth;
+    view.intrinsics = frame.intrinsics;
+    // Verified as given, and the best of it turned about the part's x axis
+    // (a tee's run) by up to 4 deg either side, within the tolerance: the
+    // truth is not fitted to the noisy points the detections are fitted to.
+    const auto net = [&](const Pose& X) {
+      const Result<PoseHypothesis> h = est->Score(view, X);
+      if (!h.ok()) return std::string("-");
+      int best = h->supported_points - h->free_space_points;
+      for (int deg = -4; deg <= 4; ++deg) {
+        Pose T = Pose::Identity();
+        T.linear() = Eigen::AngleAxisd(deg * M_PI / 180.0, Eigen::Vector3d::UnitX()).toRotationMatrix();
+        const Result<PoseHypothesis> t = est->Score(view, X * T);
+        if (t.ok()) best = std::max(best, t->supported_points - t->free_space_points);
+      }
+      return fmt::format("{}-{} ({} best turned)", h->supported_points, h->free_space_points, best);
+    };
+    const Detection& d = result.detections[o.detection];
+    std::string alts;
+    for (const Pose& X : d.alternatives_X_BO) alts += " " + net(X);
+    spdlog::debug("frame {} gross det {} inst {} (off {:.1f} deg): own points {}, supported-free: truth {}, "
+                  "detection {}, alternatives{}",
+                  i, o.detection, p->instance_id, o.rotation_error * 180.0 / M_PI, own.size(), net(p->X_BO),
+                  net(d.X_BO), alts);
+  }
+}
+
+// --log-level debug: the frame's pipeline counts, its missed parts, its gross
+// detections and its detections.
 void LogFrameDiagnostics(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                          const FrameEvaluation& fe,
                          std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
@@ -557,6 +609,7 @@ void LogFrameDiagnostics(const Cell& cell, int i, const Frame& frame, const Perc
                 result.second_looks, result.coarse_skipped,
                 result.depth_noise_sigma * 1000, result.depth_noise_at);
   LogMissedParts(cell, i, frame, result, fe, diagnostic_estimators);
+  LogGrossOwnPoints(cell, i, frame, result, fe, diagnostic_estimators);
   LogDetections(i, frame, result, fe);
 }
 
