@@ -1398,6 +1398,29 @@ TEST(PerceptionEval, ATeeTurnedWithinTheToleranceOnItsOwnPointsIsNotAmbiguous) {
   }
 }
 
+// A frame's result judged strictly against its truth (EvaluateFrame): how
+// many detections are right (true) and wrong (gross or false), whether truth
+// instance `instance` is found (-1: none asked), and how many detections
+// `mark` picks out (the mechanism a test is about; given each outcome and its
+// detection, and free to assert on them; none: 0).
+struct VerdictCounts {
+  int right = 0, wrong = 0, marked = 0;
+  bool found = false;
+};
+using VerdictMark = std::function<bool(const DetectionOutcome&, const Detection&)>;
+VerdictCounts CountVerdicts(const PerceptionResult& result, const Frame& frame,
+                            const std::vector<EvalPartModel>& models, int instance = -1,
+                            const VerdictMark& mark = nullptr) {
+  VerdictCounts c;
+  for (const DetectionOutcome& o : EvaluateFrame(result, *frame.truth, models).detections) {
+    if (o.verdict == DetectionVerdict::kTrue) ++c.right;
+    if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++c.wrong;
+    c.found |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
+    if (mark && mark(o, result.detections[o.detection])) ++c.marked;
+  }
+  return c;
+}
+
 // Parts the segmentation split over segments, left in pieces below
 // min_segment_points or merged with a neighbour: once the neighbours are
 // found, the samples no detection explains, grouped by grid connectivity,
@@ -1425,42 +1448,13 @@ TEST(PerceptionEval, TheSamplesNoDetectionExplainsAreMatchedAsRegions) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    struct Counts {
-      int true_positives = 0, wrong = 0;
-      bool found = false;  // the part `instance`
-    };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        if (o.verdict == DetectionVerdict::kTrue) ++c.true_positives;
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++c.wrong;
-        c.found |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
-      }
-      return c;
-    };
-    const Counts before = judge(Fixture::RunWith(*without, *frame));
-    const Counts after = judge(Fixture::RunWith(*with, *frame));
+    const VerdictCounts before = CountVerdicts(Fixture::RunWith(*without, *frame), *frame, f.models, instance);
+    const VerdictCounts after = CountVerdicts(Fixture::RunWith(*with, *frame), *frame, f.models, instance);
     EXPECT_FALSE(before.found) << "pile " << seed << ": part " << instance << " found without the pass";
     EXPECT_TRUE(after.found) << "pile " << seed << ": part " << instance;
-    EXPECT_GE(after.true_positives, before.true_positives + 1) << "pile " << seed;
+    EXPECT_GE(after.right, before.right + 1) << "pile " << seed;
     EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
   }
-}
-
-// Whether a frame's result finds truth instance `instance` strictly, and how
-// many of its detections are wrong (gross or false).
-struct InstanceVerdict {
-  bool found = false;
-  int wrong = 0;
-};
-InstanceVerdict JudgeInstance(const PerceptionResult& result, const Frame& frame,
-                              const std::vector<EvalPartModel>& models, int instance) {
-  InstanceVerdict v;
-  for (const DetectionOutcome& o : EvaluateFrame(result, *frame.truth, models).detections) {
-    v.found |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
-    if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++v.wrong;
-  }
-  return v;
 }
 
 // The truth of instance `instance` in a frame with truth, or nullptr.
@@ -1488,8 +1482,8 @@ void ExpectFoundOnlyWith(const Perception& without, const Perception& with,
       ASSERT_NE(part, nullptr) << "pile " << seed;
       check_truth(*part, seed);
     }
-    const InstanceVerdict before = JudgeInstance(Fixture::RunWith(without, *frame), *frame, f.models, instance);
-    const InstanceVerdict after = JudgeInstance(Fixture::RunWith(with, *frame), *frame, f.models, instance);
+    const VerdictCounts before = CountVerdicts(Fixture::RunWith(without, *frame), *frame, f.models, instance);
+    const VerdictCounts after = CountVerdicts(Fixture::RunWith(with, *frame), *frame, f.models, instance);
     EXPECT_FALSE(before.found) << "pile " << seed << ": instance " << instance << " found without the rule";
     EXPECT_TRUE(after.found) << "pile " << seed << ": instance " << instance;
     EXPECT_LE(after.wrong, before.wrong) << "pile " << seed;
@@ -1509,7 +1503,7 @@ TEST(PerceptionEval, AnAmbiguousTeeWithFewNeighboursIsTurnedAgainOnItsOwnPoints)
     Result<Frame> frame = VariedPile(f.cell, pile.first);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
     const PerceptionResult result = f.Run(*frame);
-    EXPECT_TRUE(JudgeInstance(result, *frame, f.models, pile.second).found)
+    EXPECT_TRUE(CountVerdicts(result, *frame, f.models, pile.second).found)
         << "pile " << pile.first << ": tee " << pile.second;
   }
 }
@@ -1603,27 +1597,18 @@ TEST(PerceptionEval, ABushingInsideATeeIsReplacedByTheTee) {
     const PartTruth* tee = TruthInstance(*frame, instance);
     ASSERT_NE(tee, nullptr) << "pile " << seed;
     ASSERT_EQ(tee->class_id, 2) << "pile " << seed;
-    struct Counts {
-      int bushings_in_tee = 0, wrong = 0;
-      bool tee_found = false;
+    // Marked: the bushings detected within 15 mm of the tee's origin.
+    const VerdictMark bushing_in_tee = [tee](const DetectionOutcome&, const Detection& d) {
+      return d.class_id == 0 && (d.X_BO.translation() - tee->X_BO.translation()).norm() < 0.015;
     };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        const Detection& d = r.detections[o.detection];
-        if (d.class_id == 0 && (d.X_BO.translation() - tee->X_BO.translation()).norm() < 0.015) ++c.bushings_in_tee;
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++c.wrong;
-        c.tee_found |= o.verdict == DetectionVerdict::kTrue && o.truth_instance == instance;
-      }
-      return c;
-    };
-    const Counts before = judge(Fixture::RunWith(*without, *frame));
+    const VerdictCounts before =
+        CountVerdicts(Fixture::RunWith(*without, *frame), *frame, f.models, instance, bushing_in_tee);
     const PerceptionResult result = f.Run(*frame);
-    const Counts after = judge(result);
-    EXPECT_EQ(before.bushings_in_tee, 1) << "pile " << seed << ": no bushing in the tee without the pass";
-    EXPECT_FALSE(before.tee_found) << "pile " << seed;
-    EXPECT_EQ(after.bushings_in_tee, 0) << "pile " << seed;
-    EXPECT_TRUE(after.tee_found) << "pile " << seed;
+    const VerdictCounts after = CountVerdicts(result, *frame, f.models, instance, bushing_in_tee);
+    EXPECT_EQ(before.marked, 1) << "pile " << seed << ": no bushing in the tee without the pass";
+    EXPECT_FALSE(before.found) << "pile " << seed;
+    EXPECT_EQ(after.marked, 0) << "pile " << seed;
+    EXPECT_TRUE(after.found) << "pile " << seed;
     EXPECT_LE(after.wrong, before.wrong - 1) << "pile " << seed;
     EXPECT_TRUE(std::any_of(result.timings.begin(), result.timings.end(),
                             [](const StageTiming& t) { return t.stage == "enclosing"; }));
@@ -1648,28 +1633,19 @@ TEST(PerceptionEval, AnAmbiguousTeeMostlyHiddenIsWithheld) {
     const int instance = pile.second;
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    struct Counts {
-      int gross_on_tee = 0, wrong = 0, right = 0;
-    };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        if (o.verdict == DetectionVerdict::kGross && o.near_instance == instance) {
-          ++c.gross_on_tee;
-          EXPECT_TRUE(r.detections[o.detection].pose_ambiguous()) << "pile " << seed;
-        }
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++c.wrong;
-        if (o.verdict == DetectionVerdict::kTrue) ++c.right;
-      }
-      return c;
+    // Marked: the gross detections nearest the tee, each with an ambiguous pose.
+    const VerdictMark gross_on_tee = [instance, seed](const DetectionOutcome& o, const Detection& d) {
+      if (o.verdict != DetectionVerdict::kGross || o.near_instance != instance) return false;
+      EXPECT_TRUE(d.pose_ambiguous()) << "pile " << seed;
+      return true;
     };
     const PerceptionResult before_result = Fixture::RunWith(*without, *frame);
-    const Counts before = judge(before_result);
+    const VerdictCounts before = CountVerdicts(before_result, *frame, f.models, -1, gross_on_tee);
     const PerceptionResult result = f.Run(*frame);
-    const Counts after = judge(result);
-    EXPECT_EQ(before.gross_on_tee, 1) << "pile " << seed << ": the tee not answered wrong without the rule";
+    const VerdictCounts after = CountVerdicts(result, *frame, f.models, -1, gross_on_tee);
+    EXPECT_EQ(before.marked, 1) << "pile " << seed << ": the tee not answered wrong without the rule";
     EXPECT_EQ(before_result.withheld_ambiguous, 0) << "pile " << seed;
-    EXPECT_EQ(after.gross_on_tee, 0) << "pile " << seed;
+    EXPECT_EQ(after.marked, 0) << "pile " << seed;
     EXPECT_GE(result.withheld_ambiguous, 1) << "pile " << seed;
     EXPECT_LE(after.wrong, before.wrong - 1) << "pile " << seed;
     EXPECT_EQ(after.right, before.right) << "pile " << seed;
@@ -1696,25 +1672,17 @@ TEST(PerceptionEval, ADetectionSeenOnOnePlaneAndMostlyHiddenIsWithheld) {
   for (const unsigned seed : {1110u, 1193u}) {
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    struct Counts {
-      int false_brackets = 0, wrong = 0, right = 0;
-    };
-    const auto judge = [&](const PerceptionResult& r) {
-      Counts c;
-      for (const DetectionOutcome& o : EvaluateFrame(r, *frame->truth, f.models).detections) {
-        if (o.verdict == DetectionVerdict::kFalse && o.class_id == 1) ++c.false_brackets;
-        if (o.verdict == DetectionVerdict::kGross || o.verdict == DetectionVerdict::kFalse) ++c.wrong;
-        if (o.verdict == DetectionVerdict::kTrue) ++c.right;
-      }
-      return c;
+    // Marked: the false L-bracket detections.
+    const VerdictMark false_bracket = [](const DetectionOutcome& o, const Detection&) {
+      return o.verdict == DetectionVerdict::kFalse && o.class_id == 1;
     };
     const PerceptionResult before_result = Fixture::RunWith(*without, *frame);
-    const Counts before = judge(before_result);
+    const VerdictCounts before = CountVerdicts(before_result, *frame, f.models, -1, false_bracket);
     const PerceptionResult result = f.Run(*frame);
-    const Counts after = judge(result);
-    EXPECT_GE(before.false_brackets, 1) << "pile " << seed << ": no false bracket without the rule";
+    const VerdictCounts after = CountVerdicts(result, *frame, f.models, -1, false_bracket);
+    EXPECT_GE(before.marked, 1) << "pile " << seed << ": no false bracket without the rule";
     EXPECT_EQ(before_result.withheld_one_plane, 0) << "pile " << seed;
-    EXPECT_EQ(after.false_brackets, before.false_brackets - 1) << "pile " << seed;
+    EXPECT_EQ(after.marked, before.marked - 1) << "pile " << seed;
     EXPECT_GE(result.withheld_one_plane, 1) << "pile " << seed;
     EXPECT_LE(after.wrong, before.wrong - 1) << "pile " << seed;
     EXPECT_EQ(after.right, before.right) << "pile " << seed;
@@ -1759,7 +1727,7 @@ TEST(PerceptionEval, NeighboursWithCloseSurfaceCentresAreBothKept) {
   for (const auto& [seed, neighbour] : {std::pair{1053u, 19}, std::pair{1037u, 17}}) {
     Result<Frame> frame = VariedPile(f.cell, seed);
     ASSERT_TRUE(frame.ok()) << frame.status().ToString();
-    EXPECT_TRUE(JudgeInstance(Fixture::RunWith(*f.perception, *frame), *frame, f.models, neighbour).found)
+    EXPECT_TRUE(CountVerdicts(Fixture::RunWith(*f.perception, *frame), *frame, f.models, neighbour).found)
         << "pile " << seed << ": neighbour " << neighbour;
   }
 }
