@@ -438,6 +438,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   if (!(options.one_plane_min_visible >= 0.0 && options.one_plane_min_visible <= 1.0)) {
     return Status::InvalidArgument("perception: one_plane_min_visible must be in [0, 1]");
   }
+  if (!(options.planar_view_min_share >= 0.0 && options.planar_view_min_share <= 1.0)) {
+    return Status::InvalidArgument("perception: planar_view_min_share must be in [0, 1]");
+  }
   if (!(options.near_centre_min_shared >= 0.0 && options.near_centre_min_shared <= 1.0)) {
     return Status::InvalidArgument("perception: near_centre_min_shared must be in [0, 1]");
   }
@@ -464,6 +467,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   reference.max_support_penetration = options.max_support_penetration;
   reference.ambiguity_net_gain = options.ambiguity_net_gain;
   reference.arm_swaps = options.arm_swaps;
+  reference.planar_view_min_share = options.planar_view_min_share;
   reference.unmeasured_is_no_evidence = options.unmeasured_is_no_evidence;
   reference.turns_below_bar = options.turns_below_bar;
   const std::vector<PartSpec> specs = ModelSpecs(cell);

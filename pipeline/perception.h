@@ -181,6 +181,12 @@ struct PerceptionOptions {
   // PoseEstimatorOptions::arm_swaps, handed to every class's estimator
   // (docs/tuning.md).
   bool arm_swaps = PoseEstimatorOptions{}.arm_swaps;
+  // PoseEstimatorOptions::planar_view_min_share, handed to every class's
+  // estimator: a view this share of which lies on one plane gets face
+  // seeds (an L-bracket seen edge-on, its side face 2-4 pixels wide at
+  // 640x480). In [0, 1]; 0 = the RMS test alone; 0.75 chosen on the tuning
+  // seeds (docs/tuning.md, `planar_view_min_share`).
+  double planar_view_min_share = 0.75;
   // PoseEstimatorOptions::unmeasured_is_no_evidence, handed to every class's
   // estimator (the waves', residual and enclosing searches); the second
   // look's and thorough searches set their own (true). A grazing face over

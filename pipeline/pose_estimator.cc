@@ -159,6 +159,9 @@ bool PoseEstimatorOptions::IsValid(std::string* error) const {
   if (!(hole_margin > 0) || hole_min_visible < 1 || !(hole_max_filled >= 0)) {
     return fail("hole_margin must be > 0, hole_min_visible >= 1, hole_max_filled >= 0");
   }
+  if (!(planar_view_min_share >= 0 && planar_view_min_share <= 1)) {
+    return fail("planar_view_min_share must be in [0, 1]");
+  }
   return true;
 }
 

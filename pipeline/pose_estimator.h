@@ -129,6 +129,15 @@ struct PoseEstimatorOptions {
   // run end and branch end). A tee seen as an L, one arm hidden, fits with
   // its branch on either seen arm.
   bool arm_swaps = true;
+  // A view is one plane (face seeds, PoseSearch::face_seeds) when its
+  // points' RMS distance from their plane is below 1 mm; or, with this
+  // share in (0, 1], when that share of them lies within 1.5 mm of a plane
+  // fitted to them by trimmed least squares, the rest left out of the
+  // seeds' outline: a thin plate seen edge-on at a coarse pixel pitch (an
+  // L-bracket's side face, 2-4 pixels wide) keeps mixed pixels and a
+  // grazing face's scraps along its outline that a least-squares plane
+  // leans to. 0 = the RMS test alone.
+  double planar_view_min_share = 0.0;
   // The default search's PoseSearch::unmeasured_is_no_evidence (Estimate
   // without a search). Direct users keep false; perception hands it
   // PerceptionOptions::unmeasured_is_no_evidence.

@@ -101,6 +101,7 @@ struct EvalCliOptions {
   double ambiguous_min_visible = PerceptionOptions{}.ambiguous_min_visible;
   double one_plane_min_visible = PerceptionOptions{}.one_plane_min_visible;
   double near_centre_min_shared = PerceptionOptions{}.near_centre_min_shared;
+  double planar_view_min_share = PerceptionOptions{}.planar_view_min_share;
   bool unmeasured_no_evidence = PerceptionOptions{}.unmeasured_is_no_evidence;
   bool causes = false;  // --causes: misses and false positives by cause
 };
@@ -370,6 +371,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.ambiguous_min_visible = opt.ambiguous_min_visible;
   popt.one_plane_min_visible = opt.one_plane_min_visible;
   popt.near_centre_min_shared = opt.near_centre_min_shared;
+  popt.planar_view_min_share = opt.planar_view_min_share;
   popt.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.second_look_search.unmeasured_is_no_evidence = opt.unmeasured_no_evidence;
   popt.turns_below_bar = opt.turns_below_bar;
@@ -983,6 +985,12 @@ Command EvalCommand() {
                                   "withhold a detection whose support lies on one plane when less than this "
                                   "fraction of its camera-facing surface is seen "
                                   "(PerceptionOptions::one_plane_min_visible; 0 = off, tuning)")
+                       ->check(CLI::Range(0.0, 1.0))
+                       ->capture_default_str();
+                   sub.add_option("--planar-view-min-share", opt->planar_view_min_share,
+                                  "a view this share of whose points lies within 1.5 mm of one plane gets face "
+                                  "seeds (PerceptionOptions::planar_view_min_share; 0 = the 1 mm RMS test alone, "
+                                  "tuning)")
                        ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();
                    sub.add_option("--near-centre-min-shared", opt->near_centre_min_shared,

@@ -115,13 +115,25 @@ class SearchRun {
     FirstPass(coarse);
     // Face seeds come last, and only when no coarse pose ended the pass:
     // each costs a quick verification of its own.
-    if (!stopped_ && search_.face_seeds > 0 && p_.base->view_plane() && !m_.faces.empty()) {
-      std::vector<CoarsePose> seeds;
-      Timed(verify_ms_, [&] {
-        AppendFaceSeeds(m_, p_.pts(), *p_.base->view_plane(), view_, *p_.support, p_.segment_depth, search_.face_seeds,
-                        seeds);
-      });
-      FirstPass(seeds);
+    if (!stopped_ && search_.face_seeds > 0 && !m_.faces.empty()) {
+      // A planar view (RMS below 1 mm), or one mostly on a plane
+      // (planar_view_min_share): the seeds fit the outline of the plane's points.
+      const std::vector<Eigen::Vector3f>* plane_pts = &p_.pts();
+      std::optional<Eigen::Vector3f> plane = p_.base->view_plane();
+      if (!plane && opt_.planar_view_min_share > 0.0) {
+        const ViewBase::MostlyPlanar& mostly = p_.base->OnMostlyOnePlane();
+        if (mostly.normal && mostly.share >= opt_.planar_view_min_share) {
+          plane = mostly.normal;
+          plane_pts = &mostly.pts;
+        }
+      }
+      if (plane) {
+        std::vector<CoarsePose> seeds;
+        Timed(verify_ms_, [&] {
+          AppendFaceSeeds(m_, *plane_pts, *plane, view_, *p_.support, p_.segment_depth, search_.face_seeds, seeds);
+        });
+        FirstPass(seeds);
+      }
     }
     out_.coarse_refined = static_cast<int>(coarse_poses_.size());
     if (coarse_poses_.empty()) {

@@ -23,6 +23,42 @@ constexpr int kMinSampledPoints = 8;
 // A view is planar when its points' RMS distance from their plane is below
 // this, metres (depth noise on the default cell: ~0.45 mm).
 constexpr double kPlanarViewRms = 0.0010;
+// The share test (ViewBase::OnMostlyOnePlane, PoseEstimatorOptions::
+// planar_view_min_share): points within kPlaneBand of the plane are on it (metres: the estimator's 1.5 mm
+// support distance); the trimmed fit keeps, kPlaneTrims times, the points
+// within the larger of kPlaneBand and kPlaneTrimSigmas x the RMS distance
+// of the points it kept before, and fits again.
+constexpr double kPlaneBand = 0.0015;
+constexpr int kPlaneTrims = 4;
+constexpr double kPlaneTrimSigmas = 2.0;
+
+// The least-squares plane of pts[i] for keep[i] (all when keep is empty):
+// its centroid, unit normal and RMS distance. False for fewer than 3 points.
+bool FitPlane(const std::vector<Eigen::Vector3f>& pts, const std::vector<uint8_t>& keep, Eigen::Vector3d* c,
+              Eigen::Vector3d* n, double* rms) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  size_t count = 0;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (keep.empty() || keep[i]) {
+      mean += pts[i].cast<double>();
+      ++count;
+    }
+  }
+  if (count < 3) return false;
+  mean /= static_cast<double>(count);
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (keep.empty() || keep[i]) {
+      const Eigen::Vector3d d = pts[i].cast<double>() - mean;
+      C += d * d.transpose();
+    }
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C / static_cast<double>(count));
+  *c = mean;
+  *n = es.eigenvectors().col(0);
+  *rms = std::sqrt(std::max(0.0, es.eigenvalues()[0]));
+  return true;
+}
 
 // Degenerate geometry: spread along fewer than two directions, or much
 // smaller than the part (the reason; empty when the view can be searched).
@@ -153,7 +189,8 @@ std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
   return f;
 }
 
-ViewBase::ViewBase(const SceneView& view) : view_points_(view.points_B.size()) {
+ViewBase::ViewBase(const SceneView& view)
+    : view_points_(view.points_B.size()), camera_(view.X_BC.translation().cast<float>()) {
   pts_.reserve(view.points_B.size());
   index_.reserve(view.points_B.size());
   for (size_t i = 0; i < view.points_B.size(); ++i) {
@@ -180,6 +217,29 @@ ViewBase::ViewBase(const SceneView& view) : view_points_(view.points_B.size()) {
     if (n.dot(view.X_BC.translation().cast<float>() - mean.cast<float>()) < 0) n = -n;
     view_plane_ = n;
   }
+}
+
+const ViewBase::MostlyPlanar& ViewBase::OnMostlyOnePlane() const {
+  std::call_once(plane_once_, [&] {
+    Eigen::Vector3d c, n;
+    double rms = 0.0;
+    std::vector<uint8_t> keep;
+    if (!FitPlane(pts_, keep, &c, &n, &rms)) return;
+    keep.assign(pts_.size(), 0);
+    for (int t = 0; t < kPlaneTrims; ++t) {
+      const double band = std::max(kPlaneBand, kPlaneTrimSigmas * rms);
+      for (size_t i = 0; i < pts_.size(); ++i) keep[i] = std::abs(n.dot(pts_[i].cast<double>() - c)) <= band ? 1 : 0;
+      if (!FitPlane(pts_, keep, &c, &n, &rms)) return;
+    }
+    for (const Eigen::Vector3f& p : pts_) {
+      if (std::abs(n.dot(p.cast<double>() - c)) <= kPlaneBand) plane_.pts.push_back(p);
+    }
+    Eigen::Vector3f nf = n.cast<float>();
+    if (nf.dot(camera_ - c.cast<float>()) < 0) nf = -nf;
+    plane_.normal = nf;
+    plane_.share = static_cast<double>(plane_.pts.size()) / static_cast<double>(pts_.size());
+  });
+  return plane_;
 }
 
 const SceneSupport* ViewBase::Support(float cell, const SceneView& view) const {

@@ -47,6 +47,20 @@ class ViewBase {
   const Eigen::Vector3d& spread() const { return spread_; }
   // A planar view's normal (RMS off its plane below 1 mm), towards the camera.
   const std::optional<Eigen::Vector3f>& view_plane() const { return view_plane_; }
+  // The plane most of the view lies on: fitted by trimmed least squares
+  // (from the plane of all the points, four times the points within the
+  // larger of 1.5 mm and twice the RMS distance of those kept before), its
+  // normal towards the camera, the points within 1.5 mm of it and their
+  // share of pts(). No normal for fewer than 3 points. Found by the first
+  // call (PoseEstimatorOptions::planar_view_min_share: a view whose
+  // least-squares plane leans to a few points off it, mixed pixels along a
+  // thin plate's outline, is still one plane to the face seeds).
+  struct MostlyPlanar {
+    std::optional<Eigen::Vector3f> normal;
+    double share = 0.0;  // in [0, 1]
+    std::vector<Eigen::Vector3f> pts;
+  };
+  const MostlyPlanar& OnMostlyOnePlane() const;
   // The support structure of pts() with cells of `cell` (2 support_distance)
   // against `view` (the one the base was made from): built by the first
   // call, shared by later calls with the same cell; nullptr for another
@@ -59,6 +73,9 @@ class ViewBase {
   std::vector<int> index_;
   Eigen::Vector3d spread_ = Eigen::Vector3d::Zero();
   std::optional<Eigen::Vector3f> view_plane_;
+  Eigen::Vector3f camera_ = Eigen::Vector3f::Zero();  // the viewpoint, B
+  mutable std::once_flag plane_once_;
+  mutable MostlyPlanar plane_;
   mutable std::once_flag support_once_;
   mutable float support_cell_ = 0.f;
   mutable SceneSupport support_;

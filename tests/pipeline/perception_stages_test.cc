@@ -18,6 +18,7 @@
 
 #include <tbb/task_arena.h>
 
+#include "core/mesh_gen.h"
 #include "pipeline/internal/acceptance.h"
 #include "pipeline/internal/depth_smoothing.h"
 #include "pipeline/internal/fit_limit.h"
@@ -28,6 +29,7 @@
 #include "pipeline/internal/roi_cloud.h"
 #include "pipeline/internal/segmentation.h"
 #include "pipeline/internal/verification.h"
+#include "pipeline/internal/view_preparation.h"
 #include "pipeline/internal/view_passes.h"
 #include "tests/pipeline/pose_test_util.h"
 
@@ -430,6 +432,95 @@ TEST(Acceptance, ShareOnOnePlaneCountsThePointsNearTheirLeastSquaresPlane) {
   // The best plane through an L cuts both plates: far fewer than 95% on it.
   EXPECT_LT(ShareOnOnePlane(l_shape, 0.0015), 0.6);
   EXPECT_DOUBLE_EQ(ShareOnOnePlane(std::vector<Eigen::Vector3f>(plate.begin(), plate.begin() + 2), 0.0015), 1.0);
+}
+
+// The shipped L-bracket lying on its side, seen from above: the camera sees
+// its side face (y = -25 mm in O, the L of the base and the upright, 5 mm
+// wide) on a 1.5 mm pixel pitch, 0.3 mm of depth noise, and every third
+// point of the face's outline (within 1.5 mm of it) has a mixed pixel
+// behind it, 3-30 mm further along the line of sight.
+struct EdgeOnView {
+  Pose X_BO;
+  Pose X_BC;
+  std::vector<Eigen::Vector3f> face, points;  // points: the face's, then the mixed pixels
+};
+EdgeOnView EdgeOnBracket() {
+  EdgeOnView v;
+  v.X_BO = MakePose(Mat3(Eigen::AngleAxisd(-M_PI / 2, Vec3::UnitX())), Vec3(0.0, 0.0, 0.025));
+  v.X_BC = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0.04, 0.03, 1.0));
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.f, 0.0003f);
+  std::uniform_real_distribution<float> behind(0.003f, 0.03f);
+  const auto on_l = [](float x, float z) { return (x <= 0.090f && z <= 0.005f) || (x <= 0.005f && z <= 0.060f); };
+  std::vector<Eigen::Vector3f> mixed;
+  int outline = 0;
+  for (float x = 0.0005f; x < 0.090f; x += 0.0015f) {
+    for (float z = 0.0005f; z < 0.060f; z += 0.0015f) {
+      if (!on_l(x, z)) continue;
+      const Eigen::Vector3f p = (v.X_BO * Vec3(x, -0.025, z)).cast<float>() + Eigen::Vector3f(0, 0, noise(rng));
+      v.face.push_back(p);
+      const bool edge = !on_l(x + 0.0015f, z) || !on_l(x, z + 0.0015f) || x < 0.0015f || z < 0.0015f;
+      if (edge && outline++ % 3 == 0) {
+        const Eigen::Vector3f ray = (p - v.X_BC.translation().cast<float>()).normalized();
+        mixed.push_back(p + behind(rng) * ray);
+      }
+    }
+  }
+  v.points = v.face;
+  v.points.insert(v.points.end(), mixed.begin(), mixed.end());
+  return v;
+}
+
+TEST(ViewPreparation, AViewMostlyOnOnePlaneLeavesItsMixedPixelsOffThePlaneItFits) {
+  const EdgeOnView v = EdgeOnBracket();
+  ASSERT_GT(v.points.size(), v.face.size() + 20);  // mixed pixels: 10-15% of the view
+  SceneView view;
+  view.points_B = v.points;
+  view.X_BC = v.X_BC;
+  const ViewBase base(view);
+  // The mixed pixels lift the least-squares plane's RMS past 1 mm.
+  EXPECT_FALSE(base.view_plane().has_value());
+  const ViewBase::MostlyPlanar& mostly = base.OnMostlyOnePlane();
+  ASSERT_TRUE(mostly.normal.has_value());
+  EXPECT_GT(mostly.normal->dot(Eigen::Vector3f::UnitZ()), 0.999f);  // towards the camera
+  // The face's points, within 1.5 mm of the plane; the mixed pixels 3 mm
+  // or more behind it left out.
+  EXPECT_EQ(mostly.pts.size(), v.face.size());
+  EXPECT_NEAR(mostly.share, static_cast<double>(v.face.size()) / static_cast<double>(v.points.size()), 1e-9);
+  // The same view without its mixed pixels passes the RMS test alone.
+  view.points_B = v.face;
+  EXPECT_TRUE(ViewBase(view).view_plane().has_value());
+}
+
+TEST(ViewPreparation, AViewOnTwoPlatesHasNoPlaneHoldingMostOfIt) {
+  // An L of two plates of 625 points each.
+  std::vector<Eigen::Vector3f> l_shape = PlatePoints(true);
+  for (Eigen::Vector3f& p : l_shape) p += Eigen::Vector3f(0.f, 0.f, 0.01f);
+  SceneView view;
+  view.points_B = l_shape;
+  view.X_BC = MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX()) * Eigen::AngleAxisd(0.6, Vec3::UnitY())),
+                       Vec3(0.3, 0.02, 0.8));
+  const ViewBase base(view);
+  EXPECT_FALSE(base.view_plane().has_value());
+  EXPECT_LT(base.OnMostlyOnePlane().share, 0.6);
+}
+
+// With planar_view_min_share the estimator lays the bracket's side face on
+// the plane of the edge-on view (face seeds) and finds its pose; without,
+// point pair voting on one plane and its mixed pixels does not.
+TEST(ViewPreparation, TheEdgeOnBracketIsFoundWithTheShareTest) {
+  const EdgeOnView v = EdgeOnBracket();
+  SceneView view;
+  view.points_B = v.points;
+  view.X_BC = v.X_BC;
+  PoseEstimatorOptions on;
+  on.planar_view_min_share = 0.75;
+  const auto with = PoseEstimator::Build(MakeLBracket(), Symmetry{}, on).value();
+  const Result<PoseEstimates> found = with->Estimate(view);
+  ASSERT_TRUE(found.ok());
+  ASSERT_FALSE(found->hypotheses.empty()) << found->no_result_reason;
+  EXPECT_LT(SymmetricTranslationError(found->hypotheses[0].X_BO, v.X_BO, Symmetry{}), 0.005);
+  EXPECT_LT(SymmetricRotationError(found->hypotheses[0].X_BO, v.X_BO, Symmetry{}), 5.0 * M_PI / 180.0);
 }
 
 TEST(Acceptance, ADetectionMostlyHiddenWhoseSupportLiesOnOnePlaneIsWithheld) {
