@@ -102,23 +102,9 @@ int PointHash::Nearest(const Eigen::Vector3f& q, float radius, float* d2_out) co
 }
 
 bool PointHash::AnyWithin(const Eigen::Vector3f& q, float radius) const {
-  // ForEachWithin's cells, left at the first point within radius (the
-  // verification's support test asks this once per visible sample).
-  const float r2 = radius * radius;
-  const int x0 = CellCoord(q.x() - radius), x1 = CellCoord(q.x() + radius);
-  const int y0 = CellCoord(q.y() - radius), y1 = CellCoord(q.y() + radius);
-  const int z0 = CellCoord(q.z() - radius), z1 = CellCoord(q.z() + radius);
-  for (int z = z0; z <= z1; ++z) {
-    for (int y = y0; y <= y1; ++y) {
-      for (int x = x0; x <= x1; ++x) {
-        const auto [begin, end] = Range(Key(x, y, z));
-        for (uint32_t k = begin; k < end; ++k) {
-          if ((sorted_[k] - q).squaredNorm() <= r2) return true;
-        }
-      }
-    }
-  }
-  return false;
+  // Left at the first point within radius (the verification's support test
+  // asks this once per visible sample).
+  return VisitWithin(q, radius, [](int, float) { return true; });
 }
 
 }  // namespace bp::internal

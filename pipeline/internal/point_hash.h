@@ -25,22 +25,10 @@ class PointHash {
   // REQUIRES: radius <= cell size.
   template <typename F>
   void ForEachWithin(const Eigen::Vector3f& q, float radius, F&& f) const {
-    const float r2 = radius * radius;
-    // radius <= cell: the ball overlaps at most 2 cells per axis.
-    const int x0 = CellCoord(q.x() - radius), x1 = CellCoord(q.x() + radius);
-    const int y0 = CellCoord(q.y() - radius), y1 = CellCoord(q.y() + radius);
-    const int z0 = CellCoord(q.z() - radius), z1 = CellCoord(q.z() + radius);
-    for (int z = z0; z <= z1; ++z) {
-      for (int y = y0; y <= y1; ++y) {
-        for (int x = x0; x <= x1; ++x) {
-          const auto [begin, end] = Range(Key(x, y, z));
-          for (uint32_t k = begin; k < end; ++k) {
-            const float d2 = (sorted_[k] - q).squaredNorm();
-            if (d2 <= r2) f(static_cast<int>(order_[k]), d2);
-          }
-        }
-      }
-    }
+    VisitWithin(q, radius, [&](int index, float d2) {
+      f(index, d2);
+      return false;
+    });
   }
 
   // Nearest point within radius, or -1. *d2 gets its squared distance.
@@ -65,6 +53,29 @@ class PointHash {
            ((static_cast<uint64_t>(z + kOff) & 0x1FFFFF) << 42);
   }
   std::pair<uint32_t, uint32_t> Range(uint64_t key) const;
+  // Calls stop(index, squared_distance) for the points within radius of q,
+  // in cell order, until it returns true. @returns whether it did.
+  // REQUIRES: radius <= cell size.
+  template <typename F>
+  bool VisitWithin(const Eigen::Vector3f& q, float radius, F&& stop) const {
+    const float r2 = radius * radius;
+    // radius <= cell: the ball overlaps at most 2 cells per axis.
+    const int x0 = CellCoord(q.x() - radius), x1 = CellCoord(q.x() + radius);
+    const int y0 = CellCoord(q.y() - radius), y1 = CellCoord(q.y() + radius);
+    const int z0 = CellCoord(q.z() - radius), z1 = CellCoord(q.z() + radius);
+    for (int z = z0; z <= z1; ++z) {
+      for (int y = y0; y <= y1; ++y) {
+        for (int x = x0; x <= x1; ++x) {
+          const auto [begin, end] = Range(Key(x, y, z));
+          for (uint32_t k = begin; k < end; ++k) {
+            const float d2 = (sorted_[k] - q).squaredNorm();
+            if (d2 <= r2 && stop(static_cast<int>(order_[k]), d2)) return true;
+          }
+        }
+      }
+    }
+    return false;
+  }
 
   float cell_ = 1.f, inv_cell_ = 1.f;
   std::vector<uint32_t> order_;  // point indices sorted by cell
