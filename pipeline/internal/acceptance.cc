@@ -3,8 +3,9 @@
 #include <algorithm>
 #include <optional>
 
-#include <Eigen/Eigenvalues>
 #include <tbb/parallel_for.h>
+
+#include "pipeline/internal/view_preparation.h"
 
 namespace bp::internal {
 
@@ -261,17 +262,9 @@ int WithholdAmbiguous(double min_visible, std::vector<Detection>* detections) {
 }
 
 double ShareOnOnePlane(std::span<const Eigen::Vector3f> points, double distance) {
-  if (points.size() < 3) return 1.0;
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const Eigen::Vector3f& p : points) mean += p.cast<double>();
-  mean /= static_cast<double>(points.size());
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  for (const Eigen::Vector3f& p : points) {
-    const Eigen::Vector3d d = p.cast<double>() - mean;
-    cov += d * d.transpose();
-  }
-  // The eigenvalues come in increasing order: the first vector is the normal.
-  const Eigen::Vector3d normal = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors().col(0);
+  Eigen::Vector3d mean, normal;
+  double rms = 0.0;
+  if (!FitPlane(points, {}, &mean, &normal, &rms)) return 1.0;
   size_t on = 0;
   for (const Eigen::Vector3f& p : points) on += std::abs(normal.dot(p.cast<double>() - mean)) <= distance ? 1 : 0;
   return static_cast<double>(on) / static_cast<double>(points.size());

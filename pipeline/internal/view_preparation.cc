@@ -32,34 +32,6 @@ constexpr double kPlaneBand = 0.0015;
 constexpr int kPlaneTrims = 4;
 constexpr double kPlaneTrimSigmas = 2.0;
 
-// The least-squares plane of pts[i] for keep[i] (all when keep is empty):
-// its centroid, unit normal and RMS distance. False for fewer than 3 points.
-bool FitPlane(const std::vector<Eigen::Vector3f>& pts, const std::vector<uint8_t>& keep, Eigen::Vector3d* c,
-              Eigen::Vector3d* n, double* rms) {
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  size_t count = 0;
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (keep.empty() || keep[i]) {
-      mean += pts[i].cast<double>();
-      ++count;
-    }
-  }
-  if (count < 3) return false;
-  mean /= static_cast<double>(count);
-  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
-  for (size_t i = 0; i < pts.size(); ++i) {
-    if (keep.empty() || keep[i]) {
-      const Eigen::Vector3d d = pts[i].cast<double>() - mean;
-      C += d * d.transpose();
-    }
-  }
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C / static_cast<double>(count));
-  *c = mean;
-  *n = es.eigenvectors().col(0);
-  *rms = std::sqrt(std::max(0.0, es.eigenvalues()[0]));
-  return true;
-}
-
 // Degenerate geometry: spread along fewer than two directions, or much
 // smaller than the part (the reason; empty when the view can be searched).
 std::string CheckShape(const PoseModel& m, const ViewBase& base) {
@@ -177,6 +149,32 @@ void PrepareSupport(const PoseModel& m, const SceneView& view, const std::vector
 }
 
 }  // namespace
+
+bool FitPlane(std::span<const Eigen::Vector3f> pts, std::span<const uint8_t> keep, Eigen::Vector3d* c,
+              Eigen::Vector3d* n, double* rms) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  size_t count = 0;
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (keep.empty() || keep[i]) {
+      mean += pts[i].cast<double>();
+      ++count;
+    }
+  }
+  if (count < 3) return false;
+  mean /= static_cast<double>(count);
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < pts.size(); ++i) {
+    if (keep.empty() || keep[i]) {
+      const Eigen::Vector3d d = pts[i].cast<double>() - mean;
+      C += d * d.transpose();
+    }
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(C / static_cast<double>(count));
+  *c = mean;
+  *n = es.eigenvectors().col(0);
+  *rms = std::sqrt(std::max(0.0, es.eigenvalues()[0]));
+  return true;
+}
 
 std::array<double, 4> Fingerprint(std::span<const Eigen::Vector3f> points) {
   std::array<double, 4> f{static_cast<double>(points.size()), 0.0, 0.0, 0.0};

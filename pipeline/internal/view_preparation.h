@@ -21,6 +21,12 @@
 
 namespace bp::internal {
 
+// The least-squares plane of pts[i] for keep[i] (all when keep is empty,
+// else keep.size() == pts.size()): its centroid, unit normal (either
+// side) and RMS distance (metres). False for fewer than 3 points.
+bool FitPlane(std::span<const Eigen::Vector3f> pts, std::span<const uint8_t> keep, Eigen::Vector3d* c,
+              Eigen::Vector3d* n, double* rms);
+
 // A fingerprint of a view's points: their count and the sums of their
 // finite coordinates (what was derived from a view must come from the same
 // points).
