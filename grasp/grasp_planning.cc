@@ -301,7 +301,7 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
                                                                             const GraspPlanningOptions& options) {
   if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
       !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0) ||
-      !(options.bin_margin >= 0) || !(options.part_margin >= 0)) {
+      !(options.bin_margin >= 0) || !(options.part_margin >= 0) || !(options.dropout_reach >= 0)) {
     return Status::InvalidArgument(
         "grasp planning options: steps and resolution must be > 0, margins and distances >= 0");
   }
@@ -725,9 +725,112 @@ void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, 
   });
 }
 
+// The unseen space along the rays of an organized frame's pixels without a
+// measurement (dropout: grazing surfaces, depth edges) near a measured point
+// no detection explains (`rest`, B), as points in B every `step` m: on each
+// such ray, from the nearest unexplained depth within `reach` (m across the
+// view on the bin floor: a window of (2r + 1)^2 pixels) to the farthest
+// depth measured in that window, kept inside the ROI (GraspPlanningOptions::
+// dropout_reach has why). `columns` > 0: the occluded columns of that edge
+// (m, in W) will fill the space below each point, and a ray's point is kept
+// only where it enters another column. O(rest + box pixels + unmeasured
+// pixels near one * r^2).
+std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell, const Pose& X_BW, double reach,
+                                           double step, float columns, std::span<const Eigen::Vector3f> rest) {
+  std::vector<Eigen::Vector3f> out;
+  const int w = frame.depth.width, h = frame.depth.height;
+  const double z_floor = std::abs((frame.X_BC.inverse() * X_BW.translation()).z());
+  if (w == 0 || h == 0 || !(z_floor > 0) || rest.empty() || !(step > 0)) return out;
+  const int r = std::clamp(static_cast<int>(std::ceil(reach * frame.intrinsics.fx / z_floor)), 1, 32);
+  const auto measured = [&frame](int u, int v) {
+    const float z = frame.depth.at(u, v);
+    return std::isfinite(z) && z > 0.f;
+  };
+  // The unexplained points' pixels (their depth along the camera's z) and
+  // the box of pixels within r of one.
+  const Eigen::Isometry3f X_CB = frame.X_BC.inverse().cast<float>();
+  const Intrinsics& K = frame.intrinsics;
+  std::vector<std::tuple<int, int, float>> pixels;
+  pixels.reserve(rest.size());
+  int u0 = w, u1 = -1, v0 = h, v1 = -1;
+  for (const Eigen::Vector3f& p : rest) {
+    const Eigen::Vector3f c = X_CB * p;
+    if (!(c.z() > 0)) continue;
+    const long u = std::lround(K.fx * c.x() / c.z() + K.cx), v = std::lround(K.fy * c.y() / c.z() + K.cy);
+    if (u < 0 || v < 0 || u >= w || v >= h) continue;
+    pixels.emplace_back(static_cast<int>(u), static_cast<int>(v), c.z());
+    u0 = std::min(u0, static_cast<int>(u) - r);
+    u1 = std::max(u1, static_cast<int>(u) + r);
+    v0 = std::min(v0, static_cast<int>(v) - r);
+    v1 = std::max(v1, static_cast<int>(v) + r);
+  }
+  if (pixels.empty()) return out;
+  u0 = std::max(u0, 0), v0 = std::max(v0, 0), u1 = std::min(u1, w - 1), v1 = std::min(v1, h - 1);
+  const int bw = u1 - u0 + 1, bh = v1 - v0 + 1;
+  // The nearest unexplained depth per pixel of the box, and the count of
+  // those pixels summed over rows and columns: an unmeasured pixel with none
+  // within r is skipped in O(1) (most of them).
+  constexpr float kNone = std::numeric_limits<float>::infinity();
+  std::vector<float> unexplained(static_cast<size_t>(bw) * bh, kNone);
+  for (const auto& [pu, pv, pz] : pixels) {
+    float& z = unexplained[static_cast<size_t>(pv - v0) * bw + (pu - u0)];
+    z = std::min(z, pz);
+  }
+  std::vector<int32_t> sum(static_cast<size_t>(bw + 1) * (bh + 1), 0);
+  const auto at = [&sum, bw](int x, int y) -> int32_t& { return sum[static_cast<size_t>(y) * (bw + 1) + x]; };
+  for (int v = 0; v < bh; ++v) {
+    for (int u = 0; u < bw; ++u) {
+      at(u + 1, v + 1) = (unexplained[static_cast<size_t>(v) * bw + u] < kNone ? 1 : 0) + at(u + 1, v) + at(u, v + 1) -
+                         at(u, v);
+    }
+  }
+  const Eigen::Isometry3f X_BC = frame.X_BC.cast<float>();
+  const Eigen::Isometry3f X_WB = X_BW.inverse().cast<float>();
+  const Eigen::Vector3f half(static_cast<float>(cell.bin.inner_size.x() / 2 - cell.roi.wall_margin),
+                             static_cast<float>(cell.bin.inner_size.y() / 2 - cell.roi.wall_margin), 0.f);
+  const auto in_roi = [&](const Eigen::Vector3f& p_B) {
+    const Eigen::Vector3f p_W = X_WB * p_B;
+    return std::abs(p_W.x()) <= half.x() && std::abs(p_W.y()) <= half.y() && p_W.z() >= cell.roi.floor_margin &&
+           p_W.z() <= cell.roi.height;
+  };
+  for (int v = v0; v <= v1; ++v) {
+    for (int u = u0; u <= u1; ++u) {
+      if (measured(u, v)) continue;
+      const int a = std::max(u - r, u0) - u0, b = std::min(u + r, u1) - u0 + 1;
+      const int c = std::max(v - r, v0) - v0, d = std::min(v + r, v1) - v0 + 1;
+      if (at(b, d) - at(a, d) - at(b, c) + at(a, c) == 0) continue;
+      float near = kNone, far = 0.f;
+      for (int y = c; y < d; ++y) {
+        for (int x = a; x < b; ++x) near = std::min(near, unexplained[static_cast<size_t>(y) * bw + x]);
+      }
+      for (int y = std::max(0, v - r); y <= std::min(h - 1, v + r); ++y) {
+        for (int x = std::max(0, u - r); x <= std::min(w - 1, u + r); ++x) {
+          if (measured(x, y)) far = std::max(far, frame.depth.at(x, y));
+        }
+      }
+      far = std::max(far, near);
+      const Eigen::Vector3f ray = Deproject(K, static_cast<float>(u), static_cast<float>(v), 1.f);
+      Eigen::Array2i last(std::numeric_limits<int>::min(), 0);
+      for (float z = near;; z += static_cast<float>(step)) {
+        const Eigen::Vector3f p_B = X_BC * (ray * std::min(z, far));
+        // With the columns, a point below another of the ray in its column adds nothing.
+        const Eigen::Array2i column =
+            columns > 0 ? ((X_WB * p_B).head<2>().array() / columns).floor().cast<int>().eval() : last + 1;
+        if (in_roi(p_B) && (column != last).any()) {
+          out.push_back(p_B);
+          last = column;
+        }
+        if (z >= far) break;
+      }
+    }
+  }
+  return out;
+}
+
 // Stage 2: the other parts as meshes (grown by part_margin), the points no detection explains (and
 // the occluded columns under them) as an OcTree and an occupancy bitmap.
-FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception) {
+FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception,
+                              const Frame* frame) {
   const auto& detections = perception.detections;
   FrameObstacles obstacles;
   {
@@ -750,6 +853,14 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   rest.reserve(perception.roi_points_B.size());
   for (size_t i = 0; i < explained.size(); ++i) {
     if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
+  }
+  // The unseen space along the dropout rays beside them (dropout_reach).
+  if (frame != nullptr && frame->organized() && m.options.dropout_reach > 0) {
+    const double res = m.options.octree_resolution;
+    const std::vector<Eigen::Vector3f> dropout =
+        DropoutPoints(*frame, m.cell, BinPoseOf(perception, m.cell.bin), m.options.dropout_reach, res / 2,
+                      m.options.occluded_columns ? static_cast<float>(res) : 0.f, rest);
+    rest.insert(rest.end(), dropout.begin(), dropout.end());
   }
   const double res = m.options.octree_resolution;
   // The columns from the points themselves (their cells in W), then every
@@ -1214,7 +1325,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   plan.candidates = MakeCandidates(model, gripper, task, detections, taught, wanted);
 
   const auto t_obstacles = std::chrono::steady_clock::now();
-  const FrameObstacles obstacles = BuildObstacles(m, perception);
+  const FrameObstacles obstacles = BuildObstacles(m, perception, frame);
   // What the frame measured, for the seen-contact check: its depth image, or
   // its ROI points when it has none (built only when a grasp needs it).
   const SeenContactRule& rule = gripper.spec->seen_contact;

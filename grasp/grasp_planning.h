@@ -16,7 +16,10 @@
 // (meshes at their estimated poses grown by part_margin, FCL broadphase),
 // against its own part
 // and against the scene points not explained by any detection (an FCL
-// OcTree built once per frame, behind a dense occupancy-bitmap pre-filter).
+// OcTree built once per frame, behind a dense occupancy-bitmap pre-filter),
+// with the space below them down to the floor and, on an organized frame,
+// the rays of the pixels without a measurement beside them (dropout_reach):
+// what the camera did not see next to an undetected part may be that part.
 // Its own part is checked with the gripper lifted by contact_margin along
 // -z, and so are the points for a suction gripper: the cup touches the part
 // at the grasp point by design, and the points are inflated by a voxel. A
@@ -156,6 +159,20 @@ struct GraspPlanningOptions {
   // an edge differs in depth by more), and its points farther away stay, in
   // octree_resolution voxels (4 mm) that move each point by up to 2 mm.
   double support_grid_spacing = 0.0012;
+  // m across the view (on the bin floor): a pixel of an organized frame
+  // without a measurement this near a measured point no detection explains
+  // makes obstacle points of its ray, from that point's depth to the
+  // farthest depth measured this near (every octree_resolution / 2, inside
+  // the ROI; the occluded columns below them). 0: off.
+  // Why: a steep face (an undetected L-bracket leaning on a bushing, seen
+  // nearly edge-on) drops out of the depth image but for a few points along
+  // its top; the camera did not see the space between them, and a cup
+  // beside the detected part passed through the face there (clear seed
+  // 14730, docs/tuning.md "Unseen space"). A dropout ray is unseen from the
+  // camera down; its nearest neighbour's depth bounds how high an unbroken
+  // surface through it can rise, its farthest how low. 3 mm: two pixels at
+  // 640 x 480 (the gap in 14730's face), five at 1920 x 1200.
+  double dropout_reach = 0.003;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg -
