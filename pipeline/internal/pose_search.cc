@@ -44,7 +44,7 @@ constexpr double kNearSymmetryScreen = 0.8;
 // is also verified at its pose before the fine pass.
 constexpr double kKeepBetterThanFineBelow = 0.9;
 // The quick look of the near-symmetric turns, the turn axes and the
-// ambiguity screen: every third verification sample.
+// ambiguity screen, and ChooseTurn's: every third verification sample.
 constexpr int kQuickStride = 3;
 // ChooseTurn: the grid's best looks examined a step either side.
 constexpr size_t kProbedTurns = 3;
@@ -161,6 +161,12 @@ class SearchRun {
   }
   VerifyStats VerifyAt(const Pose& X_BO, int stride) const {
     return Verify(m_, X_BO, view_, *p_.support, p_.segment_depth, stride, search_.unmeasured_is_no_evidence);
+  }
+  // The same where only a score of at least `bar` is of use: a pose that
+  // cannot reach it is left half verified (VerifyStats::cut_short, its
+  // score below the bar; the passing ones' figures are exact).
+  VerifyStats VerifyAt(const Pose& X_BO, int stride, double bar) const {
+    return Verify(m_, X_BO, view_, *p_.support, p_.segment_depth, stride, search_.unmeasured_is_no_evidence, bar);
   }
   bool DuplicateOf(const Pose& X, const std::vector<Candidate>& kept) const {
     const double nms = opt_.nms_relative_distance * m_.diameter;
@@ -307,14 +313,15 @@ void SearchRun::FirstPass(std::vector<CoarsePose>& list) {
     // bar; the screen's bar is never above the pass's own.
     const double screen_bar = std::min(opt_.quick_screen_min_score, kFirstPassScoreFraction * min_score_);
     if (screen_bar > 0.0) {
-      Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, opt_.quick_screen_stride); });
+      Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, opt_.quick_screen_stride, screen_bar); });
       if (c.stats.score < screen_bar) {
         ++out_.screened_out;
         first_.push_back(c);
         continue;
       }
     }
-    Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 3); });
+    // Below this Survivors drops it.
+    Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 3, kFirstPassScoreFraction * min_score_); });
     first_.push_back(c);
     // The coarse poses after a pose this good have fewer votes and converge
     // to it or fail.
@@ -357,7 +364,12 @@ std::optional<Candidate> SearchRun::FinePass(Candidate c) {
   const Candidate before = c;
   c.X_BO = icp.X_BO;
   c.icp = icp;
-  Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 1); });
+  // A pose below the bar is dropped, unless the thorough search compares
+  // it with the pose before (keep_better_than_fine) or turns it
+  // (turns_below_bar): those need its full figures.
+  const bool below_bar_used = search_.keep_better_than_fine ||
+                              (search_.turns_below_bar && !m_.turn_axes.empty() && have_depth_);
+  Timed(verify_ms_, [&] { c.stats = VerifyAt(icp.X_BO, 1, below_bar_used ? -1.0 : min_score_); });
   if (search_.keep_better_than_fine && c.stats.score < kKeepBetterThanFineBelow) {
     VerifyStats st;
     Timed(verify_ms_, [&] { st = VerifyAt(before.X_BO, 1); });
@@ -475,7 +487,7 @@ std::optional<Candidate> SearchRun::RefineAt(const Pose& X_BO) {
   Candidate out;
   out.X_BO = icp.X_BO;
   out.icp = icp;
-  Timed(verify_ms_, [&] { out.stats = VerifyAt(icp.X_BO, 1); });
+  Timed(verify_ms_, [&] { out.stats = VerifyAt(icp.X_BO, 1, min_score_); });
   return out;
 }
 
@@ -524,7 +536,7 @@ std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<
     // As looked at first: a turn the view cannot tell from c (a hidden
     // branch) may still be one ICP slides back from; failing that, refined.
     VerifyStats as_is;
-    Timed(verify_ms_, [&] { as_is = VerifyAt(X, 1); });
+    Timed(verify_ms_, [&] { as_is = VerifyAt(X, 1, min_score_); });
     if (Passes(as_is, min_score_) && Net(as_is) >= full_bar) {
       take(X);
       continue;
@@ -572,7 +584,7 @@ void SearchRun::PreferMoreExplained(PoseHypothesis& h) {
   size_t best = h.alternatives.size();
   VerifyStats st;
   for (size_t k = 0; k < h.alternatives.size(); ++k) {
-    const VerifyStats sk = VerifyAt(h.alternatives[k], 1);
+    const VerifyStats sk = VerifyAt(h.alternatives[k], 1, min_score_);
     if (Passes(sk, min_score_) && Net(sk) > best_net) {
       best = k;
       best_net = Net(sk);

@@ -31,6 +31,9 @@ constexpr float kHoleMinCos = 0.3f;
 // what is behind, is an alignment error of a pixel, not evidence against the
 // pose.
 constexpr double kFreeSpaceReach = 0.0013;
+// Verify with a bar: the samples are taken in this many interleaved rounds,
+// and the bound checked after each.
+constexpr size_t kBoundRounds = 8;
 
 // True if every finite depth at (u, v) and at the 8 pixels `reach` away is
 // beyond `limit`.
@@ -200,7 +203,7 @@ bool SceneSupport::AnyWithin(const Eigen::Vector3f& p, float r, const Eigen::Vec
 }
 
 VerifyStats Verify(const PoseModel& m, const Pose& X_BO, const SceneView& view, const SceneSupport& scene,
-                   const SegmentDepth& segment_depth, int stride, bool unmeasured_is_no_evidence) {
+                   const SegmentDepth& segment_depth, int stride, bool unmeasured_is_no_evidence, double bar) {
   VerifyStats s;
   const Eigen::Matrix3f R = X_BO.linear().cast<float>();
   const Eigen::Vector3f t = X_BO.translation().cast<float>();
@@ -227,11 +230,12 @@ VerifyStats Verify(const PoseModel& m, const Pose& X_BO, const SceneView& view, 
   const Eigen::Vector3f t_CB = X_CB.translation().cast<float>();
   const float support = static_cast<float>(m.options.support_distance);
   const float free_thr = static_cast<float>(m.options.free_space_distance);
-  for (size_t i = 0; i < cands.size(); ++i) {
-    if (self.cell_of[i] < 0) continue;
+  // One sample's evidence into s.
+  const auto take = [&](size_t i) {
+    if (self.cell_of[i] < 0) return;
     const float cs = cands[i].cos;
     const float tan_theta = std::sqrt(std::max(0.f, 1 - cs * cs)) / cs;
-    if (self.Hidden(cands, i, c, tan_theta)) continue;  // hidden by the part itself
+    if (self.Hidden(cands, i, c, tan_theta)) return;  // hidden by the part itself
     ++s.visible;
     bool supported = false;
     if (have_depth) {
@@ -280,11 +284,35 @@ VerifyStats Verify(const PoseModel& m, const Pose& X_BO, const SceneView& view, 
       }
     }
     if (supported) ++s.supported;
+  };
+  const auto denominator = [&] { return s.visible - s.occluded - (unmeasured_is_no_evidence ? s.unmeasured : 0); };
+  const auto numerator = [&] { return s.supported - m.options.free_space_weight * s.free_space; };
+  if (!(bar > -1.0)) {
+    for (size_t i = 0; i < cands.size(); ++i) take(i);
+  } else {
+    // kBoundRounds interleaved rounds (every kBoundRounds-th sample from a
+    // rising offset: the counts are the same in any order), so that the
+    // samples seen after each round are spread over the part. After each,
+    // the samples left are assumed supported, each adding one to the
+    // numerator and to the denominator, the most one can add; below the
+    // bar even so, the pose cannot reach it.
+    const size_t rounds = std::min(kBoundRounds, cands.size());
+    size_t seen = 0;
+    for (size_t round = 0; round < rounds; ++round) {
+      if (round > 0) {
+        const double left = static_cast<double>(cands.size() - seen);
+        const double d = denominator() + left;
+        if (d > 0 && (numerator() + left) / d < bar) {
+          s.score = (numerator() + left) / d;
+          s.cut_short = true;
+          return s;
+        }
+      }
+      for (size_t i = round; i < cands.size(); i += rounds, ++seen) take(i);
+    }
   }
-  const int denom = s.visible - s.occluded - (unmeasured_is_no_evidence ? s.unmeasured : 0);
-  if (denom > 0) {
-    s.score = (s.supported - m.options.free_space_weight * s.free_space) / static_cast<double>(denom);
-  }
+  const int denom = denominator();
+  if (denom > 0) s.score = numerator() / static_cast<double>(denom);
   return s;
 }
 

@@ -67,13 +67,22 @@ struct VerifyStats {
   // (supported - free_space_weight * free_space) / (visible - occluded
   // [- unmeasured]); -1 when nothing is visible or below the support plane.
   double score = -1;
+  // Verify with a bar stopped once the score could no longer reach it: the
+  // counts are partial and score is the highest the rest could have made
+  // it (below the bar).
+  bool cut_short = false;
 };
 
 // Visibility, support and free-space test of the part at X_BO. stride > 1
 // checks every stride-th verification sample (a quick pass).
 // unmeasured_is_no_evidence: PoseSearch::unmeasured_is_no_evidence.
+// bar: a pose whose score is below it is of no use to the caller; the test
+// stops once the samples left, were each supported, could not lift the
+// score to it (VerifyStats::cut_short). A score that reaches the bar, and
+// every count with it, is the same as without one.
 VerifyStats Verify(const PoseModel& model, const Pose& X_BO, const SceneView& view, const SceneSupport& scene,
-                   const SegmentDepth& segment_depth, int stride = 1, bool unmeasured_is_no_evidence = false);
+                   const SegmentDepth& segment_depth, int stride = 1, bool unmeasured_is_no_evidence = false,
+                   double bar = -1.0);
 
 // Hole points in view and, of those, filled: where the measured surface goes
 // on through the part's hole (depth image only; {0, 0} without one).

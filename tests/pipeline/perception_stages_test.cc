@@ -822,5 +822,57 @@ TEST(PoseModelTables, ABlockHasSixFacesAndRestsOnEachAndItsTruePoseVerifiesBest)
   EXPECT_TRUE(Verify(m, sunk, view, support, SegmentDepth{}).below_support);
 }
 
+// Verify with a bar (PoseEstimatorOptions::verify_cut_short): over poses
+// from the true one to far off, at strides 1 and 3 and bars across the
+// scores, a pose it does not cut short has the figures of the full test,
+// and one it cuts short scores below the bar in full, its reported score
+// (the bound) at least the full one. Some of each are asserted to occur.
+TEST(PoseModelTables, VerifyWithABarCutsShortOnlyPosesBelowItAndKeepsTheOthersExact) {
+  const TriangleMesh block = testing::MakeTestBlock();
+  auto estimator = PoseEstimator::Build(block, Symmetry{});
+  ASSERT_TRUE(estimator.ok());
+  const PoseModel& m = PoseEstimatorAccess::Model(**estimator);
+  const TestCamera cam = DefaultCamera();
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.01, 0.0, 0.01));
+  const RenderedScene scene = Render({{&block, X_BO}}, cam, 0.0002, 5);
+  SceneView view;
+  view.points_B = scene.points_B;
+  view.X_BC = cam.X_BC;
+  view.depth = &scene.depth;
+  view.intrinsics = cam.K;
+  SceneSupport support;
+  support.Build(scene.points_B, 2.f * static_cast<float>(m.options.support_distance), view);
+  int cut = 0, kept = 0;
+  for (int k = 0; k < 12; ++k) {
+    const Mat3 turn(Eigen::AngleAxisd(0.12 * k, Vec3(0.3, 1.0, 0.2).normalized()));
+    const Pose X = MakePose(turn * X_BO.linear(), X_BO.translation() + Vec3(0.0015 * k, -0.001 * k, 0.0));
+    for (const int stride : {1, 3}) {
+      for (const bool unmeasured : {false, true}) {
+        const VerifyStats full = Verify(m, X, view, support, SegmentDepth{}, stride, unmeasured);
+        ASSERT_FALSE(full.cut_short);
+        for (const double bar : {0.2, 0.36, 0.6, 0.9}) {
+          const VerifyStats b = Verify(m, X, view, support, SegmentDepth{}, stride, unmeasured, bar);
+          if (b.cut_short) {
+            ++cut;
+            EXPECT_LT(full.score, bar) << "k " << k << " stride " << stride << " bar " << bar;
+            EXPECT_LT(b.score, bar);
+            EXPECT_GE(b.score, full.score - 1e-12);
+          } else {
+            ++kept;
+            EXPECT_EQ(b.score, full.score);
+            EXPECT_EQ(b.visible, full.visible);
+            EXPECT_EQ(b.occluded, full.occluded);
+            EXPECT_EQ(b.supported, full.supported);
+            EXPECT_EQ(b.free_space, full.free_space);
+            EXPECT_EQ(b.unmeasured, full.unmeasured);
+          }
+        }
+      }
+    }
+  }
+  EXPECT_GT(cut, 10);
+  EXPECT_GT(kept, 10);
+}
+
 }  // namespace
 }  // namespace bp::internal
