@@ -8,7 +8,8 @@
 #          no rebuild) installed into a scratch root and checked
 #          (tests/deploy/package_test.sh), the Dockerfile's lint and the
 #          Prometheus config, rules and their unit tests
-#          (tests/deploy/static_checks.sh)
+#          (tests/deploy/static_checks.sh); the asan and tsan trees of the
+#          stages that follow are configured beside these checks
 #   asan   every test under AddressSanitizer + UBSan (build-asan/; each test
 #          binary once, all its tests in one process). The tests run here
 #          only, not also in the normal build: compiling them twice cost
@@ -93,11 +94,31 @@ stage_build() {
   build/bin/bp_load --robots 8 --seconds 5
 }
 
+# Configures build dir $1 from preset $2 unless it is configured already; a
+# sanitizer tree configured with GCC before (clang-14 since 2026-12-03 for
+# asan, 2026-12-05 for tsan) is configured again.
+configure_tree() {
+  if [ -f "$1/CMakeCache.txt" ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' "$1/CMakeCache.txt"; then
+    rm -rf "$1"
+  fi
+  if [ ! -f "$1/CMakeCache.txt" ]; then cmake --preset "$2" >/dev/null; fi
+}
+
 stage_deploy() {
+  # The sanitizer trees of the stages that follow are configured beside the
+  # checks (about 5 s each, one core; the checks leave the other idle).
+  local trees=""
+  if [[ " $STAGES " == *" asan "* ]]; then trees+="build-asan:asan "; fi
+  if [[ " $STAGES " == *" tsan "* || " $STAGES " == *" tsan-all "* ]]; then trees+="build-tsan:tsan "; fi
+  if [ -n "$trees" ]; then
+    bg_build build-configure.log bash -c "$(declare -f configure_tree)"'
+      for t in "$@"; do configure_tree "${t%%:*}" "${t##*:}"; done' _ $trees
+  fi
   local deb
   deb=$(scripts/package.sh)
   tests/deploy/package_test.sh "$deb"
   tests/deploy/static_checks.sh
+  bg_wait
 }
 
 stage_tests() {
@@ -147,12 +168,7 @@ bg_wait() {
 trap 'if [ -n "$bg_pid" ]; then kill "$bg_pid" 2>/dev/null || true; fi' EXIT
 
 stage_asan() {
-  # clang-14 since 2026-12-03; a tree configured with GCC before is
-  # configured again.
-  if [ -f build-asan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-asan/CMakeCache.txt; then
-    rm -rf build-asan
-  fi
-  if [ ! -f build-asan/CMakeCache.txt ]; then cmake --preset asan >/dev/null; fi
+  configure_tree build-asan asan
   # The test binaries and the programs they run (binpickd, binpick,
   # binpick-robot), then the rest of the tree beside their runs: the
   # benches, a compile-and-link check (the preset's BINPICK_BENCH_CHECK_ONLY).
@@ -176,12 +192,7 @@ stage_asan() {
 # Builds the named test binaries in build-tsan/ and runs them under
 # ThreadSanitizer, in the order given (the longest first: two at a time).
 run_tsan() {
-  # clang-14 like the asan stage since 2026-12-05; a tree configured with GCC
-  # before is configured again.
-  if [ -f build-tsan/CMakeCache.txt ] && ! grep -q '^CMAKE_CXX_COMPILER:.*clang++-14' build-tsan/CMakeCache.txt; then
-    rm -rf build-tsan
-  fi
-  if [ ! -f build-tsan/CMakeCache.txt ]; then cmake --preset tsan >/dev/null; fi
+  configure_tree build-tsan tsan
   cmake --build build-tsan --parallel "$JOBS" --target "$@"
   # The fuzz stage's tree beside the runs, when that stage comes next (its
   # gate's inputs depend on the seed and counts only, not on how it was
