@@ -43,6 +43,7 @@ TARGETS=(mesh_fuzz cell_yaml_fuzz pcd_fuzz ply_frame_fuzz depth_png_fuzz daoai_r
 if [ $# -gt 0 ]; then TARGETS=("$@"); fi
 
 export CCACHE_BASEDIR="$PWD" CCACHE_NOHASHDIR=true
+if [ -z "${CCACHE_NODEPEND:-}" ]; then export CCACHE_DEPEND=1; fi  # as scripts/build.sh
 if [ ! -f build-fuzz/CMakeCache.txt ]; then cmake --preset fuzz >/dev/null; fi
 cmake --build build-fuzz --target "${TARGETS[@]}"
 
