@@ -117,7 +117,7 @@ stage_deploy() {
   if [[ " $STAGES " == *" asan "* ]]; then trees+="build-asan:asan "; fi
   if [[ " $STAGES " == *" tsan "* || " $STAGES " == *" tsan-all "* ]]; then trees+="build-tsan:tsan "; fi
   if [ -n "$trees" ]; then
-    bg_build build-configure.log bash -c "$(declare -f configure_tree)"'
+    bg_build build/configure-trees.log bash -c "$(declare -f configure_tree)"'
       for t in "$@"; do configure_tree "${t%%:*}" "${t##*:}"; done' _ $trees
   fi
   local deb
