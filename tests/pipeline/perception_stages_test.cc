@@ -792,9 +792,28 @@ TEST(DepthSmoothing, TheRadiusIsTheSmallestThatReachesTheTarget) {
 // The model tables of a 60 x 40 x 20 mm block: six faces, six resting
 // orientations, no holes; verification scores its true pose near 1, a pose
 // 10 mm off lower, a pose sunk into the support plane below it.
+// The test block turned 0.3 rad about z on the bin floor, rendered by the
+// default camera, as a view (`support_plane` set: the floor) and its
+// support index for Verify.
+struct BlockView {
+  BlockView(const PoseModel& m, bool support_plane) : scene(Render({{&block, X_BO}}, cam, 0.0002, 5)) {
+    view.points_B = scene.points_B;
+    view.X_BC = cam.X_BC;
+    view.depth = &scene.depth;
+    view.intrinsics = cam.K;
+    if (support_plane) view.support_plane_B = Eigen::Vector4d(0, 0, 1, 0);
+    support.Build(scene.points_B, 2.f * static_cast<float>(m.options.support_distance), view);
+  }
+  static inline const TriangleMesh block = testing::MakeTestBlock();
+  const TestCamera cam = DefaultCamera();
+  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.01, 0.0, 0.01));
+  RenderedScene scene;
+  SceneView view;
+  SceneSupport support;
+};
+
 TEST(PoseModelTables, ABlockHasSixFacesAndRestsOnEachAndItsTruePoseVerifiesBest) {
-  const TriangleMesh block = testing::MakeTestBlock();
-  auto estimator = PoseEstimator::Build(block, Symmetry{});
+  auto estimator = PoseEstimator::Build(BlockView::block, Symmetry{});
   ASSERT_TRUE(estimator.ok());
   const PoseModel& m = PoseEstimatorAccess::Model(**estimator);
   EXPECT_EQ(m.faces.size(), 6u);
@@ -802,17 +821,10 @@ TEST(PoseModelTables, ABlockHasSixFacesAndRestsOnEachAndItsTruePoseVerifiesBest)
   ASSERT_EQ(m.rests.size(), 6u);
   for (const RestingPose& r : m.rests) EXPECT_NEAR(r.down.cwiseAbs().maxCoeff(), 1.f, 1e-3f);
 
-  const TestCamera cam = DefaultCamera();
-  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.01, 0.0, 0.01));
-  const RenderedScene scene = Render({{&block, X_BO}}, cam, 0.0002, 5);
-  SceneView view;
-  view.points_B = scene.points_B;
-  view.X_BC = cam.X_BC;
-  view.depth = &scene.depth;
-  view.intrinsics = cam.K;
-  view.support_plane_B = Eigen::Vector4d(0, 0, 1, 0);
-  SceneSupport support;
-  support.Build(scene.points_B, 2.f * static_cast<float>(m.options.support_distance), view);
+  const BlockView bv(m, /*support_plane=*/true);
+  const SceneView& view = bv.view;
+  const SceneSupport& support = bv.support;
+  const Pose& X_BO = bv.X_BO;
   const VerifyStats at_truth = Verify(m, X_BO, view, support, SegmentDepth{});
   EXPECT_GT(at_truth.score, 0.95);
   EXPECT_GT(at_truth.visible, 50);
@@ -822,26 +834,20 @@ TEST(PoseModelTables, ABlockHasSixFacesAndRestsOnEachAndItsTruePoseVerifiesBest)
   EXPECT_TRUE(Verify(m, sunk, view, support, SegmentDepth{}).below_support);
 }
 
-// Verify with a bar (PoseEstimatorOptions::verify_cut_short): over poses
+// Verify with a bar (what the pose search passes where only a pose above
+// its bar is of use, pipeline/internal/pose_search.cc): over poses
 // from the true one to far off, at strides 1 and 3 and bars across the
 // scores, a pose it does not cut short has the figures of the full test,
 // and one it cuts short scores below the bar in full, its reported score
 // (the bound) at least the full one. Some of each are asserted to occur.
 TEST(PoseModelTables, VerifyWithABarCutsShortOnlyPosesBelowItAndKeepsTheOthersExact) {
-  const TriangleMesh block = testing::MakeTestBlock();
-  auto estimator = PoseEstimator::Build(block, Symmetry{});
+  auto estimator = PoseEstimator::Build(BlockView::block, Symmetry{});
   ASSERT_TRUE(estimator.ok());
   const PoseModel& m = PoseEstimatorAccess::Model(**estimator);
-  const TestCamera cam = DefaultCamera();
-  const Pose X_BO = MakePose(Mat3(Eigen::AngleAxisd(0.3, Vec3::UnitZ())), Vec3(0.01, 0.0, 0.01));
-  const RenderedScene scene = Render({{&block, X_BO}}, cam, 0.0002, 5);
-  SceneView view;
-  view.points_B = scene.points_B;
-  view.X_BC = cam.X_BC;
-  view.depth = &scene.depth;
-  view.intrinsics = cam.K;
-  SceneSupport support;
-  support.Build(scene.points_B, 2.f * static_cast<float>(m.options.support_distance), view);
+  const BlockView bv(m, /*support_plane=*/false);
+  const SceneView& view = bv.view;
+  const SceneSupport& support = bv.support;
+  const Pose& X_BO = bv.X_BO;
   int cut = 0, kept = 0;
   for (int k = 0; k < 12; ++k) {
     const Mat3 turn(Eigen::AngleAxisd(0.12 * k, Vec3(0.3, 1.0, 0.2).normalized()));
