@@ -24,6 +24,7 @@
 #include "grasp/internal/contact_region.h"
 #include "grasp/internal/occupancy_grid.h"
 #include "pipeline/evaluation.h"
+#include "pipeline/internal/depth_window.h"
 
 namespace bp {
 
@@ -755,14 +756,13 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
   int u0 = w, u1 = -1, v0 = h, v1 = -1;
   for (const Eigen::Vector3f& p : rest) {
     const Eigen::Vector3f c = X_CB * p;
-    if (!(c.z() > 0)) continue;
-    const long u = std::lround(K.fx * c.x() / c.z() + K.cx), v = std::lround(K.fy * c.y() / c.z() + K.cy);
-    if (u < 0 || v < 0 || u >= w || v >= h) continue;
-    pixels.emplace_back(static_cast<int>(u), static_cast<int>(v), c.z());
-    u0 = std::min(u0, static_cast<int>(u) - r);
-    u1 = std::max(u1, static_cast<int>(u) + r);
-    v0 = std::min(v0, static_cast<int>(v) - r);
-    v1 = std::max(v1, static_cast<int>(v) + r);
+    int u = 0, v = 0;
+    if (!internal::PixelOf(K, frame.depth, c, &u, &v)) continue;
+    pixels.emplace_back(u, v, c.z());
+    u0 = std::min(u0, u - r);
+    u1 = std::max(u1, u + r);
+    v0 = std::min(v0, v - r);
+    v1 = std::max(v1, v + r);
   }
   if (pixels.empty()) return out;
   u0 = std::max(u0, 0), v0 = std::max(v0, 0), u1 = std::min(u1, w - 1), v1 = std::min(v1, h - 1);

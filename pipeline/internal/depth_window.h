@@ -1,7 +1,8 @@
 // Pixel arithmetic of the pose estimator's verification on an organized
 // depth image (pinhole, no distortion): the pixel a point projects to, and a
 // test of the pixels around it that rules out cheaply that any point of the
-// image lies near a given point. Header-only; private to bp_pipeline.
+// image lies near a given point. Header-only; used by bp_pipeline and the
+// grasp planner (its dropout rays).
 #pragma once
 
 #include <algorithm>
