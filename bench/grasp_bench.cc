@@ -16,6 +16,7 @@
 #include <cstdlib>
 
 #include "grasp/grasp_planning.h"
+#include "pipeline/perception.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 
@@ -136,6 +137,83 @@ void BM_FilterAllCandidates20PartsAllPointsObstacles(benchmark::State& state) {
   Run(state, state.range(1) == 2 ? wuxga : vga);
 }
 BENCHMARK(BM_FilterAllCandidates20PartsAllPointsObstacles)->Apply(Args);
+
+// The grasp stage as `binpick eval --variety` runs it (issue 40's target):
+// perception's own detections on frames of the tuning range (seeds 1001-1008,
+// the default cell with its variety: grazing dropout, mixed pixels), so that
+// the obstacles hold what perception leaves unexplained and the dropout rays
+// beside it. Each iteration plans the 8 frames once (its time is theirs;
+// obstacles_ms and queued_parts are per frame).
+// Args: threads (1: the CPU column is all the work), camera config,
+// GraspPlanningOptions::dropout_ends_at_parts.
+struct PerceivedFrames {
+  Cell cell;
+  std::vector<Frame> frames;
+  std::vector<PerceptionResult> results;
+};
+
+PerceivedFrames MakePerceivedFrames(int config) {
+  PerceivedFrames b;
+  auto cell = LoadDefaultCell();
+  if (!cell.ok()) Die(cell.status());
+  b.cell = *cell;
+  if (!b.cell.source.variety) b.cell.source.variety = VarietySpec{};
+  PerceptionOptions options;
+  options.threads = 2;
+  auto perception = Perception::Build(b.cell, options);
+  if (!perception.ok()) Die(perception.status());
+  for (uint64_t seed = 1001; seed <= 1008; ++seed) {
+    Cell scene = b.cell;
+    scene.source.kind = SourceSpec::Kind::kSynthetic;
+    scene.source.seed = seed;
+    auto source = MakeSyntheticSource(scene);
+    if (!source.ok()) Die(source.status());
+    CaptureRequest capture;
+    capture.config_id = config;
+    auto frame = (*source)->Capture(capture);
+    if (!frame.ok()) Die(frame.status());
+    tbb::task_arena arena(2);
+    Result<PerceptionResult> result = Status::Internal("not run");
+    arena.execute([&] { result = (*perception)->Run(*frame); });
+    if (!result.ok()) Die(result.status());
+    b.frames.push_back(std::move(*frame));
+    b.results.push_back(std::move(*result));
+  }
+  return b;
+}
+
+void BM_PlanPerceivedVarietyFrames(benchmark::State& state) {
+  static const PerceivedFrames vga = MakePerceivedFrames(1);
+  static const PerceivedFrames wuxga = MakePerceivedFrames(2);
+  const PerceivedFrames& s = state.range(1) == 2 ? wuxga : vga;
+  GraspPlanningOptions options;
+  options.dropout_ends_at_parts = state.range(2) != 0;
+  auto model = GraspPlanningModel::Build(s.cell, options);
+  if (!model.ok()) Die(model.status());
+  const TaskSpec task = *s.cell.FindTask(0);
+  tbb::task_arena arena(static_cast<int>(state.range(0)));
+  double obstacles_ms = 0;
+  int queued = 0;
+  for (auto _ : state) {
+    for (size_t i = 0; i < s.frames.size(); ++i) {
+      GraspPlan plan;
+      arena.execute([&] { plan = PlanGrasps(**model, task, s.results[i], {}, &s.frames[i]); });
+      obstacles_ms += plan.stats.obstacles_ms;
+      queued += static_cast<int>(plan.queue.size());
+      benchmark::DoNotOptimize(plan.queue.data());
+    }
+  }
+  const double plans = static_cast<double>(state.iterations() * s.frames.size());
+  state.counters["frames"] = static_cast<double>(s.frames.size());
+  state.counters["obstacles_ms"] = obstacles_ms / plans;  // wall, per frame
+  state.counters["queued_parts"] = queued / plans;
+  state.SetItemsProcessed(static_cast<int64_t>(plans));
+}
+BENCHMARK(BM_PlanPerceivedVarietyFrames)
+    ->ArgNames({"threads", "config", "ends_at_parts"})
+    ->ArgsProduct({{1, 2}, {1, 2}, {0, 1}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // The first pose early (issue 40 item 3): the same plan with a head wanted
 // (PlanGrasps's on_head) or not; head_ms is when the head was told (from

@@ -443,6 +443,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   planner_options.thorough_retry_ms = options.thorough_retry_ms;
   planner_options.thorough_retry_estimates = options.thorough_retry_estimates;
   planner_options.planning.part_margin = options.part_margin;
+  planner_options.planning.dropout_ends_at_parts = options.dropout_ends_at_parts;
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
   if (!planner.ok()) return planner.status();
   BinPickingPlanner& p = **planner;

@@ -62,6 +62,9 @@ struct ClearOptions {
   // The plan's margin from the other detected parts, m
   // (GraspPlanningOptions::part_margin; `--part-margin-mm`, to measure it).
   double part_margin = GraspPlanningOptions{}.part_margin;
+  // GraspPlanningOptions::dropout_ends_at_parts (`--dropout-ends-at-parts`,
+  // to measure it).
+  bool dropout_ends_at_parts = GraspPlanningOptions{}.dropout_ends_at_parts;
   GraspJudgeOptions judge;
   // Fraction in [0, 1] of the picks the judge lets succeed that the
   // simulated robot fails anyway, at random (`--slip`: the vacuum breaks, the

@@ -23,6 +23,7 @@
 #include "core/mesh_gen.h"
 #include "grasp/internal/contact_region.h"
 #include "grasp/internal/occupancy_grid.h"
+#include "grasp/internal/surface_depth.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/internal/depth_window.h"
 
@@ -726,22 +727,28 @@ void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, 
   });
 }
 
-// The unseen space along the rays of an organized frame's pixels without a
-// measurement (dropout: grazing surfaces, depth edges) near a measured point
-// no detection explains (`rest`, B), as points in B every `step` m: on each
-// such ray, from the nearest unexplained depth within `reach` (m across the
-// view on the bin floor: a window of (2r + 1)^2 pixels) to the farthest
-// depth measured in that window, kept inside the ROI (GraspPlanningOptions::
-// dropout_reach has why). `columns` > 0: the occluded columns of that edge
-// (m, in W) will fill the space below each point, and a ray's point is kept
-// only where it enters another column. O(rest + box pixels + unmeasured
-// pixels near one * r^2).
-std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell, const Pose& X_BW, double reach,
-                                           double step, float columns, std::span<const Eigen::Vector3f> rest) {
-  std::vector<Eigen::Vector3f> out;
+// A dropout ray (GraspPlanningOptions::dropout_reach): the pixel (u, v) of
+// an organized frame without a measurement, and the stretch of its ray
+// (depth, m along the camera's z) that may hold an unseen surface.
+struct DropoutRay {
+  int u = 0, v = 0;
+  float near = 0.f, far = 0.f;
+};
+
+// The dropout rays of `frame` beside the measured points no detection
+// explains (`rest`, B): every pixel without a measurement within `reach` (m
+// across the view on the bin floor: a window of (2r + 1)^2 pixels) of such a
+// point's pixel, from the nearest unexplained depth in that window to the
+// farthest depth measured there. `window`: the pixels within r of an
+// unexplained point's pixel (clipped to the image), the rays' pixels flagged
+// in window->wanted. O(rest + window pixels + rays * r^2).
+std::vector<DropoutRay> FindDropoutRays(const Frame& frame, const Pose& X_BW, double reach,
+                                        std::span<const Eigen::Vector3f> rest, internal::PixelWindow* window,
+                                        std::vector<uint8_t>* wanted) {
+  std::vector<DropoutRay> rays;
   const int w = frame.depth.width, h = frame.depth.height;
   const double z_floor = std::abs((frame.X_BC.inverse() * X_BW.translation()).z());
-  if (w == 0 || h == 0 || !(z_floor > 0) || rest.empty() || !(step > 0)) return out;
+  if (w == 0 || h == 0 || !(z_floor > 0) || rest.empty()) return rays;
   const int r = std::clamp(static_cast<int>(std::ceil(reach * frame.intrinsics.fx / z_floor)), 1, 32);
   const auto measured = [&frame](int u, int v) {
     const float z = frame.depth.at(u, v);
@@ -764,7 +771,7 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
     v0 = std::min(v0, v - r);
     v1 = std::max(v1, v + r);
   }
-  if (pixels.empty()) return out;
+  if (pixels.empty()) return rays;
   u0 = std::max(u0, 0), v0 = std::max(v0, 0), u1 = std::min(u1, w - 1), v1 = std::min(v1, h - 1);
   const int bw = u1 - u0 + 1, bh = v1 - v0 + 1;
   // The nearest unexplained depth per pixel of the box, and the count of
@@ -784,6 +791,81 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
                          at(u, v);
     }
   }
+  // The window's extremes row by row (separable): per pixel of a ray's
+  // column, the nearest unexplained depth over its row's 2r + 1 pixels (in
+  // the box, where they are) and the farthest measured one (in the image,
+  // rows up to r above and below the box), each computed once, when a ray
+  // first needs it (rays lie in blobs: about one row per ray, not 2r + 1).
+  constexpr float kUnset = -1.f;  // depths are > 0, none is +inf / 0
+  const int fv0 = std::max(0, v0 - r), fv1 = std::min(h - 1, v1 + r);
+  std::vector<float> row_near(static_cast<size_t>(bw) * bh, kUnset);
+  std::vector<float> row_far(static_cast<size_t>(bw) * (fv1 - fv0 + 1), kUnset);
+  const auto near_in_row = [&](int u, int y) {  // y: image row in the box
+    float& n = row_near[static_cast<size_t>(y - v0) * bw + (u - u0)];
+    if (n == kUnset) {
+      n = kNone;
+      const float* line = &unexplained[static_cast<size_t>(y - v0) * bw];
+      for (int x = std::max(u - r, u0); x <= std::min(u + r, u1); ++x) n = std::min(n, line[x - u0]);
+    }
+    return n;
+  };
+  const auto far_in_row = [&](int u, int y) {  // y: image row within r of the box
+    float& f = row_far[static_cast<size_t>(y - fv0) * bw + (u - u0)];
+    if (f == kUnset) {
+      f = 0.f;
+      for (int x = std::max(0, u - r); x <= std::min(w - 1, u + r); ++x) {
+        if (measured(x, y)) f = std::max(f, frame.depth.at(x, y));
+      }
+    }
+    return f;
+  };
+  wanted->assign(static_cast<size_t>(bw) * bh, 0);
+  for (int v = v0; v <= v1; ++v) {
+    for (int u = u0; u <= u1; ++u) {
+      if (measured(u, v)) continue;
+      const int a = std::max(u - r, u0) - u0, b = std::min(u + r, u1) - u0 + 1;
+      const int c = std::max(v - r, v0) - v0, d = std::min(v + r, v1) - v0 + 1;
+      if (at(b, d) - at(a, d) - at(b, c) + at(a, c) == 0) continue;
+      float near = kNone, far = 0.f;
+      for (int y = c + v0; y < d + v0; ++y) near = std::min(near, near_in_row(u, y));
+      for (int y = std::max(0, v - r); y <= std::min(h - 1, v + r); ++y) far = std::max(far, far_in_row(u, y));
+      rays.push_back({u, v, near, std::max(far, near)});
+      (*wanted)[static_cast<size_t>(v - v0) * bw + (u - u0)] = 1;
+    }
+  }
+  *window = internal::PixelWindow{u0, v0, bw, bh, *wanted};
+  return rays;
+}
+
+// Ends each ray where it meets the surface of a detected part (`parts`, B;
+// internal::NearestSurfaceDepth over the rays' pixels): the space behind it,
+// seen from the camera, is that part, an obstacle of its own. A ray whose
+// stretch starts behind such a surface is dropped.
+void EndRaysAtParts(const Frame& frame, std::span<const internal::PlacedMesh> parts,
+                    const internal::PixelWindow& window, std::vector<DropoutRay>& rays) {
+  if (rays.empty() || parts.empty()) return;
+  const std::vector<float> surface = internal::NearestSurfaceDepth(frame.intrinsics, frame.X_BC, parts, window);
+  size_t kept = 0;
+  for (const DropoutRay& ray : rays) {
+    const float s = surface[static_cast<size_t>(ray.v - window.v0) * window.width + (ray.u - window.u0)];
+    if (s < ray.near) continue;
+    rays[kept] = ray;
+    rays[kept].far = std::min(ray.far, s);
+    ++kept;
+  }
+  rays.resize(kept);
+}
+
+// The unseen space along `rays` (FindDropoutRays) as points in B every
+// `step` m from each ray's near to its far depth, kept inside the ROI
+// (GraspPlanningOptions::dropout_reach has why). `columns` > 0: the occluded
+// columns of that edge (m, in W) will fill the space below each point, and
+// a ray's point is kept only where it enters another column.
+std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell, const Pose& X_BW,
+                                           std::span<const DropoutRay> rays, double step, float columns) {
+  std::vector<Eigen::Vector3f> out;
+  if (!(step > 0)) return out;
+  const Intrinsics& K = frame.intrinsics;
   const Eigen::Isometry3f X_BC = frame.X_BC.cast<float>();
   const Eigen::Isometry3f X_WB = X_BW.inverse().cast<float>();
   const Eigen::Vector3f half(static_cast<float>(cell.bin.inner_size.x() / 2 - cell.roi.wall_margin),
@@ -793,35 +875,19 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
     return std::abs(p_W.x()) <= half.x() && std::abs(p_W.y()) <= half.y() && p_W.z() >= cell.roi.floor_margin &&
            p_W.z() <= cell.roi.height;
   };
-  for (int v = v0; v <= v1; ++v) {
-    for (int u = u0; u <= u1; ++u) {
-      if (measured(u, v)) continue;
-      const int a = std::max(u - r, u0) - u0, b = std::min(u + r, u1) - u0 + 1;
-      const int c = std::max(v - r, v0) - v0, d = std::min(v + r, v1) - v0 + 1;
-      if (at(b, d) - at(a, d) - at(b, c) + at(a, c) == 0) continue;
-      float near = kNone, far = 0.f;
-      for (int y = c; y < d; ++y) {
-        for (int x = a; x < b; ++x) near = std::min(near, unexplained[static_cast<size_t>(y) * bw + x]);
+  for (const DropoutRay& r : rays) {
+    const Eigen::Vector3f ray = Deproject(K, static_cast<float>(r.u), static_cast<float>(r.v), 1.f);
+    Eigen::Array2i last(std::numeric_limits<int>::min(), 0);
+    for (float z = r.near;; z += static_cast<float>(step)) {
+      const Eigen::Vector3f p_B = X_BC * (ray * std::min(z, r.far));
+      // With the columns, a point below another of the ray in its column adds nothing.
+      const Eigen::Array2i column =
+          columns > 0 ? ((X_WB * p_B).head<2>().array() / columns).floor().cast<int>().eval() : last + 1;
+      if (in_roi(p_B) && (column != last).any()) {
+        out.push_back(p_B);
+        last = column;
       }
-      for (int y = std::max(0, v - r); y <= std::min(h - 1, v + r); ++y) {
-        for (int x = std::max(0, u - r); x <= std::min(w - 1, u + r); ++x) {
-          if (measured(x, y)) far = std::max(far, frame.depth.at(x, y));
-        }
-      }
-      far = std::max(far, near);
-      const Eigen::Vector3f ray = Deproject(K, static_cast<float>(u), static_cast<float>(v), 1.f);
-      Eigen::Array2i last(std::numeric_limits<int>::min(), 0);
-      for (float z = near;; z += static_cast<float>(step)) {
-        const Eigen::Vector3f p_B = X_BC * (ray * std::min(z, far));
-        // With the columns, a point below another of the ray in its column adds nothing.
-        const Eigen::Array2i column =
-            columns > 0 ? ((X_WB * p_B).head<2>().array() / columns).floor().cast<int>().eval() : last + 1;
-        if (in_roi(p_B) && (column != last).any()) {
-          out.push_back(p_B);
-          last = column;
-        }
-        if (z >= far) break;
-      }
+      if (z >= r.far) break;
     }
   }
   return out;
@@ -854,12 +920,25 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   for (size_t i = 0; i < explained.size(); ++i) {
     if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
   }
-  // The unseen space along the dropout rays beside them (dropout_reach).
+  // The unseen space along the dropout rays beside them (dropout_reach),
+  // ended at the detected parts' surfaces (dropout_ends_at_parts).
   if (frame != nullptr && frame->organized() && m.options.dropout_reach > 0) {
     const double res = m.options.octree_resolution;
+    const Pose& X_BW = BinPoseOf(perception, m.cell.bin);
+    internal::PixelWindow window;
+    std::vector<uint8_t> wanted;
+    std::vector<DropoutRay> rays = FindDropoutRays(*frame, X_BW, m.options.dropout_reach, rest, &window, &wanted);
+    if (m.options.dropout_ends_at_parts) {
+      std::vector<internal::PlacedMesh> parts;
+      for (const Detection& d : detections) {
+        if (auto mesh = m.part_meshes.find(d.class_id); mesh != m.part_meshes.end()) {
+          parts.push_back({&mesh->second, d.X_BO});
+        }
+      }
+      EndRaysAtParts(*frame, parts, window, rays);
+    }
     const std::vector<Eigen::Vector3f> dropout =
-        DropoutPoints(*frame, m.cell, BinPoseOf(perception, m.cell.bin), m.options.dropout_reach, res / 2,
-                      m.options.occluded_columns ? static_cast<float>(res) : 0.f, rest);
+        DropoutPoints(*frame, m.cell, X_BW, rays, res / 2, m.options.occluded_columns ? static_cast<float>(res) : 0.f);
     rest.insert(rest.end(), dropout.begin(), dropout.end());
   }
   const double res = m.options.octree_resolution;

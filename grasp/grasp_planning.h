@@ -18,8 +18,9 @@
 // and against the scene points not explained by any detection (an FCL
 // OcTree built once per frame, behind a dense occupancy-bitmap pre-filter),
 // with the space below them down to the floor and, on an organized frame,
-// the rays of the pixels without a measurement beside them (dropout_reach):
-// what the camera did not see next to an undetected part may be that part.
+// the rays of the pixels without a measurement beside them (dropout_reach),
+// up to the first detected part they meet (dropout_ends_at_parts): what the
+// camera did not see next to an undetected part may be that part.
 // Its own part is checked with the gripper lifted by contact_margin along
 // -z, and so are the points for a suction gripper: the cup touches the part
 // at the grasp point by design, and the points are inflated by a voxel. A
@@ -173,6 +174,15 @@ struct GraspPlanningOptions {
   // surface through it can rise, its farthest how low. 3 mm: two pixels at
   // 640 x 480 (the gap in 14730's face), five at 1920 x 1200.
   double dropout_reach = 0.003;
+  // A dropout ray ends where it meets a detected part's surface (the
+  // detections' meshes at their poses, the nearest surface along the ray),
+  // before the farthest depth measured near it; a ray that starts behind
+  // one is dropped. Why: the space behind a detected part, seen from the
+  // camera, is that part, an obstacle already (another part's mesh, or its
+  // own for the self check); ray points there, inflated to their voxels,
+  // refused cups on and beside the part for nothing (docs/tuning.md
+  // "Unseen space"). false: to the farthest depth (the first rule).
+  bool dropout_ends_at_parts = true;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg -

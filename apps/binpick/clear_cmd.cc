@@ -42,6 +42,7 @@ struct ClearCliOptions {
   double thorough_retry_ms = ClearOptions{}.thorough_retry_ms;
   int thorough_retry_estimates = ClearOptions{}.thorough_retry_estimates;
   double part_margin_mm = 1000 * ClearOptions{}.part_margin;
+  bool dropout_ends_at_parts = ClearOptions{}.dropout_ends_at_parts;
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
@@ -156,6 +157,7 @@ int Run(const ClearCliOptions& opt) {
   options.thorough_retry_ms = opt.thorough_retry_ms;
   options.thorough_retry_estimates = opt.thorough_retry_estimates;
   options.part_margin = opt.part_margin_mm / 1000;
+  options.dropout_ends_at_parts = opt.dropout_ends_at_parts;
   options.slip_rate = opt.slip;
   options.slip_seed = opt.slip_seed;
   options.feedback = !opt.no_feedback;
@@ -247,6 +249,10 @@ Command ClearCommand() {
                    "(GraspPlanningOptions::part_margin: a neighbour detected a few tenths of a mm off is not grazed)")
         ->capture_default_str()
         ->check(CLI::NonNegativeNumber);
+    sub.add_option("--dropout-ends-at-parts", opt->dropout_ends_at_parts,
+                   "true: an unseen dropout ray beside an unexplained point ends at a detected part's surface; "
+                   "false: at the farthest depth measured near it (GraspPlanningOptions::dropout_ends_at_parts)")
+        ->capture_default_str();
     sub.add_flag("--variety", opt->variety,
                  "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "
                  "source.variety, else the defaults; docs/synthetic.md)");

@@ -73,6 +73,7 @@ struct EvalCliOptions {
   double tol_mm = 5.0;
   double tol_deg = 5.0;
   int task_id = 0;    // the pick task whose grasps are judged; < 0: no grasps
+  bool dropout_ends_at_parts = GraspPlanningOptions{}.dropout_ends_at_parts;
   bool variety = false;
   BinCliOptions bin;
   double normal_angle_deg = -1.0;
@@ -768,7 +769,9 @@ int Run(const EvalCliOptions& opt) {
     if (task == nullptr || task->kind != TaskSpec::Kind::kPick) {
       return Fail(cmd, Status::InvalidArgument("--task " + std::to_string(opt.task_id) + " is not a pick task of the cell"));
     }
-    auto built = GraspPlanningModel::Build(*cell);
+    GraspPlanningOptions planning;
+    planning.dropout_ends_at_parts = opt.dropout_ends_at_parts;
+    auto built = GraspPlanningModel::Build(*cell, planning);
     if (!built.ok()) return Fail(cmd, built.status());
     grasp_model = std::move(*built);
   }
@@ -902,6 +905,10 @@ Command EvalCommand() {
                    sub.add_option("--task", opt->task_id,
                                   "pick task whose grasps are planned on the detections and judged against the "
                                   "truth (-1: none)")
+                       ->capture_default_str();
+                   sub.add_option("--dropout-ends-at-parts", opt->dropout_ends_at_parts,
+                                  "grasp stage: true, an unseen dropout ray ends at a detected part's surface; "
+                                  "false, at the farthest depth measured near it")
                        ->capture_default_str();
                    sub.add_option("--normal-angle", opt->normal_angle_deg,
                                   "segmentation normal-angle threshold, degrees (tuning)");
