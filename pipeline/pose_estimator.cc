@@ -252,7 +252,8 @@ Result<PoseHypothesis> PoseEstimator::Score(const SceneView& view, const Pose& X
       have_depth || pts.empty()
           ? internal::SegmentDepth{}
           : internal::BuildSegmentDepth(pts, view.X_BC.translation().cast<float>(), 1.5f * static_cast<float>(m.options.verify_model_spacing));
-  const internal::VerifyStats st = internal::Verify(m, X_BO, view, support, segment_depth, 1, false);
+  const internal::VerifyStats st =
+      internal::Verify(m, X_BO, view, support, segment_depth, 1, m.options.unmeasured_is_no_evidence);
   PoseHypothesis h;
   h.X_BO = X_BO;
   h.score = st.below_support ? -1.0 : st.score;

@@ -309,8 +309,9 @@ class PoseEstimator {
   // The search Estimate(view) runs: the options' counts and coarse_stop_score.
   PoseSearch default_search() const;
   // Verification alone of a given pose against the view (no search, no
-  // refinement): the score and counts Estimate gives a hypothesis at X_BO.
-  // For diagnostics, e.g. how the true pose of a missed part scores.
+  // refinement): the score and counts Estimate(view) gives a hypothesis at
+  // X_BO (its default search's unmeasured_is_no_evidence). For diagnostics,
+  // e.g. how the true pose of a missed part scores.
   Result<PoseHypothesis> Score(const SceneView& view, const Pose& X_BO) const;
 
   // Sets (*on_surface)[i] = 1 for the points_B within `tolerance` (metres)

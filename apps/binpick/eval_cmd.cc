@@ -41,10 +41,30 @@
 namespace bp::cli {
 namespace {
 
-// Debug diagnostics only: the class's pose estimator, built into `built` on
-// first use (hundreds of ms per part); null if its mesh does not load.
-const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id,
-                                         std::map<int, std::unique_ptr<PoseEstimator>>& built) {
+// The estimator options perception hands every class (Perception::Build's
+// reference), not scaled to the part and camera: the diagnostics verify and
+// search by the pipeline's rules (unmeasured_is_no_evidence: a grazing face
+// over pixels without depth is no evidence; planar_view_min_share).
+PoseEstimatorOptions DiagnosticEstimatorOptions(const PerceptionOptions& popt) {
+  PoseEstimatorOptions o;
+  o.max_support_penetration = popt.max_support_penetration;
+  o.ambiguity_net_gain = popt.ambiguity_net_gain;
+  o.arm_swaps = popt.arm_swaps;
+  o.planar_view_min_share = popt.planar_view_min_share;
+  o.unmeasured_is_no_evidence = popt.unmeasured_is_no_evidence;
+  o.turns_below_bar = popt.turns_below_bar;
+  return o;
+}
+
+// Debug diagnostics only: each class's pose estimator with `options`, built
+// on first use (hundreds of ms per part).
+struct DiagnosticEstimators {
+  PoseEstimatorOptions options;
+  std::map<int, std::unique_ptr<PoseEstimator>> built;
+};
+// Null if the class's mesh does not load.
+const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id, DiagnosticEstimators& diagnostics) {
+  auto& built = diagnostics.built;
   auto it = built.find(class_id);
   if (it == built.end()) {
     std::unique_ptr<PoseEstimator> est;
@@ -52,7 +72,7 @@ const PoseEstimator* DiagnosticEstimator(const Cell& cell, int class_id,
       if (part.class_id != class_id) continue;
       Result<TriangleMesh> mesh = LoadMesh(part.mesh);
       if (!mesh.ok()) break;
-      auto e = PoseEstimator::Build(*mesh, part.symmetry);
+      auto e = PoseEstimator::Build(*mesh, part.symmetry, diagnostics.options);
       if (e.ok()) est = std::move(e).value();
     }
     it = built.emplace(class_id, std::move(est)).first;
@@ -409,7 +429,7 @@ Result<Frame> EvalFrame(const Cell& cell, const EvalCliOptions& opt, const std::
 // pose search did not find and from one whose true pose scores below the bar.
 void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                             const PartTruth& p,
-                            std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+                            DiagnosticEstimators& diagnostic_estimators) {
   const std::vector<int> owners = RoiPointOwners(frame, result);
   if (owners.empty()) return;
   std::vector<Eigen::Vector3f> own;
@@ -456,7 +476,7 @@ void LogMissedPartOwnPoints(const Cell& cell, int i, const Frame& frame, const P
 // support.
 void LogMissedParts(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                     const FrameEvaluation& fe,
-                    std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+                    DiagnosticEstimators& diagnostic_estimators) {
   std::vector<int> matched;
   for (const DetectionOutcome& d : fe.detections) matched.push_back(d.truth_instance);
   for (const PartTruth& p : frame.truth->parts) {
@@ -556,7 +576,7 @@ void LogDetections(int i, const Frame& frame, const PerceptionResult& result, co
 // explains more) or none (it explains as much or less).
 void LogGrossOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                        const FrameEvaluation& fe,
-                       std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+                       DiagnosticEstimators& diagnostic_estimators) {
   std::vector<int> owners;
   for (const DetectionOutcome& o : fe.detections) {
     if (o.verdict != DetectionVerdict::kGross) continue;
@@ -605,7 +625,7 @@ void LogGrossOwnPoints(const Cell& cell, int i, const Frame& frame, const Percep
 // detections and its detections.
 void LogFrameDiagnostics(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                          const FrameEvaluation& fe,
-                         std::map<int, std::unique_ptr<PoseEstimator>>& diagnostic_estimators) {
+                         DiagnosticEstimators& diagnostic_estimators) {
   spdlog::debug("frame {}: {} views ({} explained), {} estimator calls, {} coarse poses refined, {} second "
                 "looks ({} coarse poses skipped), depth noise {:.3f} mm at {:.3f} m",
                 i, result.views, result.views_explained, result.estimator_calls, result.coarse_refined,
@@ -778,7 +798,7 @@ int Run(const EvalCliOptions& opt) {
   nlohmann::ordered_json frames_json = nlohmann::ordered_json::array();
 
   tbb::task_arena arena(opt.threads);
-  std::map<int, std::unique_ptr<PoseEstimator>> diagnostic_estimators;  // --log-level debug only
+  DiagnosticEstimators diagnostic_estimators{DiagnosticEstimatorOptions((*perception)->options()), {}};  // debug, --causes
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
   CauseFigures causes;
@@ -828,8 +848,8 @@ int Run(const EvalCliOptions& opt) {
       LogFrameDiagnostics(*cell, i, *frame, *result, evaluations.back(), diagnostic_estimators);
     }
     if (opt.causes) {
-      // The true pose verified on the part's own points (the estimator's
-      // default options, as --log-level debug scores it).
+      // The true pose verified on the part's own points by the pipeline's
+      // rule (DiagnosticEstimatorOptions, as --log-level debug scores it).
       const auto truth_score = [&](const PartTruth& p, const std::vector<Eigen::Vector3f>& own) {
         const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id, diagnostic_estimators);
         if (est == nullptr) return std::numeric_limits<double>::quiet_NaN();

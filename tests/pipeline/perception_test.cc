@@ -1708,6 +1708,45 @@ TEST(PerceptionEval, ABracketWhoseGrazingFacesDroppedOutIsFound) {
   ExpectFoundOnlyWith(*without, *f.perception, {{1012u, 13}, {1020u, 15}});
 }
 
+// PoseEstimator::Score gives the score Estimate would: with the options'
+// unmeasured_is_no_evidence (what perception hands every class), a grazing
+// face over pixels without depth is left out of the denominator. The eval's
+// causes score a missed part's truth with it: counted against, 26 of the 28
+// L-brackets "below the bar" on the tuning range scored 0.81-0.98 by the
+// pipeline's rule. Pile 1012 of the tuning range (--variety): bracket 13,
+// fully visible, its grazing faces dropped out.
+TEST(PerceptionEval, ScoreVerifiesByTheEstimatorsUnmeasuredRule) {
+  Fixture& f = Fixture::Get();
+  if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
+  Result<Frame> frame = VariedPile(f.cell, 1012u);
+  ASSERT_TRUE(frame.ok()) << frame.status().ToString();
+  const PartTruth* bracket = TruthInstance(*frame, 13);
+  ASSERT_NE(bracket, nullptr);
+  ASSERT_EQ(bracket->class_id, 1);
+  const PerceptionResult r = f.Run(*frame);
+  SceneView view;
+  view.points_B = r.roi_points_B;
+  view.X_BC = frame->X_BC;
+  view.depth = &frame->depth;
+  view.intrinsics = frame->intrinsics;
+  const TriangleMesh& mesh = *f.meshes[2];  // the bin, then the parts by class id
+  PoseEstimatorOptions counted;
+  PoseEstimatorOptions no_evidence;
+  no_evidence.unmeasured_is_no_evidence = true;
+  const auto against = PoseEstimator::Build(mesh, f.cell.parts[1].symmetry, counted).value()->Score(view, bracket->X_BO);
+  const auto left_out = PoseEstimator::Build(mesh, f.cell.parts[1].symmetry, no_evidence).value()->Score(view, bracket->X_BO);
+  ASSERT_TRUE(against.ok() && left_out.ok());
+  EXPECT_EQ(against->visible_points, left_out->visible_points);
+  EXPECT_EQ(against->supported_points, left_out->supported_points);
+  ASSERT_GT(left_out->unmeasured_points, 0) << "no grazing face without depth: nothing to leave out";
+  const double net = left_out->supported_points - left_out->free_space_points;
+  const int seen = left_out->visible_points - left_out->occluded_points;
+  EXPECT_NEAR(against->score, net / seen, 1e-9);
+  EXPECT_NEAR(left_out->score, net / (seen - left_out->unmeasured_points), 1e-9);
+  EXPECT_GE(left_out->score, 0.6);
+  EXPECT_LT(against->score, 0.6);
+}
+
 // Two true neighbours whose surface centres lie within 0.3 of the larger
 // diameter (NMS in acceptance) were one part to acceptance: the lower
 // score lost though the two share no point and do not interpenetrate. A
