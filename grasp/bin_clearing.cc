@@ -2,7 +2,10 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -100,6 +103,56 @@ std::string TurnsFromBestPose(const Detection& d, const PartSpec& part, const Po
   return line;
 }
 
+// What one task's plan of a capture made of one true part: the detections
+// standing for it and its grasp candidates' verdicts (LeftCause).
+struct PartLook {
+  int detections = 0;     // detections matched to the part
+  int other_class = 0;    // of which detected as another class
+  int candidates = 0;
+  int accepted = 0;       // candidates no filter refused
+  int queued = 0;         // grasps on it in the plan after the feedback's screen
+  std::array<int, kNumRejectReasons> rejected{};
+};
+
+struct TaskLook {
+  int task_id = 0;
+  std::map<int, PartLook> parts;  // true instance -> what the plan made of it
+};
+
+// `detail` as the task's queue would take it (after ScreenPlan).
+TaskLook LookOf(const BinPickingPlanner& p, const TaskSpec& task, const PlanDetail& detail,
+                const std::vector<PartTruth>& truth) {
+  TaskLook look;
+  look.task_id = task.id;
+  std::vector<int> instance(detail.perception.detections.size(), -1);
+  for (size_t i = 0; i < instance.size(); ++i) {
+    instance[i] = p.TruthInstanceOf(task.id, static_cast<int>(i));
+    if (instance[i] < 0) continue;
+    PartLook& part = look.parts[instance[i]];
+    ++part.detections;
+    const PartTruth* t = FindInstance(truth, instance[i]);
+    if (t != nullptr && t->class_id != detail.perception.detections[i].class_id) ++part.other_class;
+  }
+  const auto of = [&](int detection) -> PartLook* {
+    if (detection < 0 || static_cast<size_t>(detection) >= instance.size() || instance[detection] < 0) return nullptr;
+    return &look.parts[instance[detection]];
+  };
+  for (const GraspCandidate& c : detail.plan.candidates) {
+    PartLook* part = of(c.detection);
+    if (part == nullptr) continue;
+    ++part->candidates;
+    if (c.rejected) {
+      ++part->rejected[static_cast<size_t>(*c.rejected)];
+    } else {
+      ++part->accepted;
+    }
+  }
+  for (const Grasp& g : detail.result.grasps) {
+    if (PartLook* part = of(g.instance_id)) ++part->queued;
+  }
+  return look;
+}
+
 // A task's plan as its queue would hold it: the failed-pick feedback's
 // screen applied (the queue applies it at Replace too, to the same effect).
 void ScreenPlan(Feedback& feedback, const TaskSpec& task, PlanResult& plan, SceneClearReport& report) {
@@ -116,6 +169,7 @@ struct CyclePlan {
   PlanResult primary;
   PlanResult taken;
   const TaskSpec* used = nullptr;
+  std::vector<TaskLook> looks;  // every task planned on this capture, in order
 };
 
 // The first pose early (docs/protocols.md), checked on a plan whose head
@@ -193,8 +247,12 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
     }
     for (const GraspCandidate& c : plan.plan.candidates) {
       // The cycle as the picks of this plan are logged (numbered from 1).
-      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg: {}{}", seed, report.cycles + 1,
-                    t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name, c.tilt_rad * 180 / M_PI,
+      const Vec3 at = 1000 * c.X_BT.translation();
+      const Vec3 z = c.X_BT.linear().col(2);
+      spdlog::debug("seed {} cycle {} task {}: detection {} (truth {}) {} tilt {:.0f} deg at ({:.0f}, {:.0f}, {:.0f}) mm "
+                    "approach ({:.2f}, {:.2f}, {:.2f}): {}{}",
+                    seed, report.cycles + 1, t.id, c.detection, p.TruthInstanceOf(t.id, c.detection), c.name,
+                    c.tilt_rad * 180 / M_PI, at.x(), at.y(), at.z(), z.x(), z.y(), z.z(),
                     c.rejected ? ToString(*c.rejected) : "ok", c.seal_only ? " (seal only)" : "");
     }
   };
@@ -213,6 +271,10 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
   if (!detail.ok()) return detail.status();
   log_candidates(task, *detail);
   ScreenPlan(feedback, task, detail->result, report);
+  const auto& truth = static_cast<const CapturedFrame&>(scene).frame().truth;
+  const std::vector<PartTruth> no_truth;
+  const std::vector<PartTruth>& parts = truth ? truth->parts : no_truth;
+  out.looks.push_back(LookOf(p, task, *detail, parts));
   out.primary = detail->result;
   out.taken = detail->result;
   out.used = &task;
@@ -227,6 +289,7 @@ Result<CyclePlan> PlanCycle(BinPickingPlanner& p, const CapturedScene& scene, co
     if (!fb_detail.ok()) return fb_detail.status();
     log_candidates(*fb, *fb_detail);
     ScreenPlan(feedback, *fb, fb_detail->result, report);
+    out.looks.push_back(LookOf(p, *fb, *fb_detail, parts));
     if (!fb_detail->result.grasps.empty()) {
       out.taken = std::move(fb_detail->result);
       out.used = fb;
@@ -398,6 +461,76 @@ std::string DescribeLeft(const PartTruth& t) {
   return line;
 }
 
+// Per true instance of a synthetic frame: the pixels its label covers (the
+// render before noise and dropout) and, of those, the ones with a depth
+// measurement.
+struct Pixels {
+  int labelled = 0;
+  int measured = 0;
+};
+std::map<int, Pixels> PixelsOf(const Frame& frame) {
+  std::map<int, Pixels> out;
+  if (!frame.truth) return out;
+  const LabelImage& labels = frame.truth->labels;
+  const bool same = labels.width == frame.depth.width && labels.height == frame.depth.height;
+  for (size_t i = 0; i < labels.data.size(); ++i) {
+    const uint16_t l = labels.data[i];
+    if (l == 0 || l == GroundTruth::kBinLabel) continue;
+    Pixels& px = out[l];
+    ++px.labelled;
+    if (same && std::isfinite(frame.depth.data[i])) ++px.measured;
+  }
+  return out;
+}
+
+// Why part `t`, left at the end, stayed (SceneClearReport::left_causes),
+// and what the last capture's plans made of it, for its `left` line.
+std::pair<std::string, std::string> LeftCause(const PartTruth& t, const std::vector<TaskLook>& looks,
+                                              const Pixels& pixels, const Pose& X_BW_true, const Vec3& bin_inner,
+                                              bool cycle_cap) {
+  const Vec3 in_bin = X_BW_true.inverse() * t.X_BO.translation();
+  if (std::abs(in_bin.x()) > bin_inner.x() / 2 || std::abs(in_bin.y()) > bin_inner.y() / 2) {
+    return {"out_of_bin", fmt::format("at ({:.0f}, {:.0f}, {:.0f}) mm in the bin", 1000 * in_bin.x(),
+                                      1000 * in_bin.y(), 1000 * in_bin.z())};
+  }
+  std::string detail = fmt::format("{} of {} labelled pixels measured", pixels.measured, pixels.labelled);
+  int detections = 0, other_class = 0, accepted = 0, queued = 0, candidates = 0;
+  std::array<int, kNumRejectReasons> rejected{};
+  for (const TaskLook& look : looks) {
+    auto it = look.parts.find(t.instance_id);
+    if (it == look.parts.end()) continue;
+    const PartLook& part = it->second;
+    detections += part.detections;
+    other_class += part.other_class;
+    accepted += part.accepted;
+    queued += part.queued;
+    candidates += part.candidates;
+    std::string reasons;
+    for (int r = 0; r < kNumRejectReasons; ++r) {
+      rejected[r] += part.rejected[r];
+      if (part.rejected[r] > 0) {
+        reasons += fmt::format("{}{} {}", reasons.empty() ? "" : ", ", ToString(static_cast<RejectReason>(r)),
+                               part.rejected[r]);
+      }
+    }
+    detail += fmt::format("; task {}: {} detection(s){}, {} candidates, {} accepted, {} queued{}{}", look.task_id,
+                          part.detections, part.other_class > 0 ? fmt::format(" ({} of another class)", part.other_class) : "",
+                          part.candidates, part.accepted, part.queued, reasons.empty() ? "" : ": ", reasons);
+  }
+  if (cycle_cap) return {"cycle_cap", detail};
+  if (detections == 0) return {"undetected", detail};
+  if (other_class == detections) return {"wrong_class", detail};
+  if (accepted > 0 && queued == 0) return {"refused_by_feedback", detail};
+  if (candidates == 0) return {"no_grasp:no_candidates", detail};
+  // The filters run in RejectReason's order, each candidate refused by the
+  // first that fails: the last filter any candidate reached is the one that
+  // stood between the part and a grasp (tilt refuses the grasps from below
+  // on every pose, so the most frequent reason says little).
+  int furthest = kNumRejectReasons - 1;
+  while (furthest > 0 && rejected[furthest] == 0) --furthest;
+  return {"no_grasp:" + std::string(ToString(static_cast<RejectReason>(furthest))), detail};
+}
+
 Status SaveLeft(const Frame& frame, const std::string& dir, uint64_t seed, SceneClearReport& report) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
@@ -456,6 +589,10 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   PlanResult last;
   std::vector<PartTruth> truth_parts;
   std::optional<Frame> last_frame;  // kept only for save_left_dir
+  std::vector<TaskLook> last_looks;  // the last capture's plans (LeftCause)
+  std::map<int, Pixels> last_pixels;
+  Pose X_BW_true = pile->X_BW();
+  bool cycle_cap = false;
   Feedback feedback(cell, options.feedback);
   std::mt19937_64 slip_rng(options.slip_seed * 1000003u + seed);
   for (;;) {
@@ -464,6 +601,8 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     const Frame& frame = static_cast<const CapturedFrame&>(**scene).frame();
     if (!frame.truth) return Status::Internal("clear: the synthetic frame has no ground truth");
     truth_parts = frame.truth->parts;
+    last_pixels = PixelsOf(frame);
+    if (frame.truth->X_BW) X_BW_true = *frame.truth->X_BW;
     if (!options.save_left_dir.empty()) last_frame = frame;
     if (report.cycles == 0) {
       report.parts_placed = static_cast<int>(truth_parts.size());
@@ -475,11 +614,15 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
     if (!cycle.ok()) return cycle.status();
     ++report.cycles;
     last = cycle->primary;
+    last_looks = std::move(cycle->looks);
     if (cycle->taken.grasps.empty()) {
       report.stopped_by_feedback = report.screened > screened_before;
       break;
     }
-    if (report.cycles >= max_cycles) break;
+    if (report.cycles >= max_cycles) {
+      cycle_cap = true;
+      break;
+    }
 
     const TaskSpec& used = *cycle->used;
     if (!options.withdraw_stale) {
@@ -501,13 +644,24 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   if (report.parts_left > 0 && last_frame) {
     if (Status s = SaveLeft(*last_frame, options.save_left_dir, seed, report); !s.ok()) return s;
   }
-  for (const PartTruth& t : left) report.left.push_back(DescribeLeft(t));
+  for (const PartTruth& t : left) {
+    const auto px = last_pixels.find(t.instance_id);
+    auto [cause, detail] = LeftCause(t, last_looks, px == last_pixels.end() ? Pixels{} : px->second, X_BW_true,
+                                     cell.bin.inner_size, cycle_cap);
+    report.left.push_back(DescribeLeft(t) + "; " + cause + ", " + detail);
+    ++report.left_by_cause[cause];
+    report.left_causes.push_back(std::move(cause));
+  }
   report.final_roi_points = last.roi_points;
   report.final_largest_region = last.largest_region_points;
   report.final_detections = last.detections;
   report.final_outcome = std::string(ToString(last.outcome)) + ": " + last.message;
   report.said_empty = IsBoxEmpty(task->empty_box, last);
   report.wrong_empty_answer = report.said_empty != (report.parts_left == 0);
+  report.ended = report.parts_left == 0   ? "cleared"
+                 : cycle_cap              ? "cycle_cap"
+                 : report.stopped_by_feedback ? "feedback"
+                                          : std::string(ToString(last.outcome));
   return report;
 }
 
@@ -523,6 +677,8 @@ void ClearReport::Add(SceneClearReport scene) {
   screened += scene.screened;
   stopped_by_feedback += scene.stopped_by_feedback ? 1 : 0;
   for (const auto& [cause, n] : scene.failure_causes) failure_causes[cause] += n;
+  for (const auto& [cause, n] : scene.left_by_cause) left_by_cause[cause] += n;
+  ++ended[scene.ended];
   for (const auto& [name, t] : scene.by_grasp) by_grasp[name].Add(t);
   fallback_picks += scene.fallback_picks;
   cycles += scene.cycles;

@@ -121,7 +121,24 @@ struct SceneClearReport {
   int64_t final_largest_region = 0;
   int final_detections = 0;
   std::string final_outcome;    // the last plan's outcome and filter summary
-  std::vector<std::string> left;  // "instance 7 (l_bracket): part z axis (0.00, 1.00, 0.00), 83% visible"
+  std::vector<std::string> left;  // "instance 7 (l_bracket): part z axis (0.00, 1.00, 0.00), 83% visible; undetected, ..."
+  // Why each part left stayed, parallel to `left`, read from the last
+  // capture's plans (the primary task's and every fallback's it tried; the
+  // pile left is the pile that capture saw):
+  //   out_of_bin           its origin lies outside the true bin's inner box (knocked out)
+  //   cycle_cap            the scene ended at ClearOptions::max_cycles
+  //   undetected           no detection of any task's plan stands for it
+  //   wrong_class          detected, but only as another class
+  //   refused_by_feedback  it had a grasp, and the failed-pick feedback refused it
+  //   no_grasp:REASON      detected, every candidate refused; REASON the last
+  //                        filter (in the filters' order, RejectReason) any
+  //                        of its candidates over the tasks reached,
+  //                        "no_candidates" when it had none
+  std::vector<std::string> left_causes;
+  // Why the scene ended: "cleared" (nothing left), "no_objects" /
+  // "no_collision_free" (the primary task's last outcome when no task had a
+  // grasp), "feedback" (every grasp left refused), "cycle_cap".
+  std::string ended;
   double plan_ms_total = 0;     // perception + planning over all cycles
   std::vector<std::string> collisions;  // "cycle 3: task 0 grasp hub_top@5 (detection 2) on instance 7: part; hits ..."
   // Every failed pick: "cycle 3: task 0 grasp run_top@1~v (detection 4): off_part, 7.3 mm / 2.1 deg from instance 9's grasp point"
@@ -129,6 +146,7 @@ struct SceneClearReport {
   // left by a failed last resort": Grasp::reposed)
   std::vector<std::string> failures;
   std::map<std::string, int> failure_causes;  // cause -> failed picks
+  std::map<std::string, int> left_by_cause;   // left_causes counted
   std::map<std::string, GraspTally> by_grasp;  // GraspBaseName -> its picks
   std::string saved_frame;      // the depth PNG written (ClearOptions::save_left_dir), else empty
   // Plans whose head was told early (every plan is made as binpickd makes
@@ -147,6 +165,8 @@ struct ClearReport {
       truth_collisions = 0, parts_left = 0, wrong_empty_answers = 0, slipped = 0, reported = 0, screened = 0,
       stopped_by_feedback = 0, early_heads = 0, early_head_mismatches = 0;
   std::map<std::string, int> failure_causes;
+  std::map<std::string, int> left_by_cause;
+  std::map<std::string, int> ended;  // SceneClearReport::ended -> scenes
   std::map<std::string, GraspTally> by_grasp;
   // Appends `scene` and adds it to the totals.
   void Add(SceneClearReport scene);

@@ -105,7 +105,9 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                       {"collisions", s.collisions},
                       {"failures", s.failures},
                       {"saved_frame", s.saved_frame},
-                      {"left", s.left}});
+                      {"ended", s.ended},
+                      {"left", s.left},
+                      {"left_causes", s.left_causes}});
   }
   j["scenes"] = scenes;
   j["total"] = {{"scenes", r.scenes.size()},
@@ -129,7 +131,9 @@ nlohmann::ordered_json ToJson(const ClearReport& r) {
                 {"truth_collisions", r.truth_collisions},
                 {"parts_left", r.parts_left},
                 {"cleared_fraction", r.ClearedFraction()},
-                {"wrong_empty_answers", r.wrong_empty_answers}};
+                {"wrong_empty_answers", r.wrong_empty_answers},
+                {"left_by_cause", r.left_by_cause},
+                {"ended", r.ended}};
   return j;
 }
 
@@ -198,6 +202,14 @@ int Run(const ClearCliOptions& opt) {
               "%d scenes stopped with every grasp left refused\n",
               options.feedback ? "on" : "off", options.slip_rate, report.slipped, report.reported, report.screened,
               report.stopped_by_feedback);
+  // Where the parts left went (SceneClearReport::left_causes) and why the scenes ended.
+  const auto counts = [](const std::map<std::string, int>& m) {
+    std::string out;
+    for (const auto& [key, n] : m) out += (out.empty() ? "" : ", ") + key + " " + std::to_string(n);
+    return out.empty() ? std::string("none") : out;
+  };
+  std::printf("parts left by cause: %s; scenes ended: %s\n", counts(report.left_by_cause).c_str(),
+              counts(report.ended).c_str());
   std::string grasps;
   for (const auto& [name, t] : report.by_grasp) {
     grasps += (grasps.empty() ? "" : ", ") + name + " " + std::to_string(t.picks) + "/" + std::to_string(t.attempts) +

@@ -9,6 +9,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "pipeline/truth_perception.h"
 
@@ -42,6 +43,84 @@ class ShiftedTruth final : public Perception {
   TruthPerception truth_;
   Pose offset_;
 };
+
+// The oracle without the parts of one class: a perception that never
+// detects them.
+class TruthWithout final : public Perception {
+ public:
+  TruthWithout(const Cell& cell, int class_id) : truth_(cell), class_id_(class_id) {}
+  Result<PerceptionResult> Run(const Frame& frame, const std::vector<int>& classes, PerceptionEffort effort,
+                               const std::optional<PerceptionRegion>& region) const override {
+    Result<PerceptionResult> r = truth_.Run(frame, classes, effort, region);
+    if (r.ok()) std::erase_if(r->detections, [this](const Detection& d) { return d.class_id == class_id_; });
+    return r;
+  }
+
+ private:
+  TruthPerception truth_;
+  int class_id_;
+};
+
+// Every part left says why it stayed (SceneClearReport::left_causes), and the
+// counts add up to the parts left.
+void ExpectCausesAddUp(const SceneClearReport& r) {
+  ASSERT_EQ(r.left_causes.size(), r.left.size());
+  ASSERT_EQ(static_cast<int>(r.left.size()), r.parts_left);
+  int counted = 0;
+  for (const auto& [cause, n] : r.left_by_cause) counted += n;
+  EXPECT_EQ(counted, r.parts_left);
+}
+
+TEST(StrictClearing, EveryPartLeftIsGivenTheCauseThatKeptItInTheBin) {
+  const Cell cell = SyntheticCell(8, 11);
+  // Never detected: the tees stay, each as undetected, and nothing else does
+  // for that reason.
+  auto blind = ClearScene(cell, 11, std::make_shared<TruthWithout>(cell, 2));
+  ASSERT_TRUE(blind.ok()) << blind.status().ToString();
+  ExpectCausesAddUp(*blind);
+  int tees = 0;
+  for (size_t i = 0; i < blind->left.size(); ++i) {
+    const bool tee = blind->left[i].find("(pipe_tee)") != std::string::npos;
+    tees += tee ? 1 : 0;
+    EXPECT_EQ(blind->left_causes[i] == "undetected", tee) << blind->left[i];
+  }
+  EXPECT_GT(tees, 0) << "the pile has no tee: pick another seed";
+  EXPECT_NE(blind->ended, "cleared");
+
+  // Detected, but no grasp within the task's tilt limit (a grasp straight
+  // down still passes): the parts the oracle detects stay, refused by the
+  // tilt filter (those it leaves out as hidden stay undetected), and the
+  // scene ends without a collision-free grasp.
+  Cell steep = cell;
+  for (TaskSpec& t : steep.tasks) t.max_tilt_deg = 1e-3;
+  auto refused = ClearScene(steep, 11, std::make_shared<TruthPerception>(steep));
+  ASSERT_TRUE(refused.ok()) << refused.status().ToString();
+  ExpectCausesAddUp(*refused);
+  EXPECT_GT(refused->left_by_cause["no_grasp:tilt"], refused->parts_placed / 2);
+  for (const std::string& cause : refused->left_causes) {
+    EXPECT_TRUE(cause == "no_grasp:tilt" || cause == "undetected") << cause;
+  }
+  EXPECT_EQ(refused->ended, "no_collision_free");
+
+  // Two captures, one pick: the second capture ends the scene at the cap.
+  ClearOptions one;
+  one.max_cycles = 2;
+  one.serve_queue = false;
+  auto capped = ClearScene(cell, 11, std::make_shared<TruthPerception>(cell), one);
+  ASSERT_TRUE(capped.ok()) << capped.status().ToString();
+  ExpectCausesAddUp(*capped);
+  EXPECT_EQ(capped->parts_left, capped->parts_placed - 1);
+  EXPECT_EQ(capped->left_by_cause.at("cycle_cap"), capped->parts_left);
+  EXPECT_EQ(capped->ended, "cycle_cap");
+
+  // The oracle clears the pile: nothing left, "cleared".
+  auto exact = ClearScene(cell, 11, std::make_shared<TruthPerception>(cell));
+  ASSERT_TRUE(exact.ok()) << exact.status().ToString();
+  ExpectCausesAddUp(*exact);
+  if (exact->parts_left == 0) {
+    EXPECT_EQ(exact->ended, "cleared");
+  }
+}
 
 TEST(StrictClearing, PicksOffTheGraspPointFailAndTheirPartsStay) {
   const Cell cell = SyntheticCell(3, 11);
