@@ -7,11 +7,11 @@ namespace bp {
 
 namespace {
 
-// The grasp in the part frame as the cell defines it (the "~v" turn undone),
+// The grasp in the part frame as the cell defines it (a "~v" / "~v+45" turn undone),
 // or as planned when the name is not a cell grasp (taught grasps).
 Pose NominalGraspInPart(const GraspPlanningModel& model, const std::string& gripper, const Grasp& grasp) {
   std::string name = grasp.name;
-  if (name.size() > 2 && name.compare(name.size() - 2, 2, "~v") == 0) name.resize(name.size() - 2);
+  if (const size_t turn = name.find('~'); turn != std::string::npos) name.resize(turn);
   for (const TaughtGrasp& g : model.CellGrasps(grasp.class_id, gripper)) {
     if (g.name == name) return g.X_OG;
   }

@@ -8,8 +8,9 @@
 // the tool's approach (+z of T) is within the gripper's compliance of the
 // grasp's approach on that part. The grasp's approach is the cell grasp's
 // (taught grasps: as planned), so a suction candidate turned toward vertical
-// ("~v", GraspPlanningOptions::suction_compliance_deg) spends part of the
-// cup's compliance by design and the pose error spends the rest.
+// ("~v", GraspPlanningOptions::suction_compliance_deg) or round its approach
+// ("~v+45", suction_turn_azimuths_deg) spends part of the cup's compliance by
+// design and the pose error spends the rest.
 #pragma once
 
 #include <span>

@@ -310,6 +310,9 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
   if (!(options.suction_compliance_deg >= 0) || !(options.suction_compliance_margin_deg >= 0)) {
     return Status::InvalidArgument("grasp planning options: suction compliance and its margin must be >= 0");
   }
+  for (double az : options.suction_turn_azimuths_deg) {
+    if (!std::isfinite(az)) return Status::InvalidArgument("grasp planning options: suction turn azimuths must be finite");
+  }
   if (!(options.ambiguity_max_position > 0) || !(options.ambiguity_jaw_approach_deg >= 0)) {
     return Status::InvalidArgument(
         "grasp planning options: ambiguity_max_position must be > 0, ambiguity_jaw_approach_deg >= 0");
@@ -500,6 +503,7 @@ std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, cons
       gripper.spec->kind == GripperSpec::Kind::kSuction
           ? std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0
           : 0.0;
+  const double max_tilt = task.max_tilt_deg * M_PI / 180.0;
   std::vector<GraspCandidate> candidates;
   for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
     const Detection& det = detections[d];
@@ -529,8 +533,29 @@ std::vector<GraspCandidate> MakeCandidates(const GraspPlanningModel& model, cons
         turned.tilt_rad = TiltRad(turned.X_BT);
         turned.name += "~v";
       }
+      // Too steep for "~v" to reach vertical: the same turn in other
+      // directions (suction_turn_azimuths_deg), about the same point. None
+      // when "~v" is past the task's tilt limit: every other turn is too.
+      std::vector<GraspCandidate> sideways;
+      if (turn && c.tilt_rad > compliance && c.tilt_rad - compliance <= max_tilt) {
+        const Vec3 z_T = c.X_BT.linear().col(2);
+        Vec3 toward_vertical = z_T.cross(Vec3(0, 0, -1));
+        if (toward_vertical.norm() < 1e-9) toward_vertical = c.X_BT.linear().col(0);  // upside down
+        toward_vertical.normalize();
+        for (double az : m.options.suction_turn_azimuths_deg) {
+          const Vec3 axis = Eigen::AngleAxisd(az * M_PI / 180.0, z_T) * toward_vertical;
+          GraspCandidate t = c;
+          t.X_BT.linear() = Eigen::AngleAxisd(compliance, axis).toRotationMatrix() * c.X_BT.linear();
+          t.X_BT_pre = t.X_BT * TranslateZ(-gripper.spec->approach_distance);
+          t.X_OG = det.X_BO.inverse() * t.X_BT;
+          t.tilt_rad = TiltRad(t.X_BT);
+          t.name += fmt::format("~v{:+.0f}", az);
+          sideways.push_back(std::move(t));
+        }
+      }
       candidates.push_back(std::move(c));
       if (turn) candidates.push_back(std::move(turned));
+      for (GraspCandidate& t : sideways) candidates.push_back(std::move(t));
     };
     for (const TaughtGrasp& g : model.CellGrasps(det.class_id, task.gripper)) add(g);
     if (auto it = taught_by_class.find(det.class_id); it != taught_by_class.end()) {
