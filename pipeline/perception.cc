@@ -296,7 +296,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   result.detections = acceptance.TakeDetections();
   if (options_.own_turn_gain >= 0.0) {
     internal::RedecideTurns(models, frame, result.roi_points_B, point_of_pixel, floor_plane_B, options_.own_turn_gain,
-                            &result.detections);
+                            options_.own_turn_min_foreign, &result.detections);
     clock.Lap("own_turns");
   }
   result.withheld_ambiguous = internal::WithholdAmbiguous(options_.ambiguous_min_visible, &result.detections);
@@ -434,6 +434,9 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
   }
   if (!(options.ambiguous_min_visible >= 0.0 && options.ambiguous_min_visible <= 1.0)) {
     return Status::InvalidArgument("perception: ambiguous_min_visible must be in [0, 1]");
+  }
+  if (!(options.own_turn_min_foreign >= 0.0 && options.own_turn_min_foreign <= 1.0)) {
+    return Status::InvalidArgument("perception: own_turn_min_foreign must be in [0, 1]");
   }
   if (!(options.one_plane_min_visible >= 0.0 && options.one_plane_min_visible <= 1.0)) {
     return Status::InvalidArgument("perception: one_plane_min_visible must be in [0, 1]");

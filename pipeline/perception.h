@@ -199,6 +199,11 @@ struct PerceptionOptions {
   // that explains more than (1 + own_turn_gain) times what its pose does
   // replaces it (stage "own_turns"). < 0 = off (docs/tuning.md).
   double own_turn_gain = 0.01;
+  // own_turns judges again only the parts whose accepted neighbours hold at
+  // least this fraction of the points within the part's reach, or whose pose
+  // is ambiguous (in [0, 1]; below it the own points are about the view the
+  // fine pass judged the turns on; 0.1 before issue 40, docs/tuning.md).
+  double own_turn_min_foreign = 0.3;
   // Last, a detection whose pose is ambiguous (Detection::pose_ambiguous:
   // poses beyond the tolerance explain the view about as well) and of which
   // less than this fraction of the camera-facing surface is seen

@@ -111,6 +111,7 @@ struct EvalCliOptions {
   double max_penetration = PerceptionOptions{}.max_support_penetration;
   double ambiguity_net_gain = PerceptionOptions{}.ambiguity_net_gain;
   double own_turn_gain = PerceptionOptions{}.own_turn_gain;
+  double own_turn_min_foreign = PerceptionOptions{}.own_turn_min_foreign;
   double smooth = PerceptionOptions{}.smoothing_target_sigma;
   bool second_look_skip_tried = PerceptionOptions{}.second_look_skip_tried;
   int second_look_min_points = 0;  // --second-look-min-points; 0: the default
@@ -383,6 +384,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   popt.max_support_penetration = opt.max_penetration;
   popt.ambiguity_net_gain = opt.ambiguity_net_gain;
   popt.own_turn_gain = opt.own_turn_gain;
+  popt.own_turn_min_foreign = opt.own_turn_min_foreign;
   popt.smoothing_target_sigma = opt.smooth;
   popt.second_look_skip_tried = opt.second_look_skip_tried;
   popt.residual_regions = opt.residual_regions;
@@ -968,6 +970,12 @@ Command EvalCommand() {
                                   "a turn explaining this fraction more of a part's own points (its neighbours' "
                                   "left out) replaces its pose (PerceptionOptions::own_turn_gain; < 0 = off, tuning)")
                        ->check(CLI::Range(-1.0, 10.0))
+                       ->capture_default_str();
+                   sub.add_option("--own-turn-min-foreign", opt->own_turn_min_foreign,
+                                  "own_turns judges again only parts whose neighbours hold at least this fraction of "
+                                  "the points within their reach, or ambiguous ones "
+                                  "(PerceptionOptions::own_turn_min_foreign; tuning)")
+                       ->check(CLI::Range(0.0, 1.0))
                        ->capture_default_str();
                    sub.add_option("--max-free-space", opt->max_free_space,
                                   "largest fraction of a detection's seen surface in free space "

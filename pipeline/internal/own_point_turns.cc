@@ -21,13 +21,6 @@ constexpr float kReachMargin = 0.005f;
 // about 8 deg wide (the branch's end moves 3.5 mm in 4 deg) that the fine
 // pass's 30 deg grid and a 10 deg one step over.
 constexpr double kTurnStepDeg = 5.0;
-// A part whose neighbours hold less than this fraction of the points within
-// its reach is left as it is, unless its pose is ambiguous: its own points
-// are the view the fine pass judged, but the fine pass's 30 deg grid may
-// have stepped over the true turn (a tee fully in view, its branch hidden
-// behind its run, 13 deg off in pile 1043 of the tuning range).
-constexpr double kMinForeignFraction = 0.1;
-
 float ReachOf(const ClassModel& m) {
   const Eigen::Vector3f c = m.centroid_O();
   float r2 = 0.f;
@@ -73,7 +66,7 @@ std::vector<size_t> PixelsNear(const Frame& frame, std::span<const Eigen::Vector
 int RedecideTurns(std::span<const ClassModel* const> models, const Frame& frame,
                   std::span<const Eigen::Vector3f> roi_points_B, std::span<const int32_t> point_of_pixel,
                   const std::optional<Eigen::Vector4d>& floor_plane_B, double min_gain,
-                  std::vector<Detection>* detections) {
+                  double min_foreign_fraction, std::vector<Detection>* detections) {
   if (!frame.organized() || point_of_pixel.size() != frame.depth.data.size() || !frame.intrinsics.valid()) return 0;
   std::vector<const ClassModel*> model_of(detections->size(), nullptr);
   std::vector<float> reach(detections->size(), 0.f);
@@ -118,7 +111,7 @@ int RedecideTurns(std::span<const ClassModel* const> models, const Frame& frame,
       blanked.push_back(near[k]);
     }
     if (!det.pose_ambiguous() &&
-        static_cast<double>(blanked.size()) < kMinForeignFraction * static_cast<double>(near.size())) {
+        static_cast<double>(blanked.size()) < min_foreign_fraction * static_cast<double>(near.size())) {
       for (size_t pix : blanked) masked.depth.data[pix] = frame.depth.data[pix];
       continue;
     }

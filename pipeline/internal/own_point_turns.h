@@ -29,14 +29,18 @@ namespace bp::internal {
 // kept; alternatives within the tolerance of the new pose are dropped), its
 // support the old support on the new surface;
 // its score stays the one acceptance ranked it by. A part whose neighbours
-// hold less than a tenth of the points within its reach is left as it is
-// unless its pose is ambiguous (Detection::pose_ambiguous).
+// hold less than min_foreign_fraction of the points within its reach is
+// left as it is unless its pose is ambiguous (Detection::pose_ambiguous):
+// its own points are then about the view the fine pass judged its turns on
+// (but its 30 deg grid may have stepped over the true turn: a tee fully in
+// view, its branch hidden behind its run, 13 deg off in pile 1043 of the
+// tuning range, hence the ambiguous ones).
 // Detections are judged in order, each against its neighbours as they
 // stand. Organized frames only (point_of_pixel: RoiCloud::point_of_pixel);
 // an unorganized frame changes nothing. @returns how many poses changed.
 int RedecideTurns(std::span<const ClassModel* const> models, const Frame& frame,
                   std::span<const Eigen::Vector3f> roi_points_B, std::span<const int32_t> point_of_pixel,
                   const std::optional<Eigen::Vector4d>& floor_plane_B, double min_gain,
-                  std::vector<Detection>* detections);
+                  double min_foreign_fraction, std::vector<Detection>* detections);
 
 }  // namespace bp::internal

@@ -1317,8 +1317,10 @@ TEST(PerceptionEval, ATeeSeenAsAnLIsTriedWithItsArmsSwapped) {
 // of the view and of the depth image; PerceptionOptions::own_turn_gain) and
 // the true turn, refined on them, explains more. Piles of the tuning range
 // (--variety): 1013 and 1082, a tee fully in view detected 24 and 25 deg
-// off about its run without the stage and right with it; the wrong pose is
-// kept as the right one's alternative.
+// off about its run without the stage and right with it (at the default
+// own_turn_min_foreign: the stage still judges them); the wrong pose is
+// kept as the right one's alternative. A share of the reach on neighbours
+// outside [0, 1] is refused.
 TEST(PerceptionEval, ATeeIsTurnedAgainOnItsOwnPointsOnceItsNeighboursAreFound) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
@@ -1338,6 +1340,11 @@ TEST(PerceptionEval, ATeeIsTurnedAgainOnItsOwnPointsOnceItsNeighboursAreFound) {
     EXPECT_GE(after.true_tees_with_alternatives, before.true_tees_with_alternatives + 1) << "pile " << seed;
     EXPECT_TRUE(std::any_of(result.timings.begin(), result.timings.end(),
                             [](const StageTiming& t) { return t.stage == "own_turns"; }));
+  }
+  for (double share : {-0.1, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+    PerceptionOptions bad;
+    bad.own_turn_min_foreign = share;
+    EXPECT_EQ(Perception::Build(f.cell, bad).status().code(), Status::Code::kInvalidArgument) << share;
   }
 }
 
