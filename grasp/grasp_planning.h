@@ -199,9 +199,9 @@ struct GraspPlanningOptions {
   // approach by each of these azimuths, deg (name + "~v+45", "~v-90" ..).
   // Vertical is not always the clear side: a part leaning by a wall gives a
   // "~v" tool whose shaft still crosses the rim, which a turn away from the
-  // wall clears (tuning clears 2001-2030 / 2101-2130: 7 / 4 parts left with
-  // no grasp but the bin, 2 / 2 with these; docs/tuning.md). The judge holds
-  // each to the compliance like "~v" (grasp/grasp_judge.h). Empty: "~v" alone.
+  // wall clears (measured in docs/tuning.md, "The parts left, split by
+  // cause"). The judge holds each to the compliance like "~v"
+  // (grasp/grasp_judge.h). Empty: "~v" alone.
   std::vector<double> suction_turn_azimuths_deg = {-90.0, -45.0, 45.0, 90.0};
   // Pose ambiguity (issue 37 item 3): on a detection with alternative poses
   // (Detection::alternatives_X_BO) a grasp is kept only when it lands on the
