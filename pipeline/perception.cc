@@ -36,6 +36,17 @@ double SteadyClockMs() {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
+PoseEstimatorOptions ReferenceEstimatorOptions(const PerceptionOptions& options) {
+  PoseEstimatorOptions reference;
+  reference.max_support_penetration = options.max_support_penetration;
+  reference.ambiguity_net_gain = options.ambiguity_net_gain;
+  reference.arm_swaps = options.arm_swaps;
+  reference.planar_view_min_share = options.planar_view_min_share;
+  reference.unmeasured_is_no_evidence = options.unmeasured_is_no_evidence;
+  reference.turns_below_bar = options.turns_below_bar;
+  return reference;
+}
+
 namespace {
 
 using internal::ClassModel;
@@ -466,13 +477,7 @@ Result<std::unique_ptr<Perception>> Perception::Build(const Cell& cell, const Pe
     }
   }
   const internal::CameraFigures camera = internal::CameraFiguresOf(cell, options);
-  PoseEstimatorOptions reference;
-  reference.max_support_penetration = options.max_support_penetration;
-  reference.ambiguity_net_gain = options.ambiguity_net_gain;
-  reference.arm_swaps = options.arm_swaps;
-  reference.planar_view_min_share = options.planar_view_min_share;
-  reference.unmeasured_is_no_evidence = options.unmeasured_is_no_evidence;
-  reference.turns_below_bar = options.turns_below_bar;
+  const PoseEstimatorOptions reference = ReferenceEstimatorOptions(options);
   const std::vector<PartSpec> specs = ModelSpecs(cell);
   std::vector<Result<std::unique_ptr<ClassModel>>> built;
   built.reserve(specs.size());

@@ -346,6 +346,13 @@ struct PerceptionBudget {
 // The steady clock in milliseconds (PerceptionBudget's default clock).
 double SteadyClockMs();
 
+// The pose estimator options perception builds every class's estimator
+// from (before Perception::Build scales them to the part and camera): the
+// PerceptionOptions fields that are the estimator's rules. Diagnostics that
+// verify or search a pose by the pipeline's rules (binpick eval --causes)
+// start from these too, so the two never drift apart.
+PoseEstimatorOptions ReferenceEstimatorOptions(const PerceptionOptions& options);
+
 class Perception {
  public:
   virtual ~Perception() = default;

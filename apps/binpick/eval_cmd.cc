@@ -41,21 +41,6 @@
 namespace bp::cli {
 namespace {
 
-// The estimator options perception hands every class (Perception::Build's
-// reference), not scaled to the part and camera: the diagnostics verify and
-// search by the pipeline's rules (unmeasured_is_no_evidence: a grazing face
-// over pixels without depth is no evidence; planar_view_min_share).
-PoseEstimatorOptions DiagnosticEstimatorOptions(const PerceptionOptions& popt) {
-  PoseEstimatorOptions o;
-  o.max_support_penetration = popt.max_support_penetration;
-  o.ambiguity_net_gain = popt.ambiguity_net_gain;
-  o.arm_swaps = popt.arm_swaps;
-  o.planar_view_min_share = popt.planar_view_min_share;
-  o.unmeasured_is_no_evidence = popt.unmeasured_is_no_evidence;
-  o.turns_below_bar = popt.turns_below_bar;
-  return o;
-}
-
 // Debug diagnostics only: each class's pose estimator with `options`, built
 // on first use (hundreds of ms per part).
 struct DiagnosticEstimators {
@@ -800,7 +785,7 @@ int Run(const EvalCliOptions& opt) {
   nlohmann::ordered_json frames_json = nlohmann::ordered_json::array();
 
   tbb::task_arena arena(opt.threads);
-  DiagnosticEstimators diagnostic_estimators{DiagnosticEstimatorOptions((*perception)->options()), {}};  // debug, --causes
+  DiagnosticEstimators diagnostic_estimators{ReferenceEstimatorOptions((*perception)->options()), {}};  // debug, --causes
   std::vector<FrameEvaluation> evaluations;
   SegmentationFigures seg_total;
   CauseFigures causes;
@@ -851,7 +836,7 @@ int Run(const EvalCliOptions& opt) {
     }
     if (opt.causes) {
       // The true pose verified on the part's own points by the pipeline's
-      // rule (DiagnosticEstimatorOptions, as --log-level debug scores it).
+      // rule (ReferenceEstimatorOptions, as --log-level debug scores it).
       const auto truth_score = [&](const PartTruth& p, const std::vector<Eigen::Vector3f>& own) {
         const PoseEstimator* est = DiagnosticEstimator(*cell, p.class_id, diagnostic_estimators);
         if (est == nullptr) return std::numeric_limits<double>::quiet_NaN();
