@@ -503,14 +503,19 @@ class RequestHandler::Impl {
   // (std::bad_alloc, std::system_error) when the job cannot be queued; then
   // f never runs and nothing is left counted.
   void Spawn(std::function<void()> f) {
-    auto job = std::make_shared<std::function<void()>>(std::move(f));
+    // Owned by `run`, which runs exactly once and deletes it before it
+    // counts itself done, or by the catch below when it cannot be queued.
+    // Not a shared_ptr in the functor: the arena destroys its copy of the
+    // functor only after the functor returns, so a process exiting right
+    // after Shutdown could still hold the job there (LSan reported it leaked).
+    auto* job = new std::function<void()>(std::move(f));
     auto run = [this, job] {
       try {
         (*job)();
       } catch (...) {
         spdlog::error("daoai: detection worker failed: {}", ExceptionText());
       }
-      *job = nullptr;  // release captures before Shutdown may return
+      delete job;  // its captures too, before Shutdown may return
       std::lock_guard lock(pending_mutex_);
       --pending_;
       pending_cv_.notify_all();
@@ -525,11 +530,12 @@ class RequestHandler::Impl {
       // the hand-off through the arena and reports every task as a race. Under
       // TSan, run each job on its own thread instead (same ordering guarantees:
       // none beyond the mutexes above).
-      std::thread(run).detach();
+      std::thread(std::move(run)).detach();
 #else
-      arena_.enqueue(run);
+      arena_.enqueue(std::move(run));
 #endif
     } catch (...) {
+      delete job;  // never queued: run never runs
       std::lock_guard lock(pending_mutex_);
       --pending_;
       pending_cv_.notify_all();
