@@ -155,10 +155,17 @@ TaskLook LookOf(const BinPickingPlanner& p, const TaskSpec& task, const PlanDeta
 
 // A task's plan as its queue would hold it: the failed-pick feedback's
 // screen applied (the queue applies it at Replace too, to the same effect).
+// A part whose grasp is screened out stays in the bin and passes staleness
+// on (GraspQueue): it joins plan.ungrasped_touching, as the queue's own
+// screen keeps it.
 void ScreenPlan(Feedback& feedback, const TaskSpec& task, PlanResult& plan, SceneClearReport& report) {
   FailedPicks* f = feedback.For(task);
   if (f == nullptr || plan.grasps.empty()) return;
-  report.screened += static_cast<int>(f->Screen(plan.grasps).size());
+  const std::vector<Grasp> screened = f->Screen(plan.grasps);
+  report.screened += static_cast<int>(screened.size());
+  for (const Grasp& g : screened) {
+    if (!g.touching.empty()) plan.ungrasped_touching[g.instance_id] = g.touching;
+  }
   if (plan.grasps.empty()) plan.outcome = PlanResult::Outcome::kNoCollisionFree;
 }
 

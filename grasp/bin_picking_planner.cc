@@ -339,6 +339,7 @@ void BinPickingPlanner::PlanPick(const PlanRequest& request, const Frame& frame,
   }
   result.outcome = detail.plan.outcome;
   result.grasps = detail.plan.queue;
+  result.ungrasped_touching = detail.plan.ungrasped_touching;
   result.message = detail.plan.stats.Describe();
   if (result.outcome == PlanResult::Outcome::kNoObjects && !detail.perception.reason.empty()) {
     result.message = detail.perception.reason;

@@ -22,11 +22,13 @@ struct Grasp {
   // Further poses in base the task may need (e.g. a place pose paired with a
   // pick); empty for plain picks.
   std::vector<Pose> related_X_B;
-  // instance_id values of the same plan whose hand-out makes this grasp
-  // stale: parts touching this one, and parts its swept gripper passes close
-  // to (GraspPlanningOptions::touch_distance, approach_margin). GraspQueue::Pop
-  // withdraws it when one of them is handed out (docs/protocols.md, "Stale
-  // grasps"). Empty: no part disturbs it (or the planner does not say).
+  // instance_id values of the same plan's detected parts (with a queued
+  // grasp or without: PlanResult::ungrasped_touching) whose hand-out or
+  // movement makes this grasp stale: parts touching this one, and parts its
+  // swept gripper passes close to (GraspPlanningOptions::touch_distance,
+  // approach_margin). GraspQueue::Pop withdraws it when one of them is
+  // handed out or may move (docs/protocols.md, "Stale grasps"). Empty: no
+  // part disturbs it (or the planner does not say).
   std::vector<int> stale_after;
   // Of stale_after, the parts that touch this one (within touch_distance at
   // their estimated poses; the relation is symmetric). When one of them may

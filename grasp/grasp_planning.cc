@@ -1135,18 +1135,17 @@ Eigen::AlignedBox3d Grown(Eigen::AlignedBox3d b, double by) {
 // under GraspQueue's transitive stale rule: the head's part and the parts
 // touch-connected to it (within touch_distance at their estimated poses,
 // MarkStaleNeighbours' pair test, either way round since the queue's order
-// is not known yet), over the detections with candidates (`has_candidates`).
-// The queued parts are among those, so the group holds every part that rule
-// can make move (grasps withdrawn or screened out pass it on only through
-// touching). @returns whether each detection is in the group.
-std::vector<bool> TouchGroup(const GraspPlanningModel::Impl& m, std::span<const Detection> detections,
-                             const std::vector<bool>& has_candidates, int head) {
+// is not known yet), over every detection: parts with a queued grasp and
+// without one (GraspPlan::ungrasped_touching) pass staleness on alike, so
+// the group holds every part that rule can make move. @returns whether each
+// detection is in the group.
+std::vector<bool> TouchGroup(const GraspPlanningModel::Impl& m, std::span<const Detection> detections, int head) {
   const size_t n = detections.size();
   std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
   std::vector<Eigen::AlignedBox3d> box(n);
   for (size_t i = 0; i < n; ++i) {
     auto p = m.parts.find(detections[i].class_id);
-    if (!has_candidates[i] || p == m.parts.end()) continue;
+    if (p == m.parts.end()) continue;
     part[i] = p->second.get();
     part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
     box[i] = part[i]->WorldBounds(detections[i].X_BO);
@@ -1248,9 +1247,7 @@ EarlyHead FindEarlyHead(const GraspPlanningModel::Impl& m, const Gripper& grippe
       if (found.head < 0) {
         found.head = order[k];
         decided.insert(c.detection);
-        std::vector<bool> has_candidates(detections.size(), false);
-        for (const GraspCandidate& other : candidates) has_candidates[static_cast<size_t>(other.detection)] = true;
-        group = TouchGroup(m, detections, has_candidates, c.detection);
+        group = TouchGroup(m, detections, c.detection);
         continue;
       }
       if (!decided.insert(c.detection).second) continue;  // not its part's primary
@@ -1339,33 +1336,47 @@ std::vector<Grasp> QueueByPart(std::span<const Detection> detections, const std:
   return queue;
 }
 
-// Stage 6: each queued grasp's stale neighbours among the queued parts
+// Stage 6: each queued grasp's stale neighbours among the detected parts
 // (Grasp::stale_after): parts within touch_distance of its part, and parts
 // its swept gripper passes within approach_margin of (the grown geometries
-// of Inflated). Bounding boxes pick the pairs worth an FCL collision query;
-// the queries run in parallel.
-void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripper, std::vector<Grasp>& queue) {
-  const size_t n = queue.size();
-  if (n < 2) return;
+// of Inflated); and the touching pairs of the detections no grasp is
+// queued for (`ungrasped`: GraspPlan::ungrasped_touching), which stay in
+// the bin and pass staleness on. Bounding boxes pick the pairs worth an
+// FCL collision query; the queries run in parallel.
+void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripper,
+                         std::span<const Detection> detections, std::vector<Grasp>& queue,
+                         std::map<int, std::vector<int>>& ungrasped) {
+  const size_t n = detections.size();
+  if (queue.empty() || n < 2) return;
   const double touch = m.options.touch_distance, margin = m.options.approach_margin;
+  // Per detection: its queued grasp (-1: none), geometries and bounds.
+  std::vector<int> queued(n, -1);
+  for (size_t i = 0; i < queue.size(); ++i) {
+    const int id = queue[i].instance_id;
+    if (id >= 0 && static_cast<size_t>(id) < n) queued[static_cast<size_t>(id)] = static_cast<int>(i);
+  }
+  // The queued grasps' X_BO are their detections' (PrimaryGrasp).
   std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
   std::vector<Eigen::AlignedBox3d> box(n);
   for (size_t i = 0; i < n; ++i) {
-    auto p = m.parts.find(queue[i].class_id);
+    auto p = m.parts.find(detections[i].class_id);
     if (p == m.parts.end()) continue;
     part[i] = p->second.get();
-    part_touch[i] = m.parts_touch.at(queue[i].class_id).get();
-    box[i] = part[i]->WorldBounds(queue[i].X_BO);
+    part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
+    box[i] = part[i]->WorldBounds(detections[i].X_BO);
   }
   struct Query {
-    size_t i, j;
-    bool approach;  // i's swept gripper against part j; else part i against part j (i < j)
+    size_t i, j;    // detections
+    bool approach;  // i's queued grasp's swept gripper against part j; else part i against part j (i < j)
   };
   std::vector<Query> queries;
   for (size_t i = 0; i < n; ++i) {
     if (part[i] == nullptr) continue;
     std::vector<Eigen::AlignedBox3d> sweep_boxes;
-    for (const auto& slab : gripper.slabs) sweep_boxes.push_back(Grown(WorldBox(slab, queue[i].X_BT), margin));
+    if (queued[i] >= 0) {
+      const Pose& X_BT = queue[static_cast<size_t>(queued[i])].X_BT;
+      for (const auto& slab : gripper.slabs) sweep_boxes.push_back(Grown(WorldBox(slab, X_BT), margin));
+    }
     for (size_t j = 0; j < n; ++j) {
       if (j == i || part[j] == nullptr) continue;
       if (j > i && Grown(box[i], touch).intersects(box[j])) queries.push_back({i, j, false});
@@ -1381,22 +1392,32 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
   std::vector<uint8_t> close(queries.size(), 0);
   tbb::parallel_for(size_t{0}, queries.size(), [&](size_t k) {
     const Query& q = queries[k];
-    close[k] = q.approach ? Collides(*gripper.sweep_margin, queue[q.i].X_BT, *part[q.j], queue[q.j].X_BO)
-                          : Collides(*part_touch[q.i], queue[q.i].X_BO, *part[q.j], queue[q.j].X_BO);
+    const Pose& X_BO_j = detections[q.j].X_BO;
+    close[k] = q.approach
+                   ? Collides(*gripper.sweep_margin, queue[static_cast<size_t>(queued[q.i])].X_BT, *part[q.j], X_BO_j)
+                   : Collides(*part_touch[q.i], detections[q.i].X_BO, *part[q.j], X_BO_j);
   });
+  // Per detection (ids are detection indices): what its grasp is stale
+  // after, and the parts it touches.
   std::vector<std::set<int>> stale(n), touching(n);
   for (size_t k = 0; k < queries.size(); ++k) {
     if (!close[k]) continue;
     const Query& q = queries[k];
-    stale[q.i].insert(queue[q.j].instance_id);
+    const int i = static_cast<int>(q.i), j = static_cast<int>(q.j);
+    stale[q.i].insert(j);
     if (q.approach) continue;
-    stale[q.j].insert(queue[q.i].instance_id);
-    touching[q.i].insert(queue[q.j].instance_id);
-    touching[q.j].insert(queue[q.i].instance_id);
+    stale[q.j].insert(i);
+    touching[q.i].insert(j);
+    touching[q.j].insert(i);
   }
   for (size_t i = 0; i < n; ++i) {
-    queue[i].stale_after.assign(stale[i].begin(), stale[i].end());
-    queue[i].touching.assign(touching[i].begin(), touching[i].end());
+    if (queued[i] >= 0) {
+      Grasp& g = queue[static_cast<size_t>(queued[i])];
+      g.stale_after.assign(stale[i].begin(), stale[i].end());
+      g.touching.assign(touching[i].begin(), touching[i].end());
+    } else if (!touching[i].empty()) {
+      ungrasped[static_cast<int>(i)].assign(touching[i].begin(), touching[i].end());
+    }
   }
 }
 
@@ -1477,7 +1498,7 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
   RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);
   const auto t_neighbours = std::chrono::steady_clock::now();
-  MarkStaleNeighbours(m, gripper, plan.queue);
+  MarkStaleNeighbours(m, gripper, detections, plan.queue, plan.ungrasped_touching);
   plan.stats.neighbours_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_neighbours).count();
   plan.outcome = plan.queue.empty() ? PlanResult::Outcome::kNoCollisionFree : PlanResult::Outcome::kGrasps;

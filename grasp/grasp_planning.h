@@ -61,12 +61,15 @@
 // feature are rejected as kUnseen, whether or not the view left the pose
 // ambiguous.
 //
-// Stale neighbours (issue 37 item 4). Each queued grasp lists the queued
-// parts whose hand-out makes it stale (Grasp::stale_after): parts within
-// touch_distance of its part (both at their estimated poses), and parts its
-// swept gripper passes within approach_margin of; the touching ones also in
-// Grasp::touching. GraspQueue::Pop withdraws it when one of them is handed
-// out, or is itself withdrawn while touching a part that may move.
+// Stale neighbours (issue 37 item 4). Each queued grasp lists the detected
+// parts whose hand-out or movement makes it stale (Grasp::stale_after):
+// parts within touch_distance of its part (both at their estimated poses),
+// and parts its swept gripper passes within approach_margin of; the
+// touching ones also in Grasp::touching. The detections without a queued
+// grasp are listed with the detections touching them
+// (GraspPlan::ungrasped_touching). GraspQueue::Pop withdraws a grasp when a
+// part it lists is handed out, or may move: touches, transitively, the part
+// handed out, through queued parts and parts without a queued grasp alike.
 //
 // Thread-safety: GraspPlanningModel is immutable after Build; PlanGrasps may
 // run concurrently. PlanGrasps parallelises over candidates with oneTBB in the
@@ -75,6 +78,7 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <optional>
 #include <span>
@@ -304,6 +308,9 @@ struct FilterStats {
 struct GraspPlan {
   PlanResult::Outcome outcome = PlanResult::Outcome::kNoObjects;
   std::vector<Grasp> queue;                 // one primary grasp per part, best first
+  // The detections without a queued grasp and the detections touching each
+  // (PlanResult::ungrasped_touching).
+  std::map<int, std::vector<int>> ungrasped_touching;
   std::vector<GraspCandidate> candidates;   // every candidate with its verdict
   FilterStats stats;
 };
@@ -353,7 +360,8 @@ class GraspPlanningModel {
 // detection of the task's part classes (cell grasps plus `taught`, for the
 // task's gripper), filtered, ranked by task.ranking; one primary grasp per
 // part, its other collision-free grasps as related_X_B (best first), its
-// stale neighbours in stale_after.
+// stale neighbours in stale_after (any detection), the detections no grasp
+// is queued for with their touching ones in ungrasped_touching.
 // Outcome: kNoObjects without detections of the task's classes,
 // kNoCollisionFree when there are some but no grasp survives (also when every
 // grasp of an ambiguous detection is kAmbiguous), else kGrasps.

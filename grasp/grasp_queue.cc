@@ -45,7 +45,8 @@ bool GraspQueue::Replace(PlanResult result, uint64_t capture_seq, int* discarded
   grasps_.swap(grasps);
   stale_listed_ = stale_listed;
   withdrawn_ids_.clear();
-  gone_touching_.clear();
+  // The parts without a queued grasp are in the bin from the start.
+  gone_touching_ = std::move(result.ungrasped_touching);
   summary_ = s;
   // Merged: the same plan, so a Restore of the head finds it.
   if (!merge) ++generation_;
@@ -69,9 +70,11 @@ void GraspQueue::TakeMergedHead() {
   if (head != grasps_.end()) {
     TakeAt(head, p);
     head_merged_ = std::move(p.grasp);
-  } else if (gone_touching_.erase(head_id_) > 0) {
+  } else if (std::find(withdrawn_ids_.begin(), withdrawn_ids_.end(), head_id_) != withdrawn_ids_.end()) {
     // Screened out by a failure reported on its spot since it was handed
-    // out: that hand-out still makes its neighbours stale.
+    // out: that hand-out still makes its neighbours stale (and the part,
+    // gone, passes nothing on as one left in the bin).
+    gone_touching_.erase(head_id_);
     WithdrawStale(head_id_, p);
   } else if (!grasps_.empty()) {
     // A failed plan queues nothing; anything else breaks FindEarlyHead's invariant.

@@ -5,7 +5,10 @@
 // whose approach passes close to it) leave the queue with it, and the
 // remaining count says so (docs/protocols.md, "Stale grasps"). Staleness
 // passes through a part that may move: a withdrawn grasp whose part touches
-// P (Grasp::touching) makes the grasps naming ITS part stale too, and so on.
+// P (Grasp::touching) makes the grasps naming ITS part stale too, and so on;
+// so does a part the plan queued no grasp for that touches P
+// (PlanResult::ungrasped_touching), or one whose grasp left the queue
+// earlier (withdrawn or screened out): all are still in the bin.
 //
 // A screen (SetScreen) may take grasps out too: the failed-pick feedback
 // (grasp/failed_picks.h) withholds grasps on spots a robot failed to pick.
@@ -101,10 +104,12 @@ class GraspQueue {
   // @returns the grasps it took out.
   int Rescreen();
 
-  // Discards what is left and queues result.grasps in order, unless the
-  // queue already holds the plan of a later capture: `capture_seq` numbers
-  // the task's captures (increasing; 0: unnumbered, always replaces), so a
-  // detection that finishes late never overwrites a newer scene.
+  // Discards what is left and queues result.grasps in order (with
+  // result.ungrasped_touching, the parts that pass staleness on without a
+  // grasp of their own), unless the queue already holds the plan of a
+  // later capture: `capture_seq` numbers the task's captures (increasing;
+  // 0: unnumbered, always replaces), so a detection that finishes late
+  // never overwrites a newer scene.
   // @returns whether the queue was replaced; `*discarded` (optional): the
   // grasps of the replaced plan never handed out.
   bool Replace(PlanResult result, uint64_t capture_seq = 0, int* discarded = nullptr);
@@ -152,9 +157,11 @@ class GraspQueue {
   uint64_t capture_seq_ = 0;        // GUARDED_BY(mutex_): of the plan queued
   bool stale_listed_ = false;       // GUARDED_BY(mutex_): some queued grasp has stale_after
   std::vector<int> withdrawn_ids_;  // GUARDED_BY(mutex_): since the last Replace / Reset
-  // GUARDED_BY(mutex_): the Grasp::touching of the parts whose grasps left
-  // the queue without being handed out (withdrawn or screened) since the
-  // last Replace / Reset: still in the bin, they pass staleness on.
+  // GUARDED_BY(mutex_): the parts in the bin without a queued grasp, each
+  // with the parts touching it: those the plan queued no grasp for
+  // (PlanResult::ungrasped_touching) and those whose grasps left the queue
+  // without being handed out (withdrawn or screened; their Grasp::touching)
+  // since the last Replace / Reset. They pass staleness on.
   std::map<int, std::vector<int>> gone_touching_;
   Screen screen_;                   // set before use, then read-only
   Serves serves_;                   // set before use, then read-only
@@ -186,8 +193,9 @@ class GraspQueue {
   // Per queued grasp, whether handing out part `picked` makes it stale:
   // it names a part that may move (stale_after), where the parts that may
   // move are `picked` and, transitively, the parts of stale grasps that
-  // touch one that may move (Grasp::touching), and so do the parts of
-  // grasps withdrawn earlier (gone_touching_). Needs mutex_.
+  // touch one that may move (Grasp::touching), and so do the parts without
+  // a queued grasp (gone_touching_: none planned, or withdrawn or screened
+  // out earlier). Needs mutex_.
   std::vector<bool> StaleSet(int picked) const;
   // How many grasps StaleSet marks. Needs mutex_.
   int StaleCount(int picked) const;

@@ -19,6 +19,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -82,6 +83,15 @@ struct PlanResult {
   };
   Outcome outcome = Outcome::kNoObjects;
   std::vector<Grasp> grasps;          // queue order: the first is handed out first
+  // The detected parts no queued grasp stands for (every grasp refused, a
+  // class the task does not pick, or screened out by the failed-pick
+  // feedback), each with the detections touching it (within
+  // GraspPlanningOptions::touch_distance at their estimated poses; ids as
+  // Grasp::instance_id). They stay in the bin and may move when a part they
+  // touch is picked: GraspQueue passes staleness on through them, and the
+  // queued grasps list them in stale_after / touching (docs/protocols.md
+  // "Stale grasps"). Parts touching nothing are left out.
+  std::map<int, std::vector<int>> ungrasped_touching;
   int64_t roi_points = 0;             // valid points inside the task's ROI
   int64_t largest_region_points = 0;  // points of the largest connected region in the ROI
   // Pixels of the image the counts come from (width x height): scales the

@@ -834,6 +834,46 @@ TEST(StaleNeighbours, AGraspWhoseApproachPassesCloseToAPartIsStaleOnceThatPartIs
   for (const Grasp& g : PlanGrasps(Model(), task, Scene({b, c})).queue) EXPECT_TRUE(g.stale_after.empty());
 }
 
+// A part the plan queues no grasp for (here every grasp is refused: it
+// would land off its grasp point were its alternative pose true) is still
+// in the bin and may move: the plan lists it with the parts touching it
+// (GraspPlan::ungrasped_touching), the queued grasps list it (stale_after,
+// touching), and the queue passes staleness on through it (scene 15630,
+// docs/tuning.md).
+TEST(StaleNeighbours, APartWithoutAQueuedGraspIsListedAndPassesStalenessOn) {
+  // A, U and B in a row, flange to flange 1 mm apart (A and B 62 mm apart);
+  // U ambiguous (upside down were its alternative true); C far away.
+  Detection u = Bushing(-0.039, 0);
+  u.alternatives_X_BO = {u.X_BO * MakePose(Mat3(Eigen::AngleAxisd(M_PI, Vec3::UnitX())), Vec3(0, 0, 0.045))};
+  const PerceptionResult scene = Scene({Bushing(-0.1, 0), u, Bushing(0.022, 0), Bushing(0.15, 0.1)});
+  const GraspPlan plan = PlanGrasps(Model(), PickTask(), scene);
+  ASSERT_EQ(plan.queue.size(), 3u) << plan.stats.Describe();
+  std::map<int, std::vector<int>> stale, touching;
+  for (const Grasp& g : plan.queue) {
+    stale[g.instance_id] = g.stale_after;
+    touching[g.instance_id] = g.touching;
+  }
+  EXPECT_EQ(stale.count(1), 0u) << "U has no grasp";
+  EXPECT_EQ(plan.ungrasped_touching, (std::map<int, std::vector<int>>{{1, {0, 2}}}));
+  EXPECT_EQ(stale[0], (std::vector<int>{1}));
+  EXPECT_EQ(touching[0], (std::vector<int>{1}));
+  EXPECT_EQ(stale[2], (std::vector<int>{1}));
+  EXPECT_EQ(touching[2], (std::vector<int>{1}));
+  EXPECT_TRUE(stale[3].empty());
+  // Handing out A withdraws B, which rests against U, which rests against A.
+  GraspQueue queue;
+  PlanResult result;
+  result.outcome = plan.outcome;
+  result.grasps = plan.queue;
+  result.ungrasped_touching = plan.ungrasped_touching;
+  queue.Replace(result);
+  const GraspQueue::Popped a = queue.PopFirst([](const Grasp& g, int) { return g.instance_id == 0; });
+  ASSERT_TRUE(a.grasp);
+  ASSERT_EQ(a.withdrawn.size(), 1u);
+  EXPECT_EQ(a.withdrawn[0].instance_id, 2);
+  EXPECT_EQ(queue.contents().queued, (std::vector<int>{3}));
+}
+
 TEST(GraspPlan, RankingWeightsDecideTheOrder) {
   // A higher part with a worse detection score against a lower, better-seen one.
   Detection high = Bushing(-0.1, 0, 0.05), low = Bushing(0.1, 0);

@@ -196,6 +196,53 @@ TEST(GraspQueue, APartWithdrawnEarlierStillPassesStalenessOn) {
   EXPECT_EQ(q.size(), 0);
 }
 
+// Scene 15630 (docs/tuning.md): picking L-bracket 14 let L-bracket 18,
+// which touched it, drop 11.3 mm under the tool of tee 16's queued grasp;
+// 18 had no grasp in the queue (its grasp was screened out), so nothing
+// passed the staleness on. A part without a queued grasp
+// (PlanResult::ungrasped_touching) is still in the bin: it may move, and
+// moves the parts touching it, whether or not they have grasps queued.
+TEST(GraspQueue, StalenessPassesThroughAPartWithoutAQueuedGrasp) {
+  GraspQueue q;
+  PlanResult plan = MakePlan(7);  // parts 0..6 queued; 7..10 have no grasp
+  // Part 7 touches 0 (the part picked), 5 and 8; 8 touches 7; 9 and 10
+  // touch each other and nothing that moves.
+  plan.ungrasped_touching = {{7, {0, 5, 8}}, {8, {7}}, {9, {10}}, {10, {9}}};
+  plan.grasps[1].stale_after = {7};     // part 1: its tool passes close to 7
+  plan.grasps[2].stale_after = {9};     // part 2: its tool passes close to 9
+  plan.grasps[3].stale_after = {8};     // part 3: its tool passes close to 8 (on 7)
+  plan.grasps[5].stale_after = {7};     // part 5: touches 7
+  plan.grasps[5].touching = {7};
+  plan.grasps[6].stale_after = {5};     // part 6: its tool passes close to 5 (on 7)
+  q.Replace(plan);
+  std::vector<int> offered;
+  GraspQueue::Popped p = q.PopFirst([&](const Grasp&, int remaining) {
+    offered.push_back(remaining);
+    return true;
+  });
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 0);
+  std::vector<int> withdrawn;
+  for (const Grasp& g : p.withdrawn) withdrawn.push_back(g.instance_id);
+  EXPECT_EQ(withdrawn, (std::vector<int>{1, 3, 5, 6}));
+  EXPECT_EQ(offered, (std::vector<int>{3}));  // 0, 2 and 4
+  EXPECT_EQ(p.remaining, 3);
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{2, 4}));
+  // Part 2's tool passes 9, which touches no part that moved.
+  p = q.Pop();
+  ASSERT_TRUE(p.grasp);
+  EXPECT_EQ(p.grasp->instance_id, 2);
+  EXPECT_TRUE(p.withdrawn.empty());
+  // A later plan lists its own parts without grasps: none of these.
+  PlanResult next = MakePlan(2, 20);
+  next.grasps[1].stale_after = {7};
+  q.Replace(next);
+  p = q.Pop();
+  ASSERT_TRUE(p.grasp);
+  EXPECT_TRUE(p.withdrawn.empty());
+  EXPECT_EQ(p.remaining, 2);
+}
+
 // The answer path encodes the remaining count before the grasp leaves
 // (PopFirst): it is the count after the withdrawal, as with Pop.
 TEST(GraspQueue, PopFirstOffersTheCountAfterTheWithdrawalAndWithdrawsLikePop) {
@@ -668,6 +715,24 @@ TEST(GraspQueueHead, AHeadTakenEarlyMakesStaleThroughTouchingPartsAtTheMerge) {
   ASSERT_TRUE(next.grasp);
   EXPECT_EQ(next.remaining, 2);
   EXPECT_LT(next.remaining, head.remaining);
+}
+
+// The head's hand-out, merged, passes staleness on through the parts its
+// plan queued no grasp for, as a Pop from the full queue does.
+TEST(GraspQueueHead, AHeadTakenEarlyMakesStaleThroughPartsWithoutAGraspAtTheMerge) {
+  PlanResult plan = MakePlan(4);  // parts 0..3; 5 has no grasp
+  plan.ungrasped_touching = {{5, {0}}};
+  plan.grasps[2].stale_after = {5};  // part 2: its tool passes close to 5
+  GraspQueue q;
+  ASSERT_TRUE(q.PublishHead(Bare(plan.grasps[0]), 4, 1));
+  const auto head = q.Pop();
+  ASSERT_TRUE(head.grasp);
+  ASSERT_TRUE(q.Replace(plan, 1));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{1, 3}));
+  EXPECT_EQ(q.contents().withdrawn, (std::vector<int>{2}));
+  // Not handed out after all: 2 comes back.
+  ASSERT_TRUE(q.Restore(head));
+  EXPECT_EQ(q.contents().queued, (std::vector<int>{0, 1, 2, 3}));
 }
 
 TEST(GraspQueueHead, AHeadRestoredAfterTheMergeIsWithdrawnWhenATouchingPartIsHandedOut) {
