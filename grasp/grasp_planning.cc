@@ -11,7 +11,6 @@
 #include <functional>
 #include <limits>
 #include <map>
-#include <mutex>
 #include <set>
 #include <sstream>
 #include <tuple>
@@ -240,8 +239,6 @@ class GraspPlanningModel::Impl {
   std::map<std::string, Gripper> grippers;       // by name
   // (class id, gripper) -> expanded cell grasps
   std::map<std::pair<int, std::string>, std::vector<TaughtGrasp>> cell_grasps;
-  // CollisionScene::Add refreshes cached bounds inside shared geometries.
-  mutable std::mutex scene_build_mutex;
 
   // The contact region of grasp g (in its frame G), or null when its
   // gripper's seen-contact rule is off or the class / gripper is unknown.
@@ -388,7 +385,6 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
 namespace {
 
 struct FrameObstacles {
-  CollisionScene parts;         // detections by index, grown by part_margin
   PointObstaclePtr points;      // ROI points no detection explains
   internal::OccupancyGrid grid; // the same points, for the pre-filter
 };
@@ -918,19 +914,13 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
   return out;
 }
 
-// Stage 2: the other parts as meshes (grown by part_margin), the points no detection explains (and
-// the occluded columns under them) as an OcTree and an occupancy bitmap.
+// Stage 2: the points no detection explains (and the occluded columns
+// under them) as an OcTree and an occupancy grid (the other parts' meshes,
+// grown by part_margin, are the model's: CandidateFilter places them).
 FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const PerceptionResult& perception,
                               const Frame* frame) {
   const auto& detections = perception.detections;
   FrameObstacles obstacles;
-  {
-    std::lock_guard lock(m.scene_build_mutex);
-    for (int d = 0; d < static_cast<int>(detections.size()); ++d) {
-      auto p = m.parts_planning.find(detections[d].class_id);
-      if (p != m.parts_planning.end()) (void)obstacles.parts.Add(d, p->second, detections[d].X_BO);
-    }
-  }
   std::vector<uint8_t> explained(perception.roi_points_B.size(), 0);
   for (const Detection& det : detections) {
     for (int32_t i : det.support) {
@@ -975,9 +965,8 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   if (m.options.voxelised_obstacles) rest = VoxelCentres(rest, res);
   auto points = PointObstacle::FromPoints(rest, res);
   if (points.ok()) obstacles.points = *points;
-  // 1 cm cells: a voxel the sweep overlaps has its centre within `res` of
-  // the slab box the check pads by `res`, so the pre-filter stays
-  // conservative on voxel centres as on points.
+  // 1 cm cells of the points (voxel centres when voxelised) for the point
+  // check's pre-filter (CandidateFilter::Verdict).
   obstacles.grid = internal::OccupancyGrid(rest, 0.01);
   return obstacles;
 }
@@ -1029,10 +1018,69 @@ class CandidateFilter {
         std::max(0.0, m.options.suction_compliance_deg - m.options.suction_compliance_margin_deg) * M_PI / 180.0;
     land_approach_ = suction_ ? m.options.suction_compliance_deg * M_PI / 180.0
                               : m.options.ambiguity_jaw_approach_deg * M_PI / 180.0;
+    // The grid holds voxel centres (voxelised_obstacles): a voxel lies
+    // within sqrt(3) / 2 of an edge of its centre; else the points: their
+    // voxel within sqrt(3) edges. Rounded up (an edge, two).
+    points_reach_ = m.options.octree_resolution * (m.options.voxelised_obstacles ? 1.0 : 2.0);
+    // The generated bin (MakeBinMesh) lies outside the open prism over its
+    // inner floor (|x| < x / 2, |y| < y / 2, z > 0 in W) and below its rim
+    // (z <= z size); grown by bin_margin (Inflated: no point moves further
+    // than 3 * bin_margin), outside the prism shrunk by 3 * bin_margin and
+    // below the rim raised by as much. A sweep whose every slab box lies in
+    // one of those two meets none of its triangles. A bin mesh from a file:
+    // none.
+    X_WB_ = X_BW.inverse();
+    if (cell.bin.mesh.empty()) {
+      constexpr double kInf = std::numeric_limits<double>::infinity();
+      const double in = 3.0 * m.options.bin_margin + 1e-4;
+      const Vec3 half = cell.bin.inner_size / 2;
+      bin_free_W_ = {Eigen::AlignedBox3d(Vec3(-half.x() + in, -half.y() + in, in), Vec3(half.x() - in, half.y() - in, kInf)),
+                     Eigen::AlignedBox3d(Vec3(-kInf, -kInf, cell.bin.inner_size.z() + in), Vec3(kInf, kInf, kInf))};
+    }
+    // The other parts: each detection's grown mesh and its bounds in B.
+    parts_.assign(detections.size(), nullptr);
+    part_bounds_.resize(detections.size());
+    for (size_t d = 0; d < detections.size(); ++d) {
+      if (auto p = m.parts_planning.find(detections[d].class_id); p != m.parts_planning.end()) {
+        parts_[d] = p->second.get();
+        part_bounds_[d] = parts_[d]->WorldBounds(detections[d].X_BO);
+      }
+    }
     symmetry_.resize(detections.size());
     for (size_t d = 0; d < detections.size(); ++d) {
       if (const PartSpec* part = cell.FindPart(detections[d].class_id); part != nullptr) symmetry_[d] = part->symmetry;
     }
+  }
+
+  // Whether each slab box of the swept gripper at X_BT lies in one of
+  // bin_free_W_ (its 8 corners): then it does not collide with the plan's
+  // bin.
+  bool ClearOfTheBin(const Pose& X_BT) const {
+    if (bin_free_W_.empty()) return false;
+    const Pose X_WT = X_WB_ * X_BT;
+    return std::all_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
+      std::array<Vec3, 8> corners;
+      for (int i = 0; i < 8; ++i) corners[i] = X_WT * slab.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i));
+      return std::any_of(bin_free_W_.begin(), bin_free_W_.end(), [&](const Eigen::AlignedBox3d& free) {
+        return std::all_of(corners.begin(), corners.end(), [&](const Vec3& p) { return free.contains(p); });
+      });
+    });
+  }
+
+  // Whether the swept gripper at c.X_BT meets another detected part (grown
+  // by part_margin): FCL on the parts whose bounds meet one of its slabs'
+  // (a sweep's triangle lies in its slab's box).
+  bool HitsAnotherPart(const GraspCandidate& c) const {
+    std::vector<Eigen::AlignedBox3d> boxes;
+    boxes.reserve(gripper_.slabs.size());
+    for (const auto& slab : gripper_.slabs) boxes.push_back(WorldBox(slab, c.X_BT));
+    for (size_t d = 0; d < parts_.size(); ++d) {
+      if (static_cast<int>(d) == c.detection || parts_[d] == nullptr) continue;
+      const bool near = std::any_of(boxes.begin(), boxes.end(),
+                                    [&](const Eigen::AlignedBox3d& b) { return b.intersects(part_bounds_[d]); });
+      if (near && Collides(*gripper_.sweep, c.X_BT, *parts_[d], detections_[d].X_BO)) return true;
+    }
+    return false;
   }
 
   // The first check `c` fails, nullopt when it passes every one. Sets
@@ -1065,26 +1113,19 @@ class CandidateFilter {
       if (c.seen_fraction < rule.min_fraction) return RejectReason::kUnseen;
     }
     const CollisionGeometry& sweep = *gripper_.sweep;
-    if (Collides(sweep, c.X_BT, *m_.bin_planning, X_BW_)) return RejectReason::kBin;
-    const int self[] = {c.detection};
-    if (obstacles_.parts.Collides(sweep, c.X_BT, self)) return RejectReason::kPart;
+    if (!ClearOfTheBin(c.X_BT) && Collides(sweep, c.X_BT, *m_.bin_planning, X_BW_)) return RejectReason::kBin;
+    if (HitsAnotherPart(c)) return RejectReason::kPart;
     const Pose X_BT_lift = c.X_BT * TranslateZ(-m_.options.contact_margin);
     if (auto p = m_.parts.find(det.class_id); p != m_.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
       return RejectReason::kSelf;
     }
     if (obstacles_.points) {
       const Pose X_BT_points = c.X_BT * TranslateZ(-gripper_.points_lift);
-      const double pad = m_.options.octree_resolution;
-      bool near = false;
-      for (const auto& slab : gripper_.slabs) {
-        Eigen::AlignedBox3d box = WorldBox(slab, X_BT_points);
-        box.min().array() -= pad;
-        box.max().array() += pad;
-        if (obstacles_.grid.AnyIn(box)) {
-          near = true;
-          break;
-        }
-      }
+      // The sweep lies in its slabs (in T); a voxel it meets has a point of
+      // the grid within points_reach_ of one (each axis of T).
+      const bool near = std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const auto& slab) {
+        return obstacles_.grid.AnyNear(slab, X_BT_points, points_reach_);
+      });
       if (near && obstacles_.points->Collides(sweep, X_BT_points)) return RejectReason::kPoints;
     }
     return std::nullopt;
@@ -1102,6 +1143,11 @@ class CandidateFilter {
   std::optional<Pose> place_;
   bool suction_ = false;
   double seal_angle_ = 0, land_approach_ = 0;
+  double points_reach_ = 0;  // m, OccupancyGrid::AnyNear's grow for the point check's pre-filter
+  Pose X_WB_ = Pose::Identity();
+  std::vector<Eigen::AlignedBox3d> bin_free_W_;  // where the swept gripper cannot meet the plan's bin (W)
+  std::vector<const CollisionGeometry*> parts_;     // by detection: grown by part_margin, null for an unknown class
+  std::vector<Eigen::AlignedBox3d> part_bounds_;    // by detection, in B
   std::vector<Symmetry> symmetry_;
 };
 

@@ -12,11 +12,13 @@
 // first, for: approach tilt from vertical (task.max_tilt_deg), flange inside
 // robot.workspace at the grasp and the pre-grasp (and, when the task names
 // place_on, at the place pose and its approach), the swept gripper against
-// the bin (its walls grown by bin_margin), against the other detected parts
-// (meshes at their estimated poses grown by part_margin, FCL broadphase),
-// against its own part
+// the bin (its walls grown by bin_margin; none inside the walls or above them),
+// against the other detected parts (meshes at their estimated poses grown
+// by part_margin, those whose bounds meet the sweep's slab boxes), against
+// its own part
 // and against the scene points not explained by any detection (an FCL
-// OcTree built once per frame, behind a dense occupancy-bitmap pre-filter),
+// OcTree built once per frame, behind a pre-filter: a point of the voxels
+// within a voxel of a slab box of the sweep, along the tool's axes),
 // with the space below them down to the floor and, on an organized frame,
 // the rays of the pixels without a measurement beside them (dropout_reach),
 // up to the first detected part they meet (dropout_ends_at_parts): what the

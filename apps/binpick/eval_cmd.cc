@@ -79,6 +79,7 @@ struct EvalCliOptions {
   double tol_deg = 5.0;
   int task_id = 0;    // the pick task whose grasps are judged; < 0: no grasps
   bool dropout_ends_at_parts = GraspPlanningOptions{}.dropout_ends_at_parts;
+  bool sideways_turns = true;  // false: GraspPlanningOptions::suction_turn_azimuths_deg empty ("~v" alone)
   bool variety = false;
   BinCliOptions bin;
   double normal_angle_deg = -1.0;
@@ -778,6 +779,7 @@ int Run(const EvalCliOptions& opt) {
     }
     GraspPlanningOptions planning;
     planning.dropout_ends_at_parts = opt.dropout_ends_at_parts;
+    if (!opt.sideways_turns) planning.suction_turn_azimuths_deg.clear();
     auto built = GraspPlanningModel::Build(*cell, planning);
     if (!built.ok()) return Fail(cmd, built.status());
     grasp_model = std::move(*built);
@@ -881,6 +883,21 @@ int Run(const EvalCliOptions& opt) {
   return kExitOk;
 }
 
+// The grasp stage's options: the task and the planner's switches.
+void AddGraspStageOptions(CLI::App& sub, EvalCliOptions& opt) {
+  sub.add_option("--task", opt.task_id,
+                 "pick task whose grasps are planned on the detections and judged against the truth (-1: none)")
+      ->capture_default_str();
+  sub.add_option("--dropout-ends-at-parts", opt.dropout_ends_at_parts,
+                 "grasp stage: true, an unseen dropout ray ends at a detected part's surface; "
+                 "false, at the farthest depth measured near it")
+      ->capture_default_str();
+  sub.add_option("--sideways-turns", opt.sideways_turns,
+                 "grasp stage: true, a suction candidate too steep for its ~v turn to reach vertical also gets "
+                 "the turns of suction_turn_azimuths_deg; false, ~v alone")
+      ->capture_default_str();
+}
+
 }  // namespace
 
 Command EvalCommand() {
@@ -909,14 +926,7 @@ Command EvalCommand() {
                                 "draw each scene's camera pose, intrinsics, noise and drop style from its seed "
                                 "(the cell's source.variety, else the defaults; docs/synthetic.md)");
                    AddBinOptions(sub, &opt->bin);
-                   sub.add_option("--task", opt->task_id,
-                                  "pick task whose grasps are planned on the detections and judged against the "
-                                  "truth (-1: none)")
-                       ->capture_default_str();
-                   sub.add_option("--dropout-ends-at-parts", opt->dropout_ends_at_parts,
-                                  "grasp stage: true, an unseen dropout ray ends at a detected part's surface; "
-                                  "false, at the farthest depth measured near it")
-                       ->capture_default_str();
+                   AddGraspStageOptions(sub, *opt);
                    sub.add_option("--normal-angle", opt->normal_angle_deg,
                                   "segmentation normal-angle threshold, degrees (tuning)");
                    sub.add_option("--max-jump", opt->max_jump, "segmentation neighbour distance, metres (tuning)");

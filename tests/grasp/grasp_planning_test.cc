@@ -938,6 +938,45 @@ TEST(GraspFilter, VoxelisedObstaclesGiveEveryCandidateThePointByPointVerdict) {
   }
 }
 
+// The wall check skips FCL for a swept gripper inside the bin's cavity or above its rim
+// (CandidateFilter::ClearOfTheBin): every candidate that reached the check
+// keeps the exact walls' verdict (bin_margin 0: the plan's walls are the
+// judge's, CheckAgainstParts), on truth piles and on parts leaning by walls.
+TEST(GraspFilter, EveryCandidateReachingTheWallsGetsTheExactWallsVerdict) {
+  Cell cell = DefaultCell();
+  cell.source.kind = SourceSpec::Kind::kSynthetic;
+  GraspPlanningOptions exact;
+  exact.bin_margin = 0.0;
+  auto model = GraspPlanningModel::Build(cell, exact);
+  ASSERT_TRUE(model.ok());
+  const TaskSpec task = *cell.FindTask(0);
+  std::vector<std::pair<PerceptionResult, std::optional<Frame>>> scenes;
+  for (const double y : {0.12, 0.15, 0.17}) scenes.push_back({Scene({LeaningBushing(y), LeaningBushing(-y)}), {}});
+  for (const uint64_t seed : {1, 2}) {
+    std::optional<Frame> frame;
+    std::optional<PerceptionResult> perception;
+    ASSERT_NO_FATAL_FAILURE(RenderTruthPile(cell, 1, seed, frame, perception));
+    scenes.push_back({*perception, frame});
+  }
+  int walls = 0, clear = 0;
+  for (const auto& [scene, frame] : scenes) {
+    const GraspPlan plan = PlanGrasps(**model, task, scene, {}, frame ? &*frame : nullptr);
+    const Pose& X_BW = BinPoseOf(scene, cell.bin);
+    for (const GraspCandidate& c : plan.candidates) {
+      // Decided before the walls, or a last resort refused after every check.
+      const bool reached = !c.rejected || *c.rejected == RejectReason::kBin || *c.rejected == RejectReason::kPart ||
+                           *c.rejected == RejectReason::kSelf || *c.rejected == RejectReason::kPoints;
+      if (!reached) continue;
+      const auto exact_walls = (*model)->CheckAgainstParts(task.gripper, c.X_BT, {}, -1, X_BW);
+      const bool hit = c.rejected == RejectReason::kBin;
+      EXPECT_EQ(exact_walls == RejectReason::kBin, hit) << c.name << " on detection " << c.detection;
+      ++(hit ? walls : clear);
+    }
+  }
+  EXPECT_GT(walls, 10);
+  EXPECT_GT(clear, 100);
+}
+
 // Perception's support: one sample per grid cell, the top-left pixel of
 // each stride x stride block (pipeline/internal/segmentation.cc LabelGrid:
 // stride = grid_spacing / the pixel footprint on the bin floor, rounded).
