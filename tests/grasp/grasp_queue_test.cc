@@ -29,6 +29,13 @@ PlanResult MakePlan(int n, int first_instance = 0) {
   return r;
 }
 
+// The instance ids of `grasps`, in their order.
+std::vector<int> InstanceIds(const std::vector<Grasp>& grasps) {
+  std::vector<int> ids;
+  for (const Grasp& g : grasps) ids.push_back(g.instance_id);
+  return ids;
+}
+
 TEST(GraspQueue, ReportsNoOutcomeBeforeAnyPlan) {
   GraspQueue q;
   const auto p = q.Pop();
@@ -154,9 +161,7 @@ TEST(GraspQueue, StalenessPassesThroughAWithdrawnPartThatTouchesAMovedOne) {
   });
   ASSERT_TRUE(first.grasp);
   EXPECT_EQ(first.grasp->instance_id, 5);
-  std::vector<int> withdrawn;
-  for (const Grasp& g : first.withdrawn) withdrawn.push_back(g.instance_id);
-  EXPECT_EQ(withdrawn, (std::vector<int>{6, 7, 8, 10}));
+  EXPECT_EQ(InstanceIds(first.withdrawn), (std::vector<int>{6, 7, 8, 10}));
   EXPECT_EQ(first.withdrawn_positions, (std::vector<int>{1, 2, 3, 5}));
   EXPECT_EQ(offered, (std::vector<int>{2}));  // 5 and 9
   EXPECT_EQ(first.remaining, 2);
@@ -222,9 +227,7 @@ TEST(GraspQueue, StalenessPassesThroughAPartWithoutAQueuedGrasp) {
   });
   ASSERT_TRUE(p.grasp);
   EXPECT_EQ(p.grasp->instance_id, 0);
-  std::vector<int> withdrawn;
-  for (const Grasp& g : p.withdrawn) withdrawn.push_back(g.instance_id);
-  EXPECT_EQ(withdrawn, (std::vector<int>{1, 3, 5, 6}));
+  EXPECT_EQ(InstanceIds(p.withdrawn), (std::vector<int>{1, 3, 5, 6}));
   EXPECT_EQ(offered, (std::vector<int>{3}));  // 0, 2 and 4
   EXPECT_EQ(p.remaining, 3);
   EXPECT_EQ(q.contents().queued, (std::vector<int>{2, 4}));
