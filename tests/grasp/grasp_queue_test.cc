@@ -29,6 +29,15 @@ PlanResult MakePlan(int n, int first_instance = 0) {
   return r;
 }
 
+// PopFirst accepting whatever it offers; each remaining count it offered
+// is appended to `offered`.
+GraspQueue::Popped PopFirstAccepting(GraspQueue& q, std::vector<int>& offered) {
+  return q.PopFirst([&](const Grasp&, int remaining) {
+    offered.push_back(remaining);
+    return true;
+  });
+}
+
 // The instance ids of `grasps`, in their order.
 std::vector<int> InstanceIds(const std::vector<Grasp>& grasps) {
   std::vector<int> ids;
@@ -155,10 +164,7 @@ TEST(GraspQueue, StalenessPassesThroughAWithdrawnPartThatTouchesAMovedOne) {
   plan.grasps[5].stale_after = {7};  // part 10: its approach passes close to 7
   q.Replace(plan);
   std::vector<int> offered;
-  GraspQueue::Popped first = q.PopFirst([&](const Grasp&, int remaining) {
-    offered.push_back(remaining);
-    return true;
-  });
+  GraspQueue::Popped first = PopFirstAccepting(q, offered);
   ASSERT_TRUE(first.grasp);
   EXPECT_EQ(first.grasp->instance_id, 5);
   EXPECT_EQ(InstanceIds(first.withdrawn), (std::vector<int>{6, 7, 8, 10}));
@@ -221,10 +227,7 @@ TEST(GraspQueue, StalenessPassesThroughAPartWithoutAQueuedGrasp) {
   plan.grasps[6].stale_after = {5};     // part 6: its tool passes close to 5 (on 7)
   q.Replace(plan);
   std::vector<int> offered;
-  GraspQueue::Popped p = q.PopFirst([&](const Grasp&, int remaining) {
-    offered.push_back(remaining);
-    return true;
-  });
+  GraspQueue::Popped p = PopFirstAccepting(q, offered);
   ASSERT_TRUE(p.grasp);
   EXPECT_EQ(p.grasp->instance_id, 0);
   EXPECT_EQ(InstanceIds(p.withdrawn), (std::vector<int>{1, 3, 5, 6}));
@@ -255,10 +258,7 @@ TEST(GraspQueue, PopFirstOffersTheCountAfterTheWithdrawalAndWithdrawsLikePop) {
   plan.grasps[3].stale_after = {0, 2};
   q.Replace(plan);
   std::vector<int> offered;
-  GraspQueue::Popped p = q.PopFirst([&](const Grasp&, int remaining) {
-    offered.push_back(remaining);
-    return true;
-  });
+  GraspQueue::Popped p = PopFirstAccepting(q, offered);
   ASSERT_TRUE(p.grasp);
   EXPECT_EQ(p.grasp->instance_id, 0);
   EXPECT_EQ(offered, (std::vector<int>{3}));
