@@ -1177,6 +1177,28 @@ Eigen::AlignedBox3d Grown(Eigen::AlignedBox3d b, double by) {
   return b;
 }
 
+// Each detection's part for the touch and approach tests: its mesh, the
+// mesh grown for touch_distance (parts_touch) and the mesh's bounds in B
+// at the estimated pose; null / empty for a class without a mesh.
+struct PartsAtPoses {
+  std::vector<const CollisionGeometry*> part, part_touch;
+  std::vector<Eigen::AlignedBox3d> box;
+};
+
+PartsAtPoses PartsAt(const GraspPlanningModel::Impl& m, std::span<const Detection> detections) {
+  const size_t n = detections.size();
+  PartsAtPoses out{std::vector<const CollisionGeometry*>(n, nullptr), std::vector<const CollisionGeometry*>(n, nullptr),
+                   std::vector<Eigen::AlignedBox3d>(n)};
+  for (size_t i = 0; i < n; ++i) {
+    auto p = m.parts.find(detections[i].class_id);
+    if (p == m.parts.end()) continue;
+    out.part[i] = p->second.get();
+    out.part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
+    out.box[i] = out.part[i]->WorldBounds(detections[i].X_BO);
+  }
+  return out;
+}
+
 // The parts that may move when the part of detection `head` is handed out,
 // under GraspQueue's transitive stale rule: the head's part and the parts
 // touch-connected to it (within touch_distance at their estimated poses,
@@ -1187,15 +1209,10 @@ Eigen::AlignedBox3d Grown(Eigen::AlignedBox3d b, double by) {
 // detection is in the group.
 std::vector<bool> TouchGroup(const GraspPlanningModel::Impl& m, std::span<const Detection> detections, int head) {
   const size_t n = detections.size();
-  std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
-  std::vector<Eigen::AlignedBox3d> box(n);
-  for (size_t i = 0; i < n; ++i) {
-    auto p = m.parts.find(detections[i].class_id);
-    if (p == m.parts.end()) continue;
-    part[i] = p->second.get();
-    part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
-    box[i] = part[i]->WorldBounds(detections[i].X_BO);
-  }
+  const PartsAtPoses at = PartsAt(m, detections);
+  const auto& part = at.part;
+  const auto& part_touch = at.part_touch;
+  const auto& box = at.box;
   std::vector<bool> in(n, false);
   in[static_cast<size_t>(head)] = true;
   std::vector<size_t> frontier = {static_cast<size_t>(head)};
@@ -1402,15 +1419,10 @@ void MarkStaleNeighbours(const GraspPlanningModel::Impl& m, const Gripper& gripp
     if (id >= 0 && static_cast<size_t>(id) < n) queued[static_cast<size_t>(id)] = static_cast<int>(i);
   }
   // The queued grasps' X_BO are their detections' (PrimaryGrasp).
-  std::vector<const CollisionGeometry*> part(n, nullptr), part_touch(n, nullptr);
-  std::vector<Eigen::AlignedBox3d> box(n);
-  for (size_t i = 0; i < n; ++i) {
-    auto p = m.parts.find(detections[i].class_id);
-    if (p == m.parts.end()) continue;
-    part[i] = p->second.get();
-    part_touch[i] = m.parts_touch.at(detections[i].class_id).get();
-    box[i] = part[i]->WorldBounds(detections[i].X_BO);
-  }
+  const PartsAtPoses at = PartsAt(m, detections);
+  const auto& part = at.part;
+  const auto& part_touch = at.part_touch;
+  const auto& box = at.box;
   struct Query {
     size_t i, j;    // detections
     bool approach;  // i's queued grasp's swept gripper against part j; else part i against part j (i < j)
