@@ -199,11 +199,18 @@ class SearchRun {
     return SymmetricTranslationError(a, b, m_.symmetry) > opt_.ambiguity_translation ||
            SymmetricRotationError(a, b, m_.symmetry) > opt_.ambiguity_rotation_deg * M_PI / 180.0;
   }
-  std::vector<Pose> Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates);
+  // An alternative pose with its verification figures in full (stride 1;
+  // it passed min_score, so a bar did not cut them short).
+  struct Alternative {
+    Pose X_BO;
+    VerifyStats stats;
+  };
+  std::vector<Alternative> Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates);
   // The view's points (PreparedView::index) within the support tolerance
   // of the part's surface at X_BO.
   std::vector<int> ViewPointsOn(const Pose& X_BO) const;
-  void PreferMoreExplained(PoseHypothesis& h);
+  // `verified`: the figures of h.alternatives, in order (Alternatives).
+  void PreferMoreExplained(PoseHypothesis& h, const std::vector<Alternative>& verified);
   void Keep(std::vector<Candidate> finals);
 
   const PoseModel& m_;
@@ -504,21 +511,22 @@ void SearchRun::Replace(Candidate& c, Candidate by) {
 // other: the fine pass's other looks (best first; verified in full as they
 // are, else refined and verified) and the finals NMS folded into c
 // (duplicates).
-std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<const Candidate*>& duplicates) {
-  std::vector<Pose> out;
+std::vector<SearchRun::Alternative> SearchRun::Alternatives(const Candidate& c,
+                                                            const std::vector<const Candidate*>& duplicates) {
+  std::vector<Alternative> out;
   if (opt_.max_alternatives <= 0) return out;
   const double keep = 1.0 - opt_.ambiguity_slack;
   const double full_bar = keep * Net(c.stats);
-  const auto take = [&](const Pose& X) {
+  const auto take = [&](const Pose& X, const VerifyStats& st) {
     if (!Distinct(X, c.X_BO)) return;
-    for (const Pose& Y : out) {
-      if (!Distinct(X, Y)) return;
+    for (const Alternative& Y : out) {
+      if (!Distinct(X, Y.X_BO)) return;
     }
-    out.push_back(X);
+    out.push_back({X, st});
   };
   for (const Candidate* d : duplicates) {
     if (static_cast<int>(out.size()) >= opt_.max_alternatives) return out;
-    if (Passes(d->stats, min_score_) && Net(d->stats) >= full_bar) take(d->X_BO);
+    if (Passes(d->stats, min_score_) && Net(d->stats) >= full_bar) take(d->X_BO, d->stats);
   }
   std::vector<std::pair<Pose, int>> looks;
   const double quick_bar = keep * Net(c.quick);
@@ -532,17 +540,17 @@ std::vector<Pose> SearchRun::Alternatives(const Candidate& c, const std::vector<
     // capture one in a lambda.
     const Pose& X = look.first;
     if (static_cast<int>(out.size()) >= opt_.max_alternatives || tries-- <= 0) break;
-    if (std::any_of(out.begin(), out.end(), [&](const Pose& Y) { return !Distinct(X, Y); })) continue;
+    if (std::any_of(out.begin(), out.end(), [&](const Alternative& Y) { return !Distinct(X, Y.X_BO); })) continue;
     // As looked at first: a turn the view cannot tell from c (a hidden
     // branch) may still be one ICP slides back from; failing that, refined.
     VerifyStats as_is;
     Timed(verify_ms_, [&] { as_is = VerifyAt(X, 1, min_score_); });
     if (Passes(as_is, min_score_) && Net(as_is) >= full_bar) {
-      take(X);
+      take(X, as_is);
       continue;
     }
     std::optional<Candidate> alt = RefineAt(X);
-    if (alt && Passes(alt->stats, min_score_) && Net(alt->stats) >= full_bar) take(alt->X_BO);
+    if (alt && Passes(alt->stats, min_score_) && Net(alt->stats) >= full_bar) take(alt->X_BO, alt->stats);
   }
   return out;
 }
@@ -577,14 +585,15 @@ std::vector<int> SearchRun::ViewPointsOn(const Pose& X_BO) const {
 // (a tee's branch behind its run) scores higher while explaining less of
 // what the camera saw. rms_residual stays the refined hypothesis's (an
 // alternative may be unrefined).
-void SearchRun::PreferMoreExplained(PoseHypothesis& h) {
+void SearchRun::PreferMoreExplained(PoseHypothesis& h, const std::vector<Alternative>& verified) {
   const double gain = opt_.ambiguity_net_gain;
   if (!(gain > 0.0) || h.alternatives.empty()) return;
   double best_net = (1.0 + gain) * (h.supported_points - h.free_space_points);
   size_t best = h.alternatives.size();
   VerifyStats st;
   for (size_t k = 0; k < h.alternatives.size(); ++k) {
-    const VerifyStats sk = VerifyAt(h.alternatives[k], 1, min_score_);
+    // Alternatives verified it at this pose, as VerifyAt(pose, 1, min_score_) would again.
+    const VerifyStats& sk = verified[k].stats;
     if (Passes(sk, min_score_) && Net(sk) > best_net) {
       best = k;
       best_net = Net(sk);
@@ -624,6 +633,7 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     kept.push_back(c);
     duplicates.emplace_back();
   }
+  std::vector<std::vector<Alternative>> verified(kept.size());  // per kept: its alternatives' figures
   for (size_t i = 0; i < kept.size(); ++i) {
     const Candidate& c = kept[i];
     PoseHypothesis h;
@@ -633,13 +643,17 @@ void SearchRun::Keep(std::vector<Candidate> finals) {
     h.filled_hole_points = c.holes.second;
     h.rms_residual = c.icp.rms;
     h.coarse_votes = c.votes;
-    if (search_.near_symmetries) h.alternatives = Alternatives(c, duplicates[i]);
+    if (search_.near_symmetries) {
+      verified[i] = Alternatives(c, duplicates[i]);
+      for (const Alternative& a : verified[i]) h.alternatives.push_back(a.X_BO);
+    }
     out_.hypotheses.push_back(std::move(h));
   }
   const auto t3 = Clock::now();
-  for (PoseHypothesis& h : out_.hypotheses) {
+  for (size_t i = 0; i < kept.size(); ++i) {
+    PoseHypothesis& h = out_.hypotheses[i];  // Keep alone adds hypotheses
     h.supporting_indices = ViewPointsOn(h.X_BO);
-    PreferMoreExplained(h);
+    PreferMoreExplained(h, verified[i]);
   }
   // Best first again: a pose preferred for what it explains may score lower.
   std::stable_sort(out_.hypotheses.begin(), out_.hypotheses.end(),
