@@ -36,6 +36,7 @@ std::vector<EnclosingView> EnclosingViews(const Segments& segments, const Accept
                                           std::span<const ClassModel* const> models, int min_unexplained) {
   std::vector<EnclosingView> out;
   std::vector<uint8_t> left;  // Acceptance::UnexplainedSamples, once a detection may be enclosed
+  std::vector<int32_t> unexplained_samples;  // those of `left`, in sample order
   for (size_t k : acceptance.Live()) {
     const Detection& d = acceptance.detection(k);
     const int mi = ModelIndexOf(models, d.class_id);
@@ -46,18 +47,28 @@ std::vector<EnclosingView> EnclosingViews(const Segments& segments, const Accept
     const Eigen::Vector3f centre = (d.X_BO * small.centroid_O().cast<double>()).cast<float>();
     for (size_t m = 0; m < models.size(); ++m) {
       if (models[m]->diameter() < kEnclosingRatio * small.diameter()) continue;
-      if (left.empty()) left = acceptance.UnexplainedSamples(segments);
+      if (left.empty()) {
+        left = acceptance.UnexplainedSamples(segments);
+        for (size_t s = 0; s < left.size(); ++s) {
+          if (left[s]) unexplained_samples.push_back(static_cast<int32_t>(s));
+        }
+      }
       const float r = static_cast<float>(0.5 * models[m]->diameter() + 0.25 * small.diameter());
+      // The unexplained samples within r counted first, from their own list
+      // (few of the frame's once the passes are done): most detections
+      // have too few of them near for a view.
+      int unexplained = 0;
+      for (int32_t s : unexplained_samples) {
+        unexplained += (segments.points[static_cast<size_t>(s)] - centre).squaredNorm() > r * r ? 0 : 1;
+      }
+      if (unexplained < min_unexplained) continue;
       std::vector<int32_t> near;
       std::vector<Eigen::Vector3f> points;
-      int unexplained = 0;
       for (size_t s = 0; s < segments.points.size(); ++s) {
         if ((segments.points[s] - centre).squaredNorm() > r * r) continue;
         near.push_back(static_cast<int32_t>(s));
         points.push_back(segments.points[s]);
-        unexplained += left[s];
       }
-      if (unexplained < min_unexplained) continue;
       std::vector<uint8_t> on(points.size(), 0);
       small.MarkOnSurface(d.X_BO, points, kExplainedDistance, &on);
       // The larger part can explain no more than the view: kMoreExplained

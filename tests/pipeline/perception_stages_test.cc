@@ -21,6 +21,7 @@
 #include "core/mesh_gen.h"
 #include "pipeline/internal/acceptance.h"
 #include "pipeline/internal/depth_smoothing.h"
+#include "pipeline/internal/enclosing_parts.h"
 #include "pipeline/internal/fit_limit.h"
 #include "pipeline/internal/planar_faces.h"
 #include "pipeline/internal/pose_model.h"
@@ -407,6 +408,50 @@ TEST(Acceptance, ASampleIsUnexplainedOffEveryLiveDetectionsSurfaceAndOutOfItsSup
   segments.points = {{0.02f, 0.f, 0.f}, {0.f, 0.022f, 0.f}, {0.f, 0.f, 0.05f}, {0.f, 0.f, 0.03f}};
   segments.roi_index = {0, 1, 2, 3};
   EXPECT_EQ(acceptance.UnexplainedSamples(segments), (std::vector<uint8_t>{0, 0, 0, 1}));
+}
+
+// The enclosing pass's view of a small detection: every sample within half
+// the larger diameter plus a quarter of its own of its centre that no other
+// detection explains, in sample order, whatever order the samples lie in
+// space (here shuffled), and its share on the detection flagged.
+TEST(EnclosingParts, AViewHoldsTheSamplesWithinReachNoOtherDetectionExplainsInSampleOrder) {
+  const SphereModel small(0, 0.01f), large(1, 0.03f);
+  const std::vector<const ClassModel*> models = {&small, &large};
+  Segments segments;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> coord(-0.1f, 0.1f);
+  for (int k = 0; k < 6000; ++k) segments.points.emplace_back(coord(rng), coord(rng), coord(rng));
+  // Every 50th on the small detection's surface (r 10 mm about the origin).
+  for (size_t k = 0; k < 6000; k += 50) segments.points[k] = 0.01f * segments.points[k].normalized();
+  segments.roi_index = Range(0, 6000);
+  Acceptance acceptance(6000, models);
+  // The small detection, with samples 1-20 as its support, and a neighbour
+  // 30 mm away whose surface explains samples near it.
+  acceptance.Accept({SphereAt(small, Vec3(0, 0, 0), 0.9, Range(1, 21)),
+                     SphereAt(small, Vec3(0.03, 0, 0), 0.9, {})});
+  const std::vector<size_t> live = acceptance.Live();
+  ASSERT_EQ(live.size(), 2u);
+  const size_t detection =
+      acceptance.detection(live[0]).X_BO.translation().norm() == 0.0 ? live[0] : live[1];
+  const std::vector<EnclosingView> views = EnclosingViews(segments, acceptance, models, 1);
+  const auto of = std::find_if(views.begin(), views.end(),
+                               [&](const EnclosingView& v) { return v.detection == detection; });
+  ASSERT_NE(of, views.end());
+  EXPECT_EQ(of->model, 1);
+  const std::vector<uint8_t> left = acceptance.UnexplainedSamples(segments);
+  const auto r = static_cast<float>(0.5 * large.diameter() + 0.25 * small.diameter());
+  ViewIndices expected;
+  std::vector<uint8_t> expected_on;
+  for (size_t s = 0; s < segments.points.size(); ++s) {
+    if (segments.points[s].squaredNorm() > r * r) continue;
+    const bool on = std::abs(segments.points[s].norm() - 0.01f) <= 0.0025f || (s >= 1 && s < 21);
+    if (!on && !left[s]) continue;
+    expected.push_back(static_cast<int32_t>(s));
+    expected_on.push_back(on ? 1 : 0);
+  }
+  ASSERT_GT(expected.size(), 100u);
+  EXPECT_EQ(of->view, expected);
+  EXPECT_EQ(of->on_detection, expected_on);
 }
 
 // A 50 x 50 mm plate sampled every 2 mm (z = 0, with +-0.5 mm of
