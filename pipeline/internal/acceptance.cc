@@ -215,9 +215,13 @@ double Acceptance::ExplainedFraction(const Segments& segments, const ViewIndices
 std::vector<uint8_t> Acceptance::UnexplainedSamples(const Segments& segments) const {
   const size_t n = segments.points.size();
   std::vector<uint8_t> on(n, 0);
-  for (size_t k = 0; k < n; ++k) on[k] = claims_[static_cast<size_t>(segments.roi_index[k])] > 0 ? 1 : 0;
-  // Per live detection, the samples within its diameter of its surface
-  // centroid (the part lies there) that no earlier one explained.
+  std::vector<size_t> unclaimed;  // in sample order: the only ones the detections' surfaces are tested on
+  for (size_t k = 0; k < n; ++k) {
+    on[k] = claims_[static_cast<size_t>(segments.roi_index[k])] > 0 ? 1 : 0;
+    if (!on[k]) unclaimed.push_back(k);
+  }
+  // Per live detection, the unclaimed samples within its diameter of its
+  // surface centroid (the part lies there).
   std::vector<size_t> live;
   for (size_t d = 0; d < detections_.size(); ++d) {
     if (!accepted_[d].dropped && ModelOf(detections_[d].class_id) != nullptr) live.push_back(d);
@@ -229,8 +233,8 @@ std::vector<uint8_t> Acceptance::UnexplainedSamples(const Segments& segments) co
     const Eigen::Vector3f centre = a.centre_B.cast<float>();
     const float r2 = static_cast<float>(a.diameter * a.diameter);
     std::vector<Eigen::Vector3f> points;
-    for (size_t k = 0; k < n; ++k) {
-      if (on[k] || (segments.points[k] - centre).squaredNorm() > r2) continue;
+    for (size_t k : unclaimed) {
+      if ((segments.points[k] - centre).squaredNorm() > r2) continue;
       near[j].push_back(k);
       points.push_back(segments.points[k]);
     }
