@@ -23,6 +23,7 @@
 #include "grasp/internal/contact_region.h"
 #include "grasp/internal/occupancy_grid.h"
 #include "grasp/internal/surface_depth.h"
+#include "grasp/internal/surface_explanation.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/internal/depth_window.h"
 
@@ -213,6 +214,29 @@ Eigen::AlignedBox3d WorldBox(const Eigen::AlignedBox3d& local, const Pose& X_WL)
   return box;
 }
 
+// m between the samples of a part's surface that explain ROI points
+// (GraspPlanningOptions::surface_explain_distance): a point is explained
+// within that distance plus this of a sample (random samples of this
+// density leave no gap much wider on a face).
+constexpr double kSurfaceSpacing = 0.0005;
+// The explaining side faces the camera: its outward normal at most 10 deg
+// past perpendicular to the line to the camera (grazing faces are seen at
+// their edges, and a detection is up to the strict 5 deg off).
+const float kFacingMinCos = static_cast<float>(-std::sin(10.0 * M_PI / 180.0));
+
+// sigma_z (m) at the bin floor's depth of the cell's noisiest camera config
+// (core/cell.h NoiseModel; as perception's settings read it); 0 for a
+// camera on the robot's hand.
+double FloorSigma(const Cell& cell) {
+  if (cell.camera.eye_in_hand) return 0.0;
+  const double z = std::abs((cell.camera.X_BC.inverse() * cell.bin.X_BW.translation()).z());
+  double sigma = 0.0;
+  for (const CameraConfig& c : cell.camera.configs) {
+    sigma = std::max(sigma, c.noise.axial_sigma_base + c.noise.axial_sigma_quadratic * z * z);
+  }
+  return sigma;
+}
+
 }  // namespace
 
 class GraspPlanningModel::Impl {
@@ -234,6 +258,9 @@ class GraspPlanningModel::Impl {
   std::map<int, CollisionGeometryPtr> parts_touch;  // `parts` grown by options.touch_distance
   std::map<int, CollisionGeometryPtr> parts_planning;  // `parts` grown by options.part_margin (the plan's other parts)
   std::map<int, TriangleMesh> part_meshes;       // by class id, in O (contact ray casts)
+  // By class id, in O: the surfaces that explain ROI points
+  // (options.surface_explain_distance; empty when it is 0).
+  std::map<int, internal::PartSurface> surfaces;
   CollisionGeometryPtr bin;                      // in W
   CollisionGeometryPtr bin_planning;             // `bin` grown by options.bin_margin (the plan's walls)
   std::map<std::string, Gripper> grippers;       // by name
@@ -300,7 +327,8 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
                                                                             const GraspPlanningOptions& options) {
   if (!(options.approach_step > 0) || !(options.revolute_step_deg > 0) || !(options.octree_resolution > 0) ||
       !(options.contact_margin >= 0) || !(options.touch_distance >= 0) || !(options.approach_margin >= 0) ||
-      !(options.bin_margin >= 0) || !(options.part_margin >= 0) || !(options.dropout_reach >= 0)) {
+      !(options.bin_margin >= 0) || !(options.part_margin >= 0) || !(options.dropout_reach >= 0) ||
+      !(options.surface_explain_distance >= 0)) {
     return Status::InvalidArgument(
         "grasp planning options: steps and resolution must be > 0, margins and distances >= 0");
   }
@@ -317,6 +345,9 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
   auto impl = std::make_unique<Impl>();
   impl->cell = cell;
   impl->options = options;
+  if (options.surface_explain_distance > 0) {
+    impl->options.surface_explain_distance = std::max(options.surface_explain_distance, 3.4 * FloorSigma(cell));
+  }
   const Cell& c = impl->cell;
   for (const PartSpec& part : c.parts) {
     Result<TriangleMesh> mesh = LoadMesh(part.mesh);
@@ -332,6 +363,10 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
       auto kept = CollisionGeometry::FromMesh(Inflated(*mesh, options.part_margin));
       if (!kept.ok()) return Status::InvalidArgument("part '" + part.name + "': " + kept.status().message());
       impl->parts_planning[part.class_id] = *kept;
+    }
+    if (impl->options.surface_explain_distance > 0) {
+      impl->surfaces[part.class_id] = internal::PartSurface::Sample(
+          *mesh, kSurfaceSpacing, impl->options.surface_explain_distance + kSurfaceSpacing);
     }
     impl->part_meshes[part.class_id] = std::move(*mesh);
   }
@@ -929,6 +964,21 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   }
   if (m.options.support_grid_spacing > 0) {
     ExplainSupportCells(perception.roi_points_B, 2.0 * m.options.support_grid_spacing, explained);
+  }
+  if (m.options.surface_explain_distance > 0) {
+    std::vector<internal::PlacedSurface> surfaces;
+    for (const Detection& d : detections) {
+      if (auto s = m.surfaces.find(d.class_id); s != m.surfaces.end()) surfaces.push_back({&s->second, d.X_BO});
+    }
+    std::optional<Eigen::Vector3f> eye_B;
+    if (frame != nullptr) {
+      eye_B = frame->X_BC.translation().cast<float>();
+    } else if (!m.cell.camera.eye_in_hand) {
+      eye_B = m.cell.camera.X_BC.translation().cast<float>();
+    }
+    internal::ExplainBySurfaces(perception.roi_points_B, surfaces,
+                                static_cast<float>(m.options.surface_explain_distance + kSurfaceSpacing), eye_B,
+                                kFacingMinCos, explained);
   }
   std::vector<Eigen::Vector3f> rest;
   rest.reserve(perception.roi_points_B.size());

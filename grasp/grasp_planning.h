@@ -16,9 +16,11 @@
 // against the other detected parts (meshes at their estimated poses grown
 // by part_margin, those whose bounds meet the sweep's slab boxes), against
 // its own part
-// and against the scene points not explained by any detection (an FCL
-// OcTree built once per frame, behind a pre-filter: a point of the voxels
-// within a voxel of a slab box of the sweep, along the tool's axes),
+// and against the scene points not explained by any detection (its
+// support, the points near it, and those on its model's surface at its
+// pose: surface_explain_distance; an FCL OcTree built once per frame,
+// behind a pre-filter: a point of the voxels within a voxel of a slab box
+// of the sweep, along the tool's axes),
 // with the space below them down to the floor and, on an organized frame,
 // the rays of the pixels without a measurement beside them (dropout_reach),
 // up to the first detected part they meet (dropout_ends_at_parts): what the
@@ -166,6 +168,23 @@ struct GraspPlanningOptions {
   // an edge differs in depth by more), and its points farther away stay, in
   // octree_resolution voxels (4 mm) that move each point by up to 2 mm.
   double support_grid_spacing = 0.0012;
+  // m: a ROI point within this of a detection's model surface at its
+  // estimated pose, on a side facing the camera (the surface's outward
+  // normal at most 10 deg past grazing, toward the frame's camera or, without
+  // a frame, the cell's), is explained too: that part's own point, no
+  // obstacle. GraspPlanningModel::Build raises it to perception's support
+  // distance for the cell's camera (3.4 sigma_z at the bin floor, the
+  // noisiest config, pipeline/internal/part_settings.h). 0: off.
+  // Why: a detection's support is the view it was matched in (a segment of
+  // the frame), so its part's points in another segment (the other plate of
+  // an L-bracket, a tee's far arm) and its grazing and edge points were
+  // obstacles, inflated to octree_resolution voxels with the occluded
+  // columns below them, and refused the part's own grasps (kPoints; traced
+  // in docs/tuning.md, "Own points"). The part's surface is checked as a
+  // mesh already (kSelf, kPart); another part's points are explained only
+  // within this of the detected surface (where the two touch), and a
+  // neighbour 5 mm off still blocks.
+  double surface_explain_distance = 0.0015;
   // m across the view (on the bin floor): a pixel of an organized frame
   // without a measurement this near a measured point no detection explains
   // makes obstacle points of its ray, from that point's depth to the

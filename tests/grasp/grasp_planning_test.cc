@@ -903,9 +903,12 @@ TEST(GraspFilter, VoxelisedObstaclesGiveEveryCandidateThePointByPointVerdict) {
   Cell cell = DefaultCell();
   cell.source.kind = SourceSpec::Kind::kSynthetic;
   cell.source.num_parts = 12;
-  GraspPlanningOptions by_point;
+  // Without the surface rule, so that clearing the support leaves every point an obstacle.
+  GraspPlanningOptions by_voxel;
+  by_voxel.surface_explain_distance = 0;
+  GraspPlanningOptions by_point = by_voxel;
   by_point.voxelised_obstacles = false;
-  auto voxelised = GraspPlanningModel::Build(cell);
+  auto voxelised = GraspPlanningModel::Build(cell, by_voxel);
   auto reference = GraspPlanningModel::Build(cell, by_point);
   ASSERT_TRUE(voxelised.ok() && reference.ok());
   const TaskSpec task = *cell.FindTask(0);
@@ -1034,6 +1037,7 @@ TEST(GraspPlan, ASupportSampleExplainsItsGridCellAndNoOtherPartsPoints) {
   // would refuse them whether or not the neighbour is detected.
   GraspPlanningOptions rule;
   rule.part_margin = 0;
+  rule.surface_explain_distance = 0;  // the grid cells' rule alone (tests/grasp/own_points_test.cc has the surface's)
   GraspPlanningOptions support_only = rule;
   support_only.support_grid_spacing = 0;
   auto with_rule = GraspPlanningModel::Build(cell, rule);
