@@ -422,6 +422,18 @@ namespace {
 struct FrameObstacles {
   PointObstaclePtr points;      // ROI points no detection explains
   internal::OccupancyGrid grid; // the same points, for the pre-filter
+  // Per detection (by index; empty when surface_explain_distance is 0): the
+  // ROI points its model surface explains and no support did, in voxels of
+  // kSurfaceSpacing, and their box grown by a voxel. Its part as measured
+  // where the view it was matched in did not fit it: no obstacle for the
+  // other grasps (its mesh is, kPart), but checked like its mesh against
+  // its own grasps' lifted sweep (kSelf), so a pose a fraction of a degree
+  // off there does not let the tool into the part.
+  struct OwnPoints {
+    PointObstaclePtr points;
+    Eigen::AlignedBox3d bounds;
+  };
+  std::vector<OwnPoints> own;
 };
 
 // Whether a tool at X_BT, planned as the grasp X_OG_nominal
@@ -967,8 +979,12 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   }
   if (m.options.surface_explain_distance > 0) {
     std::vector<internal::PlacedSurface> surfaces;
-    for (const Detection& d : detections) {
-      if (auto s = m.surfaces.find(d.class_id); s != m.surfaces.end()) surfaces.push_back({&s->second, d.X_BO});
+    std::vector<size_t> surface_of;  // detection index of surfaces[k]
+    for (size_t d = 0; d < detections.size(); ++d) {
+      if (auto s = m.surfaces.find(detections[d].class_id); s != m.surfaces.end()) {
+        surfaces.push_back({&s->second, detections[d].X_BO});
+        surface_of.push_back(d);
+      }
     }
     std::optional<Eigen::Vector3f> eye_B;
     if (frame != nullptr) {
@@ -976,9 +992,24 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     } else if (!m.cell.camera.eye_in_hand) {
       eye_B = m.cell.camera.X_BC.translation().cast<float>();
     }
+    std::vector<std::vector<uint32_t>> owned;
     internal::ExplainBySurfaces(perception.roi_points_B, surfaces,
                                 static_cast<float>(m.options.surface_explain_distance + kSurfaceSpacing), eye_B,
-                                kFacingMinCos, explained);
+                                kFacingMinCos, explained, &owned);
+    obstacles.own.resize(detections.size());
+    for (size_t k = 0; k < owned.size(); ++k) {
+      if (owned[k].empty()) continue;
+      FrameObstacles::OwnPoints& own = obstacles.own[surface_of[k]];
+      std::vector<Eigen::Vector3f> points;
+      points.reserve(owned[k].size());
+      for (uint32_t i : owned[k]) {
+        points.push_back(perception.roi_points_B[i]);
+        own.bounds.extend(points.back().cast<double>());
+      }
+      own.bounds.min().array() -= kSurfaceSpacing;
+      own.bounds.max().array() += kSurfaceSpacing;
+      if (auto p = PointObstacle::FromPoints(points, kSurfaceSpacing); p.ok()) own.points = *p;
+    }
   }
   std::vector<Eigen::Vector3f> rest;
   rest.reserve(perception.roi_points_B.size());
@@ -1133,6 +1164,18 @@ class CandidateFilter {
     return false;
   }
 
+  // Whether the swept gripper at X_BT_lift (lifted like the self check)
+  // meets the points only detection d's surface explains
+  // (FrameObstacles::own): FCL when a slab's box meets their box.
+  bool HitsItsOwnPoints(int d, const Pose& X_BT_lift) const {
+    if (d < 0 || static_cast<size_t>(d) >= obstacles_.own.size() || !obstacles_.own[d].points) return false;
+    const FrameObstacles::OwnPoints& own = obstacles_.own[d];
+    const bool near = std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
+      return WorldBox(slab, X_BT_lift).intersects(own.bounds);
+    });
+    return near && own.points->Collides(*gripper_.sweep, X_BT_lift);
+  }
+
   // The first check `c` fails, nullopt when it passes every one. Sets
   // c.deferred, c.seal_only and c.seen_fraction on the way.
   std::optional<RejectReason> Verdict(GraspCandidate& c) const {
@@ -1169,6 +1212,7 @@ class CandidateFilter {
     if (auto p = m_.parts.find(det.class_id); p != m_.parts.end() && Collides(sweep, X_BT_lift, *p->second, det.X_BO)) {
       return RejectReason::kSelf;
     }
+    if (HitsItsOwnPoints(c.detection, X_BT_lift)) return RejectReason::kSelf;
     if (obstacles_.points) {
       const Pose X_BT_points = c.X_BT * TranslateZ(-gripper_.points_lift);
       // The sweep lies in its slabs (in T); a voxel it meets has a point of

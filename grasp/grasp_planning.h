@@ -111,7 +111,7 @@ enum class RejectReason : int {
   kUnseen,     // the frame's depth does not show the contact region (SeenContactRule)
   kBin,        // swept gripper hits the bin
   kPart,       // swept gripper hits another detected part
-  kSelf,       // lifted gripper cuts into its own part (a grasp inside the part)
+  kSelf,       // lifted gripper cuts into its own part (its mesh, or the points only its surface explains)
   kPoints,     // lifted swept gripper hits scene points no detection explains
   // Passed every check, but its part is mostly hidden (Detection::
   // visible_fraction below GraspPlanningOptions::defer_below_visible) while
@@ -183,7 +183,12 @@ struct GraspPlanningOptions {
   // in docs/tuning.md, "Own points"). The part's surface is checked as a
   // mesh already (kSelf, kPart); another part's points are explained only
   // within this of the detected surface (where the two touch), and a
-  // neighbour 5 mm off still blocks.
+  // neighbour 5 mm off still blocks. The points explained so are still the
+  // part as measured: each detection's are checked against its own grasps'
+  // sweep lifted by contact_margin, like its mesh (kSelf; in 0.5 mm voxels,
+  // no columns), since the estimated mesh may be a fraction of a degree off
+  // where the view it was matched in did not reach (traced in
+  // docs/tuning.md, "Own points", a tee's run_top into its own part).
   double surface_explain_distance = 0.0015;
   // m across the view (on the bin floor): a pixel of an organized frame
   // without a measurement this near a measured point no detection explains

@@ -1,9 +1,11 @@
 #include "grasp/internal/surface_explanation.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <utility>
 
 #include "pipeline/internal/model_sampling.h"
 
@@ -37,9 +39,12 @@ bool PartSurface::Explains(const Eigen::Vector3f& q_O, float radius, const Eigen
 }
 
 void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const PlacedSurface> parts, float radius,
-                       const std::optional<Eigen::Vector3f>& eye_B, float min_cos, std::vector<uint8_t>& explained) {
+                       const std::optional<Eigen::Vector3f>& eye_B, float min_cos, std::vector<uint8_t>& explained,
+                       std::vector<std::vector<uint32_t>>* owned) {
+  if (owned != nullptr) owned->assign(parts.size(), {});
   // Per part: B -> O, its samples' box grown by the radius (in O), and the eye in O.
   struct Placed {
+    uint32_t part;  // index in `parts`
     const PartSurface* surface;
     Eigen::Matrix3f R_OB;
     Eigen::Vector3f t_OB;
@@ -50,7 +55,7 @@ void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const 
   for (const PlacedSurface& p : parts) {
     if (p.surface == nullptr || p.surface->size() == 0) continue;
     const Pose X_OB = p.X_BO.inverse();
-    Placed q{p.surface, X_OB.linear().cast<float>(), X_OB.translation().cast<float>(), p.surface->bounds(),
+    Placed q{static_cast<uint32_t>(&p - parts.data()), p.surface, X_OB.linear().cast<float>(), X_OB.translation().cast<float>(), p.surface->bounds(),
              Eigen::Vector3f::Zero()};
     q.box_O.min().array() -= radius;
     q.box_O.max().array() += radius;
@@ -58,19 +63,30 @@ void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const 
     placed.push_back(q);
   }
   if (placed.empty()) return;
+  // (part, point) pairs each thread found, when the owners are wanted.
+  tbb::combinable<std::vector<std::pair<uint32_t, uint32_t>>> found;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
+    std::vector<std::pair<uint32_t, uint32_t>>* pairs = owned != nullptr ? &found.local() : nullptr;
     for (size_t i = r.begin(); i < r.end(); ++i) {
       if (explained[i] || !points[i].allFinite()) continue;
+      bool any = false;
       for (const Placed& p : placed) {
         const Eigen::Vector3f q = p.R_OB * points[i] + p.t_OB;
         if (!p.box_O.contains(q)) continue;
         if (p.surface->Explains(q, radius, eye_B ? &p.eye_O : nullptr, min_cos)) {
-          explained[i] = 1;
-          break;
+          any = true;
+          if (pairs == nullptr) break;
+          pairs->emplace_back(p.part, static_cast<uint32_t>(i));
         }
       }
+      if (any) explained[i] = 1;
     }
   });
+  if (owned == nullptr) return;
+  found.combine_each([&](const std::vector<std::pair<uint32_t, uint32_t>>& pairs) {
+    for (const auto& [part, i] : pairs) (*owned)[part].push_back(i);
+  });
+  for (std::vector<uint32_t>& list : *owned) std::sort(list.begin(), list.end());
 }
 
 }  // namespace bp::internal

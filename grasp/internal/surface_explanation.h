@@ -53,8 +53,12 @@ struct PlacedSurface {
 // lies within `radius` of one of `parts`, on a side facing `eye_B` (the
 // camera's centre; nullopt: any side) by at least min_cos. Points are
 // looked at in parallel (the caller's arena); each writes its own flag.
+// When `owned` is not null it is resized to parts.size() and (*owned)[k]
+// lists, ascending, the points part k explains (a point two parts explain,
+// where they touch, is listed under both).
 // REQUIRES: explained.size() == points.size().
 void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const PlacedSurface> parts, float radius,
-                       const std::optional<Eigen::Vector3f>& eye_B, float min_cos, std::vector<uint8_t>& explained);
+                       const std::optional<Eigen::Vector3f>& eye_B, float min_cos, std::vector<uint8_t>& explained,
+                       std::vector<std::vector<uint32_t>>* owned = nullptr);
 
 }  // namespace bp::internal
