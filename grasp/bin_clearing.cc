@@ -375,6 +375,13 @@ PickVerdict JudgePick(const BinPickingPlanner& p, const TaskSpec& used, const Gr
   return v;
 }
 
+// "3, 7, 12" (debug log).
+std::string JoinIds(const std::vector<int>& ids) {
+  std::string out;
+  for (int id : ids) out += (out.empty() ? "" : ", ") + std::to_string(id);
+  return out;
+}
+
 // The parts the resettling after a pick moved, and how far (debug log).
 void LogResettled(const std::vector<PartTruth>& before, const std::vector<PartTruth>& after) {
   for (const PartTruth& a : after) {
@@ -421,9 +428,11 @@ void ServeQueue(const Serving& s, GraspQueue& queue, SceneClearReport& report) {
                "): slipped off instance " + std::to_string(v.landed) + " (--slip); it stays";
       ++report.slipped;
     }
-    spdlog::debug("seed {} cycle {}: task {} grasp {} on detection {} (stale after {} parts) lands on instance {}: {}",
+    spdlog::debug("seed {} cycle {}: task {} grasp {} on detection {} (stale after parts [{}], touching [{}]) lands on "
+                  "instance {}: {}",
                   report.seed, report.cycles, s.used.id, popped.grasp->name, popped.grasp->instance_id,
-                  popped.grasp->stale_after.size(), v.landed, v.success ? "picked" : v.cause);
+                  JoinIds(popped.grasp->stale_after), JoinIds(popped.grasp->touching), v.landed,
+                  v.success ? "picked" : v.cause);
     if (v.success) {
       ++report.picks;
       ++tally.picks;
