@@ -17,9 +17,13 @@
 #include "grasp/robot_targets.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
+#include "tests/testing/truth_piles.h"
 
 namespace bp {
 namespace {
+
+using testing::RenderTruthPile;
+using testing::VerdictMap;
 
 // The default cell's bushing (class 0): origin at the flange's bottom face,
 // hub up to z = 40 mm; hub_top is a straight-down suction grasp on the hub.
@@ -81,24 +85,6 @@ std::vector<std::optional<RejectReason>> Verdicts(const GraspPlan& plan, int det
     if (c.detection == detection && c.name.rfind(prefix, 0) == 0) v.push_back(c.rejected);
   }
   return v;
-}
-
-// Renders synthetic pile `seed` of `cell` at camera config `config` and
-// perceives it with the true detections (TruthPerception): the frame and
-// the scene that grasp planning runs on.
-void RenderTruthPile(Cell& cell, int config, uint64_t seed, std::optional<Frame>& frame,
-                     std::optional<PerceptionResult>& perception) {
-  cell.source.seed = seed;
-  auto source = MakeSyntheticSource(cell);
-  ASSERT_TRUE(source.ok()) << source.status().ToString();
-  CaptureRequest capture;
-  capture.config_id = config;
-  auto captured = (*source)->Capture(capture);
-  ASSERT_TRUE(captured.ok()) << captured.status().ToString();
-  auto perceived = TruthPerception(cell).Run(*captured);
-  ASSERT_TRUE(perceived.ok());
-  frame = std::move(*captured);
-  perception = std::move(*perceived);
 }
 
 int Count(const std::vector<std::optional<RejectReason>>& v, std::optional<RejectReason> r) {
@@ -1003,23 +989,6 @@ PerceptionResult GridSupportOnly(const PerceptionResult& truth, const Frame& fra
   return out;
 }
 
-// Every candidate's verdict by (detection, name); `skipped` is a detection
-// left out of the scene (the later detections' indices are one lower).
-std::map<std::pair<int, std::string>, std::optional<RejectReason>> VerdictMap(const GraspPlan& plan,
-                                                                                int skipped = -1) {
-  std::map<std::pair<int, std::string>, std::optional<RejectReason>> v;
-  for (const GraspCandidate& c : plan.candidates) {
-    const int d = skipped >= 0 && c.detection >= skipped ? c.detection + 1 : c.detection;
-    v[{d, c.name}] = c.rejected;
-  }
-  return v;
-}
-
-PerceptionResult Without(PerceptionResult scene, int detection) {
-  scene.detections.erase(scene.detections.begin() + detection);
-  return scene;
-}
-
 // A support sample stands for its grid cell (GraspPlanningOptions::
 // support_grid_spacing). On a 1920 x 1200 pile (stride 3) with the true
 // detections' support thinned to perception's grid: with the support alone
@@ -1063,22 +1032,9 @@ TEST(GraspPlan, ASupportSampleExplainsItsGridCellAndNoOtherPartsPoints) {
   EXPECT_GT(recovered, 0);
   // Each detection in turn left undetected until one refuses another's
   // grasps by its points: those stay refused under the rule.
-  int kept_refused = 0;
-  for (int k = 0; k < static_cast<int>(truth->detections.size()) && kept_refused == 0; ++k) {
-    SCOPED_TRACE("detection " + std::to_string(k) + " undetected");
-    const auto ruled_k = VerdictMap(PlanGrasps(**with_rule, task, Without(grid, k), {}, &*frame), k);
-    const auto ideal_k = VerdictMap(PlanGrasps(**without, task, Without(*truth, k), {}, &*frame), k);
-    for (const auto& [key, verdict] : ruled_k) {
-      if (!verdict) {
-        EXPECT_FALSE(ideal_k.at(key).has_value()) << key.second << " on detection " << key.first;
-      }
-      if (ideal_k.at(key) == RejectReason::kPoints && !ideal.at(key)) {
-        EXPECT_TRUE(verdict.has_value()) << key.second << " on detection " << key.first;
-        ++kept_refused;
-      }
-    }
-  }
-  EXPECT_GT(kept_refused, 0);
+  EXPECT_GT(testing::ExpectUndetectedPartsStillRefuse(**with_rule, **without, task, grid, *truth, *frame, ideal,
+                                                      /*first_only=*/true),
+            0);
 }
 
 // The first pose early (GraspPlanner::PlanWithHead): on synthetic piles

@@ -15,6 +15,7 @@
 #include "grasp/grasp_planning.h"
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
+#include "tests/testing/truth_piles.h"
 
 namespace bp {
 namespace {
@@ -31,19 +32,23 @@ const Cell& PileCell() {
   return cell;
 }
 
-void RenderTruthPile(int config, uint64_t seed, std::optional<Frame>& frame, std::optional<PerceptionResult>& truth) {
+using ModelResult = Result<std::shared_ptr<const GraspPlanningModel>>;
+
+// PileCell's planning models with the rule (surface_explain_distance at its
+// default) and with it off (0), both with part_margin 0: the exact
+// neighbours, so that a refusal by points is not hidden by the margin.
+std::pair<ModelResult, ModelResult> RuleAndOffModels() {
+  GraspPlanningOptions rule;
+  rule.part_margin = 0;
+  GraspPlanningOptions off = rule;
+  off.surface_explain_distance = 0;
+  return {GraspPlanningModel::Build(PileCell(), rule), GraspPlanningModel::Build(PileCell(), off)};
+}
+
+// Pile `seed` of PileCell at camera config `config`, perceived by the truth.
+void RenderPile(int config, uint64_t seed, std::optional<Frame>& frame, std::optional<PerceptionResult>& truth) {
   Cell cell = PileCell();
-  cell.source.seed = seed;
-  auto source = MakeSyntheticSource(cell);
-  ASSERT_TRUE(source.ok()) << source.status().ToString();
-  CaptureRequest capture;
-  capture.config_id = config;
-  auto captured = (*source)->Capture(capture);
-  ASSERT_TRUE(captured.ok()) << captured.status().ToString();
-  auto perceived = TruthPerception(cell).Run(*captured);
-  ASSERT_TRUE(perceived.ok());
-  frame = std::move(*captured);
-  truth = std::move(*perceived);
+  testing::RenderTruthPile(cell, config, seed, frame, truth);
 }
 
 // A view's support: the true detections' every-pixel support (TruthPerception)
@@ -69,20 +74,8 @@ PerceptionResult ViewSupportOnly(const PerceptionResult& truth, const Frame& fra
   return out;
 }
 
-using Verdicts = std::map<std::pair<int, std::string>, std::optional<RejectReason>>;
-Verdicts VerdictsOf(const GraspPlan& plan, int skipped = -1) {
-  Verdicts v;
-  for (const GraspCandidate& c : plan.candidates) {
-    const int d = skipped >= 0 && c.detection >= skipped ? c.detection + 1 : c.detection;
-    v[{d, c.name}] = c.rejected;
-  }
-  return v;
-}
-
-PerceptionResult Without(PerceptionResult scene, int detection) {
-  scene.detections.erase(scene.detections.begin() + detection);
-  return scene;
-}
+using testing::PlanVerdicts;
+using testing::VerdictMap;
 
 // On piles whose detections are true but supported by one view each (their
 // grazing and edge points unexplained): without the rule some candidates
@@ -93,12 +86,9 @@ PerceptionResult Without(PerceptionResult scene, int detection) {
 // another part's: the grasps they refuse under the true explanation stay
 // refused under the rule.
 TEST(OwnPoints, APartsOwnUnsupportedPointsNoLongerBlockItsGraspsButAnUndetectedNeighboursStillDo) {
-  GraspPlanningOptions rule;
-  rule.part_margin = 0;  // the exact neighbours: a refusal by points is not hidden by the margin
-  GraspPlanningOptions off = rule;
-  off.surface_explain_distance = 0;
-  auto with_rule = GraspPlanningModel::Build(PileCell(), rule);
-  auto without = GraspPlanningModel::Build(PileCell(), off);
+  const auto models = RuleAndOffModels();
+  const ModelResult& with_rule = models.first;
+  const ModelResult& without = models.second;
   ASSERT_TRUE(with_rule.ok() && without.ok());
   const TaskSpec task = *PileCell().FindTask(0);
   int recovered = 0, kept_refused = 0;
@@ -106,12 +96,12 @@ TEST(OwnPoints, APartsOwnUnsupportedPointsNoLongerBlockItsGraspsButAnUndetectedN
     SCOPED_TRACE("config " + std::to_string(config) + " seed " + std::to_string(seed));
     std::optional<Frame> frame;
     std::optional<PerceptionResult> truth;
-    ASSERT_NO_FATAL_FAILURE(RenderTruthPile(config, seed, frame, truth));
+    ASSERT_NO_FATAL_FAILURE(RenderPile(config, seed, frame, truth));
     const PerceptionResult view = ViewSupportOnly(*truth, *frame);
     const GraspPlan ruled_plan = PlanGrasps(**with_rule, task, view, {}, &*frame);
-    const Verdicts alone = VerdictsOf(PlanGrasps(**without, task, view, {}, &*frame));
-    const Verdicts ruled = VerdictsOf(ruled_plan);
-    const Verdicts ideal = VerdictsOf(PlanGrasps(**without, task, *truth, {}, &*frame));
+    const PlanVerdicts alone = VerdictMap(PlanGrasps(**without, task, view, {}, &*frame));
+    const PlanVerdicts ruled = VerdictMap(ruled_plan);
+    const PlanVerdicts ideal = VerdictMap(PlanGrasps(**without, task, *truth, {}, &*frame));
     for (const GraspCandidate& c : ruled_plan.candidates) {
       if (c.rejected) continue;
       const std::pair<int, std::string> key{c.detection, c.name};
@@ -124,20 +114,8 @@ TEST(OwnPoints, APartsOwnUnsupportedPointsNoLongerBlockItsGraspsButAnUndetectedN
                 std::nullopt)
           << c.name << " on detection " << c.detection;
     }
-    for (int k = 0; k < static_cast<int>(truth->detections.size()); ++k) {
-      SCOPED_TRACE("detection " + std::to_string(k) + " undetected");
-      const Verdicts ruled_k = VerdictsOf(PlanGrasps(**with_rule, task, Without(view, k), {}, &*frame), k);
-      const Verdicts ideal_k = VerdictsOf(PlanGrasps(**without, task, Without(*truth, k), {}, &*frame), k);
-      for (const auto& [key, verdict] : ruled_k) {
-        if (!verdict) {
-          EXPECT_FALSE(ideal_k.at(key).has_value()) << key.second << " on detection " << key.first;
-        }
-        if (ideal_k.at(key) == RejectReason::kPoints && !ideal.at(key)) {
-          EXPECT_TRUE(verdict.has_value()) << key.second << " on detection " << key.first;
-          ++kept_refused;
-        }
-      }
-    }
+    kept_refused += testing::ExpectUndetectedPartsStillRefuse(**with_rule, **without, task, view, *truth, *frame,
+                                                              ideal, /*first_only=*/false);
   }
   EXPECT_GT(recovered, 0);
   EXPECT_GT(kept_refused, 0);
@@ -156,7 +134,7 @@ TEST(OwnPoints, ANeighboursPointsFiveMillimetresFromThePartStillBlockTheGraspThe
   const TaskSpec task = *PileCell().FindTask(0);
   std::optional<Frame> frame;
   std::optional<PerceptionResult> truth;
-  ASSERT_NO_FATAL_FAILURE(RenderTruthPile(1, 5, frame, truth));
+  ASSERT_NO_FATAL_FAILURE(RenderPile(1, 5, frame, truth));
   PerceptionResult view = ViewSupportOnly(*truth, *frame);
   const GraspPlan before = PlanGrasps(**without, task, view, {}, &*frame);
   const GraspPlan after = PlanGrasps(**with_rule, task, view, {}, &*frame);
@@ -197,19 +175,16 @@ TEST(OwnPoints, ANeighboursPointsFiveMillimetresFromThePartStillBlockTheGraspThe
 // traced in docs/tuning.md "Own points"). No grasp the rule accepts cuts
 // into its true part unless the rule off accepts it too.
 TEST(OwnPoints, APartsOwnPointsStillRefuseItsGraspWhereItsPoseIsADegreeOff) {
-  GraspPlanningOptions rule;
-  rule.part_margin = 0;
-  GraspPlanningOptions off = rule;
-  off.surface_explain_distance = 0;
-  auto with_rule = GraspPlanningModel::Build(PileCell(), rule);
-  auto without = GraspPlanningModel::Build(PileCell(), off);
+  const auto models = RuleAndOffModels();
+  const ModelResult& with_rule = models.first;
+  const ModelResult& without = models.second;
   ASSERT_TRUE(with_rule.ok() && without.ok());
   const TaskSpec task = *PileCell().FindTask(0);
   int freed_into_the_part = 0;
   for (const auto& [config, seed] : std::vector<std::pair<int, uint64_t>>{{1, 5}, {1, 11}}) {
     std::optional<Frame> frame;
     std::optional<PerceptionResult> truth;
-    ASSERT_NO_FATAL_FAILURE(RenderTruthPile(config, seed, frame, truth));
+    ASSERT_NO_FATAL_FAILURE(RenderPile(config, seed, frame, truth));
     for (int axis = 0; axis < 3; ++axis) {
       for (const double deg : {-1.0, 1.0}) {
         SCOPED_TRACE("config " + std::to_string(config) + " seed " + std::to_string(seed) + " axis " +
