@@ -26,6 +26,7 @@
 #include "grasp/internal/surface_explanation.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/internal/depth_window.h"
+#include "pipeline/internal/part_settings.h"
 
 namespace bp {
 
@@ -224,17 +225,10 @@ constexpr double kSurfaceSpacing = 0.0005;
 // their edges, and a detection is up to the strict 5 deg off).
 const float kFacingMinCos = static_cast<float>(-std::sin(10.0 * M_PI / 180.0));
 
-// sigma_z (m) at the bin floor's depth of the cell's noisiest camera config
-// (core/cell.h NoiseModel; as perception's settings read it); 0 for a
-// camera on the robot's hand.
+// sigma_z (m) at the bin floor's depth of the cell's noisiest camera config,
+// as perception's settings read it; 0 for a camera on the robot's hand.
 double FloorSigma(const Cell& cell) {
-  if (cell.camera.eye_in_hand) return 0.0;
-  const double z = std::abs((cell.camera.X_BC.inverse() * cell.bin.X_BW.translation()).z());
-  double sigma = 0.0;
-  for (const CameraConfig& c : cell.camera.configs) {
-    sigma = std::max(sigma, c.noise.axial_sigma_base + c.noise.axial_sigma_quadratic * z * z);
-  }
-  return sigma;
+  return cell.camera.eye_in_hand ? 0.0 : internal::CameraFiguresOf(cell, PerceptionOptions{}).sigma_floor;
 }
 
 }  // namespace
@@ -346,7 +340,8 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
   impl->cell = cell;
   impl->options = options;
   if (options.surface_explain_distance > 0) {
-    impl->options.surface_explain_distance = std::max(options.surface_explain_distance, 3.4 * FloorSigma(cell));
+    impl->options.surface_explain_distance =
+        std::max(options.surface_explain_distance, internal::kSupportSigmas * FloorSigma(cell));
   }
   const Cell& c = impl->cell;
   for (const PartSpec& part : c.parts) {

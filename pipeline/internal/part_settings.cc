@@ -93,7 +93,7 @@ PoseEstimatorOptions ScaledEstimatorOptions(const PartGeometry& geometry, const 
   o.icp_model_spacing = std::max(reference.icp_model_spacing, D / 300.0);
   // Verification samples are drawn from the dense ones: never finer.
   o.verify_model_spacing = std::max(o.icp_model_spacing, std::min(reference.verify_model_spacing, D / 15.0));
-  o.support_distance = std::max(reference.support_distance, 3.4 * sigma);
+  o.support_distance = std::max(reference.support_distance, kSupportSigmas * sigma);
   o.free_space_distance = std::max(reference.free_space_distance, 6.8 * sigma);
   o.icp_final_distance = std::max(reference.icp_final_distance, 4.5 * sigma);
   double ppf_step = step;

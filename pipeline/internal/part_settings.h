@@ -39,11 +39,16 @@ PartGeometry MeasureMesh(const TriangleMesh& mesh);
 // or it spans under 2 mm or over 2 m.
 Status CheckMeshScale(const PartGeometry& geometry, const std::string& unit_hint, const std::string& path);
 
+// The support distance's floor in units of sigma_floor: a measured point
+// within this many sigma_z of a part's surface is that part's (about 1 in
+// 1500 of a surface's points falls outside under normal noise).
+constexpr double kSupportSigmas = 3.4;
+
 // The estimator's options for one part: `reference` (the defaults) scaled by
 //   ppf step            = max(ppf_relative_sampling D, view_spacing), at most 0.2 D
 //   icp spacing         = max(icp_model_spacing, D / 300)
 //   verify spacing      = max(icp spacing, min(verify_model_spacing, D / 15))
-//   support distance    = max(support_distance, 3.4 sigma_floor)
+//   support distance    = max(support_distance, kSupportSigmas sigma_floor)
 //   free-space distance = max(free_space_distance, 6.8 sigma_floor)
 //   ICP final gate      = max(icp_final_distance, 4.5 sigma_floor)
 // with D the part's diameter, then the part's overrides (parts[].perception).
