@@ -13,6 +13,7 @@
 #include "grasp/bin_picking_planner.h"
 #include "grasp/grasp_queue.h"
 #include "pipeline/capture_source.h"
+#include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 
 namespace bp {
@@ -257,6 +258,66 @@ TEST(FailedPickFeedback, AReportedFailureWithdrawsThatPartsGraspsForNCapturesThe
   }
   const std::set<int> released = capture(true);
   EXPECT_EQ(released.count(failed_part), 1u) << "capture N + 1 releases the spot";
+}
+
+// Issue 41's "seed programs that never send it behave exactly as before": a
+// robot that never reports a failure (no seed sends command 60) is served by
+// the task's screened queue exactly what a queue without the feedback serves,
+// capture after capture (each capture ages the feedback as binpickd does),
+// while the pile is picked down.
+TEST(FailedPickFeedback, ARobotThatNeverReportsIsServedExactlyWhatAQueueWithoutTheFeedbackServes) {
+  Result<Cell> cell = LoadDefaultCell();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  cell->source.kind = SourceSpec::Kind::kSynthetic;
+  cell->source.simulate_picks = true;
+  cell->source.num_parts = 12;
+  cell->source.seed = 5;
+  const TaskSpec task = *cell->FindTask(0);
+  auto source = MakeCaptureSource(*cell);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  auto* pile = dynamic_cast<SyntheticSource*>(source->get());
+  ASSERT_NE(pile, nullptr);
+  BinPickingPlannerOptions options;
+  options.teach_file = "-";
+  auto planner = BinPickingPlanner::Create(*cell, std::make_shared<TruthPerception>(*cell), std::move(*source), options);
+  ASSERT_TRUE(planner.ok()) << planner.status().ToString();
+  BinPickingPlanner& p = **planner;
+
+  FailedPicks failed(task.failed_picks, cell->bin.X_BW);
+  GraspQueue screened, plain;
+  screened.SetScreen([&failed](std::deque<Grasp>& grasps) { return failed.Screen(grasps); });
+  PlanRequest request;
+  request.task = task;
+  int served = 0;
+  for (int capture = 0; capture < 4; ++capture) {
+    failed.OnCapture();
+    auto scene = p.Capture(request);
+    ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+    auto plan = p.Plan(request, **scene);
+    ASSERT_TRUE(plan.ok()) << plan.status().ToString();
+    ASSERT_FALSE(plan->grasps.empty()) << "capture " << capture;
+    ASSERT_TRUE(screened.Replace(*plan));
+    ASSERT_TRUE(plain.Replace(*plan));
+    EXPECT_EQ(screened.Rescreen(), 0) << "capture " << capture;
+    std::optional<int> picked;
+    for (;;) {
+      const GraspQueue::Popped a = screened.Pop();
+      const GraspQueue::Popped b = plain.Pop();
+      ASSERT_EQ(a.grasp.has_value(), b.grasp.has_value()) << "capture " << capture;
+      EXPECT_EQ(a.remaining, b.remaining);
+      EXPECT_EQ(a.outcome, b.outcome);
+      EXPECT_EQ(a.withdrawn.size(), b.withdrawn.size());
+      if (!a.grasp) break;
+      EXPECT_EQ(a.grasp->instance_id, b.grasp->instance_id);
+      EXPECT_EQ(a.grasp->name, b.grasp->name);
+      EXPECT_TRUE(a.grasp->X_BT.matrix() == b.grasp->X_BT.matrix()) << a.grasp->name;
+      ++served;
+      if (!picked) picked = p.TruthInstanceOf(task.id, a.grasp->instance_id);
+    }
+    ASSERT_TRUE(picked && *picked >= 0);
+    pile->NotifyPicked(*picked);  // the robot took the first part it was given
+  }
+  EXPECT_GE(served, 4);
 }
 
 }  // namespace
