@@ -561,7 +561,8 @@ void LogDetections(int i, const Frame& frame, const PerceptionResult& result, co
 // alternatives and the true pose verified on the part's own points (its
 // pixels of the label image) against the whole depth image: whether the
 // view holds evidence for the truth the search did not use (the truth
-// explains more) or none (it explains as much or less).
+// explains more) or none (it explains as much or less), and the counts
+// behind it (visible, occluded, unmeasured samples).
 void LogGrossOwnPoints(const Cell& cell, int i, const Frame& frame, const PerceptionResult& result,
                        const FrameEvaluation& fe,
                        DiagnosticEstimators& diagnostic_estimators) {
@@ -597,7 +598,8 @@ void LogGrossOwnPoints(const Cell& cell, int i, const Frame& frame, const Percep
         const Result<PoseHypothesis> t = est->Score(view, X * T);
         if (t.ok()) best = std::max(best, t->supported_points - t->free_space_points);
       }
-      return fmt::format("{}-{} ({} best turned)", h->supported_points, h->free_space_points, best);
+      return fmt::format("{}-{} ({} visible, {} occluded, {} unmeasured; {} best turned)", h->supported_points,
+                         h->free_space_points, h->visible_points, h->occluded_points, h->unmeasured_points, best);
     };
     const Detection& d = result.detections[o.detection];
     std::string alts;
