@@ -11,6 +11,8 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <memory>
+#include <mutex>
 #include <set>
 #include <sstream>
 #include <tuple>
@@ -23,6 +25,7 @@
 #include "grasp/internal/contact_region.h"
 #include "grasp/internal/occupancy_grid.h"
 #include "grasp/internal/surface_depth.h"
+#include "grasp/internal/support_cells.h"
 #include "grasp/internal/surface_explanation.h"
 #include "pipeline/evaluation.h"
 #include "pipeline/internal/depth_window.h"
@@ -220,6 +223,10 @@ Eigen::AlignedBox3d WorldBox(const Eigen::AlignedBox3d& local, const Pose& X_WL)
 // within that distance plus this of a sample (random samples of this
 // density leave no gap much wider on a face).
 constexpr double kSurfaceSpacing = 0.0005;
+// m, the cells of a detection's own points' occupancy grid (the own-point
+// check's pre-filter): about the size of the sweep's slab boxes' overlap
+// with a part, so that a query walks tens of cells, not thousands.
+constexpr double kOwnGridCell = 0.005;
 // The explaining side faces the camera: its outward normal at most 10 deg
 // past perpendicular to the line to the camera (grazing faces are seen at
 // their edges, and a detection is up to the strict 5 deg off).
@@ -425,10 +432,16 @@ struct FrameObstacles {
   // its own grasps' lifted sweep (kSelf), so a pose a fraction of a degree
   // off there does not let the tool into the part.
   struct OwnPoints {
-    PointObstaclePtr points;
+    std::vector<Eigen::Vector3f> points;  // B
     Eigen::AlignedBox3d bounds;
+    internal::OccupancyGrid grid;  // `points` in cells of kOwnGridCell, the check's pre-filter
+    // The OcTree of `points`, built by the first check that reaches it
+    // (most detections' never are: their grasps fail earlier, or no sweep
+    // comes near those points); the same tree whenever it is built.
+    mutable std::once_flag built;
+    mutable PointObstaclePtr tree;
   };
-  std::vector<OwnPoints> own;
+  std::vector<std::unique_ptr<OwnPoints>> own;  // null: none
 };
 
 // Whether a tool at X_BT, planned as the grasp X_OG_nominal
@@ -702,94 +715,6 @@ void AppendOccludedColumns(const Pose& X_BW_d, double res_d, bool dense, std::ve
   }
 }
 
-// Marks as explained every point within `reach` (m, B) of an explained
-// (support) point (GraspPlanningOptions::support_grid_spacing has the rule
-// and why). The support points are bucketed in cubes of edge `reach` over
-// their bounds (counting sort: a start per cube, indices in cube order); a
-// point looks at its own cube first, then the other 26 around it, unless its
-// cube is marked as having no support point in those 27 (most of the points
-// no detection explains: the bin's floor and walls, a missed part). The
-// points are looked at in parallel: each writes its own flag and reads the
-// support points only.
-void ExplainSupportCells(std::span<const Eigen::Vector3f> points, double reach, std::vector<uint8_t>& explained) {
-  const double inv = 1.0 / reach;
-  const float reach2 = static_cast<float>(reach * reach);
-  auto key = [inv](const Eigen::Vector3f& p) {
-    return Eigen::Array3<int64_t>(static_cast<int64_t>(std::floor(inv * p.x())),
-                                  static_cast<int64_t>(std::floor(inv * p.y())),
-                                  static_cast<int64_t>(std::floor(inv * p.z())));
-  };
-  Eigen::Array3<int64_t> lo = Eigen::Array3<int64_t>::Constant(std::numeric_limits<int64_t>::max());
-  Eigen::Array3<int64_t> hi = Eigen::Array3<int64_t>::Constant(std::numeric_limits<int64_t>::min());
-  std::vector<int32_t> seeds;
-  for (size_t i = 0; i < points.size(); ++i) {
-    if (!explained[i] || !points[i].allFinite()) continue;
-    const Eigen::Array3<int64_t> k = key(points[i]);
-    lo = lo.min(k);
-    hi = hi.max(k);
-    seeds.push_back(static_cast<int32_t>(i));
-  }
-  if (seeds.empty()) return;
-  const Eigen::Array3<int64_t> dims = hi - lo + 1;
-  // 2^24 cubes (64 MB of starts): a 0.6 m cube at 2.4 mm. Larger bounds
-  // (a far outlier among the supports) keep the support points alone.
-  constexpr int64_t kMaxCubes = int64_t{1} << 24;
-  if (dims.x() > kMaxCubes / dims.y() / dims.z()) return;
-  const auto index = [&](const Eigen::Array3<int64_t>& k) {
-    const Eigen::Array3<int64_t> r = k - lo;
-    return static_cast<size_t>((r.z() * dims.y() + r.y()) * dims.x() + r.x());
-  };
-  std::vector<uint32_t> start(static_cast<size_t>(dims.prod()) + 1, 0);
-  for (int32_t i : seeds) ++start[index(key(points[i])) + 1];
-  for (size_t c = 1; c < start.size(); ++c) start[c] += start[c - 1];
-  std::vector<int32_t> order(seeds.size());
-  {
-    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
-    for (int32_t i : seeds) order[fill[index(key(points[i]))]++] = i;
-  }
-  const auto near_in = [&](const Eigen::Array3<int64_t>& k, const Eigen::Vector3f& p) {
-    if ((k < lo).any() || (k > hi).any()) return false;
-    const size_t c = index(k);
-    for (uint32_t j = start[c]; j < start[c + 1]; ++j) {
-      if ((points[static_cast<size_t>(order[j])] - p).squaredNorm() <= reach2) return true;
-    }
-    return false;
-  };
-  // Per cube of the bounds: 1 when it or one of its 26 neighbours holds a
-  // support point.
-  std::vector<uint8_t> near_support(static_cast<size_t>(dims.prod()), 0);
-  for (int32_t i : seeds) {
-    const Eigen::Array3<int64_t> k = key(points[i]);
-    for (int dz = -1; dz <= 1; ++dz) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
-          const Eigen::Array3<int64_t> n = k + Eigen::Array3<int64_t>(dx, dy, dz);
-          if ((n >= lo).all() && (n <= hi).all()) near_support[index(n)] = 1;
-        }
-      }
-    }
-  }
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t i = r.begin(); i < r.end(); ++i) {
-      if (explained[i] || !points[i].allFinite()) continue;
-      const Eigen::Vector3f& p = points[i];
-      const Eigen::Array3<int64_t> k = key(p);
-      // Beyond the bounds by more than a cube: no support point within reach.
-      if ((k < lo - 1).any() || (k > hi + 1).any()) continue;
-      if ((k >= lo).all() && (k <= hi).all() && !near_support[index(k)]) continue;
-      bool near = near_in(k, p);
-      for (int dz = -1; dz <= 1 && !near; ++dz) {
-        for (int dy = -1; dy <= 1 && !near; ++dy) {
-          for (int dx = -1; dx <= 1 && !near; ++dx) {
-            if (dx != 0 || dy != 0 || dz != 0) near = near_in(k + Eigen::Array3<int64_t>(dx, dy, dz), p);
-          }
-        }
-      }
-      if (near) explained[i] = 1;
-    }
-  });
-}
-
 // A dropout ray (GraspPlanningOptions::dropout_reach): the pixel (u, v) of
 // an organized frame without a measurement, and the stretch of its ray
 // (depth, m along the camera's z) that may hold an unseen surface.
@@ -970,7 +895,7 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     }
   }
   if (m.options.support_grid_spacing > 0) {
-    ExplainSupportCells(perception.roi_points_B, 2.0 * m.options.support_grid_spacing, explained);
+    internal::ExplainSupportCells(perception.roi_points_B, 2.0 * m.options.support_grid_spacing, explained);
   }
   if (m.options.surface_explain_distance > 0) {
     std::vector<internal::PlacedSurface> surfaces;
@@ -994,16 +919,16 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     obstacles.own.resize(detections.size());
     for (size_t k = 0; k < owned.size(); ++k) {
       if (owned[k].empty()) continue;
-      FrameObstacles::OwnPoints& own = obstacles.own[surface_of[k]];
-      std::vector<Eigen::Vector3f> points;
-      points.reserve(owned[k].size());
+      auto own = std::make_unique<FrameObstacles::OwnPoints>();
+      own->points.reserve(owned[k].size());
       for (uint32_t i : owned[k]) {
-        points.push_back(perception.roi_points_B[i]);
-        own.bounds.extend(points.back().cast<double>());
+        own->points.push_back(perception.roi_points_B[i]);
+        own->bounds.extend(own->points.back().cast<double>());
       }
-      own.bounds.min().array() -= kSurfaceSpacing;
-      own.bounds.max().array() += kSurfaceSpacing;
-      if (auto p = PointObstacle::FromPoints(points, kSurfaceSpacing); p.ok()) own.points = *p;
+      own->bounds.min().array() -= kSurfaceSpacing;
+      own->bounds.max().array() += kSurfaceSpacing;
+      own->grid = internal::OccupancyGrid(own->points, kOwnGridCell);
+      obstacles.own[surface_of[k]] = std::move(own);
     }
   }
   std::vector<Eigen::Vector3f> rest;
@@ -1163,12 +1088,23 @@ class CandidateFilter {
   // meets the points only detection d's surface explains
   // (FrameObstacles::own): FCL when a slab's box meets their box.
   bool HitsItsOwnPoints(int d, const Pose& X_BT_lift) const {
-    if (d < 0 || static_cast<size_t>(d) >= obstacles_.own.size() || !obstacles_.own[d].points) return false;
-    const FrameObstacles::OwnPoints& own = obstacles_.own[d];
+    if (d < 0 || static_cast<size_t>(d) >= obstacles_.own.size() || !obstacles_.own[d]) return false;
+    const FrameObstacles::OwnPoints& own = *obstacles_.own[d];
     const bool near = std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
       return WorldBox(slab, X_BT_lift).intersects(own.bounds);
     });
-    return near && own.points->Collides(*gripper_.sweep, X_BT_lift);
+    // Exact: a voxel (edge kSurfaceSpacing) the sweep meets holds a point
+    // within sqrt(3) edges of the sweep, so within two of a slab box along
+    // each of the tool's axes (the point check's pre-filter, raw points).
+    if (!near || !std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
+          return own.grid.AnyNear(slab, X_BT_lift, 2.0 * kSurfaceSpacing);
+        })) {
+      return false;
+    }
+    std::call_once(own.built, [&own] {
+      if (auto p = PointObstacle::FromPoints(own.points, kSurfaceSpacing); p.ok()) own.tree = *p;
+    });
+    return own.tree && own.tree->Collides(*gripper_.sweep, X_BT_lift);
   }
 
   // The first check `c` fails, nullopt when it passes every one. Sets

@@ -24,18 +24,13 @@ PartSurface PartSurface::Sample(const TriangleMesh& mesh, double spacing, double
 
 bool PartSurface::Explains(const Eigen::Vector3f& q_O, float radius, const Eigen::Vector3f* eye_O,
                            float min_cos) const {
-  bool found = false;
-  hash_.ForEachWithin(q_O, radius, [&](int i, float) {
-    if (found) return;
-    if (eye_O == nullptr) {
-      found = true;
-      return;
-    }
+  // The first sample that explains q_O ends the search (any one will do).
+  return hash_.AnyWithinWhere(q_O, radius, [&](int i, float) {
+    if (eye_O == nullptr) return true;
     const Eigen::Vector3f& p = points_[static_cast<size_t>(i)];
     const Eigen::Vector3f to_eye = *eye_O - p;
-    found = normals_[static_cast<size_t>(i)].dot(to_eye) >= min_cos * to_eye.norm();
+    return normals_[static_cast<size_t>(i)].dot(to_eye) >= min_cos * to_eye.norm();
   });
-  return found;
 }
 
 void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const PlacedSurface> parts, float radius,

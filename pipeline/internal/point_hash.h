@@ -31,6 +31,13 @@ class PointHash {
     });
   }
 
+  // Whether pred(index, squared_distance) holds for a point within radius
+  // of q; stops at the first that does. REQUIRES: radius <= cell size.
+  template <typename Pred>
+  bool AnyWithinWhere(const Eigen::Vector3f& q, float radius, Pred&& pred) const {
+    return VisitWithin(q, radius, pred);
+  }
+
   // Nearest point within radius, or -1. *d2 gets its squared distance.
   int Nearest(const Eigen::Vector3f& q, float radius, float* d2 = nullptr) const;
   bool AnyWithin(const Eigen::Vector3f& q, float radius) const;

@@ -79,6 +79,47 @@ TEST(OccupancyGrid, AnyNearIsTrueForEveryPoseWhoseMeshMeetsAVoxel) {
   EXPECT_GT(far, 300);
 }
 
+// A detection's own points (grasp_planning.cc, HitsItsOwnPoints): the raw
+// points, not their voxels' centres, in 0.5 mm voxels and 5 mm cells; a
+// voxel lies within sqrt(3) edges of its point, so two edges of grow.
+TEST(OccupancyGrid, AnyNearWithTwoEdgesIsTrueForEveryPoseWhoseMeshMeetsARawPointsVoxel) {
+  constexpr double kRes = 0.0005;
+  std::mt19937 rng(41);
+  std::uniform_real_distribution<float> in_cube(-0.03f, 0.03f);
+  // A sparse cloud and a dense patch, as a part's points beside its fit.
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 3000; ++i) points.emplace_back(in_cube(rng), in_cube(rng), in_cube(rng));
+  for (float x = -0.02f; x <= 0.02f; x += 0.0007f) {
+    for (float y = -0.02f; y <= 0.02f; y += 0.0007f) points.emplace_back(x, y, -0.035f + 0.2f * x);
+  }
+  auto obstacle = PointObstacle::FromPoints(points, kRes);
+  ASSERT_TRUE(obstacle.ok());
+  const internal::OccupancyGrid grid(points, 0.005);
+  SuctionGripperParams cup;
+  cup.flange_offset = 0.08;
+  const std::vector<TriangleMesh> meshes = {MakeSuctionGripper(cup), MakeLBracket()};
+  int collides = 0, far = 0;
+  for (const TriangleMesh& mesh : meshes) {
+    auto geometry = CollisionGeometry::FromMesh(mesh);
+    ASSERT_TRUE(geometry.ok());
+    const Eigen::AlignedBox3d box = BoundsOf(mesh);
+    std::uniform_real_distribution<double> angle(-M_PI, M_PI), offset(-0.06, 0.06);
+    for (int i = 0; i < 1000; ++i) {
+      const Vec3 axis = Vec3(angle(rng), angle(rng), angle(rng)).normalized();
+      const Pose X = MakePose(Mat3(Eigen::AngleAxisd(angle(rng), axis)), Vec3(offset(rng), offset(rng), offset(rng)));
+      const bool hit = (*obstacle)->Collides(**geometry, X);
+      const bool near = grid.AnyNear(box, X, 2 * kRes);
+      if (hit) {
+        ++collides;
+        EXPECT_TRUE(near) << "pose " << i;
+      }
+      if (!near) ++far;
+    }
+  }
+  EXPECT_GT(collides, 200);
+  EXPECT_GT(far, 200);
+}
+
 TEST(OccupancyGrid, AnyNearTestsEachPointAgainstTheBoxGrownAlongItsOwnAxes) {
   // One point; a box 2 x 1 x 1 cm turned 45 deg about z, centred on the origin.
   const std::vector<Eigen::Vector3f> point = {Eigen::Vector3f(0.0f, 0.0125f, 0.0f)};
