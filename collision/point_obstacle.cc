@@ -11,26 +11,9 @@
 #include <utility>
 
 #include "collision/internal/fcl_access.h"
+#include "collision/internal/octree_build.h"
 
 namespace bp {
-namespace {
-
-// A voxel key's place in a depth-first walk of the octree: its 16-bit x, y
-// and z interleaved (z highest in each triple, as octomap numbers a node's
-// children), most significant level first. One-to-one on keys.
-uint64_t TreeOrder(const octomap::OcTreeKey& key) {
-  const auto spread = [](uint64_t v) {  // bit i -> bit 3i, for the 16 bits of a key
-    v &= 0xffff;
-    v = (v | (v << 16)) & 0x0000ff0000ffull;
-    v = (v | (v << 8)) & 0x00f00f00f00full;
-    v = (v | (v << 4)) & 0x0c30c30c30c3ull;
-    v = (v | (v << 2)) & 0x249249249249ull;
-    return v;
-  };
-  return spread(key[0]) | (spread(key[1]) << 1) | (spread(key[2]) << 2);
-}
-
-}  // namespace
 
 class PointObstacle::Impl {
  public:
@@ -50,23 +33,26 @@ Result<std::shared_ptr<const PointObstacle>> PointObstacle::FromPoints(
   auto impl = std::make_unique<Impl>();
   size_t n = 0;
   auto octree = std::make_shared<octomap::OcTree>(resolution);
-  // Distinct voxels first: many points share a voxel, and updateNode walks
-  // the tree from the root each time. Sorted in the tree's own order (the
-  // keys' bits interleaved, the root's child first), so that consecutive
-  // walks share their path and its nodes are still in cache; the tree is the
-  // same in any order (one hit per voxel, inner nodes updated once after).
+  // Distinct voxels first: many points share a voxel. Sorted in the tree's
+  // own order (the keys' bits interleaved, the root's child first) and
+  // inserted in one pass down the shared paths (internal::InsertSortedKeys:
+  // the tree updateNode builds, which is the same in any order: one hit per
+  // voxel, inner nodes updated once after).
   std::vector<std::pair<uint64_t, octomap::OcTreeKey>> keys;
   keys.reserve(points_W.size());
   for (const Eigen::Vector3f& p : points_W) {
     if (!p.allFinite()) continue;
     octomap::OcTreeKey key;
-    if (octree->coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) keys.emplace_back(TreeOrder(key), key);
+    if (octree->coordToKeyChecked(octomap::point3d(p.x(), p.y(), p.z()), key)) keys.emplace_back(internal::TreeOrder(key), key);
     ++n;
   }
   std::sort(keys.begin(), keys.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   keys.erase(std::unique(keys.begin(), keys.end(), [](const auto& a, const auto& b) { return a.second == b.second; }),
              keys.end());
-  for (const auto& [order, key] : keys) octree->updateNode(key, true, /*lazy_eval=*/true);
+  std::vector<octomap::OcTreeKey> sorted;
+  sorted.reserve(keys.size());
+  for (const auto& [order, key] : keys) sorted.push_back(key);
+  internal::InsertSortedKeys(*octree, sorted);
   if (n > 0) {
     octree->updateInnerOccupancy();
     impl->occupied = octree->getNumLeafNodes();
