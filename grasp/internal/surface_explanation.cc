@@ -45,16 +45,28 @@ void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const 
     Eigen::Vector3f t_OB;
     Eigen::AlignedBox3f box_O;
     Eigen::Vector3f eye_O;
+    // box_O's corners placed in B, their box grown by kSlack: a point
+    // outside it is outside box_O in O too, whatever the float rounding of
+    // its transform (well under 1e-5 m in a cell metres across), so the
+    // test in B, six comparisons, settles most points without the transform.
+    Eigen::AlignedBox3f box_B;
   };
+  constexpr double kSlack = 0.001;  // m
   std::vector<Placed> placed;
   for (const PlacedSurface& p : parts) {
     if (p.surface == nullptr || p.surface->size() == 0) continue;
     const Pose X_OB = p.X_BO.inverse();
     Placed q{static_cast<uint32_t>(&p - parts.data()), p.surface, X_OB.linear().cast<float>(), X_OB.translation().cast<float>(), p.surface->bounds(),
-             Eigen::Vector3f::Zero()};
+             Eigen::Vector3f::Zero(), Eigen::AlignedBox3f()};
     q.box_O.min().array() -= radius;
     q.box_O.max().array() += radius;
     if (eye_B) q.eye_O = q.R_OB * *eye_B + q.t_OB;
+    Eigen::AlignedBox3d box_B;
+    const Eigen::AlignedBox3d box_O = q.box_O.cast<double>();
+    for (int c = 0; c < 8; ++c) box_B.extend(p.X_BO * box_O.corner(static_cast<Eigen::AlignedBox3d::CornerType>(c)));
+    box_B.min().array() -= kSlack;
+    box_B.max().array() += kSlack;
+    q.box_B = box_B.cast<float>();
     placed.push_back(q);
   }
   if (placed.empty()) return;
@@ -66,6 +78,7 @@ void ExplainBySurfaces(std::span<const Eigen::Vector3f> points, std::span<const 
       if (explained[i] || !points[i].allFinite()) continue;
       bool any = false;
       for (const Placed& p : placed) {
+        if (!p.box_B.contains(points[i])) continue;
         const Eigen::Vector3f q = p.R_OB * points[i] + p.t_OB;
         if (!p.box_O.contains(q)) continue;
         if (p.surface->Explains(q, radius, eye_B ? &p.eye_O : nullptr, min_cos)) {
