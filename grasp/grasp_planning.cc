@@ -350,6 +350,9 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
     impl->options.surface_explain_distance =
         std::max(options.surface_explain_distance, internal::kSupportSigmas * FloorSigma(cell));
   }
+  if (options.mixed_on_part_rays > 0) {
+    impl->options.mixed_on_part_rays = std::max(options.mixed_on_part_rays, internal::kSupportSigmas * FloorSigma(cell));
+  }
   const Cell& c = impl->cell;
   for (const PartSpec& part : c.parts) {
     Result<TriangleMesh> mesh = LoadMesh(part.mesh);
@@ -881,6 +884,67 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
   return out;
 }
 
+// Whether the depth z (m) measured at pixel (u, v) is on no surface its
+// neighbours see: more than `margin` from the depth of each measured
+// 8-neighbour, and from the mean of each opposite pair of them (a surface
+// seen steeply, its depth changing by more than `margin` a pixel, passes
+// through such a mean).
+bool OnNoNeighboursSurface(const DepthImage& depth, int u, int v, float z, float margin) {
+  const auto at = [&](int x, int y) {
+    return x < 0 || y < 0 || x >= depth.width || y >= depth.height ? std::numeric_limits<float>::quiet_NaN()
+                                                                     : depth.at(x, y);
+  };
+  constexpr int kDu[] = {1, 0, 1, 1}, kDv[] = {0, 1, 1, -1};
+  for (int k = 0; k < 4; ++k) {
+    const float a = at(u + kDu[k], v + kDv[k]), b = at(u - kDu[k], v - kDv[k]);
+    if (std::abs(a - z) <= margin || std::abs(b - z) <= margin || std::abs((a + b) / 2 - z) <= margin) return false;
+  }
+  return true;
+}
+
+// Removes from `rest` (the measured points no detection explains, B) the
+// mixed pixels on a detected part's rays (GraspPlanningOptions::
+// mixed_on_part_rays): a point of an organized frame whose pixel's ray
+// meets a surface of `parts` (B) more than `margin` (m, along the camera's
+// z) nearer or farther than the point, on no surface its neighbours see
+// (OnNoNeighboursSurface). O(rest + the window of their pixels + the
+// parts' triangles).
+void DropMixedOnPartRays(const Frame& frame, std::span<const internal::PlacedMesh> parts, float margin,
+                         std::vector<Eigen::Vector3f>& rest) {
+  if (rest.empty() || parts.empty()) return;
+  const int w = frame.depth.width, h = frame.depth.height;
+  const Eigen::Isometry3f X_CB = frame.X_BC.inverse().cast<float>();
+  std::vector<std::tuple<int, int, float>> pixels(rest.size(), {-1, -1, 0.f});
+  int u0 = w, u1 = -1, v0 = h, v1 = -1;
+  for (size_t i = 0; i < rest.size(); ++i) {
+    const Eigen::Vector3f c = X_CB * rest[i];
+    int u = 0, v = 0;
+    if (!internal::PixelOf(frame.intrinsics, frame.depth, c, &u, &v)) continue;
+    pixels[i] = {u, v, c.z()};
+    u0 = std::min(u0, u), u1 = std::max(u1, u), v0 = std::min(v0, v), v1 = std::max(v1, v);
+  }
+  if (u1 < u0) return;
+  const int bw = u1 - u0 + 1, bh = v1 - v0 + 1;
+  std::vector<uint8_t> wanted(static_cast<size_t>(bw) * bh, 0);
+  for (const auto& [u, v, z] : pixels) {
+    if (u >= 0) wanted[static_cast<size_t>(v - v0) * bw + (u - u0)] = 1;
+  }
+  const std::vector<float> surface =
+      internal::NearestSurfaceDepth(frame.intrinsics, frame.X_BC, parts, internal::PixelWindow{u0, v0, bw, bh, wanted});
+  size_t kept = 0;
+  for (size_t i = 0; i < rest.size(); ++i) {
+    const auto [u, v, z] = pixels[i];
+    bool mixed = false;
+    if (u >= 0) {
+      const float s = surface[static_cast<size_t>(v - v0) * bw + (u - u0)];
+      // s is +inf where the ray meets no part.
+      mixed = std::isfinite(s) && std::abs(z - s) > margin && OnNoNeighboursSurface(frame.depth, u, v, z, margin);
+    }
+    if (!mixed) rest[kept++] = rest[i];
+  }
+  rest.resize(kept);
+}
+
 // Stage 2: the points no detection explains (and the occluded columns
 // under them) as an OcTree and an occupancy grid (the other parts' meshes,
 // grown by part_margin, are the model's: CandidateFilter places them).
@@ -936,6 +1000,17 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
   for (size_t i = 0; i < explained.size(); ++i) {
     if (!explained[i]) rest.push_back(perception.roi_points_B[i]);
   }
+  // The detected parts' meshes at their poses, for the mixed pixels on
+  // their rays and the dropout rays' ends.
+  std::vector<internal::PlacedMesh> parts;
+  if (frame != nullptr && frame->organized()) {
+    for (const Detection& d : detections) {
+      if (auto mesh = m.part_meshes.find(d.class_id); mesh != m.part_meshes.end()) parts.push_back({&mesh->second, d.X_BO});
+    }
+    if (m.options.mixed_on_part_rays > 0) {
+      DropMixedOnPartRays(*frame, parts, static_cast<float>(m.options.mixed_on_part_rays), rest);
+    }
+  }
   // The unseen space along the dropout rays beside them (dropout_reach),
   // ended at the detected parts' surfaces (dropout_ends_at_parts).
   if (frame != nullptr && frame->organized() && m.options.dropout_reach > 0) {
@@ -944,15 +1019,7 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     internal::PixelWindow window;
     std::vector<uint8_t> wanted;
     std::vector<DropoutRay> rays = FindDropoutRays(*frame, X_BW, m.options.dropout_reach, rest, &window, &wanted);
-    if (m.options.dropout_ends_at_parts) {
-      std::vector<internal::PlacedMesh> parts;
-      for (const Detection& d : detections) {
-        if (auto mesh = m.part_meshes.find(d.class_id); mesh != m.part_meshes.end()) {
-          parts.push_back({&mesh->second, d.X_BO});
-        }
-      }
-      EndRaysAtParts(*frame, parts, window, rays);
-    }
+    if (m.options.dropout_ends_at_parts) EndRaysAtParts(*frame, parts, window, rays);
     const std::vector<Eigen::Vector3f> dropout =
         DropoutPoints(*frame, m.cell, X_BW, rays, res / 2, m.options.occluded_columns ? static_cast<float>(res) : 0.f);
     rest.insert(rest.end(), dropout.begin(), dropout.end());

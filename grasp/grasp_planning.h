@@ -17,8 +17,9 @@
 // by part_margin, those whose bounds meet the sweep's slab boxes), against
 // its own part
 // and against the scene points not explained by any detection (its
-// support, the points near it, and those on its model's surface at its
-// pose: surface_explain_distance; an FCL OcTree built once per frame,
+// support, the points near it, those on its model's surface at its
+// pose: surface_explain_distance, and on an organized frame the mixed
+// pixels on its rays: mixed_on_part_rays; an FCL OcTree built once per frame,
 // behind a pre-filter: a point of the voxels within a voxel of a slab box
 // of the sweep, along the tool's axes),
 // with the space below them down to the floor and, on an organized frame,
@@ -213,6 +214,27 @@ struct GraspPlanningOptions {
   // refused cups on and beside the part for nothing (docs/tuning.md
   // "Unseen space"). false: to the farthest depth (the first rule).
   bool dropout_ends_at_parts = true;
+  // m (along the camera's z): a measured point no detection explains, on an
+  // organized frame, is explained when its pixel's ray meets a detected
+  // part's surface (its mesh at its estimated pose) more than this nearer
+  // or farther than the point, and its depth is on no surface its
+  // neighbours see: more than this from each measured 8-neighbour's depth
+  // and from the mean of each opposite pair of them. GraspPlanningModel::
+  // Build raises it to perception's support distance for the cell's
+  // camera, as surface_explain_distance (the depth noise of a point on
+  // a surface). 0: off.
+  // Why: a pixel on a depth edge measures, at times, a depth between its
+  // own surface and its neighbour's across the edge (a mixed pixel), and a
+  // speckled one a depth off both: its point floats in the air in front of
+  // or behind a detected part, on no surface, and its occluded column and
+  // the dropout rays beside it filled the empty space below it: they
+  // refused grasps on the part beside it that hit nothing on the true pile
+  // (traced in docs/tuning.md, "Mixed pixels on a part's rays"). Behind the
+  // part, seen from the camera, no surface can have been seen at all (the
+  // ray met the part first); in front, a real occluder is a surface, whose
+  // points lie within this of a neighbour or of the mean of two opposite
+  // ones (a face seen steeply): those stay.
+  double mixed_on_part_rays = 0.0015;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg -
