@@ -229,7 +229,8 @@ struct GraspPlanningOptions {
   // or behind a detected part, on no surface, and its occluded column and
   // the dropout rays beside it filled the empty space below it: they
   // refused grasps on the part beside it that hit nothing on the true pile
-  // (traced in docs/tuning.md, "Mixed pixels on a part's rays"). Behind the
+  // (traced in docs/tuning.md, "The parts left as no_grasp:points and
+  // no_grasp:bin traced"). Behind the
   // part, seen from the camera, no surface can have been seen at all (the
   // ray met the part first); in front, a real occluder is a surface, whose
   // points lie within this of a neighbour or of the mean of two opposite
