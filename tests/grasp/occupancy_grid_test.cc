@@ -36,6 +36,39 @@ Eigen::AlignedBox3d BoundsOf(const TriangleMesh& mesh) {
   return box;
 }
 
+// Places the shipped cup's shape (shortened, so that it is among the points
+// rather than above them) and a thin plate (whose box is tight) at `poses`
+// random poses each, turned any way and offset up to `reach` (m) from the
+// origin, and expects grid.AnyNear(mesh bounds, pose, grow) wherever the
+// obstacle meets the mesh. Each answer must occur at least `min_each` times,
+// so that the poses test the pre-filter, not one side of it.
+void ExpectAnyNearWhereverTheObstacleIsHit(const PointObstacle& obstacle, const internal::OccupancyGrid& grid,
+                                           double grow, int poses, double reach, int min_each, std::mt19937& rng) {
+  SuctionGripperParams cup;
+  cup.flange_offset = 0.08;
+  const std::vector<TriangleMesh> meshes = {MakeSuctionGripper(cup), MakeLBracket()};
+  int collides = 0, far = 0;
+  for (const TriangleMesh& mesh : meshes) {
+    auto geometry = CollisionGeometry::FromMesh(mesh);
+    ASSERT_TRUE(geometry.ok());
+    const Eigen::AlignedBox3d box = BoundsOf(mesh);
+    std::uniform_real_distribution<double> angle(-M_PI, M_PI), offset(-reach, reach);
+    for (int i = 0; i < poses; ++i) {
+      const Vec3 axis = Vec3(angle(rng), angle(rng), angle(rng)).normalized();
+      const Pose X = MakePose(Mat3(Eigen::AngleAxisd(angle(rng), axis)), Vec3(offset(rng), offset(rng), offset(rng)));
+      const bool hit = obstacle.Collides(**geometry, X);
+      const bool near = grid.AnyNear(box, X, grow);
+      if (hit) {
+        ++collides;
+        EXPECT_TRUE(near) << "pose " << i;
+      }
+      if (!near) ++far;
+    }
+  }
+  EXPECT_GT(collides, min_each);
+  EXPECT_GT(far, min_each);
+}
+
 TEST(OccupancyGrid, AnyNearIsTrueForEveryPoseWhoseMeshMeetsAVoxel) {
   constexpr double kRes = 0.004;
   std::mt19937 rng(40);
@@ -51,32 +84,7 @@ TEST(OccupancyGrid, AnyNearIsTrueForEveryPoseWhoseMeshMeetsAVoxel) {
   auto obstacle = PointObstacle::FromPoints(centres, kRes);
   ASSERT_TRUE(obstacle.ok());
   const internal::OccupancyGrid grid(centres, 0.01);
-  // The shipped cup's shape, shortened so that it is among the points
-  // rather than above them; and a thin plate, whose box is tight.
-  SuctionGripperParams cup;
-  cup.flange_offset = 0.08;
-  const std::vector<TriangleMesh> meshes = {MakeSuctionGripper(cup), MakeLBracket()};
-  int collides = 0, far = 0;
-  for (const TriangleMesh& mesh : meshes) {
-    auto geometry = CollisionGeometry::FromMesh(mesh);
-    ASSERT_TRUE(geometry.ok());
-    const Eigen::AlignedBox3d box = BoundsOf(mesh);
-    std::uniform_real_distribution<double> angle(-M_PI, M_PI), offset(-0.07, 0.07);
-    for (int i = 0; i < 1500; ++i) {
-      const Vec3 axis = Vec3(angle(rng), angle(rng), angle(rng)).normalized();
-      const Pose X = MakePose(Mat3(Eigen::AngleAxisd(angle(rng), axis)), Vec3(offset(rng), offset(rng), offset(rng)));
-      const bool hit = (*obstacle)->Collides(**geometry, X);
-      const bool near = grid.AnyNear(box, X, kRes);
-      if (hit) {
-        ++collides;
-        EXPECT_TRUE(near) << "pose " << i;
-      }
-      if (!near) ++far;
-    }
-  }
-  // Both answers occur: the poses test the pre-filter, not one side of it.
-  EXPECT_GT(collides, 300);
-  EXPECT_GT(far, 300);
+  ExpectAnyNearWhereverTheObstacleIsHit(**obstacle, grid, kRes, 1500, 0.07, 300, rng);
 }
 
 // A detection's own points (grasp_planning.cc, HitsItsOwnPoints): the raw
@@ -95,29 +103,7 @@ TEST(OccupancyGrid, AnyNearWithTwoEdgesIsTrueForEveryPoseWhoseMeshMeetsARawPoint
   auto obstacle = PointObstacle::FromPoints(points, kRes);
   ASSERT_TRUE(obstacle.ok());
   const internal::OccupancyGrid grid(points, 0.005);
-  SuctionGripperParams cup;
-  cup.flange_offset = 0.08;
-  const std::vector<TriangleMesh> meshes = {MakeSuctionGripper(cup), MakeLBracket()};
-  int collides = 0, far = 0;
-  for (const TriangleMesh& mesh : meshes) {
-    auto geometry = CollisionGeometry::FromMesh(mesh);
-    ASSERT_TRUE(geometry.ok());
-    const Eigen::AlignedBox3d box = BoundsOf(mesh);
-    std::uniform_real_distribution<double> angle(-M_PI, M_PI), offset(-0.06, 0.06);
-    for (int i = 0; i < 1000; ++i) {
-      const Vec3 axis = Vec3(angle(rng), angle(rng), angle(rng)).normalized();
-      const Pose X = MakePose(Mat3(Eigen::AngleAxisd(angle(rng), axis)), Vec3(offset(rng), offset(rng), offset(rng)));
-      const bool hit = (*obstacle)->Collides(**geometry, X);
-      const bool near = grid.AnyNear(box, X, 2 * kRes);
-      if (hit) {
-        ++collides;
-        EXPECT_TRUE(near) << "pose " << i;
-      }
-      if (!near) ++far;
-    }
-  }
-  EXPECT_GT(collides, 200);
-  EXPECT_GT(far, 200);
+  ExpectAnyNearWhereverTheObstacleIsHit(**obstacle, grid, 2 * kRes, 1000, 0.06, 200, rng);
 }
 
 TEST(OccupancyGrid, AnyNearTestsEachPointAgainstTheBoxGrownAlongItsOwnAxes) {
