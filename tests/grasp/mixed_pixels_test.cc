@@ -27,11 +27,7 @@ namespace {
 // 1 cm measures a depth between the two).
 const Cell& MixedCell() {
   static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    Cell out = *c;
-    out.source.kind = SourceSpec::Kind::kSynthetic;
-    out.source.num_parts = 12;
+    Cell out = testing::SyntheticDefaultCell(12);
     for (CameraConfig& config : out.camera.configs) config.noise.mixed_pixels = 1.0;
     return out;
   }();

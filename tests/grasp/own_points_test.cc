@@ -21,14 +21,7 @@ namespace bp {
 namespace {
 
 const Cell& PileCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    Cell out = *c;
-    out.source.kind = SourceSpec::Kind::kSynthetic;
-    out.source.num_parts = 12;
-    return out;
-  }();
+  static const Cell cell = testing::SyntheticDefaultCell(12);
   return cell;
 }
 

@@ -1,6 +1,7 @@
 // Rendered piles perceived by the ground truth, and the grasp plan's
 // verdicts on them: what the grasp tests that compare point-explanation
-// rules (tests/grasp/grasp_planning_test.cc, own_points_test.cc) share.
+// rules (tests/grasp/grasp_planning_test.cc, own_points_test.cc,
+// mixed_pixels_test.cc) share.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -17,6 +18,17 @@
 #include "pipeline/truth_perception.h"
 
 namespace bp::testing {
+
+// The default cell with a synthetic source of `num_parts` parts: the piles
+// the truth-pile tests render.
+inline Cell SyntheticDefaultCell(int num_parts) {
+  Result<Cell> c = LoadDefaultCell();
+  EXPECT_TRUE(c.ok()) << c.status().ToString();
+  Cell out = *c;
+  out.source.kind = SourceSpec::Kind::kSynthetic;
+  out.source.num_parts = num_parts;
+  return out;
+}
 
 // Renders synthetic pile `seed` of `cell` at camera config `config` and
 // perceives it with the true detections (TruthPerception): the frame and
