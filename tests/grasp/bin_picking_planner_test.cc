@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
-#include <limits>
 #include <optional>
 #include <random>
 
@@ -20,6 +19,7 @@
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 #include "tests/testing/files.h"
+#include "tests/testing/no_bin_source.h"
 
 namespace bp {
 namespace {
@@ -48,34 +48,6 @@ std::unique_ptr<BinPickingPlanner> MakeOraclePlanner(const Cell& cell, const std
 
 // ---- bin detection (issue 41) ----------------------------------------------
 
-// A source whose frames show the default camera's view of a bare floor at
-// the bin's floor height: no bin.
-class NoBinSource final : public CaptureSource {
- public:
-  explicit NoBinSource(const Cell& cell) : cell_(cell) {}
-  Result<Frame> Capture(const CaptureRequest&) override {
-    const CameraConfig& config = *cell_.camera.FindConfig(cell_.camera.default_config);
-    Frame f;
-    f.intrinsics = config.intrinsics;
-    f.X_BC = cell_.camera.X_BC;
-    f.depth = DepthImage(f.intrinsics.width, f.intrinsics.height, std::numeric_limits<float>::quiet_NaN());
-    const Pose X_WC = cell_.bin.X_BW.inverse() * f.X_BC;
-    for (int v = 0; v < f.depth.height; ++v) {
-      for (int u = 0; u < f.depth.width; ++u) {
-        const Vec3 ray_W =
-            X_WC.linear() * Vec3((u - f.intrinsics.cx) / f.intrinsics.fx, (v - f.intrinsics.cy) / f.intrinsics.fy, 1);
-        const double t = -X_WC.translation().z() / ray_W.z();
-        if (t > 0) f.depth.at(u, v) = static_cast<float>(t);
-      }
-    }
-    return f;
-  }
-  std::string Describe() const override { return "a floor without a bin"; }
-
- private:
-  Cell cell_;
-};
-
 Result<CaptureHandle> CaptureWithBinDetect(BinDetectSpec::Mode mode, bool with_bin) {
   Cell cell = SyntheticCell(5, 7);
   cell.bin.detect.mode = mode;
@@ -85,7 +57,7 @@ Result<CaptureHandle> CaptureWithBinDetect(BinDetectSpec::Mode mode, bool with_b
     EXPECT_TRUE(made.ok()) << made.status().ToString();
     source = std::move(*made);
   } else {
-    source = std::make_unique<NoBinSource>(cell);
+    source = std::make_unique<testing::NoBinSource>(cell);
   }
   BinPickingPlannerOptions options;
   options.teach_file = "-";
