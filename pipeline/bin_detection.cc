@@ -52,22 +52,31 @@ struct RimModel {
 // along it in [0, 1].
 struct WallHit {
   int wall = 0;  // 0: +x, 1: -x, 2: +y, 3: -y
-  Eigen::Vector2d n_model;
   double r = 0;
   double along = 0;
 };
 
-WallHit NearestWall(const RimModel& rim, const Eigen::Vector2d& m) {
+// The outward normal of wall `wall` (WallHit::wall) in the bin frame.
+Eigen::Vector2d WallNormal(int wall) {
+  switch (wall) {
+    case 0: return {1, 0};
+    case 1: return {-1, 0};
+    case 2: return {0, 1};
+    default: return {0, -1};
+  }
+}
+
+// Small enough to be inlined into the per-point loops that call it (a call
+// per point cost about as many instructions as its body).
+inline WallHit NearestWall(const RimModel& rim, const Eigen::Vector2d& m) {
   const double dx = std::abs(m.x()) - rim.a, dy = std::abs(m.y()) - rim.b;
   WallHit h;
   if (std::abs(dx) < std::abs(dy)) {
     h.wall = m.x() >= 0 ? 0 : 1;
-    h.n_model = Eigen::Vector2d(m.x() >= 0 ? 1 : -1, 0);
     h.r = dx;
     h.along = (m.y() + rim.ly) / (2 * rim.ly);
   } else {
     h.wall = m.y() >= 0 ? 2 : 3;
-    h.n_model = Eigen::Vector2d(0, m.y() >= 0 ? 1 : -1);
     h.r = dy;
     h.along = (m.x() + rim.lx) / (2 * rim.lx);
   }
@@ -95,24 +104,40 @@ RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, doubl
   for (int it = 0; it < 30; ++it) {
     const double gate = std::max(final_gate, first_gate * std::pow(0.5, it));
     const Eigen::Matrix2d R = Rot2(pose.theta), Rt = R.transpose();
-    // JtJ's lower triangle only: ldlt() reads no other (the upper one is the
-    // same products).
-    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d Jtr = Eigen::Vector3d::Zero();
+    // The wall normals turned by the pose, once per iteration.
+    const std::array<Eigen::Vector2d, 4> normals = {R * WallNormal(0), R * WallNormal(1), R * WallNormal(2),
+                                                     R * WallNormal(3)};
+    // JtJ's lower triangle only, in scalars (s_rc: row r, column c): ldlt()
+    // reads no other (the upper one is the same products).
+    double s00 = 0, s10 = 0, s11 = 0, s20 = 0, s21 = 0, s22 = 0;
+    double t0 = 0, t1 = 0, t2 = 0;  // Jtr
     int used = 0;
     for (const Eigen::Vector2d& p : q) {
       const Eigen::Vector2d d = p - pose.c;
       const WallHit h = NearestWall(rim, Rt * d);
       if (std::abs(h.r) > gate || h.along < -0.02 || h.along > 1.02) continue;
-      const Eigen::Vector2d n = R * h.n_model;
-      const Eigen::Vector3d J(-n.x(), -n.y(), -n.y() * d.x() + n.x() * d.y());
-      for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c <= r; ++c) JtJ(r, c) += J(r) * J(c);
-      }
-      Jtr += J * h.r;
+      const Eigen::Vector2d& n = normals[static_cast<size_t>(h.wall)];
+      const double j0 = -n.x(), j1 = -n.y(), j2 = -n.y() * d.x() + n.x() * d.y();
+      s00 += j0 * j0;
+      s10 += j1 * j0;
+      s11 += j1 * j1;
+      s20 += j2 * j0;
+      s21 += j2 * j1;
+      s22 += j2 * j2;
+      t0 += j0 * h.r;
+      t1 += j1 * h.r;
+      t2 += j2 * h.r;
       ++used;
     }
     if (used < 10) break;
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    JtJ(0, 0) = s00;
+    JtJ(1, 0) = s10;
+    JtJ(1, 1) = s11;
+    JtJ(2, 0) = s20;
+    JtJ(2, 1) = s21;
+    JtJ(2, 2) = s22;
+    const Eigen::Vector3d Jtr(t0, t1, t2);
     const Eigen::Vector3d delta = JtJ.ldlt().solve(-Jtr);
     if (!delta.allFinite()) break;
     pose.c += delta.head<2>();
@@ -169,25 +194,39 @@ SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDete
   const Eigen::Matrix3f R = X_W0C.linear();
   const Eigen::Vector3f T = X_W0C.translation();
   const float fy_inv = static_cast<float>(1.0 / K.fy), cy = static_cast<float>(K.cy);
-  // x / z of each sampled column, once per frame.
-  std::vector<float> ray_x;
+  // x / z of each sampled column and its product with R(2, 0), once per frame.
+  std::vector<float> ray_x, ray_zx;
   for (int u = 0; u < K.width; u += stride) ray_x.push_back(static_cast<float>((u - K.cx) / K.fx));
+  for (const float rx : ray_x) ray_zx.push_back(R(2, 0) * rx);
+  const size_t columns = ray_x.size();
   // The floor check needs far fewer points: every fourth sampled row and column.
-  const int floor_every = 4;
+  constexpr size_t kFloorEvery = 4;
+  // The sampled pixels of a row in blocks of kBlock: one branch-free look at
+  // a block's heights (the compiler vectorizes it) finds most blocks without
+  // a pixel in the band (the bin's inside, the floor around it), whose
+  // pixels can then only be kept on the floor's columns.
+  constexpr size_t kBlock = 32;
+  static_assert(kBlock % kFloorEvery == 0, "a block starts on a floor column");
+  std::vector<float> sampled_row(stride > 1 ? columns : 0);
   for (int v = 0, row_index = 0; v < K.height; v += stride, ++row_index) {
     const float* row = &frame.depth.data[static_cast<size_t>(v) * K.width];
+    if (stride > 1) {
+      for (size_t i = 0; i < columns; ++i) sampled_row[i] = row[i * static_cast<size_t>(stride)];
+      row = sampled_row.data();
+    }
     const float ry = (static_cast<float>(v) - cy) * fy_inv;
     // p = z * (R * (rx, ry, 1)) + T: the row's part of R * ray once.
     const Eigen::Vector3f row_part = R.col(1) * ry + R.col(2);
-    const bool floor_row = row_index % floor_every == 0;
-    for (size_t i = 0; i < ray_x.size(); ++i) {
-      const float z = row[i * stride];
-      if (!(z > 0.0f)) continue;  // NaN and non-positive: no measurement
+    const float row_z = row_part.z(), T_z = T.z();
+    const bool floor_row = row_index % kFloorEvery == 0;
+    const auto visit = [&](size_t i) {
+      const float z = row[i];
+      if (!(z > 0.0f)) return;  // NaN and non-positive: no measurement
       // Height first: most pixels (the bin's inside) fail the band test.
-      const float pz = z * (R(2, 0) * ray_x[i] + row_part.z()) + T.z();
+      const float pz = z * (ray_zx[i] + row_z) + T_z;
       const bool in_band = std::abs(pz - rim_z) < band;
-      const bool on_floor = floor_row && i % floor_every == 0 && std::abs(pz) < 0.015f;
-      if (!in_band && !on_floor) continue;
+      const bool on_floor = floor_row && i % kFloorEvery == 0 && std::abs(pz) < 0.015f;
+      if (!in_band && !on_floor) return;
       const Eigen::Vector3f p(z * (R(0, 0) * ray_x[i] + row_part.x()) + T.x(),
                               z * (R(1, 0) * ray_x[i] + row_part.y()) + T.y(), pz);
       const float ax = std::abs(p.x()), ay = std::abs(p.y()), r2 = ax * ax + ay * ay;
@@ -197,6 +236,25 @@ SampledPoints SamplePoints(const Frame& frame, const BinSpec& bin, const BinDete
       } else if ((ax < floor_x && ay < floor_y) || r2 < inner_r2) {
         out.floor_W0.push_back(p);
       }
+    };
+    for (size_t i = 0; i < columns; i += kBlock) {
+      const size_t end = std::min(columns, i + kBlock);
+      // Every pixel of a block with one in the band (or of the row's last,
+      // partial block), else the floor's columns on a floor row, else none.
+      size_t step = 1;
+      if (end - i == kBlock) {
+        int in_band = 0;
+        for (size_t k = 0; k < kBlock; ++k) {
+          const float z = row[i + k];
+          const float pz = z * (ray_zx[i + k] + row_z) + T_z;
+          in_band += static_cast<int>((z > 0.0f) & (std::abs(pz - rim_z) < band));
+        }
+        if (in_band == 0) {
+          if (!floor_row) continue;
+          step = kFloorEvery;
+        }
+      }
+      for (size_t k = i; k < end; k += step) visit(k);
     }
   }
   return out;
@@ -243,14 +301,25 @@ bool FitPlane(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, do
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (const auto& p : points) mean += p;
   mean /= static_cast<double>(points.size());
-  // The covariance's lower triangle only: the solver reads no other.
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  // The covariance's lower triangle only, in scalars (c_rc: row r, column
+  // c): the solver reads no other.
+  double c00 = 0, c10 = 0, c11 = 0, c20 = 0, c21 = 0, c22 = 0;
   for (const auto& p : points) {
     const Eigen::Vector3d q = p - mean;
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c <= r; ++c) cov(r, c) += q(r) * q(c);
-    }
+    c00 += q(0) * q(0);
+    c10 += q(1) * q(0);
+    c11 += q(1) * q(1);
+    c20 += q(2) * q(0);
+    c21 += q(2) * q(1);
+    c22 += q(2) * q(2);
   }
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  cov(0, 0) = c00;
+  cov(1, 0) = c10;
+  cov(1, 1) = c11;
+  cov(2, 0) = c20;
+  cov(2, 1) = c21;
+  cov(2, 2) = c22;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   Eigen::Vector3d normal = eig.eigenvectors().col(0);
   if (normal.z() < 0) normal = -normal;
@@ -335,10 +404,17 @@ RimPose ConsensusRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& 
     };
     const int centre = static_cast<int>(std::lround(half / kBin));
     const int line_bins = static_cast<int>(std::lround(line / kBin));
+    // The shifts whose two windows lie inside the histogram need no clamps
+    // (the same counts): the lower window's first bin >= 0, the upper one's
+    // last bin < n.
+    const int unclamped_lo = w_bins + line_bins - centre, unclamped_hi = n - 1 - w_bins - line_bins - centre;
+    const int* hp = h.data();
     int best = -1;
     for (int s = -shift_bins; s <= shift_bins; ++s) {
       const int plus = centre + s + line_bins, minus = centre + s - line_bins;
-      const int c = count(plus - w_bins, plus + w_bins) + count(minus - w_bins, minus + w_bins);
+      const int c = s >= unclamped_lo && s <= unclamped_hi
+                        ? (hp[plus + w_bins + 1] - hp[plus - w_bins]) + (hp[minus + w_bins + 1] - hp[minus - w_bins])
+                        : count(plus - w_bins, plus + w_bins) + count(minus - w_bins, minus + w_bins);
       if (c > best) {
         best = c;
         *best_shift = (s + 0.5) * kBin;  // within half a bin of the windows' centre
@@ -356,12 +432,12 @@ RimPose ConsensusRimPose(const std::vector<Eigen::Vector2d>& q, const RimModel& 
     std::fill(hy.begin(), hy.end(), 0);
     for (const Eigen::Vector2d& p : q) {
       const double mx = c * p.x() + s * p.y(), my = -s * p.x() + c * p.y();  // R(theta)^T p
-      const int ix = static_cast<int>(std::floor((mx + half_x) / kBin));
-      const int iy = static_cast<int>(std::floor((my + half_y) / kBin));
+      // The bins' positions; a position in [0, n) truncates to its floor.
+      const double tx = (mx + half_x) / kBin, ty = (my + half_y) / kBin;
       // A point counts for the walls along y when it lies within their
       // length (and likewise for x).
-      if (ix >= 0 && ix < nx && std::abs(my) < rim.ly + shift) ++hx[static_cast<size_t>(ix) + 1];
-      if (iy >= 0 && iy < ny && std::abs(mx) < rim.lx + shift) ++hy[static_cast<size_t>(iy) + 1];
+      if (tx >= 0 && tx < nx && std::abs(my) < rim.ly + shift) ++hx[static_cast<size_t>(tx) + 1];
+      if (ty >= 0 && ty < ny && std::abs(mx) < rim.lx + shift) ++hy[static_cast<size_t>(ty) + 1];
     }
     for (size_t i = 1; i < hx.size(); ++i) hx[i] += hx[i - 1];
     for (size_t i = 1; i < hy.size(); ++i) hy[i] += hy[i - 1];
@@ -458,17 +534,20 @@ RimCoverage MeasureRimCoverage(const std::vector<Eigen::Vector2d>& q, const std:
   RimCoverage cov;
   const Eigen::Matrix2d Rt = Rot2(pose.theta).transpose();
   std::array<std::array<int, kWallPieces>, 4> pieces{};
-  cov.rim_points.reserve(q.size());
+  // Written by index, then cut to size (a push_back per point was a call).
+  cov.rim_points.resize(q.size());
+  size_t kept = 0;
   for (size_t i = 0; i < q.size(); ++i) {
     const WallHit h = NearestWall(rim, Rt * (q[i] - pose.c));
     if (h.along < 0 || h.along > 1) continue;
     if (std::abs(h.r) <= rim.half_width + o.rim_slack) {
       ++pieces[h.wall][std::min(kWallPieces - 1, static_cast<int>(h.along * kWallPieces))];
-      cov.rim_points.push_back(on_plane[i]);
+      cov.rim_points[kept++] = on_plane[i];
     } else if (h.r < -(rim.half_width + 0.006) && h.r > -(rim.half_width + 0.020)) {
       ++cov.inward;
     }
   }
+  cov.rim_points.resize(kept);
   for (const auto& wall : pieces) {
     const int seen = static_cast<int>(std::count_if(wall.begin(), wall.end(), [](int c) { return c >= 3; }));
     cov.least_seen = std::min(cov.least_seen, static_cast<double>(seen) / kWallPieces);
@@ -487,15 +566,16 @@ void RefitOnRimPoints(const RimModel& rim, const BinSpec& bin, const BinDetectOp
   std::vector<Eigen::Vector3d> tight;
   double gate = 0;
   if (!FitRimPlaneTight(EvenSubsample(*rim_points, o.fit_max_points), n, d, &tight, &gate)) return;
-  tight.clear();
-  tight.reserve(rim_points->size());
+  // Written by index, then cut to size (a push_back per point was a call).
+  tight.resize(rim_points->size());
+  size_t kept = 0;
   for (const Eigen::Vector3d& p : *rim_points) {
-    if (std::abs(n->dot(p) + *d) <= gate) tight.push_back(p);
+    if (std::abs(n->dot(p) + *d) <= gate) tight[kept++] = p;
   }
+  tight.resize(kept);
   const PlaneFrame refined = MakePlaneFrame(*n, *d, bin.inner_size.z());
-  std::vector<Eigen::Vector2d> q_tight;
-  q_tight.reserve(tight.size());
-  for (const Eigen::Vector3d& p : tight) q_tight.push_back(refined.To2D(p));
+  std::vector<Eigen::Vector2d> q_tight(tight.size());
+  for (size_t i = 0; i < tight.size(); ++i) q_tight[i] = refined.To2D(tight[i]);
   // The pose so far, in the refined plane's 2D frame.
   const Eigen::Vector3d c_3d = plane->origin + pose->c.x() * plane->ex + pose->c.y() * plane->ey;
   const Eigen::Vector3d x_3d = std::cos(pose->theta) * plane->ex + std::sin(pose->theta) * plane->ey;
@@ -562,16 +642,18 @@ BinDetection DetectBin(const Frame& frame, const BinSpec& bin, const BinDetectOp
 
   // The rim candidates: band points on the plane, in its 2D frame.
   PlaneFrame plane = MakePlaneFrame(n, d, H);
-  std::vector<Eigen::Vector2d> q;
-  std::vector<Eigen::Vector3d> on_plane;
-  q.reserve(sampled.band_W0.size());
-  on_plane.reserve(sampled.band_W0.size());
+  // Written by index, then cut to size (a push_back per point was a call).
+  std::vector<Eigen::Vector2d> q(sampled.band_W0.size());
+  std::vector<Eigen::Vector3d> on_plane(sampled.band_W0.size());
+  size_t kept = 0;
   for (const Eigen::Vector3f& pf : sampled.band_W0) {
     const Eigen::Vector3d p = pf.cast<double>();
     if (std::abs(n.dot(p) + d) > o.plane_distance) continue;
-    q.push_back(plane.To2D(p));
-    on_plane.push_back(p);
+    q[kept] = plane.To2D(p);
+    on_plane[kept++] = p;
   }
+  q.resize(kept);
+  on_plane.resize(kept);
   // ICP from the start, its gate 10 mm beyond the rim's half width + slack
   // (the start lies within a histogram bin and a quarter yaw step).
   RimPose start_in_plane = start;
