@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 
 #include "pipeline/internal/point_hash.h"
+#include "pipeline/internal/table_memo.h"
 
 namespace bp::internal {
 
@@ -63,7 +64,9 @@ void PlaneFrame(std::span<const Eigen::Vector3f> pts, const Eigen::Vector3f& n, 
   }
 }
 
-std::vector<Eigen::Vector3f> ExtremePoints(std::span<const Eigen::Vector3f> pts) {
+namespace {
+
+std::vector<Eigen::Vector3f> ComputeExtremePoints(std::span<const Eigen::Vector3f> pts) {
   constexpr int kDirections = 2562;
   std::vector<uint8_t> extreme(pts.size(), 0);
   const double golden = M_PI * (3.0 - std::sqrt(5.0));
@@ -83,6 +86,17 @@ std::vector<Eigen::Vector3f> ExtremePoints(std::span<const Eigen::Vector3f> pts)
     if (extreme[i]) out.push_back(pts[i]);
   }
   return out;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> ExtremePoints(std::span<const Eigen::Vector3f> pts) {
+  if (!ModelTableMemoOn()) return ComputeExtremePoints(pts);
+  static TableMemo<std::vector<Eigen::Vector3f>> memo;
+  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float));  // no padding in the key
+  TableMemoKey key;
+  key.AddSpan(pts);
+  return Memoised(memo, key, [&] { return ComputeExtremePoints(pts); });
 }
 
 void SortByMortonCode(OrientedPoints& s) {
@@ -121,7 +135,9 @@ Pose HalfTurn(const Eigen::Vector3f& a, const Eigen::Vector3f& c) {
   return MakePose(R, cd - R * cd);
 }
 
-std::vector<EdgePlane> BuildEdgePlanes(const OrientedPoints& dense, double spacing) {
+namespace {
+
+std::vector<EdgePlane> ComputeEdgePlanes(const OrientedPoints& dense, double spacing) {
   PointHash dense_hash;
   const float r = 2.5f * static_cast<float>(spacing);
   dense_hash.Build(dense.points, r);
@@ -146,6 +162,17 @@ std::vector<EdgePlane> BuildEdgePlanes(const OrientedPoints& dense, double spaci
     }
   }
   return planes;
+}
+
+}  // namespace
+
+std::vector<EdgePlane> BuildEdgePlanes(const OrientedPoints& dense, double spacing) {
+  if (!ModelTableMemoOn()) return ComputeEdgePlanes(dense, spacing);
+  static TableMemo<std::vector<EdgePlane>> memo;
+  TableMemoKey key;
+  key.AddSpan(std::span<const Eigen::Vector3f>(dense.points));
+  key.AddSpan(std::span<const Eigen::Vector3f>(dense.normals)).Add(spacing);
+  return Memoised(memo, key, [&] { return ComputeEdgePlanes(dense, spacing); });
 }
 
 }  // namespace bp::internal

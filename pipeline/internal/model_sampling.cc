@@ -5,6 +5,8 @@
 #include <random>
 #include <unordered_map>
 
+#include "pipeline/internal/table_memo.h"
+
 namespace bp::internal {
 
 double SurfaceArea(const TriangleMesh& mesh) {
@@ -20,7 +22,9 @@ double SurfaceArea(const TriangleMesh& mesh) {
   return total;
 }
 
-OrientedPoints SampleSurface(const TriangleMesh& mesh, double spacing, uint64_t seed) {
+namespace {
+
+OrientedPoints ComputeSampleSurface(const TriangleMesh& mesh, double spacing, uint64_t seed) {
   OrientedPoints out;
   const size_t nt = mesh.triangles.size();
   std::vector<double> cumulative(nt, 0.0);
@@ -65,6 +69,8 @@ OrientedPoints SampleSurface(const TriangleMesh& mesh, double spacing, uint64_t 
   }
   return out;
 }
+
+}  // namespace
 
 OrientedPoints VoxelDownsample(const OrientedPoints& in, double voxel, double max_normal_angle_deg) {
   struct Cluster {
@@ -112,7 +118,9 @@ OrientedPoints VoxelDownsample(const OrientedPoints& in, double voxel, double ma
   return out;
 }
 
-double PointSetDiameter(std::span<const Eigen::Vector3f> points) {
+namespace {
+
+double ComputePointSetDiameter(std::span<const Eigen::Vector3f> points) {
   const size_t n = points.size();
   const size_t stride = std::max<size_t>(1, n / 4000);
   double best2 = 0;
@@ -122,6 +130,28 @@ double PointSetDiameter(std::span<const Eigen::Vector3f> points) {
     }
   }
   return std::sqrt(best2);
+}
+
+}  // namespace
+
+// The memo's keys: every input's bytes (Vector3f and Vector3i have no padding).
+static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float) && sizeof(Eigen::Vector3i) == 3 * sizeof(int));
+
+OrientedPoints SampleSurface(const TriangleMesh& mesh, double spacing, uint64_t seed) {
+  if (!ModelTableMemoOn()) return ComputeSampleSurface(mesh, spacing, seed);
+  static TableMemo<OrientedPoints> memo;
+  TableMemoKey key;
+  key.AddSpan(std::span<const Eigen::Vector3f>(mesh.vertices));
+  key.AddSpan(std::span<const Eigen::Vector3i>(mesh.triangles)).Add(spacing).Add(seed);
+  return Memoised(memo, key, [&] { return ComputeSampleSurface(mesh, spacing, seed); });
+}
+
+double PointSetDiameter(std::span<const Eigen::Vector3f> points) {
+  if (!ModelTableMemoOn()) return ComputePointSetDiameter(points);
+  static TableMemo<double> memo;
+  TableMemoKey key;
+  key.AddSpan(points);
+  return Memoised(memo, key, [&] { return ComputePointSetDiameter(points); });
 }
 
 }  // namespace bp::internal

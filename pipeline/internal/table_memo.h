@@ -1,12 +1,15 @@
 // A process-wide memo of the model tables that are a function of their
-// inputs alone (ClosestPointField::Build, PpfModel::Build): a build whose
+// inputs alone (ClosestPointField::Build, PpfModel::Build, and the model
+// geometry both the pose estimator and grasp planning build: SampleSurface,
+// PointSetDiameter, ExtremePoints, BuildEdgePlanes): a build whose
 // inputs match an earlier build's byte for byte copies that build's table
 // instead of computing it again. Off unless a process turns it on
 // (SetModelTableMemo): binpickd and the tools build each part's tables once,
-// so the memo would only hold memory there. bp_pipeline_tests, which builds
-// the same parts' models in many tests, turns it on (tests/testing/model_table_memo.cc):
-// under ASan these two tables were about 40% of bp_pipeline_tests' CPU
-// (docs/reliability.md, "Timings"). Private to bp_pipeline.
+// so the memo would only hold memory there. bp_pipeline_tests and
+// bp_grasp_tests, which build the same parts' models in many tests, turn it
+// on (tests/testing/model_table_memo.cc): under ASan the first two tables
+// were about 40% of bp_pipeline_tests' CPU, the geometry 15% of it and 8% of
+// bp_grasp_tests' (docs/reliability.md, "Timings"). Private to bp_pipeline.
 #pragma once
 
 #include <cstddef>
@@ -84,5 +87,17 @@ class TableMemo {
   mutable std::mutex mu_;
   std::deque<std::pair<std::string, Table>> entries_;
 };
+
+// compute() with the memo off; with it on, the copy of what an earlier call
+// under the same key stored, else compute()'s result, stored. `compute` must
+// be a function of what `key` holds alone.
+template <class Table, class Compute>
+Table Memoised(TableMemo<Table>& memo, const TableMemoKey& key, Compute&& compute) {
+  Table table;
+  if (memo.Find(key, &table)) return table;
+  table = compute();
+  memo.Store(key, table);
+  return table;
+}
 
 }  // namespace bp::internal

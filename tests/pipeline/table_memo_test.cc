@@ -1,15 +1,18 @@
 // The model table memo (pipeline/internal/table_memo.h): a closest-point
-// field or PPF table copied from the memo answers every lookup as a fresh
+// field, PPF table or model geometry (surface samples, diameter, extreme
+// points, edge planes) copied from the memo answers every lookup as a fresh
 // build from the same inputs does, and inputs that differ in one point, or
 // in one parameter, are built again, not copied.
 #include "pipeline/internal/table_memo.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <vector>
 
 #include "core/mesh_gen.h"
 #include "pipeline/internal/closest_point_field.h"
+#include "pipeline/internal/model_geometry.h"
 #include "pipeline/internal/model_sampling.h"
 #include "pipeline/internal/ppf_matcher.h"
 #include "pipeline/pose_estimator.h"
@@ -130,6 +133,66 @@ TEST(ModelTableMemo, APpfTableCopiedFromTheMemoMatchesAsAFreshBuild) {
   EXPECT_EQ(coarser_model.pair_count(), fresh_coarser.pair_count());
   EXPECT_NE(coarser_model.pair_count(), fresh.pair_count());
   EXPECT_EQ(poses(coarser_model), poses(fresh_coarser));
+}
+
+// The samples, diameter, extreme points and edge planes of a part: bytes as
+// compared by the memo's key (floats compared bit for bit).
+struct Geometry {
+  OrientedPoints samples;
+  double diameter = 0.0;
+  std::vector<Eigen::Vector3f> extreme;
+  std::vector<EdgePlane> planes;
+};
+Geometry BuildGeometry(const TriangleMesh& mesh, double spacing, uint64_t seed) {
+  Geometry g;
+  g.samples = SampleSurface(mesh, spacing, seed);
+  g.diameter = PointSetDiameter(g.samples.points);
+  g.extreme = ExtremePoints(g.samples.points);
+  g.planes = BuildEdgePlanes(g.samples, spacing);
+  return g;
+}
+void ExpectSame(const Geometry& a, const Geometry& b) {
+  EXPECT_EQ(a.samples.points, b.samples.points);
+  EXPECT_EQ(a.samples.normals, b.samples.normals);
+  EXPECT_EQ(a.diameter, b.diameter);
+  EXPECT_EQ(a.extreme, b.extreme);
+  ASSERT_EQ(a.planes.size(), b.planes.size());
+  for (size_t i = 0; i < a.planes.size(); ++i) {
+    EXPECT_EQ(a.planes[i].n, b.planes[i].n) << i;
+    EXPECT_EQ(a.planes[i].c, b.planes[i].c) << i;
+  }
+}
+
+TEST(ModelTableMemo, ModelGeometryCopiedFromTheMemoIsAFreshBuildAndOtherInputsBuildAgain) {
+  const TriangleMesh bracket = MakeLBracket();
+  TriangleMesh moved = bracket;
+  moved.vertices[0] += Eigen::Vector3f(0.001f, 0.f, 0.f);
+  Geometry fresh, fresh_moved, fresh_seed;
+  {
+    MemoScope off(false);
+    fresh = BuildGeometry(bracket, 0.0029, 1);
+    fresh_moved = BuildGeometry(moved, 0.0029, 1);
+    fresh_seed = BuildGeometry(bracket, 0.0029, 2);
+  }
+  ASSERT_GT(fresh.samples.size(), 100u);
+  ASSERT_FALSE(fresh.extreme.empty());
+  ASSERT_TRUE(std::any_of(fresh.planes.begin(), fresh.planes.end(), [](const EdgePlane& p) { return p.valid(); }));
+  MemoScope on(true);
+  const Geometry first = BuildGeometry(bracket, 0.0029, 1);
+  const size_t hits = ModelTableMemoHits();
+  const Geometry copied = BuildGeometry(bracket, 0.0029, 1);
+  EXPECT_EQ(ModelTableMemoHits(), hits + 4);  // samples, diameter, extreme points, edge planes
+  ExpectSame(first, fresh);
+  ExpectSame(copied, fresh);
+  // One vertex moved, or another seed: samples built again, and from them
+  // everything else (other samples, other keys).
+  const Geometry other_mesh = BuildGeometry(moved, 0.0029, 1);
+  const Geometry other_seed = BuildGeometry(bracket, 0.0029, 2);
+  EXPECT_EQ(ModelTableMemoHits(), hits + 4);
+  ExpectSame(other_mesh, fresh_moved);
+  ExpectSame(other_seed, fresh_seed);
+  EXPECT_NE(other_seed.samples.points, fresh.samples.points);
+  EXPECT_NE(other_mesh.samples.points, fresh.samples.points);
 }
 
 }  // namespace
