@@ -1069,6 +1069,8 @@ void RequestHandler::Impl::PlanDetection(TaskState& t, const CapturedDetection& 
         return;
       }
     }
+    // The parts this capture shows keep their collision spots (grasp/failed_picks.h).
+    if (t.failed) t.failed->Seen(result.parts, result.bin ? std::optional<Pose>(result.bin->X_BW) : std::nullopt);
     int discarded = 0;
     t.queue.Replace(std::move(result), c.seq, &discarded);
     progress.queued = true;

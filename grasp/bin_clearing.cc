@@ -160,7 +160,9 @@ TaskLook LookOf(const BinPickingPlanner& p, const TaskSpec& task, const PlanDeta
 // screen keeps it.
 void ScreenPlan(Feedback& feedback, const TaskSpec& task, PlanResult& plan, SceneClearReport& report) {
   FailedPicks* f = feedback.For(task);
-  if (f == nullptr || plan.grasps.empty()) return;
+  if (f == nullptr) return;
+  f->Seen(plan.parts, plan.bin ? std::optional<Pose>(plan.bin->X_BW) : std::nullopt);  // as binpickd's detection
+  if (plan.grasps.empty()) return;
   const std::vector<Grasp> screened = f->Screen(plan.grasps);
   report.screened += static_cast<int>(screened.size());
   for (const Grasp& g : screened) {
@@ -593,6 +595,7 @@ Result<SceneClearReport> ClearScene(const Cell& base_cell, uint64_t seed, std::s
   planner_options.thorough_retry_estimates = options.thorough_retry_estimates;
   planner_options.planning.part_margin = options.part_margin;
   planner_options.planning.dropout_ends_at_parts = options.dropout_ends_at_parts;
+  planner_options.planning.hidden_behind_parts = options.hidden_behind_parts;
   auto planner = BinPickingPlanner::Create(cell, std::move(perception), std::move(*source), planner_options);
   if (!planner.ok()) return planner.status();
   BinPickingPlanner& p = **planner;

@@ -65,6 +65,9 @@ struct ClearOptions {
   // GraspPlanningOptions::dropout_ends_at_parts (`--dropout-ends-at-parts`,
   // to measure it).
   bool dropout_ends_at_parts = GraspPlanningOptions{}.dropout_ends_at_parts;
+  // GraspPlanningOptions::hidden_behind_parts (`--hidden-behind-parts`, to
+  // measure it).
+  bool hidden_behind_parts = GraspPlanningOptions{}.hidden_behind_parts;
   GraspJudgeOptions judge;
   // Fraction in [0, 1] of the picks the judge lets succeed that the
   // simulated robot fails anyway, at random (`--slip`: the vacuum breaks, the

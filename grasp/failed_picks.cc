@@ -54,7 +54,10 @@ FailedPicks::Recorded FailedPicks::Report(const Grasp& grasp, PickFailure reason
     same = &spots_.back();
   }
   ++same->failures;
-  if (reason == PickFailure::kCollision) same->failures = std::max(same->failures, rule_.max_failures);
+  if (reason == PickFailure::kCollision) {
+    same->failures = std::max(same->failures, rule_.max_failures);
+    same->collided = true;
+  }
   same->age = 0;
   same->p_W = p_W;  // where the part was last tried (a slip may have moved it)
   if (grasp.last_resort) {
@@ -70,6 +73,18 @@ void FailedPicks::OnCapture() {
   for (Spot& s : spots_) ++s.age;
   spots_.erase(std::remove_if(spots_.begin(), spots_.end(), [&](const Spot& s) { return s.age > rule_.captures; }),
                spots_.end());
+}
+
+void FailedPicks::Seen(std::span<const DetectedPart> parts, const std::optional<Pose>& X_BW) {
+  const Pose X_WB = X_BW ? X_BW->inverse() : X_WB_;
+  std::lock_guard lock(mutex_);
+  for (Spot& s : spots_) {
+    if (!s.collided) continue;
+    const bool there = std::any_of(parts.begin(), parts.end(), [&](const DetectedPart& p) {
+      return p.class_id == s.class_id && (X_WB * p.X_BO.translation() - s.p_W).norm() <= rule_.radius;
+    });
+    if (there) s.age = 0;
+  }
 }
 
 FailedPicks::Verdict FailedPicks::Judge(const Grasp& grasp) const {

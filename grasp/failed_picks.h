@@ -23,6 +23,12 @@
 //     `max_failures` at once: the robot is never sent into the same contact
 //     again while the spot is remembered (a vacuum or slip failure is often
 //     chance, a contact is the plan's, and another try would repeat it);
+//     and a spot with a collision is remembered while its part is there:
+//     each capture that detects a part of its class within `radius` of it
+//     (Seen) counts as its last failure, so it is released `captures`
+//     captures after the last capture that showed it, once the part is gone
+//     or moved away (what the tool met is still there while the part is:
+//     docs/tuning.md, "Hidden space behind detected parts");
 //   - a failed last resort (Grasp::last_resort: a grasp on an ambiguous
 //     detection that lands only if the pose it was planned on is true) also
 //     refutes that pose: while the spot is remembered, plans put the
@@ -37,6 +43,7 @@
 #include <cstdint>
 #include <deque>
 #include <map>
+#include <optional>
 #include <mutex>
 #include <span>
 #include <string>
@@ -80,6 +87,12 @@ class FailedPicks {
   // A capture of the task happened: every spot ages by one capture; spots
   // `captures` captures past their last failure are released.
   void OnCapture();
+  // The parts a capture of the task detected (their classes and poses in
+  // B; the bin of that capture at X_BW, nullopt: the nominal one): a spot
+  // with a collision and a part of its class within `radius` is still
+  // there, aged back to 0. Called after OnCapture, before the capture's
+  // plan is screened.
+  void Seen(std::span<const DetectedPart> parts, const std::optional<Pose>& X_BW);
 
   enum class Verdict { kServe, kWithheld, kRefused };
   Verdict Judge(const Grasp& grasp) const;
@@ -102,7 +115,8 @@ class FailedPicks {
     Vec3 p_W = Vec3::Zero();  // part origin in the bin frame, m
     int class_id = 0;
     int failures = 0;
-    int age = 0;  // captures since its last failure
+    int age = 0;  // captures since its last failure, or since a capture showed its part (collided)
+    bool collided = false;  // a failure there was a collision (Seen keeps it)
     std::vector<Pose> refuted_X_WO = {};  // poses failed last resorts were planned on
   };
   std::vector<Spot> Spots() const;

@@ -44,6 +44,7 @@ std::string_view ToString(RejectReason reason) {
     case RejectReason::kPart: return "part";
     case RejectReason::kSelf: return "self";
     case RejectReason::kPoints: return "points";
+    case RejectReason::kHiddenSpace: return "hidden_space";
     case RejectReason::kHidden: return "hidden";
   }
   return "?";
@@ -259,6 +260,10 @@ class GraspPlanningModel::Impl {
   std::map<int, CollisionGeometryPtr> parts_touch;  // `parts` grown by options.touch_distance
   std::map<int, CollisionGeometryPtr> parts_planning;  // `parts` grown by options.part_margin (the plan's other parts)
   std::map<int, TriangleMesh> part_meshes;       // by class id, in O (contact ray casts)
+  // m: the shortest hidden stretch behind a detected part that can hold a
+  // part (options.hidden_behind_parts): the smallest side of the cell's
+  // part meshes' boxes (in O). 0 when off.
+  double hidden_min_stretch = 0.0;
   // By class id, in O: the surfaces that explain ROI points
   // (options.surface_explain_distance; empty when it is 0).
   std::map<int, internal::PartSurface> surfaces;
@@ -373,6 +378,10 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
       impl->surfaces[part.class_id] = internal::PartSurface::Sample(
           *mesh, kSurfaceSpacing, impl->options.surface_explain_distance + kSurfaceSpacing);
     }
+    if (options.hidden_behind_parts) {
+      const double side = (*geometry)->local_bounds().sizes().minCoeff();
+      impl->hidden_min_stretch = impl->hidden_min_stretch > 0 ? std::min(impl->hidden_min_stretch, side) : side;
+    }
     impl->part_meshes[part.class_id] = std::move(*mesh);
   }
   TriangleMesh bin_mesh;
@@ -434,17 +443,23 @@ struct FrameObstacles {
   // other grasps (its mesh is, kPart), but checked like its mesh against
   // its own grasps' lifted sweep (kSelf), so a pose a fraction of a degree
   // off there does not let the tool into the part.
-  struct OwnPoints {
+  // Also per detection, the space it hides from the camera
+  // (hidden_behind_parts): voxel centres of octree_resolution. An obstacle
+  // for the other detections' grasps, checked like the points.
+  struct PointPatch {
     std::vector<Eigen::Vector3f> points;  // B
-    Eigen::AlignedBox3d bounds;
+    Eigen::AlignedBox3d bounds;           // of the points, grown by a voxel
     internal::OccupancyGrid grid;  // `points` in cells of kOwnGridCell, the check's pre-filter
+    double res = kSurfaceSpacing;  // m, the OcTree's voxel edge
+    double reach = 2 * kSurfaceSpacing;  // m, AnyNear's grow: a voxel the sweep meets has a point this near a slab
     // The OcTree of `points`, built by the first check that reaches it
     // (most detections' never are: their grasps fail earlier, or no sweep
     // comes near those points); the same tree whenever it is built.
     mutable std::once_flag built;
     mutable PointObstaclePtr tree;
   };
-  std::vector<std::unique_ptr<OwnPoints>> own;  // null: none
+  std::vector<std::unique_ptr<PointPatch>> own;     // null: none
+  std::vector<std::unique_ptr<PointPatch>> hidden;  // null: none
 };
 
 // Whether a tool at X_BT, planned as the grasp X_OG_nominal
@@ -945,6 +960,112 @@ void DropMixedOnPartRays(const Frame& frame, std::span<const internal::PlacedMes
   rest.resize(kept);
 }
 
+// The space each of `parts` (B, by detection) hides from the camera of an
+// organized frame (GraspPlanningOptions::hidden_behind_parts), as rays:
+// per part, on pixels every `step` m across the view (on the bin floor),
+// those whose ray meets the part, from the depth where it leaves the part
+// to the bin floor (W's z = 0, X_BW) or the nearest surface of another part
+// beyond that, kept where that stretch is at least `min_stretch` m long
+// along the ray and the pixel measured no depth more than `seen` m beyond
+// the part's far side (the camera saw through it there). O(the parts'
+// pixel boxes / step^2 + the triangles of each part and of the parts whose
+// boxes meet its box).
+std::vector<std::vector<DropoutRay>> FindHiddenRays(const Frame& frame, std::span<const internal::PlacedMesh> parts,
+                                                    const Pose& X_BW, double step, double min_stretch, float seen) {
+  std::vector<std::vector<DropoutRay>> rays(parts.size());
+  const int w = frame.depth.width, h = frame.depth.height;
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_CB = frame.X_BC.inverse();
+  const Pose X_WC = X_BW.inverse() * frame.X_BC;
+  const double z_floor = std::abs((X_CB * X_BW.translation()).z());
+  if (w == 0 || h == 0 || !(z_floor > 0)) return rays;
+  const int stride = std::max(1, static_cast<int>(step * K.fx / z_floor));
+  // Each part's box of pixels (its vertices projected; empty when one lies
+  // behind the camera).
+  std::vector<Eigen::AlignedBox2i> box(parts.size());
+  for (size_t p = 0; p < parts.size(); ++p) {
+    if (parts[p].mesh_O == nullptr) continue;
+    const Pose X_CO = X_CB * parts[p].X_BO;
+    Eigen::AlignedBox2d px;
+    bool behind = false;
+    for (const Eigen::Vector3f& v : parts[p].mesh_O->vertices) {
+      const Vec3 c = X_CO * v.cast<double>();
+      behind = behind || !(c.z() > 1e-3);
+      px.extend(Eigen::Vector2d(K.fx * c.x() / c.z() + K.cx, K.fy * c.y() / c.z() + K.cy));
+    }
+    if (behind || px.isEmpty()) continue;
+    const Eigen::Vector2i lo(std::max(0, static_cast<int>(std::floor(px.min().x()))),
+                             std::max(0, static_cast<int>(std::floor(px.min().y()))));
+    const Eigen::Vector2i hi(std::min(w - 1, static_cast<int>(std::ceil(px.max().x()))),
+                             std::min(h - 1, static_cast<int>(std::ceil(px.max().y()))));
+    if ((lo.array() <= hi.array()).all()) box[p] = Eigen::AlignedBox2i(lo, hi);
+  }
+  std::vector<uint8_t> wanted;
+  for (size_t p = 0; p < parts.size(); ++p) {
+    if (box[p].isEmpty()) continue;
+    const int u0 = box[p].min().x(), v0 = box[p].min().y();
+    const int bw = box[p].sizes().x() + 1, bh = box[p].sizes().y() + 1;
+    wanted.assign(static_cast<size_t>(bw) * bh, 0);
+    for (int v = v0 + (stride - v0 % stride) % stride; v < v0 + bh; v += stride) {
+      for (int u = u0 + (stride - u0 % stride) % stride; u < u0 + bw; u += stride) {
+        wanted[static_cast<size_t>(v - v0) * bw + (u - u0)] = 1;
+      }
+    }
+    const internal::PixelWindow window{u0, v0, bw, bh, wanted};
+    const std::vector<float> far = internal::FarthestSurfaceDepth(K, frame.X_BC, parts.subspan(p, 1), window);
+    std::vector<internal::PlacedMesh> others;
+    for (size_t q = 0; q < parts.size(); ++q) {
+      if (q != p && !box[q].isEmpty() && box[q].intersects(box[p])) others.push_back(parts[q]);
+    }
+    const std::vector<float> other = internal::NearestSurfaceDepth(K, frame.X_BC, others, window);
+    for (int v = v0; v < v0 + bh; ++v) {
+      for (int u = u0; u < u0 + bw; ++u) {
+        const size_t i = static_cast<size_t>(v - v0) * bw + (u - u0);
+        const float start = far[i];
+        if (!wanted[i] || !(start > 0)) continue;
+        const float z = frame.depth.at(u, v);
+        if (std::isfinite(z) && z > start + seen) continue;
+        const Vec3 ray_C((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+        const double down = (X_WC.linear() * ray_C).z();
+        if (!(down < 0)) continue;
+        float end = static_cast<float>(-X_WC.translation().z() / down);
+        if (other[i] > start) end = std::min(end, other[i]);
+        if ((end - start) * ray_C.norm() < min_stretch) continue;
+        rays[p].push_back({u, v, start, end});
+      }
+    }
+  }
+  return rays;
+}
+
+// The space each detection hides from the camera (hidden_behind_parts), by
+// detection: the rays of FindHiddenRays every octree_resolution / 2 inside
+// the ROI, voxelised (null: none).
+std::vector<std::unique_ptr<FrameObstacles::PointPatch>> HiddenSpaces(const GraspPlanningModel::Impl& m,
+                                                                      const Frame& frame, const Pose& X_BW,
+                                                                      std::span<const internal::PlacedMesh> parts) {
+  const double res = m.options.octree_resolution;
+  const std::vector<std::vector<DropoutRay>> rays =
+      FindHiddenRays(frame, parts, X_BW, res / 2, m.hidden_min_stretch, static_cast<float>(m.options.mixed_on_part_rays));
+  std::vector<std::unique_ptr<FrameObstacles::PointPatch>> hidden(parts.size());
+  for (size_t p = 0; p < parts.size(); ++p) {
+    if (rays[p].empty()) continue;
+    std::vector<Eigen::Vector3f> points =
+        VoxelCentres(DropoutPoints(frame, m.cell, X_BW, rays[p], res / 2, 0.f), res);
+    if (points.empty()) continue;
+    auto patch = std::make_unique<FrameObstacles::PointPatch>();
+    for (const Eigen::Vector3f& q : points) patch->bounds.extend(q.cast<double>());
+    patch->bounds.min().array() -= res;
+    patch->bounds.max().array() += res;
+    patch->grid = internal::OccupancyGrid(points, kOwnGridCell);
+    patch->res = res;
+    patch->reach = res;  // voxel centres: a voxel lies within sqrt(3) / 2 of an edge of its centre
+    patch->points = std::move(points);
+    hidden[p] = std::move(patch);
+  }
+  return hidden;
+}
+
 // Stage 2: the points no detection explains (and the occluded columns
 // under them) as an OcTree and an occupancy grid (the other parts' meshes,
 // grown by part_margin, are the model's: CandidateFilter places them).
@@ -983,7 +1104,7 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     obstacles.own.resize(detections.size());
     for (size_t k = 0; k < owned.size(); ++k) {
       if (owned[k].empty()) continue;
-      auto own = std::make_unique<FrameObstacles::OwnPoints>();
+      auto own = std::make_unique<FrameObstacles::PointPatch>();
       own->points.reserve(owned[k].size());
       for (uint32_t i : owned[k]) {
         own->points.push_back(perception.roi_points_B[i]);
@@ -1009,6 +1130,15 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
     }
     if (m.options.mixed_on_part_rays > 0) {
       DropMixedOnPartRays(*frame, parts, static_cast<float>(m.options.mixed_on_part_rays), rest);
+    }
+    if (m.hidden_min_stretch > 0) {
+      std::vector<internal::PlacedMesh> by_detection(detections.size());  // mesh null: a class the cell lacks
+      for (size_t d = 0; d < detections.size(); ++d) {
+        if (auto mesh = m.part_meshes.find(detections[d].class_id); mesh != m.part_meshes.end()) {
+          by_detection[d] = {&mesh->second, detections[d].X_BO};
+        }
+      }
+      obstacles.hidden = HiddenSpaces(m, *frame, BinPoseOf(perception, m.cell.bin), by_detection);
     }
   }
   // The unseen space along the dropout rays beside them (dropout_reach),
@@ -1151,27 +1281,41 @@ class CandidateFilter {
     return false;
   }
 
-  // Whether the swept gripper at X_BT_lift (lifted like the self check)
-  // meets the points only detection d's surface explains
-  // (FrameObstacles::own): FCL when a slab's box meets their box.
-  bool HitsItsOwnPoints(int d, const Pose& X_BT_lift) const {
-    if (d < 0 || static_cast<size_t>(d) >= obstacles_.own.size() || !obstacles_.own[d]) return false;
-    const FrameObstacles::OwnPoints& own = *obstacles_.own[d];
+  // Whether the swept gripper at X_BT meets `patch`: FCL when a slab's box
+  // meets its box and the pre-filter finds a point near a slab.
+  bool HitsPatch(const FrameObstacles::PointPatch& patch, const Pose& X_BT) const {
     const bool near = std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
-      return WorldBox(slab, X_BT_lift).intersects(own.bounds);
+      return WorldBox(slab, X_BT).intersects(patch.bounds);
     });
-    // Exact: a voxel (edge kSurfaceSpacing) the sweep meets holds a point
-    // within sqrt(3) edges of the sweep, so within two of a slab box along
-    // each of the tool's axes (the point check's pre-filter, raw points).
     if (!near || !std::any_of(gripper_.slabs.begin(), gripper_.slabs.end(), [&](const Eigen::AlignedBox3d& slab) {
-          return own.grid.AnyNear(slab, X_BT_lift, 2.0 * kSurfaceSpacing);
+          return patch.grid.AnyNear(slab, X_BT, patch.reach);
         })) {
       return false;
     }
-    std::call_once(own.built, [&own] {
-      if (auto p = PointObstacle::FromPoints(own.points, kSurfaceSpacing); p.ok()) own.tree = *p;
+    std::call_once(patch.built, [&patch] {
+      if (auto p = PointObstacle::FromPoints(patch.points, patch.res); p.ok()) patch.tree = *p;
     });
-    return own.tree && own.tree->Collides(*gripper_.sweep, X_BT_lift);
+    return patch.tree && patch.tree->Collides(*gripper_.sweep, X_BT);
+  }
+
+  // Whether the swept gripper at X_BT_lift (lifted like the self check)
+  // meets the points only detection d's surface explains
+  // (FrameObstacles::own). Exact: a voxel (edge kSurfaceSpacing) the sweep
+  // meets holds a point within sqrt(3) edges of the sweep, so within two of
+  // a slab box along each of the tool's axes (PointPatch::reach, raw points).
+  bool HitsItsOwnPoints(int d, const Pose& X_BT_lift) const {
+    if (d < 0 || static_cast<size_t>(d) >= obstacles_.own.size() || !obstacles_.own[d]) return false;
+    return HitsPatch(*obstacles_.own[d], X_BT_lift);
+  }
+
+  // Whether the swept gripper at X_BT_points (lifted like the point check)
+  // enters the space another detection than d hides from the camera
+  // (FrameObstacles::hidden).
+  bool EntersHiddenSpace(int d, const Pose& X_BT_points) const {
+    for (size_t k = 0; k < obstacles_.hidden.size(); ++k) {
+      if (static_cast<int>(k) != d && obstacles_.hidden[k] && HitsPatch(*obstacles_.hidden[k], X_BT_points)) return true;
+    }
+    return false;
   }
 
   // The first check `c` fails, nullopt when it passes every one. Sets
@@ -1220,6 +1364,7 @@ class CandidateFilter {
       });
       if (near && obstacles_.points->Collides(sweep, X_BT_points)) return RejectReason::kPoints;
     }
+    if (EntersHiddenSpace(c.detection, c.X_BT * TranslateZ(-gripper_.points_lift))) return RejectReason::kHiddenSpace;
     return std::nullopt;
   }
 

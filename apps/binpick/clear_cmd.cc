@@ -43,6 +43,7 @@ struct ClearCliOptions {
   int thorough_retry_estimates = ClearOptions{}.thorough_retry_estimates;
   double part_margin_mm = 1000 * ClearOptions{}.part_margin;
   bool dropout_ends_at_parts = ClearOptions{}.dropout_ends_at_parts;
+  bool hidden_behind_parts = ClearOptions{}.hidden_behind_parts;
   bool capture_every_pick = false;
   bool keep_stale = false;
   bool variety = false;
@@ -162,6 +163,7 @@ int Run(const ClearCliOptions& opt) {
   options.thorough_retry_estimates = opt.thorough_retry_estimates;
   options.part_margin = opt.part_margin_mm / 1000;
   options.dropout_ends_at_parts = opt.dropout_ends_at_parts;
+  options.hidden_behind_parts = opt.hidden_behind_parts;
   options.slip_rate = opt.slip;
   options.slip_seed = opt.slip_seed;
   options.feedback = !opt.no_feedback;
@@ -264,6 +266,10 @@ Command ClearCommand() {
     sub.add_option("--dropout-ends-at-parts", opt->dropout_ends_at_parts,
                    "true: an unseen dropout ray beside an unexplained point ends at a detected part's surface; "
                    "false: at the farthest depth measured near it (GraspPlanningOptions::dropout_ends_at_parts)")
+        ->capture_default_str();
+    sub.add_option("--hidden-behind-parts", opt->hidden_behind_parts,
+                   "true: the space a detected part hides from the camera, where it could hold a part, is an "
+                   "obstacle for the other parts' grasps; false: free (GraspPlanningOptions::hidden_behind_parts)")
         ->capture_default_str();
     sub.add_flag("--variety", opt->variety,
                  "draw each scene's camera pose, intrinsics, noise and drop style from its seed (the cell's "

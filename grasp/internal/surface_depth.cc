@@ -7,9 +7,12 @@
 
 namespace bp::internal {
 
-std::vector<float> NearestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
-                                       const PixelWindow& window) {
-  constexpr float kNone = std::numeric_limits<float>::infinity();
+namespace {
+
+// NearestSurfaceDepth (farthest false) or FarthestSurfaceDepth (true).
+std::vector<float> SurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
+                                const PixelWindow& window, bool farthest) {
+  const float kNone = farthest ? 0.f : std::numeric_limits<float>::infinity();
   std::vector<float> depth(static_cast<size_t>(std::max(0, window.width)) * std::max(0, window.height), kNone);
   if (depth.empty() || window.wanted.size() != depth.size()) return depth;
   const int u_last = window.u0 + window.width - 1, v_last = window.v0 + window.height - 1;
@@ -39,10 +42,11 @@ std::vector<float> NearestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, st
       if (c[0].z() < kMinDepth || c[1].z() < kMinDepth || c[2].z() < kMinDepth) continue;
       // Facing away (the outward normal of a counter-clockwise triangle
       // away from the camera at C's origin): never the nearest surface of a
-      // closed mesh along a ray from outside it.
+      // closed mesh along a ray from outside it; facing the camera: never
+      // the farthest (where the ray leaves the mesh).
       const Vec3 n = (c[1] - c[0]).cross(c[2] - c[0]);
       const double n_c0 = n.dot(c[0]);
-      if (!(n_c0 < 0)) continue;
+      if (farthest ? !(n_c0 > 0) : !(n_c0 < 0)) continue;
       // Projected corners (pixel coordinates; pixel (u, v) is the point (u, v)).
       std::array<Eigen::Vector2d, 3> x;
       for (int k = 0; k < 3; ++k) {
@@ -93,12 +97,24 @@ std::vector<float> NearestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, st
           if (!(std::abs(n_d) > 1e-15)) continue;
           const double z = n_c0 / n_d;
           float& out = depth[row + (u - window.u0)];
-          if (z > 0 && z < out) out = static_cast<float>(z);
+          if (z > 0 && (farthest ? z > out : z < out)) out = static_cast<float>(z);
         }
       }
     }
   }
   return depth;
+}
+
+}  // namespace
+
+std::vector<float> NearestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
+                                       const PixelWindow& window) {
+  return SurfaceDepth(K, X_BC, meshes, window, /*farthest=*/false);
+}
+
+std::vector<float> FarthestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
+                                        const PixelWindow& window) {
+  return SurfaceDepth(K, X_BC, meshes, window, /*farthest=*/true);
 }
 
 }  // namespace bp::internal

@@ -2,7 +2,8 @@
 // pixels' rays of an organized frame, for the dropout rays of the point
 // obstacle (GraspPlanningOptions::dropout_reach): the space behind a detected
 // part's surface, seen from the camera, is that part (already an obstacle),
-// so an unseen ray ends where it meets one.
+// so an unseen ray ends where it meets one; and where the rays leave a
+// part, for the space it hides (hidden_behind_parts).
 //
 // Frames (STYLE.md): B base, C camera, O part. Depth is the metric z in C
 // (not the ray length), as DepthImage holds it; pixel (u, v) looks along
@@ -47,5 +48,13 @@ struct PixelWindow {
 // that hold a wanted pixel.
 std::vector<float> NearestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
                                        const PixelWindow& window);
+
+// The same for the farthest surface: the depth (m) where the ray last
+// leaves `meshes` (their triangles facing away from the camera, the
+// largest depth), 0 where it meets none or where the pixel is not wanted.
+// The space behind it, seen from the camera, is hidden by the meshes
+// (GraspPlanningOptions::hidden_behind_parts).
+std::vector<float> FarthestSurfaceDepth(const Intrinsics& K, const Pose& X_BC, std::span<const PlacedMesh> meshes,
+                                        const PixelWindow& window);
 
 }  // namespace bp::internal

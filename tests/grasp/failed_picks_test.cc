@@ -100,6 +100,43 @@ TEST(FailedPicks, ACollisionRefusesItsSpotAtOnce) {
   EXPECT_EQ(f.Judge(b), FailedPicks::Verdict::kWithheld);
 }
 
+// What the tool met is still there while the part is: a collision's spot
+// stays refused through any number of captures that detect a part of its
+// class on it (Seen, in the bin frame), and is released `captures` captures
+// after the last one that did. A slip's spot ages whatever the captures show;
+// a part of another class, or one farther than the radius, does not keep it.
+TEST(FailedPicks, ACollisionSpotStaysWhileItsPartIsSeenThere) {
+  const Pose X_BW = MakePose(Mat3::Identity(), Vec3(0.1, 0, 0));
+  FailedPicks f(Rule(0.03, 2, 3), X_BW);
+  const Grasp a = GraspAt(0, 0, Vec3(0.5, 0, 0.1));
+  const Grasp b = GraspAt(1, 1, Vec3(0.8, 0, 0.1));
+  f.Report(a, PickFailure::kCollision);
+  f.Report(b, PickFailure::kSlipped);
+  // The part 4 mm from where it was, a part of the other class on the same
+  // spot, and the slipped part.
+  const std::vector<DetectedPart> seen = {{0, MakePose(Mat3::Identity(), Vec3(0.504, 0, 0.1)), 0.9},
+                                          {1, MakePose(Mat3::Identity(), Vec3(0.5, 0, 0.1)), 0.9},
+                                          {1, MakePose(Mat3::Identity(), Vec3(0.8, 0, 0.1)), 0.9}};
+  for (int capture = 0; capture < 5; ++capture) {
+    f.OnCapture();
+    f.Seen(seen, X_BW);
+  }
+  EXPECT_EQ(f.Judge(a), FailedPicks::Verdict::kRefused) << "five captures showed the part on its spot";
+  EXPECT_EQ(f.Judge(b), FailedPicks::Verdict::kServe) << "a slip's spot is released after 2 captures";
+  // Gone: only the other class and a part of its class 40 mm away are seen.
+  const std::vector<DetectedPart> gone = {{1, MakePose(Mat3::Identity(), Vec3(0.5, 0, 0.1)), 0.9},
+                                          {0, MakePose(Mat3::Identity(), Vec3(0.54, 0, 0.1)), 0.9}};
+  f.OnCapture();
+  f.Seen(gone, X_BW);
+  f.OnCapture();
+  f.Seen(gone, std::nullopt);  // the nominal bin: the same here
+  EXPECT_EQ(f.Judge(a), FailedPicks::Verdict::kRefused) << "2 captures after it was last seen";
+  f.OnCapture();
+  f.Seen(gone, X_BW);
+  EXPECT_EQ(f.Judge(a), FailedPicks::Verdict::kServe);
+  EXPECT_TRUE(f.Spots().empty());
+}
+
 TEST(FailedPicks, ASpotIsReleasedNCapturesAfterItsLastFailure) {
   FailedPicks f(Rule(0.03, 2, 3), Pose::Identity());
   const Grasp a = GraspAt(0, 0, Vec3(0.5, 0, 0.1));
