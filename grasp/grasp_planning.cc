@@ -1235,13 +1235,21 @@ class CandidateFilter {
       bin_free_W_ = {Eigen::AlignedBox3d(Vec3(-half.x() + in, -half.y() + in, in), Vec3(half.x() - in, half.y() - in, kInf)),
                      Eigen::AlignedBox3d(Vec3(-kInf, -kInf, cell.bin.inner_size.z() + in), Vec3(kInf, kInf, kInf))};
     }
-    // The other parts: each detection's grown mesh and its bounds in B.
+    // The other parts: each detection's grown mesh, its poses (the
+    // estimated one, then its alternatives: ambiguous_poses_block) and
+    // their bounds in B.
     parts_.assign(detections.size(), nullptr);
+    part_poses_.resize(detections.size());
     part_bounds_.resize(detections.size());
     for (size_t d = 0; d < detections.size(); ++d) {
       if (auto p = m.parts_planning.find(detections[d].class_id); p != m.parts_planning.end()) {
         parts_[d] = p->second.get();
-        part_bounds_[d] = parts_[d]->WorldBounds(detections[d].X_BO);
+        part_poses_[d] = {detections[d].X_BO};
+        if (m.options.ambiguous_poses_block) {
+          part_poses_[d].insert(part_poses_[d].end(), detections[d].alternatives_X_BO.begin(),
+                                detections[d].alternatives_X_BO.end());
+        }
+        for (const Pose& X_BO : part_poses_[d]) part_bounds_[d].push_back(parts_[d]->WorldBounds(X_BO));
       }
     }
     symmetry_.resize(detections.size());
@@ -1266,17 +1274,19 @@ class CandidateFilter {
   }
 
   // Whether the swept gripper at c.X_BT meets another detected part (grown
-  // by part_margin): FCL on the parts whose bounds meet one of its slabs'
-  // (a sweep's triangle lies in its slab's box).
+  // by part_margin) at one of its poses: FCL on the poses whose bounds meet
+  // one of its slabs' (a sweep's triangle lies in its slab's box).
   bool HitsAnotherPart(const GraspCandidate& c) const {
     std::vector<Eigen::AlignedBox3d> boxes;
     boxes.reserve(gripper_.slabs.size());
     for (const auto& slab : gripper_.slabs) boxes.push_back(WorldBox(slab, c.X_BT));
     for (size_t d = 0; d < parts_.size(); ++d) {
       if (static_cast<int>(d) == c.detection || parts_[d] == nullptr) continue;
-      const bool near = std::any_of(boxes.begin(), boxes.end(),
-                                    [&](const Eigen::AlignedBox3d& b) { return b.intersects(part_bounds_[d]); });
-      if (near && Collides(*gripper_.sweep, c.X_BT, *parts_[d], detections_[d].X_BO)) return true;
+      for (size_t k = 0; k < part_poses_[d].size(); ++k) {
+        const bool near = std::any_of(boxes.begin(), boxes.end(),
+                                      [&](const Eigen::AlignedBox3d& b) { return b.intersects(part_bounds_[d][k]); });
+        if (near && Collides(*gripper_.sweep, c.X_BT, *parts_[d], part_poses_[d][k])) return true;
+      }
     }
     return false;
   }
@@ -1384,7 +1394,8 @@ class CandidateFilter {
   Pose X_WB_ = Pose::Identity();
   std::vector<Eigen::AlignedBox3d> bin_free_W_;  // where the swept gripper cannot meet the plan's bin (W)
   std::vector<const CollisionGeometry*> parts_;     // by detection: grown by part_margin, null for an unknown class
-  std::vector<Eigen::AlignedBox3d> part_bounds_;    // by detection, in B
+  std::vector<std::vector<Pose>> part_poses_;       // by detection: its pose, then its alternatives
+  std::vector<std::vector<Eigen::AlignedBox3d>> part_bounds_;  // by detection, per pose, in B
   std::vector<Symmetry> symmetry_;
 };
 

@@ -14,7 +14,8 @@
 // place_on, at the place pose and its approach), the swept gripper against
 // the bin (its walls grown by bin_margin; none inside the walls or above them),
 // against the other detected parts (meshes at their estimated poses grown
-// by part_margin, those whose bounds meet the sweep's slab boxes), against
+// by part_margin, those whose bounds meet the sweep's slab boxes; an
+// ambiguous detection at each of its poses: ambiguous_poses_block), against
 // its own part
 // and against the scene points not explained by any detection (its
 // support, the points near it, those on its model's surface at its
@@ -263,6 +264,16 @@ struct GraspPlanningOptions {
   // obstacles of that kind refused too many grasps before (docs/tuning.md,
   // "Rejected: the occluded rays").
   bool hidden_behind_parts = true;
+  // A detection whose view other poses explain as well
+  // (Detection::alternatives_X_BO: a tee turned about its run, its branch
+  // out of view) is an obstacle for the other parts' grasps at each of
+  // those poses too (kPart), as its own grasps must land under each
+  // (kAmbiguous). false: at its estimated pose alone.
+  // Why: the view does not tell which pose is true, and the part is at one
+  // of them: a cup beside a tee detected 16 deg off about its run met its
+  // true branch where the camera measured nothing (clear seed 16649
+  // --variety; docs/tuning.md "Hidden space behind detected parts").
+  bool ambiguous_poses_block = true;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
   // vertical approach by min(tilt, suction_compliance_deg -
