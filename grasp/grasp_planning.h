@@ -253,16 +253,13 @@ struct GraspPlanningOptions {
   // margin). A ray whose pixel measured a depth more than the depth noise
   // (mixed_on_part_rays) beyond the part's far side saw through it there:
   // none. false: off.
-  // Why: the plan took the space under a detected part as free, and the
-  // camera never saw it: a tool passed under a detected tee into a tee
-  // perception missed there (clear seed 16349 --slip), and a tool passed
-  // beside a tee detected turned about its run into its true branch, hidden
-  // behind the estimated one (clear seed 16649 --variety; docs/tuning.md
-  // "Hidden space behind detected parts"). A shorter stretch (a part lying
-  // on the floor or on another detected part, the thin wedges beside it)
-  // cannot hold a part whose rest the camera does not see: the grown
-  // obstacles of that kind refused too many grasps before (docs/tuning.md,
-  // "Rejected: the occluded rays").
+  // Why: the camera never saw that space, and a part perception missed, or
+  // the true side of a part detected in a wrong turn, may lie there. A
+  // shorter stretch (a part lying on the floor or on another detected part,
+  // the thin wedges beside it) cannot hold a part whose rest the camera does
+  // not see; grown obstacles of that kind refused too many grasps
+  // (docs/tuning.md, "Rejected: the occluded rays", "Hidden space behind
+  // detected parts").
   bool hidden_behind_parts = true;
   // A detection whose view other poses explain as well
   // (Detection::alternatives_X_BO: a tee turned about its run, its branch
@@ -270,9 +267,9 @@ struct GraspPlanningOptions {
   // those poses too (kPart), as its own grasps must land under each
   // (kAmbiguous). false: at its estimated pose alone.
   // Why: the view does not tell which pose is true, and the part is at one
-  // of them: a cup beside a tee detected 16 deg off about its run met its
-  // true branch where the camera measured nothing (clear seed 16649
-  // --variety; docs/tuning.md "Hidden space behind detected parts").
+  // of them; a cup beside one pose may meet the part at another where the
+  // camera measured nothing (docs/tuning.md "Hidden space behind detected
+  // parts").
   bool ambiguous_poses_block = true;
   // Suction cups comply with a surface up to some angle: each suction
   // candidate also gets a variant turned about its contact point toward a
