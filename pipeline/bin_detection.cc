@@ -26,6 +26,20 @@ const char* ToString(BinDetectSpec::Mode mode) {
 
 namespace {
 
+// A symmetric 3x3 matrix given by its lower triangle (a_rc: row r, column
+// c); the upper triangle is left zero, for readers of the lower one only
+// (LDLT, the self-adjoint eigensolver).
+Eigen::Matrix3d FromLowerTriangle(double a00, double a10, double a11, double a20, double a21, double a22) {
+  Eigen::Matrix3d m = Eigen::Matrix3d::Zero();
+  m(0, 0) = a00;
+  m(1, 0) = a10;
+  m(1, 1) = a11;
+  m(2, 0) = a20;
+  m(2, 1) = a21;
+  m(2, 2) = a22;
+  return m;
+}
+
 constexpr double kDegToRad = M_PI / 180.0;
 constexpr int kWallPieces = 20;  // a wall's length in this many pieces for the seen share
 // The rim plane is fitted to band points within this much (m) beyond the
@@ -130,13 +144,7 @@ RimPose FitRim(const std::vector<Eigen::Vector2d>& q, const RimModel& rim, doubl
       ++used;
     }
     if (used < 10) break;
-    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-    JtJ(0, 0) = s00;
-    JtJ(1, 0) = s10;
-    JtJ(1, 1) = s11;
-    JtJ(2, 0) = s20;
-    JtJ(2, 1) = s21;
-    JtJ(2, 2) = s22;
+    const Eigen::Matrix3d JtJ = FromLowerTriangle(s00, s10, s11, s20, s21, s22);
     const Eigen::Vector3d Jtr(t0, t1, t2);
     const Eigen::Vector3d delta = JtJ.ldlt().solve(-Jtr);
     if (!delta.allFinite()) break;
@@ -313,13 +321,7 @@ bool FitPlane(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* n, do
     c21 += q(2) * q(1);
     c22 += q(2) * q(2);
   }
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  cov(0, 0) = c00;
-  cov(1, 0) = c10;
-  cov(1, 1) = c11;
-  cov(2, 0) = c20;
-  cov(2, 1) = c21;
-  cov(2, 2) = c22;
+  const Eigen::Matrix3d cov = FromLowerTriangle(c00, c10, c11, c20, c21, c22);
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   Eigen::Vector3d normal = eig.eigenvectors().col(0);
   if (normal.z() < 0) normal = -normal;

@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "pipeline/synthetic_source.h"
+#include "tests/testing/no_bin_source.h"
 
 namespace bp {
 namespace {
@@ -58,26 +59,6 @@ BinDetection ExpectFoundAt(const Pose& offset, const BinDetectSpec& detect = {})
   EXPECT_LT(mm, 0.0005) << 1e3 * mm << " mm";
   EXPECT_LT(deg, 0.1) << deg << " deg";
   return bin;
-}
-
-// A frame of the default camera seeing only a horizontal plane at height z_W
-// of the nominal bin frame (no bin).
-Frame PlaneFrame(const Cell& cell, double z_W) {
-  const CameraConfig& config = *cell.camera.FindConfig(cell.camera.default_config);
-  Frame f;
-  f.intrinsics = config.intrinsics;
-  f.X_BC = cell.camera.X_BC;
-  f.depth = DepthImage(f.intrinsics.width, f.intrinsics.height, std::numeric_limits<float>::quiet_NaN());
-  const Pose X_WC = cell.bin.X_BW.inverse() * f.X_BC;
-  for (int v = 0; v < f.depth.height; ++v) {
-    for (int u = 0; u < f.depth.width; ++u) {
-      const Vec3 ray_C((u - f.intrinsics.cx) / f.intrinsics.fx, (v - f.intrinsics.cy) / f.intrinsics.fy, 1.0);
-      const Vec3 ray_W = X_WC.linear() * ray_C;
-      const double t = (z_W - X_WC.translation().z()) / ray_W.z();
-      if (t > 0) f.depth.at(u, v) = static_cast<float>(t);  // depth along z_C: ray_C.z = 1
-    }
-  }
-  return f;
 }
 
 TEST(BinDetection, FindsTheBinAtItsNominalPose) {
@@ -157,14 +138,14 @@ TEST(BinDetection, FindsTheBinAroundAFullPile) {
 
 TEST(BinDetection, FindsNoBinOnAFloorALidOrAnEmptyFrame) {
   const Cell cell = DefaultCell();
-  const BinDetection floor = DetectBin(PlaneFrame(cell, 0.0), cell.bin);
+  const BinDetection floor = DetectBin(testing::PlaneFrame(cell, 0.0), cell.bin);
   EXPECT_FALSE(floor.found);
   EXPECT_NE(floor.reason.find("no rim"), std::string::npos) << floor.reason;
   // A plate over the bin at the rim's height: a surface, not a rim.
-  const BinDetection lid = DetectBin(PlaneFrame(cell, cell.bin.inner_size.z()), cell.bin);
+  const BinDetection lid = DetectBin(testing::PlaneFrame(cell, cell.bin.inner_size.z()), cell.bin);
   EXPECT_FALSE(lid.found);
   EXPECT_NE(lid.reason.find("inward"), std::string::npos) << lid.reason;
-  Frame empty = PlaneFrame(cell, 0.0);
+  Frame empty = testing::PlaneFrame(cell, 0.0);
   for (float& z : empty.depth.data) z = std::numeric_limits<float>::quiet_NaN();
   EXPECT_FALSE(DetectBin(empty, cell.bin).found);
   Frame unorganized;

@@ -14,10 +14,10 @@
 
 namespace bp::testing {
 
-// The cell's default camera looking at a bare floor at the bin's floor
-// height (m, in the camera frame; NaN where the ray misses the floor): no
-// bin, so bin detection finds no rim.
-inline Frame FloorWithoutABin(const Cell& cell) {
+// The cell's default camera seeing only a horizontal plane at height z_W
+// (m) of the nominal bin frame: depth along z_C, NaN where the ray misses
+// the plane. No bin, so bin detection finds no rim.
+inline Frame PlaneFrame(const Cell& cell, double z_W) {
   const CameraConfig& config = *cell.camera.FindConfig(cell.camera.default_config);
   Frame f;
   f.intrinsics = config.intrinsics;
@@ -28,12 +28,15 @@ inline Frame FloorWithoutABin(const Cell& cell) {
     for (int u = 0; u < f.depth.width; ++u) {
       const Vec3 ray_W =
           X_WC.linear() * Vec3((u - f.intrinsics.cx) / f.intrinsics.fx, (v - f.intrinsics.cy) / f.intrinsics.fy, 1);
-      const double t = -X_WC.translation().z() / ray_W.z();
-      if (t > 0) f.depth.at(u, v) = static_cast<float>(t);
+      const double t = (z_W - X_WC.translation().z()) / ray_W.z();
+      if (t > 0) f.depth.at(u, v) = static_cast<float>(t);  // depth along z_C: ray_C.z = 1
     }
   }
   return f;
 }
+
+// A bare floor at the bin's floor height: no bin.
+inline Frame FloorWithoutABin(const Cell& cell) { return PlaneFrame(cell, 0.0); }
 
 // A source whose frames show the default camera's view of a bare floor at
 // the bin's floor height: no bin.
