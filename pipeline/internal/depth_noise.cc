@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <random>
 #include <utility>
 #include <vector>
 
@@ -218,11 +217,8 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
   // Rows in parallel; each row has its own RNG stream (seed, row), so the
   // result does not depend on the schedule.
   tbb::parallel_for(tbb::blocked_range<int>(0, h), [&](const tbb::blocked_range<int>& rows) {
-    std::uniform_real_distribution<double> U(0.0, 1.0);
-    std::normal_distribution<double> N(0.0, 1.0);
     for (int v = rows.begin(); v < rows.end(); ++v) {
-      std::mt19937_64 rng(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
-      N.reset();
+      NoiseDraws draw(SplitMix(seed ^ SplitMix(static_cast<uint64_t>(v))));
       float* row = &noisy.at(0, v);
       const size_t row_start = static_cast<size_t>(v) * w;
       const bool row_in_depth_rect = v >= depth_rect.v0 && v <= depth_rect.v1;
@@ -245,19 +241,19 @@ void ApplyDepthNoise(const NoiseModel& model, const NoiseInputs& in, uint64_t se
         const uint8_t code = geometry.code[i];
         if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kDropped) continue;
         if ((code & NoiseGeometry::kClassMask) == NoiseGeometry::kRamp &&
-            (span <= 0 || U(rng) < geometry.ramp_drop[i])) {
+            (span <= 0 || draw.Uniform() < geometry.ramp_drop[i])) {
           continue;
         }
         if (shadow && (code & NoiseGeometry::kShadowed)) continue;
-        if (model.random_dropout > 0 && U(rng) < model.random_dropout) continue;
+        if (model.random_dropout > 0 && draw.Uniform() < model.random_dropout) continue;
         const double sigma = model.axial_sigma_base + model.axial_sigma_quadratic * z * z;
-        double value = z + sigma * N(rng);
+        double value = z + sigma * draw.Normal();
         // Draws only when a model is on: frames without them stay bit for bit.
         if (model.mixed_pixels > 0) {
           const double far = EdgeNeighbourDepth(depth, u, v, z, model.mixed_pixel_jump);
-          if (std::isfinite(far) && U(rng) < model.mixed_pixels) value = z + U(rng) * (far - z);
+          if (std::isfinite(far) && draw.Uniform() < model.mixed_pixels) value = z + draw.Uniform() * (far - z);
         }
-        if (model.speckle > 0 && U(rng) < model.speckle) value += model.speckle_sigma * N(rng);
+        if (model.speckle > 0 && draw.Uniform() < model.speckle) value += model.speckle_sigma * draw.Normal();
         row[u] = in_range(static_cast<float>(value));
       }
     }

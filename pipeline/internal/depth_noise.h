@@ -2,7 +2,9 @@
 // in core/cell.h and docs/synthetic.md).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
+#include <random>
 #include <vector>
 
 #include "core/cell.h"
@@ -15,6 +17,46 @@ namespace bp::internal {
 // the projector, offset by `offset` (camera frame), covers the camera's whole
 // field of view from min_depth on.
 Intrinsics ProjectorIntrinsics(const Intrinsics& K, const Vec3& offset, double min_depth);
+
+// The noise's random draws from one engine: Uniform() in [0, 1) and Normal()
+// (mean 0, sigma 1) give, bit for bit, what libstdc++'s
+// std::uniform_real_distribution<double>(0, 1) and
+// std::normal_distribution<double>(0, 1) give from the same engine
+// (generate_canonical: one 64-bit draw times 2^-64, 1 - ulp where that
+// rounds to 1; Marsaglia's polar method, the second value kept for the next
+// call), so frames stay the same bytes. libstdc++ takes a long-double
+// logarithm on every uniform draw to find how many engine calls make 53 bits
+// (one here); GCC folds it, clang does not: under ASan that logarithm was 8%
+// of bp_grasp_tests' CPU (docs/reliability.md, "Timings").
+class NoiseDraws {
+ public:
+  explicit NoiseDraws(uint64_t seed) : rng_(seed) {}
+  double Uniform() {
+    const double x = static_cast<double>(rng_()) * 0x1p-64;
+    return x < 1.0 ? x : 0x1.fffffffffffffp-1;
+  }
+  double Normal() {
+    if (saved_available_) {
+      saved_available_ = false;
+      return saved_;
+    }
+    double x, y, r2;
+    do {
+      x = 2.0 * Uniform() - 1.0;
+      y = 2.0 * Uniform() - 1.0;
+      r2 = x * x + y * y;
+    } while (r2 > 1.0 || r2 == 0.0);
+    const double mult = std::sqrt(-2 * std::log(r2) / r2);
+    saved_ = x * mult;
+    saved_available_ = true;
+    return y * mult;
+  }
+
+ private:
+  std::mt19937_64 rng_;
+  double saved_ = 0.0;
+  bool saved_available_ = false;
+};
 
 struct NoiseInputs {
   const Intrinsics* K = nullptr;                // camera
