@@ -13,6 +13,9 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <memory>
+#include <string>
 
 #include "apps/binpick/command.h"
 #include "core/atomic_file.h"
@@ -124,16 +127,24 @@ Command ReplayCommand() {
                 ->capture_default_str()
                 ->check(CLI::NonNegativeNumber);
             return [dir, json_out, manifest, shard, options, retry_ms, retry_estimates]() -> int {
-              options->make_planner = [retry_ms, retry_estimates](const Cell& cell,
-                                                                   std::unique_ptr<CaptureSource> source)
+              // One perception per distinct cell (its text and the directory its
+              // paths resolve against), as ReplayShard shares it: the sessions of
+              // a shard are mostly of the same few cells, and building the model
+              // tables is the slow part of a replay.
+              auto perceptions = std::make_shared<std::map<std::string, std::shared_ptr<const Perception>>>();
+              options->make_planner = [retry_ms, retry_estimates, perceptions](const Cell& cell,
+                                                                                std::unique_ptr<CaptureSource> source)
                   -> Result<std::unique_ptr<GraspPlanner>> {
-                Result<std::unique_ptr<Perception>> perception = Perception::Build(cell);
-                if (!perception.ok()) return perception.status();
+                std::shared_ptr<const Perception>& perception = (*perceptions)[cell.base_dir + '\n' + cell.yaml_text];
+                if (!perception) {
+                  Result<std::unique_ptr<Perception>> built = Perception::Build(cell);
+                  if (!built.ok()) return built.status();
+                  perception = std::move(*built);
+                }
                 BinPickingPlannerOptions planner_options;
                 planner_options.thorough_retry_ms = *retry_ms;
                 planner_options.thorough_retry_estimates = *retry_estimates;
-                auto planner = BinPickingPlanner::Create(cell, std::shared_ptr<const Perception>(std::move(*perception)),
-                                                         std::move(source), planner_options);
+                auto planner = BinPickingPlanner::Create(cell, perception, std::move(source), planner_options);
                 if (!planner.ok()) return planner.status();
                 return std::unique_ptr<GraspPlanner>(std::move(*planner));
               };

@@ -141,9 +141,17 @@ TEST(ReplayShards, OneTwoAndThreeShardProcessesMergeToTheSameFleetReport) {
     const std::string reports = dir + "/reports/" + run;
     test::CommandRun merge;
     if (count == 1) {
-      const test::CommandRun shard = test::RunCommand(kBin + "binpick replay --manifest " + dir +
+      const test::CommandRun shard = test::RunCommand(kBin + "binpick --log-level info replay --manifest " + dir +
                                                       "/fleet.txt --json " + reports + "/shard-0.json");
       ASSERT_EQ(shard.exit_code, 0) << shard.out;
+      // The sessions of a cell share its perception model: each part's model
+      // is built (and logged) once per cell, not once per session.
+      size_t builds = 0;
+      for (size_t at = shard.out.find("perception: part '"); at != std::string::npos;
+           at = shard.out.find("perception: part '", at + 1)) {
+        ++builds;
+      }
+      EXPECT_EQ(builds, cells.size() * cells[0].parts.size()) << shard.out;
       merge = test::RunCommand(kBin + "binpick replay-merge " + reports + "/shard-0.json --json " + reports +
                                "/fleet.json");
     } else {
