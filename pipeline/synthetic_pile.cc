@@ -212,26 +212,32 @@ Status SyntheticPile::RemovePart(int instance_id) {
                          [&](const PilePart& p) { return p.instance_id == instance_id; });
   if (it == parts_.end()) return Status::NotFound("pile: no part " + std::to_string(instance_id));
   const size_t index = static_cast<size_t>(it - parts_.begin());
-  const double removed_bottom = bounds_W_[index].min().z();
   if (Status s = scene_.Remove(instance_id); !s.ok()) return s;
   parts_.erase(it);
   bounds_W_.erase(bounds_W_.begin() + static_cast<std::ptrdiff_t>(index));
 
-  // Parts above the removed one, lowest first (ties by id: deterministic).
-  std::vector<std::pair<double, size_t>> order;
-  for (size_t i = 0; i < parts_.size(); ++i) {
-    const double bottom = bounds_W_[i].min().z();
-    if (bottom > removed_bottom - options_.tolerance) order.emplace_back(bottom, i);
-  }
-  std::sort(order.begin(), order.end());
-  for (const auto& [bottom, i] : order) {
-    PilePart& p = parts_[i];
-    const auto rest = Drop(p.class_index, p.X_WO, p.instance_id);
-    if (!rest) continue;  // wedged: stays where it is
-    if (rest->translation().z() < p.X_WO.translation().z()) {
+  // Every part is dropped again, lowest first (ties by index: deterministic),
+  // in passes until a pass moves none: the parts above the removed one, and
+  // those a part that dropped held (one resting on it, or leaning on it with
+  // its bottom below the dropped part's). A part counts as moved when it
+  // falls more than `tolerance`, the bisection's resolution: a resting part
+  // dropped again may come out up to that lower, and stays. Each move lowers
+  // a part by more than `tolerance`, so the passes end.
+  bool moved = true;
+  while (moved) {
+    moved = false;
+    std::vector<std::pair<double, size_t>> order;
+    for (size_t i = 0; i < parts_.size(); ++i) order.emplace_back(bounds_W_[i].min().z(), i);
+    std::sort(order.begin(), order.end());
+    for (const auto& [bottom, i] : order) {
+      PilePart& p = parts_[i];
+      const auto rest = Drop(p.class_index, p.X_WO, p.instance_id);
+      if (!rest) continue;  // wedged: stays where it is
+      if (rest->translation().z() >= p.X_WO.translation().z() - options_.tolerance) continue;
       p.X_WO = *rest;
       bounds_W_[i] = geometries_[p.class_index]->WorldBounds(p.X_WO);
       if (Status s = scene_.SetPose(p.instance_id, p.X_WO); !s.ok()) return s;
+      moved = true;
     }
   }
   return Status::Ok();

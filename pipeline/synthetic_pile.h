@@ -73,8 +73,10 @@ class SyntheticPile {
   const CollisionScene& scene() const { return scene_; }
   static constexpr int kBinId = 0;
 
-  // Removes a part, then lets the parts above it resettle: each is lowered
-  // straight down from its current pose (orientation kept), lowest first.
+  // Removes a part, then lets the pile resettle: every part is lowered
+  // straight down from its current pose (orientation kept), lowest first,
+  // in passes until none falls, so a part held by one that fell falls too
+  // and no part is left resting on nothing.
   // @returns NotFound for an unknown instance id.
   Status RemovePart(int instance_id);
 
