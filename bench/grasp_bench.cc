@@ -240,6 +240,10 @@ void BM_PlanWithHead20Parts(benchmark::State& state) {
   state.counters["head_ms"] = benchmark::Counter(head_ms, benchmark::Counter::kAvgIterations);
   state.counters["obstacles_ms"] = plan.stats.obstacles_ms;
   state.counters["queued_parts"] = static_cast<double>(plan.queue.size());
+  state.counters["hidden_built"] = plan.stats.hidden_spaces_built;
+  state.counters["hidden_spaces"] = plan.stats.hidden_spaces;
+  state.counters["hidden_tiles_built"] = plan.stats.hidden_tiles_built;
+  state.counters["hidden_tiles"] = plan.stats.hidden_tiles;
 }
 BENCHMARK(BM_PlanWithHead20Parts)
     ->ArgNames({"threads", "config", "head"})

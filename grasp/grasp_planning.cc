@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -224,6 +225,10 @@ Eigen::AlignedBox3d WorldBox(const Eigen::AlignedBox3d& local, const Pose& X_WL)
 // within that distance plus this of a sample (random samples of this
 // density leave no gap much wider on a face).
 constexpr double kSurfaceSpacing = 0.0005;
+// Rays across and down a tile of a detection's hidden space built on demand
+// (FrameObstacles::HiddenSpaces): 16 rays 2 mm apart on the floor, about
+// half a cup's footprint.
+constexpr int kHiddenTileRays = 16;
 // m, the cells of a detection's own points' occupancy grid (the own-point
 // check's pre-filter): about the size of the sweep's slab boxes' overlap
 // with a part, so that a query walks tens of cells, not thousands.
@@ -433,6 +438,22 @@ Result<std::shared_ptr<const GraspPlanningModel>> GraspPlanningModel::Build(cons
 
 namespace {
 
+// A dropout ray (GraspPlanningOptions::dropout_reach; also
+// the rays of a hidden space, hidden_behind_parts): the pixel (u, v) of
+// an organized frame without a measurement, and the stretch of its ray
+// (depth, m along the camera's z) that may hold an unseen surface.
+struct DropoutRay {
+  int u = 0, v = 0;
+  float near = 0.f, far = 0.f;
+};
+
+// The pixel boxes of the detected parts in an organized frame and the
+// stride of the rays through them (HiddenPixelBoxes).
+struct HiddenPixels {
+  std::vector<Eigen::AlignedBox2i> box;
+  int stride = 0;
+};
+
 struct FrameObstacles {
   PointObstaclePtr points;      // ROI points no detection explains
   internal::OccupancyGrid grid; // the same points, for the pre-filter
@@ -443,9 +464,6 @@ struct FrameObstacles {
   // other grasps (its mesh is, kPart), but checked like its mesh against
   // its own grasps' lifted sweep (kSelf), so a pose a fraction of a degree
   // off there does not let the tool into the part.
-  // Also per detection, the space it hides from the camera
-  // (hidden_behind_parts): voxel centres of octree_resolution. An obstacle
-  // for the other detections' grasps, checked like the points.
   struct PointPatch {
     std::vector<Eigen::Vector3f> points;  // B
     Eigen::AlignedBox3d bounds;           // of the points, grown by a voxel
@@ -458,8 +476,81 @@ struct FrameObstacles {
     mutable std::once_flag built;
     mutable PointObstaclePtr tree;
   };
-  std::vector<std::unique_ptr<PointPatch>> own;     // null: none
-  std::vector<std::unique_ptr<PointPatch>> hidden;  // null: none
+  std::vector<std::unique_ptr<PointPatch>> own;  // null: none
+  // Per detection, the space it hides from the camera (hidden_behind_parts):
+  // the rays through it (FindHiddenRays) every octree_resolution / 2 inside
+  // the ROI, voxel centres of octree_resolution. An obstacle for the other
+  // detections' grasps, checked like the points. Built on demand
+  // (hidden_space_on_demand): a detection's rays are cast by the first check
+  // whose sweep is near its space (Near), and grouped in tiles of
+  // kHiddenTileRays x kHiddenTileRays rays; a tile's voxels are built by the
+  // first check whose sweep is near them (its rays' pixels and depths).
+  // The union of the tiles' voxels is the space's, whichever checks build
+  // them, so a sweep meets the space exactly when it meets a tile near it.
+  // hidden_space_on_demand false: each detection's space whole, built before
+  // any candidate is checked.
+  class HiddenSpaces {
+   public:
+    // `frame` outlives this; `parts` by detection (mesh null: none).
+    HiddenSpaces(const GraspPlanningModel::Impl& m, const Frame& frame, const Pose& X_BW,
+                 std::vector<internal::PlacedMesh> parts);
+    size_t size() const { return parts_.size(); }
+    // The parts of detection p's space near a sweep in slab boxes
+    // `boxes_B` whose footprints (Footprint, grown by two voxels) are
+    // `footprints`: its tiles near them, built on their first call (its
+    // whole space when not on demand). A sweep that meets none of them
+    // does not meet the space.
+    std::vector<const PointPatch*> NearParts(size_t p, std::span<const Eigen::AlignedBox3d> boxes_B,
+                                             std::span<const Eigen::AlignedBox3d> footprints) const;
+    // Where the points within `grow` m of `box_T` (in T) at X_BT lie in the
+    // view: a box over (u, v) pixel coordinates (real) and depth z in C
+    // (m); everything when a corner of it lies less than 1 mm in front of
+    // the camera.
+    Eigen::AlignedBox3d Footprint(const Eigen::AlignedBox3d& box_T, const Pose& X_BT, double grow) const;
+    // Whether a sweep in slab boxes `boxes_B` (their boxes in B) whose
+    // footprints (Footprint, grown by two voxels) are `footprints` may meet
+    // detection p's space: a slab box meets its bounds and its footprint
+    // meets p's view box (its pixel box, from its nearest vertex's depth to
+    // the floor's farthest there). A voxel the sweep meets holds a point of
+    // a ray through p's pixel box in that depth within a voxel of the sweep
+    // along B's axes, so within two of its slab along T's.
+    bool Near(size_t p, std::span<const Eigen::AlignedBox3d> boxes_B,
+              std::span<const Eigen::AlignedBox3d> footprints) const;
+    // How many detections' rays were cast so far, how many have bounds,
+    // and the tiles built so far and those with rays (on demand).
+    int built() const { return built_count_.load(); }
+    int with_bounds() const {
+      return static_cast<int>(std::count_if(bounds_.begin(), bounds_.end(), [](const auto& b) { return !b.isEmpty(); }));
+    }
+    int tiles_built() const { return tiles_built_.load(); }
+    int tiles() const { return tile_count_.load(); }
+
+   private:
+    // A detection's rays by tile (on demand).
+    struct Tiles {
+      std::vector<std::vector<DropoutRay>> rays;  // per tile
+      std::vector<Eigen::AlignedBox3d> view;      // per tile: its rays' (u, v, z in C); empty: no ray
+      std::unique_ptr<std::once_flag[]> built;
+      mutable std::vector<std::unique_ptr<PointPatch>> patch;  // null: none
+    };
+    bool Near(size_t p, std::span<const Eigen::AlignedBox3d> boxes_B, std::span<const Eigen::AlignedBox3d> footprints,
+              const Eigen::AlignedBox3d& view) const;
+    const PointPatch* Space(size_t p) const;
+    const Tiles& TilesOf(size_t p) const;
+    std::unique_ptr<PointPatch> PatchOf(std::span<const DropoutRay> rays) const;
+    const GraspPlanningModel::Impl& m_;
+    const Frame& frame_;
+    const Pose X_BW_;
+    const std::vector<internal::PlacedMesh> parts_;
+    const HiddenPixels pixels_;
+    std::vector<Eigen::AlignedBox3d> bounds_;
+    std::vector<Eigen::AlignedBox3d> view_;  // (u, v, z in C): HiddenBounds
+    std::unique_ptr<std::once_flag[]> built_;
+    mutable std::vector<std::unique_ptr<PointPatch>> spaces_;  // not on demand
+    mutable std::vector<Tiles> tiles_;                          // on demand
+    mutable std::atomic<int> built_count_{0}, tiles_built_{0}, tile_count_{0};
+  };
+  std::unique_ptr<const HiddenSpaces> hidden;  // null: off, or no organized frame
 };
 
 // Whether a tool at X_BT, planned as the grasp X_OG_nominal
@@ -733,14 +824,6 @@ void AppendOccludedColumns(const Pose& X_BW_d, double res_d, bool dense, std::ve
   }
 }
 
-// A dropout ray (GraspPlanningOptions::dropout_reach): the pixel (u, v) of
-// an organized frame without a measurement, and the stretch of its ray
-// (depth, m along the camera's z) that may hold an unseen surface.
-struct DropoutRay {
-  int u = 0, v = 0;
-  float near = 0.f, far = 0.f;
-};
-
 // The dropout rays of `frame` beside the measured points no detection
 // explains (`rest`, B): every pixel without a measurement within `reach` (m
 // across the view on the bin floor: a window of (2r + 1)^2 pixels) of such a
@@ -866,9 +949,13 @@ void EndRaysAtParts(const Frame& frame, std::span<const internal::PlacedMesh> pa
 // `step` m from each ray's near to its far depth, kept inside the ROI
 // (GraspPlanningOptions::dropout_reach has why). `columns` > 0: the occluded
 // columns of that edge (m, in W) will fill the space below each point, and
-// a ray's point is kept only where it enters another column.
+// a ray's point is kept only where it enters another column. `voxel` > 0
+// (m, and no columns): a ray's point is kept only where it enters another
+// voxel of that edge in B (keyed as VoxelCentres keys them), so the points'
+// voxels are those of every point, with fewer points.
 std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell, const Pose& X_BW,
-                                           std::span<const DropoutRay> rays, double step, float columns) {
+                                           std::span<const DropoutRay> rays, double step, float columns,
+                                           double voxel = 0.0) {
   std::vector<Eigen::Vector3f> out;
   if (!(step > 0)) return out;
   const Intrinsics& K = frame.intrinsics;
@@ -881,17 +968,25 @@ std::vector<Eigen::Vector3f> DropoutPoints(const Frame& frame, const Cell& cell,
     return std::abs(p_W.x()) <= half.x() && std::abs(p_W.y()) <= half.y() && p_W.z() >= cell.roi.floor_margin &&
            p_W.z() <= cell.roi.height;
   };
+  const double inv = voxel > 0 ? 1.0 / voxel : 0.0;
+  const auto key = [inv](float c) { return static_cast<int64_t>(std::floor(inv * static_cast<double>(c))); };
   for (const DropoutRay& r : rays) {
     const Eigen::Vector3f ray = Deproject(K, static_cast<float>(r.u), static_cast<float>(r.v), 1.f);
     Eigen::Array2i last(std::numeric_limits<int>::min(), 0);
+    Eigen::Array3<int64_t> last_voxel = Eigen::Array3<int64_t>::Constant(std::numeric_limits<int64_t>::min());
     for (float z = r.near;; z += static_cast<float>(step)) {
       const Eigen::Vector3f p_B = X_BC * (ray * std::min(z, r.far));
       // With the columns, a point below another of the ray in its column adds nothing.
       const Eigen::Array2i column =
           columns > 0 ? ((X_WB * p_B).head<2>().array() / columns).floor().cast<int>().eval() : last + 1;
-      if (in_roi(p_B) && (column != last).any()) {
+      // With the voxels, a point in the voxel of the ray's last kept point adds nothing.
+      const Eigen::Array3<int64_t> k = voxel > 0 && p_B.allFinite()
+                                           ? Eigen::Array3<int64_t>(key(p_B.x()), key(p_B.y()), key(p_B.z()))
+                                           : last_voxel + 1;
+      if (in_roi(p_B) && (column != last).any() && (k != last_voxel).any()) {
         out.push_back(p_B);
         last = column;
+        last_voxel = k;
       }
       if (z >= r.far) break;
     }
@@ -960,29 +1055,21 @@ void DropMixedOnPartRays(const Frame& frame, std::span<const internal::PlacedMes
   rest.resize(kept);
 }
 
-// The space each of `parts` (B, by detection) hides from the camera of an
-// organized frame (GraspPlanningOptions::hidden_behind_parts), as rays:
-// per part, on pixels every `step` m across the view (on the bin floor),
-// those whose ray meets the part, from the depth where it leaves the part
-// to the bin floor (W's z = 0, X_BW) or the nearest surface of another part
-// beyond that, kept where that stretch is at least `min_stretch` m long
-// along the ray and the pixel measured no depth more than `seen` m beyond
-// the part's far side (the camera saw through it there). O(the parts'
-// pixel boxes / step^2 + the triangles of each part and of the parts whose
-// boxes meet its box).
-std::vector<std::vector<DropoutRay>> FindHiddenRays(const Frame& frame, std::span<const internal::PlacedMesh> parts,
-                                                    const Pose& X_BW, double step, double min_stretch, float seen) {
-  std::vector<std::vector<DropoutRay>> rays(parts.size());
+// The pixel boxes of `parts` (B, by detection) in an organized frame: the
+// box of each part's vertices projected, clipped to the image (empty for a
+// null mesh or a vertex behind the camera), and the pixel stride of rays
+// `step` m apart across the view on the bin floor (W's z = 0, X_BW; 0:
+// the camera is not above the floor).
+HiddenPixels HiddenPixelBoxes(const Frame& frame, std::span<const internal::PlacedMesh> parts, const Pose& X_BW,
+                              double step) {
+  HiddenPixels out;
+  out.box.resize(parts.size());
   const int w = frame.depth.width, h = frame.depth.height;
   const Intrinsics& K = frame.intrinsics;
   const Pose X_CB = frame.X_BC.inverse();
-  const Pose X_WC = X_BW.inverse() * frame.X_BC;
   const double z_floor = std::abs((X_CB * X_BW.translation()).z());
-  if (w == 0 || h == 0 || !(z_floor > 0)) return rays;
-  const int stride = std::max(1, static_cast<int>(step * K.fx / z_floor));
-  // Each part's box of pixels (its vertices projected; empty when one lies
-  // behind the camera).
-  std::vector<Eigen::AlignedBox2i> box(parts.size());
+  if (w == 0 || h == 0 || !(z_floor > 0)) return out;
+  out.stride = std::max(1, static_cast<int>(step * K.fx / z_floor));
   for (size_t p = 0; p < parts.size(); ++p) {
     if (parts[p].mesh_O == nullptr) continue;
     const Pose X_CO = X_CB * parts[p].X_BO;
@@ -998,72 +1085,237 @@ std::vector<std::vector<DropoutRay>> FindHiddenRays(const Frame& frame, std::spa
                              std::max(0, static_cast<int>(std::floor(px.min().y()))));
     const Eigen::Vector2i hi(std::min(w - 1, static_cast<int>(std::ceil(px.max().x()))),
                              std::min(h - 1, static_cast<int>(std::ceil(px.max().y()))));
-    if ((lo.array() <= hi.array()).all()) box[p] = Eigen::AlignedBox2i(lo, hi);
+    if ((lo.array() <= hi.array()).all()) out.box[p] = Eigen::AlignedBox2i(lo, hi);
   }
-  std::vector<uint8_t> wanted;
-  for (size_t p = 0; p < parts.size(); ++p) {
-    if (box[p].isEmpty()) continue;
-    const int u0 = box[p].min().x(), v0 = box[p].min().y();
-    const int bw = box[p].sizes().x() + 1, bh = box[p].sizes().y() + 1;
-    wanted.assign(static_cast<size_t>(bw) * bh, 0);
-    for (int v = v0 + (stride - v0 % stride) % stride; v < v0 + bh; v += stride) {
-      for (int u = u0 + (stride - u0 % stride) % stride; u < u0 + bw; u += stride) {
-        wanted[static_cast<size_t>(v - v0) * bw + (u - u0)] = 1;
-      }
+  return out;
+}
+
+// The space part p of `parts` (B, by detection) hides from the camera of an
+// organized frame (GraspPlanningOptions::hidden_behind_parts), as rays: on
+// the pixels of its box (HiddenPixelBoxes) every `pixels.stride`, those
+// whose ray meets the part, from the depth where it leaves the part to the
+// bin floor (W's z = 0, X_BW) or the nearest surface of another part
+// beyond that, kept where that stretch is at least `min_stretch` m long
+// along the ray and the pixel measured no depth more than `seen` m beyond
+// the part's far side (the camera saw through it there). O(its pixel box /
+// stride^2 + the triangles of the part and of the parts whose boxes meet
+// its box).
+std::vector<DropoutRay> FindHiddenRays(const Frame& frame, std::span<const internal::PlacedMesh> parts,
+                                       const HiddenPixels& pixels, size_t p, const Pose& X_BW, double min_stretch,
+                                       float seen) {
+  std::vector<DropoutRay> rays;
+  const std::vector<Eigen::AlignedBox2i>& box = pixels.box;
+  const int stride = pixels.stride;
+  if (stride <= 0 || box[p].isEmpty()) return rays;
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_WC = X_BW.inverse() * frame.X_BC;
+  const int u0 = box[p].min().x(), v0 = box[p].min().y();
+  const int bw = box[p].sizes().x() + 1, bh = box[p].sizes().y() + 1;
+  std::vector<uint8_t> wanted(static_cast<size_t>(bw) * bh, 0);
+  for (int v = v0 + (stride - v0 % stride) % stride; v < v0 + bh; v += stride) {
+    for (int u = u0 + (stride - u0 % stride) % stride; u < u0 + bw; u += stride) {
+      wanted[static_cast<size_t>(v - v0) * bw + (u - u0)] = 1;
     }
-    const internal::PixelWindow window{u0, v0, bw, bh, wanted};
-    const std::vector<float> far = internal::FarthestSurfaceDepth(K, frame.X_BC, parts.subspan(p, 1), window);
-    std::vector<internal::PlacedMesh> others;
-    for (size_t q = 0; q < parts.size(); ++q) {
-      if (q != p && !box[q].isEmpty() && box[q].intersects(box[p])) others.push_back(parts[q]);
-    }
-    const std::vector<float> other = internal::NearestSurfaceDepth(K, frame.X_BC, others, window);
-    for (int v = v0; v < v0 + bh; ++v) {
-      for (int u = u0; u < u0 + bw; ++u) {
-        const size_t i = static_cast<size_t>(v - v0) * bw + (u - u0);
-        const float start = far[i];
-        if (!wanted[i] || !(start > 0)) continue;
-        const float z = frame.depth.at(u, v);
-        if (std::isfinite(z) && z > start + seen) continue;
-        const Vec3 ray_C((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
-        const double down = (X_WC.linear() * ray_C).z();
-        if (!(down < 0)) continue;
-        float end = static_cast<float>(-X_WC.translation().z() / down);
-        if (other[i] > start) end = std::min(end, other[i]);
-        if ((end - start) * ray_C.norm() < min_stretch) continue;
-        rays[p].push_back({u, v, start, end});
-      }
+  }
+  const internal::PixelWindow window{u0, v0, bw, bh, wanted};
+  const std::vector<float> far = internal::FarthestSurfaceDepth(K, frame.X_BC, parts.subspan(p, 1), window);
+  std::vector<internal::PlacedMesh> others;
+  for (size_t q = 0; q < parts.size(); ++q) {
+    if (q != p && !box[q].isEmpty() && box[q].intersects(box[p])) others.push_back(parts[q]);
+  }
+  const std::vector<float> other = internal::NearestSurfaceDepth(K, frame.X_BC, others, window);
+  for (int v = v0; v < v0 + bh; ++v) {
+    for (int u = u0; u < u0 + bw; ++u) {
+      const size_t i = static_cast<size_t>(v - v0) * bw + (u - u0);
+      const float start = far[i];
+      if (!wanted[i] || !(start > 0)) continue;
+      const float z = frame.depth.at(u, v);
+      if (std::isfinite(z) && z > start + seen) continue;
+      const Vec3 ray_C((u - K.cx) / K.fx, (v - K.cy) / K.fy, 1.0);
+      const double down = (X_WC.linear() * ray_C).z();
+      if (!(down < 0)) continue;
+      float end = static_cast<float>(-X_WC.translation().z() / down);
+      if (other[i] > start) end = std::min(end, other[i]);
+      if ((end - start) * ray_C.norm() < min_stretch) continue;
+      rays.push_back({u, v, start, end});
     }
   }
   return rays;
 }
 
-// The space each detection hides from the camera (hidden_behind_parts), by
-// detection: the rays of FindHiddenRays every octree_resolution / 2 inside
-// the ROI, voxelised (null: none).
-std::vector<std::unique_ptr<FrameObstacles::PointPatch>> HiddenSpaces(const GraspPlanningModel::Impl& m,
-                                                                      const Frame& frame, const Pose& X_BW,
-                                                                      std::span<const internal::PlacedMesh> parts) {
-  const double res = m.options.octree_resolution;
-  const std::vector<std::vector<DropoutRay>> rays =
-      FindHiddenRays(frame, parts, X_BW, res / 2, m.hidden_min_stretch, static_cast<float>(m.options.mixed_on_part_rays));
-  std::vector<std::unique_ptr<FrameObstacles::PointPatch>> hidden(parts.size());
-  for (size_t p = 0; p < parts.size(); ++p) {
-    if (rays[p].empty()) continue;
-    std::vector<Eigen::Vector3f> points =
-        VoxelCentres(DropoutPoints(frame, m.cell, X_BW, rays[p], res / 2, 0.f), res);
-    if (points.empty()) continue;
-    auto patch = std::make_unique<FrameObstacles::PointPatch>();
-    for (const Eigen::Vector3f& q : points) patch->bounds.extend(q.cast<double>());
-    patch->bounds.min().array() -= res;
-    patch->bounds.max().array() += res;
-    patch->grid = internal::OccupancyGrid(points, kOwnGridCell);
-    patch->res = res;
-    patch->reach = res;  // voxel centres: a voxel lies within sqrt(3) / 2 of an edge of its centre
-    patch->points = std::move(points);
-    hidden[p] = std::move(patch);
+// A box (B) holding every point of the space part p hides (FindHiddenRays
+// on `pixels`, the points inside the ROI, voxelised in `res`) grown by a
+// voxel as PointPatch::bounds is: the rays through its pixel box between
+// the nearest depth of its vertices and the farthest depth of the bin floor
+// over that box (the floor's depth along a ray is c / -down, down linear
+// over the box, so extreme at a corner), within the ROI's box; each grown
+// by two voxels (a voxel centre lies within half a voxel of its points).
+// Empty when the part hides nothing. `view`: the same rays' stretch over
+// (u, v) pixel coordinates and depth z in C (m), not grown.
+Eigen::AlignedBox3d HiddenBounds(const Frame& frame, const Cell& cell, const Pose& X_BW,
+                                 const internal::PlacedMesh& part, const HiddenPixels& pixels, size_t p, double res,
+                                 Eigen::AlignedBox3d* view) {
+  Eigen::AlignedBox3d bounds;
+  if (pixels.stride <= 0 || pixels.box[p].isEmpty()) return bounds;
+  const Intrinsics& K = frame.intrinsics;
+  const Pose X_CO = frame.X_BC.inverse() * part.X_BO;
+  double z_near = std::numeric_limits<double>::infinity();
+  for (const Eigen::Vector3f& v : part.mesh_O->vertices) z_near = std::min(z_near, (X_CO * v.cast<double>()).z());
+  // The ROI in W (DropoutPoints' in_roi), its corners' box in B.
+  const Vec3 half(cell.bin.inner_size.x() / 2 - cell.roi.wall_margin, cell.bin.inner_size.y() / 2 - cell.roi.wall_margin,
+                  0.0);
+  Eigen::AlignedBox3d roi;
+  const Eigen::AlignedBox3d roi_W(Vec3(-half.x(), -half.y(), cell.roi.floor_margin),
+                                  Vec3(half.x(), half.y(), cell.roi.height));
+  for (int i = 0; i < 8; ++i) roi.extend(X_BW * roi_W.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i)));
+  const Pose X_WC = X_BW.inverse() * frame.X_BC;
+  std::array<Vec3, 4> rays;
+  double z_far = 0.0;
+  bool floor_below = true;  // every corner's ray meets the floor
+  for (int k = 0; k < 4; ++k) {
+    const Eigen::Vector2i px = pixels.box[p].corner(static_cast<Eigen::AlignedBox2i::CornerType>(k));
+    rays[k] = Vec3((px.x() - K.cx) / K.fx, (px.y() - K.cy) / K.fy, 1.0);
+    const double down = (X_WC.linear() * rays[k]).z();
+    floor_below = floor_below && down < 0;
+    if (down < 0) z_far = std::max(z_far, -X_WC.translation().z() / down);
   }
-  return hidden;
+  const Eigen::Vector2d lo = pixels.box[p].min().cast<double>(), hi = pixels.box[p].max().cast<double>();
+  *view = Eigen::AlignedBox3d(Vec3(lo.x(), lo.y(), z_near),
+                              Vec3(hi.x(), hi.y(), floor_below ? z_far : std::numeric_limits<double>::infinity()));
+  if (floor_below && z_far > z_near) {
+    for (const Vec3& ray : rays) {
+      bounds.extend(frame.X_BC * (ray * z_near));
+      bounds.extend(frame.X_BC * (ray * z_far));
+    }
+    bounds = bounds.intersection(roi);
+  } else if (floor_below) {
+    return Eigen::AlignedBox3d();  // the part lies below the floor: no ray's stretch is positive
+  } else {
+    bounds = roi;
+  }
+  if (bounds.isEmpty()) return bounds;
+  bounds.min().array() -= 2 * res;
+  bounds.max().array() += 2 * res;
+  return bounds;
+}
+
+FrameObstacles::HiddenSpaces::HiddenSpaces(const GraspPlanningModel::Impl& m, const Frame& frame, const Pose& X_BW,
+                                           std::vector<internal::PlacedMesh> parts)
+    : m_(m), frame_(frame), X_BW_(X_BW), parts_(std::move(parts)),
+      pixels_(HiddenPixelBoxes(frame, parts_, X_BW, m.options.octree_resolution / 2)),
+      bounds_(parts_.size()), view_(parts_.size()), built_(std::make_unique<std::once_flag[]>(parts_.size())), spaces_(parts_.size()),
+      tiles_(parts_.size()) {
+  for (size_t p = 0; p < parts_.size(); ++p) {
+    if (parts_[p].mesh_O != nullptr) {
+      bounds_[p] = HiddenBounds(frame, m.cell, X_BW, parts_[p], pixels_, p, m.options.octree_resolution, &view_[p]);
+    }
+  }
+  if (!m.options.hidden_space_on_demand) {
+    for (size_t p = 0; p < parts_.size(); ++p) {
+      if (!bounds_[p].isEmpty()) Space(p);
+    }
+  }
+}
+
+const FrameObstacles::PointPatch* FrameObstacles::HiddenSpaces::Space(size_t p) const {
+  std::call_once(built_[p], [this, p] {
+    spaces_[p] = PatchOf(FindHiddenRays(frame_, parts_, pixels_, p, X_BW_, m_.hidden_min_stretch,
+                                        static_cast<float>(m_.options.mixed_on_part_rays)));
+    ++built_count_;
+  });
+  return spaces_[p].get();
+}
+
+const FrameObstacles::HiddenSpaces::Tiles& FrameObstacles::HiddenSpaces::TilesOf(size_t p) const {
+  std::call_once(built_[p], [this, p] {
+    Tiles& t = tiles_[p];
+    const std::vector<DropoutRay> rays = FindHiddenRays(frame_, parts_, pixels_, p, X_BW_, m_.hidden_min_stretch,
+                                                        static_cast<float>(m_.options.mixed_on_part_rays));
+    const Eigen::AlignedBox2i& box = pixels_.box[p];
+    const int edge = kHiddenTileRays * pixels_.stride;
+    const int nx = box.sizes().x() / edge + 1, ny = box.sizes().y() / edge + 1;
+    t.rays.resize(static_cast<size_t>(nx) * ny);
+    t.view.resize(t.rays.size());
+    for (const DropoutRay& r : rays) {
+      const size_t k = static_cast<size_t>((r.v - box.min().y()) / edge) * nx + (r.u - box.min().x()) / edge;
+      t.rays[k].push_back(r);
+      t.view[k].extend(Vec3(r.u, r.v, r.near));
+      t.view[k].extend(Vec3(r.u, r.v, r.far));
+    }
+    t.built = std::make_unique<std::once_flag[]>(t.rays.size());
+    t.patch.resize(t.rays.size());
+    tile_count_ += static_cast<int>(std::count_if(t.rays.begin(), t.rays.end(), [](const auto& r) { return !r.empty(); }));
+    ++built_count_;
+  });
+  return tiles_[p];
+}
+
+std::vector<const FrameObstacles::PointPatch*> FrameObstacles::HiddenSpaces::NearParts(
+    size_t p, std::span<const Eigen::AlignedBox3d> boxes_B, std::span<const Eigen::AlignedBox3d> footprints) const {
+  std::vector<const PointPatch*> near;
+  if (bounds_[p].isEmpty() || !Near(p, boxes_B, footprints, view_[p])) return near;
+  if (!m_.options.hidden_space_on_demand) {
+    if (const PointPatch* space = Space(p); space != nullptr) near.push_back(space);
+    return near;
+  }
+  const Tiles& t = TilesOf(p);
+  for (size_t k = 0; k < t.rays.size(); ++k) {
+    if (t.view[k].isEmpty() || !Near(p, boxes_B, footprints, t.view[k])) continue;
+    std::call_once(t.built[k], [this, &t, k] {
+      t.patch[k] = PatchOf(t.rays[k]);
+      ++tiles_built_;
+    });
+    if (t.patch[k]) near.push_back(t.patch[k].get());
+  }
+  return near;
+}
+
+Eigen::AlignedBox3d FrameObstacles::HiddenSpaces::Footprint(const Eigen::AlignedBox3d& box_T, const Pose& X_BT,
+                                                             double grow) const {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const Intrinsics& K = frame_.intrinsics;
+  const Pose X_CT = frame_.X_BC.inverse() * X_BT;
+  Eigen::AlignedBox3d grown = box_T;
+  grown.min().array() -= grow;
+  grown.max().array() += grow;
+  Eigen::AlignedBox3d view;
+  for (int i = 0; i < 8; ++i) {
+    const Vec3 c = X_CT * grown.corner(static_cast<Eigen::AlignedBox3d::CornerType>(i));
+    if (!(c.z() > 1e-3)) return Eigen::AlignedBox3d(Vec3::Constant(-kInf), Vec3::Constant(kInf));
+    view.extend(Vec3(K.fx * c.x() / c.z() + K.cx, K.fy * c.y() / c.z() + K.cy, c.z()));
+  }
+  return view;
+}
+
+// A slab box meets p's bounds and its footprint meets `view` (p's, or a
+// tile's: the (u, v, z in C) of rays of p).
+bool FrameObstacles::HiddenSpaces::Near(size_t p, std::span<const Eigen::AlignedBox3d> boxes_B,
+                                        std::span<const Eigen::AlignedBox3d> footprints,
+                                        const Eigen::AlignedBox3d& view) const {
+  for (size_t i = 0; i < boxes_B.size(); ++i) {
+    if (boxes_B[i].intersects(bounds_[p]) && footprints[i].intersects(view)) return true;
+  }
+  return false;
+}
+
+// The points of `rays` inside the ROI every octree_resolution / 2,
+// voxelised (null: none).
+std::unique_ptr<FrameObstacles::PointPatch> FrameObstacles::HiddenSpaces::PatchOf(
+    std::span<const DropoutRay> rays) const {
+  const double res = m_.options.octree_resolution;
+  if (rays.empty()) return nullptr;
+  std::vector<Eigen::Vector3f> points = VoxelCentres(
+      DropoutPoints(frame_, m_.cell, X_BW_, rays, res / 2, 0.f, m_.options.hidden_space_on_demand ? res : 0.0), res);
+  if (points.empty()) return nullptr;
+  auto patch = std::make_unique<PointPatch>();
+  for (const Eigen::Vector3f& q : points) patch->bounds.extend(q.cast<double>());
+  patch->bounds.min().array() -= res;
+  patch->bounds.max().array() += res;
+  patch->grid = internal::OccupancyGrid(points, kOwnGridCell);
+  patch->res = res;
+  patch->reach = res;  // voxel centres: a voxel lies within sqrt(3) / 2 of an edge of its centre
+  patch->points = std::move(points);
+  return patch;
 }
 
 // Stage 2: the points no detection explains (and the occluded columns
@@ -1138,7 +1390,8 @@ FrameObstacles BuildObstacles(const GraspPlanningModel::Impl& m, const Perceptio
           by_detection[d] = {&mesh->second, detections[d].X_BO};
         }
       }
-      obstacles.hidden = HiddenSpaces(m, *frame, BinPoseOf(perception, m.cell.bin), by_detection);
+      obstacles.hidden = std::make_unique<const FrameObstacles::HiddenSpaces>(
+          m, *frame, BinPoseOf(perception, m.cell.bin), std::move(by_detection));
     }
   }
   // The unseen space along the dropout rays beside them (dropout_reach),
@@ -1321,9 +1574,23 @@ class CandidateFilter {
   // Whether the swept gripper at X_BT_points (lifted like the point check)
   // enters the space another detection than d hides from the camera
   // (FrameObstacles::hidden).
+  // Only the parts of the spaces near the sweep (HiddenSpaces::NearParts).
   bool EntersHiddenSpace(int d, const Pose& X_BT_points) const {
-    for (size_t k = 0; k < obstacles_.hidden.size(); ++k) {
-      if (static_cast<int>(k) != d && obstacles_.hidden[k] && HitsPatch(*obstacles_.hidden[k], X_BT_points)) return true;
+    if (!obstacles_.hidden) return false;
+    const FrameObstacles::HiddenSpaces& hidden = *obstacles_.hidden;
+    std::vector<Eigen::AlignedBox3d> boxes;
+    std::vector<Eigen::AlignedBox3d> footprints;
+    boxes.reserve(gripper_.slabs.size());
+    footprints.reserve(gripper_.slabs.size());
+    for (const auto& slab : gripper_.slabs) {
+      boxes.push_back(WorldBox(slab, X_BT_points));
+      footprints.push_back(hidden.Footprint(slab, X_BT_points, 2 * m_.options.octree_resolution));
+    }
+    for (size_t k = 0; k < hidden.size(); ++k) {
+      if (static_cast<int>(k) == d) continue;
+      for (const FrameObstacles::PointPatch* part : hidden.NearParts(k, boxes, footprints)) {
+        if (HitsPatch(*part, X_BT_points)) return true;
+      }
     }
     return false;
   }
@@ -1800,6 +2067,12 @@ GraspPlan PlanGrasps(const GraspPlanningModel& model, const TaskSpec& task, cons
     }
   }
   FilterCandidates(filter, plan.candidates, checked);
+  if (obstacles.hidden) {
+    plan.stats.hidden_spaces_built = obstacles.hidden->built();
+    plan.stats.hidden_spaces = obstacles.hidden->with_bounds();
+    plan.stats.hidden_tiles_built = obstacles.hidden->tiles_built();
+    plan.stats.hidden_tiles = obstacles.hidden->tiles();
+  }
   KeepLastResortsLast(plan.candidates);
   RankCandidates(m.cell, task, X_BW, detections, plan.candidates, plan.stats);
   plan.queue = QueueByPart(detections, plan.candidates);

@@ -261,6 +261,19 @@ struct GraspPlanningOptions {
   // (docs/tuning.md, "Rejected: the occluded rays", "Hidden space behind
   // detected parts").
   bool hidden_behind_parts = true;
+  // A detection's hidden space (hidden_behind_parts) is built only where a
+  // grasp on another part that passed every other check comes near it: its
+  // rays are cast when a slab box of the swept gripper meets a box holding
+  // the space and its view (pixels and depths), and of its tiles of 16 x 16
+  // rays only those whose rays' view meets a slab box's are voxelised (each
+  // ray's points kept only where they enter another voxel); false: the
+  // first form, every detection's space built whole before any candidate is
+  // checked, from every ray point. The voxels a sweep can meet and so the
+  // verdicts are the same either way
+  // (HiddenSpace.BuiltOnDemandEachCandidateHasTheVerdictOfEverySpaceBuiltFirst).
+  // Why: building every space doubled the plan (docs/tuning.md "Hidden
+  // spaces built on demand").
+  bool hidden_space_on_demand = true;
   // A detection whose view other poses explain as well
   // (Detection::alternatives_X_BO: a tee turned about its run, its branch
   // out of view) is an obstacle for the other parts' grasps at each of
@@ -386,6 +399,13 @@ struct FilterStats {
   double obstacles_ms = 0.0;  // building this frame's obstacles (part scene, point OcTree)
   double neighbours_ms = 0.0; // the queued grasps' stale neighbours
   double filter_ms = 0.0;     // the whole PlanGrasps call
+  // Detections whose hidden space's rays were cast (hidden_behind_parts)
+  // and those that may hide one; on demand (hidden_space_on_demand), the
+  // tiles of those rays whose voxels were built and those with rays.
+  int hidden_spaces_built = 0;
+  int hidden_spaces = 0;
+  int hidden_tiles_built = 0;
+  int hidden_tiles = 0;
   std::string Describe() const;  // "560 candidates, 120 accepted; tilt 200, bin 12, ..."
 };
 

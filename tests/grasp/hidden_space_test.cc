@@ -106,5 +106,43 @@ TEST_F(HiddenSpace, AToolPassingUnderADetectedPartIntoAPartMissedThereIsRefused)
   EXPECT_LT(counts.hits_rule, counts.hits_off);
 }
 
+// The spaces built on demand (hidden_space_on_demand, only where a sweep
+// that passed every other check comes near one) give each candidate the
+// verdict of building every space first: on the pile of the test above,
+// perceived by the truth and with each part less than 60% visible left
+// undetected in turn, every candidate is refused for the same reason or
+// accepted by both, and some are refused as kHiddenSpace.
+TEST_F(HiddenSpace, BuiltOnDemandEachCandidateHasTheVerdictOfEverySpaceBuiltFirst) {
+  GraspPlanningOptions eager_options;
+  eager_options.hidden_space_on_demand = false;
+  auto eager = GraspPlanningModel::Build(PileCell(), eager_options);
+  ASSERT_TRUE(eager.ok());
+  Cell cell = PileCell();
+  std::optional<Frame> frame;
+  std::optional<PerceptionResult> truth;
+  ASSERT_NO_FATAL_FAILURE(testing::RenderTruthPile(cell, 0, 15, frame, truth));
+  std::vector<PerceptionResult> scenes = {*truth};
+  for (int k = 0; k < static_cast<int>(truth->detections.size()); ++k) {
+    if (truth->detections[static_cast<size_t>(k)].visible_fraction <= 0.6) scenes.push_back(testing::Without(*truth, k));
+  }
+  int hidden_space = 0, accepted = 0;
+  for (size_t s = 0; s < scenes.size(); ++s) {
+    SCOPED_TRACE("scene " + std::to_string(s));
+    const GraspPlan lazy = PlanGrasps(*rule_, task_, scenes[s], {}, &*frame);
+    const GraspPlan all = PlanGrasps(**eager, task_, scenes[s], {}, &*frame);
+    ASSERT_EQ(lazy.candidates.size(), all.candidates.size());
+    for (size_t i = 0; i < all.candidates.size(); ++i) {
+      const GraspCandidate& a = all.candidates[i];
+      const GraspCandidate& l = lazy.candidates[i];
+      ASSERT_EQ(a.name, l.name);
+      EXPECT_EQ(a.rejected, l.rejected) << a.name << " on detection " << a.detection;
+      hidden_space += a.rejected == RejectReason::kHiddenSpace ? 1 : 0;
+      accepted += a.rejected ? 0 : 1;
+    }
+  }
+  EXPECT_GT(hidden_space, 0);
+  EXPECT_GT(accepted, 0);
+}
+
 }  // namespace
 }  // namespace bp
