@@ -229,6 +229,8 @@ internal::Segments PerceptionImpl::Segment(const internal::RoiCloud& roi, const 
   if (roi.organized()) {
     internal::GridLabels labels = internal::LabelGrid(roi, frame, X_BW, options);
     clock.Lap("regions");
+    options.min_segment_points =
+        internal::FrameMinSegmentPoints(options.min_segment_points, options_.min_segment_spacing, labels.spacing);
     internal::Segments segments = internal::GroupGridSegments(roi, std::move(labels), options);
     clock.Lap("segment");
     return segments;
@@ -267,7 +269,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   result.second_looks = internal::SecondLook(std::move(waves.weak), options_, segments, matcher, acceptance);
   clock.Lap("second_look");
   internal::ViewSet residual;  // segment views only
-  residual.views = internal::ResidualViews(segments, acceptance, options_.min_segment_points);
+  residual.views = internal::ResidualViews(segments, acceptance, segments.min_points);
   residual.first_region = residual.views.size();
   if (!residual.views.empty()) acceptance.Accept(matcher.Match(residual, internal::MatchPass::kWave).candidates);
   clock.Lap("residual");
@@ -276,7 +278,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
     // second look's wider one added more wrong detections than right ones:
     // docs/tuning.md, "residual_regions").
     internal::ViewSet regions;
-    regions.views = internal::ResidualRegionViews(segments, acceptance, options_.min_segment_points,
+    regions.views = internal::ResidualRegionViews(segments, acceptance, segments.min_points,
                                                   options_.residual_across_jumps);
     if (!regions.views.empty()) {
       internal::MatchOutcome matched = matcher.Match(regions, internal::MatchPass::kWave);
@@ -292,7 +294,7 @@ void PerceptionImpl::MatchViews(const internal::Segments& segments, const Frame&
   }
   if (options_.enclosing_parts) {
     const std::vector<internal::EnclosingView> enclosing =
-        internal::EnclosingViews(segments, acceptance, models, std::max(1, options_.min_segment_points / 3));
+        internal::EnclosingViews(segments, acceptance, models, std::max(1, segments.min_points / 3));
     internal::ReplaceEnclosed(enclosing, segments, models, matcher, acceptance);
     clock.Lap("enclosing");
   }
@@ -409,7 +411,7 @@ Result<PerceptionResult> PerceptionImpl::RunWithin(const Frame& frame, const std
   result.largest_region_points = internal::LargestRegionPoints(segments.region_of_point);
   result.roi_points_B = std::move(roi.points_B);
   if (segments.range.empty()) {
-    result.reason = "no segment of at least " + std::to_string(options_.min_segment_points) +
+    result.reason = "no segment of at least " + std::to_string(segments.min_points) +
                     " points in the ROI (" + std::to_string(result.roi_point_count) + " ROI points, largest region " +
                     std::to_string(result.largest_region_points) + ")";
     return result;

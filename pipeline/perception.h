@@ -127,6 +127,14 @@ struct PerceptionOptions {
   double segment_convex_tolerance = -1.0;
   // Segments with fewer grid points are not matched alone (>= 1).
   int min_segment_points = 150;
+  // The grid spacing on the bin floor (metres) at which min_segment_points
+  // is counted. A frame whose grid is coarser (a lower resolution, a shorter
+  // focal length, a farther camera) needs min_segment_points x
+  // (min_segment_spacing / its spacing)^2 grid points: the same surface
+  // area, at least min(30, min_segment_points). < 0: Build sets it to the
+  // cell camera's view spacing (the one min_segment_points is scaled to);
+  // 0: the same count on every frame.
+  double min_segment_spacing = -1.0;
   // Grid points within this height of the bin floor whose normal is within
   // 18 deg of up are floor, not parts (> 0); below the shipped parts' 5 mm.
   double floor_band = 0.004;

@@ -87,6 +87,7 @@ struct EvalCliOptions {
   double context = -1.0;
   double min_score = -1.0;
   int min_segment = -1;
+  double min_segment_spacing = PerceptionOptions{}.min_segment_spacing;
   double convex = -2.0;
   bool regions = false;
   bool thorough = false;
@@ -361,6 +362,7 @@ PerceptionOptions PerceptionOptionsFrom(const EvalCliOptions& opt) {
   if (opt.context >= 0) popt.context_relative_radius = opt.context;
   if (opt.min_score >= 0) popt.min_detection_score = opt.min_score;
   if (opt.min_segment >= 0) popt.min_segment_points = opt.min_segment;
+  popt.min_segment_spacing = opt.min_segment_spacing;
   if (opt.convex > -2.0) popt.segment_convex_tolerance = opt.convex;
   if (opt.regions) popt.match_regions = true;
   popt.second_look_below = opt.second_look;
@@ -936,6 +938,11 @@ Command EvalCommand() {
                                   "context radius around segments, fraction of the part diameter (tuning)");
                    sub.add_option("--min-score", opt->min_score, "detection score threshold (tuning)");
                    sub.add_option("--min-segment", opt->min_segment, "smallest segment matched, grid points (tuning)");
+                   sub.add_option("--min-segment-spacing", opt->min_segment_spacing,
+                                  "grid spacing at which --min-segment is counted, metres; a coarser frame's grid "
+                                  "needs as many points as cover the same area (-1: the cell camera's view spacing, "
+                                  "0: the same count on every frame; PerceptionOptions::min_segment_spacing; tuning)")
+                       ->capture_default_str();
                    sub.add_option("--convex", opt->convex, "convex-crease tolerance, < 0 off (tuning)");
                    sub.add_flag("--match-regions", opt->regions, "also match multi-segment regions (tuning)");
                    sub.add_option("--second-look", opt->second_look,

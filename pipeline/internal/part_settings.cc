@@ -19,6 +19,9 @@ constexpr double kEyeInHandDepth = 1.0;
 // face of a part lying flat: about 1% of that face's points erased at the
 // reference camera's sigma (0.44 mm).
 constexpr double kFloorBandMargin = 0.001;
+// The fewest grid points a scaled min_segment_points asks for (unless the
+// options' own count is fewer).
+constexpr int kMinSegmentFloor = 30;
 
 std::string Mm(double metres) {
   char b[32];
@@ -115,6 +118,7 @@ PoseEstimatorOptions ScaledEstimatorOptions(const PartGeometry& geometry, const 
 
 std::string ScaleToClasses(const std::vector<ClassFigures>& classes, const CameraFigures& camera,
                            PerceptionOptions* options) {
+  if (options->min_segment_spacing < 0) options->min_segment_spacing = camera.view_spacing;
   if (classes.empty()) return "";
   double d_min = classes.front().diameter, h_min = classes.front().flat_height;
   int n_min = 0;
@@ -126,7 +130,8 @@ std::string ScaleToClasses(const std::vector<ClassFigures>& classes, const Camer
   std::string changed;
   const double s = camera.view_spacing;
   const int reference_points = options->min_segment_points;
-  int points = std::clamp(static_cast<int>(std::lround(0.15 * d_min * d_min / (s * s))), std::min(30, reference_points),
+  int points = std::clamp(static_cast<int>(std::lround(0.15 * d_min * d_min / (s * s))),
+                          std::min(kMinSegmentFloor, reference_points),
                           reference_points);
   if (n_min > 0) points = n_min;
   if (points != reference_points) {
@@ -153,6 +158,13 @@ std::string ScaleToClasses(const std::vector<ClassFigures>& classes, const Camer
     changed += "floor band " + Mm(band) + " (the lowest upward face of a part lying flat is " + Mm(h_min) + " high); ";
   }
   return changed;
+}
+
+int FrameMinSegmentPoints(int min_segment_points, double min_segment_spacing, double spacing) {
+  if (!(min_segment_spacing > 0) || !(spacing > min_segment_spacing)) return min_segment_points;
+  const double ratio = min_segment_spacing / spacing;
+  const int points = static_cast<int>(std::lround(min_segment_points * ratio * ratio));
+  return std::max(points, std::min(kMinSegmentFloor, min_segment_points));
 }
 
 }  // namespace bp::internal

@@ -66,6 +66,7 @@ PoseEstimatorOptions ScaledEstimatorOptions(const PartGeometry& geometry, const 
 //   floor band             = clamp(h_min - max(1 mm, 2 sigma_floor) (to 0.1 mm),
 //                                  3 sigma_floor, max(floor_band, 3 sigma_floor))
 //   view_waves, second_look_min_points: times min_segment_points' ratio
+//   min_segment_spacing    = view_spacing when < 0 (the spacing the count is at)
 // Returns a description of what changed (empty: nothing).
 struct ClassFigures {
   double diameter = 0.0;
@@ -74,5 +75,12 @@ struct ClassFigures {
 };
 std::string ScaleToClasses(const std::vector<ClassFigures>& classes, const CameraFigures& camera,
                            PerceptionOptions* options);
+
+// One frame's min_segment_points, its grid `spacing` on the bin floor
+// (metres) coarser than min_segment_spacing: the same surface area,
+//   max(round(min_segment_points (min_segment_spacing / spacing)^2), min(30, min_segment_points));
+// min_segment_points itself when the grid is not coarser or
+// min_segment_spacing <= 0 (PerceptionOptions::min_segment_spacing).
+int FrameMinSegmentPoints(int min_segment_points, double min_segment_spacing, double spacing);
 
 }  // namespace bp::internal

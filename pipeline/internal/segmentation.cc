@@ -290,6 +290,7 @@ GridLabels LabelGrid(const RoiCloud& roi, const Frame& frame, const Pose& X_BW, 
       std::clamp(static_cast<int>(std::lround(options.grid_spacing / std::max(footprint, 1e-6))), 1, 8);
   out.grid = MakeSampleGrid(roi, stride);
   const double spacing = footprint * stride;
+  out.spacing = static_cast<float>(spacing);
   out.grid_jump = std::max(static_cast<float>(options.max_jump), static_cast<float>(2.5 * spacing));
   const int radius = std::clamp(static_cast<int>(std::lround(kNormalBaseline / std::max(spacing, 1e-6))), 1, 6);
   const Eigen::Vector3f viewpoint_B = frame.X_BC.translation().cast<float>();
@@ -347,6 +348,7 @@ Segments GroupGridSegments(const RoiCloud& roi, GridLabels labels, const Segment
   out.cell_of_sample = std::move(cell_of_sample);
   out.grid_width = labels.grid.width;
   out.grid_jump = labels.grid_jump;
+  out.min_points = options.min_segment_points;
   // One pass gives every ROI point its segment and its connected region.
   SpreadLabels(roi, labels.grid, labels.segment_of_cell, labels.region_of_cell, labels.grid_jump,
                &out.segment_of_point, &out.region_of_point);
@@ -386,6 +388,7 @@ Segments GroupCloudSegments(const RoiCloud& roi, std::vector<int32_t> region_of_
     out.range.emplace_back(begin, static_cast<int32_t>(out.points.size()));
   }
   out.region_of_point = std::move(region_of_point);
+  out.min_points = min_segment_points;
   return out;
 }
 

@@ -45,6 +45,7 @@ using ViewIndices = std::vector<int32_t>;
 struct GridLabels {
   SampleGrid grid;
   float grid_jump = 0.f;                   // neighbour distance on the grid, metres
+  float spacing = 0.f;                     // grid spacing on the bin floor, metres
   std::vector<Eigen::Vector3f> normals;    // per cell, towards the camera; NaN: none
   std::vector<int32_t> region_of_cell;     // connected region (depth continuity), -1: empty
   std::vector<int32_t> segment_of_cell;    // grown segment, -1: empty or floor band
@@ -74,6 +75,9 @@ struct Segments {
   std::vector<int32_t> cell_of_sample;
   int grid_width = 0;
   float grid_jump = 0.f;
+  // The fewest samples a segment holds here (the options' min_segment_points
+  // the segments were kept by); the later passes' views need as many.
+  int min_points = 0;
 };
 
 // Normals, connected regions and grown segments on the grid whose spacing on

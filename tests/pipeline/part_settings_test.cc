@@ -57,6 +57,25 @@ TEST(PartSettings, TheShippedCellKeepsTheOptionDefaults) {
   EXPECT_EQ(scaled.floor_band, defaults.floor_band);
   EXPECT_EQ(scaled.view_waves, defaults.view_waves);
   EXPECT_EQ(scaled.second_look_min_points, defaults.second_look_min_points);
+  // The count is at the camera's view spacing (the coarser config's).
+  EXPECT_EQ(scaled.min_segment_spacing, camera.view_spacing);
+}
+
+// A frame's segment minimum covers the same surface area as
+// min_segment_points at min_segment_spacing: fewer grid points on a coarser
+// grid, never more on a finer one, at least 30 (or the options' own count).
+TEST(PartSettings, AFrameSegmentMinimumKeepsTheSurfaceArea) {
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.002, 0.002), 150);
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.002, 0.0012), 150);
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.002, 0.0025), 96);  // 150 x 0.64
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.002, 0.004), 38);   // 37.5, rounded
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.002, 0.008), 30);
+  EXPECT_EQ(internal::FrameMinSegmentPoints(20, 0.002, 0.008), 20);
+  EXPECT_EQ(internal::FrameMinSegmentPoints(150, 0.0, 0.004), 150);  // off
+  PerceptionOptions given;
+  given.min_segment_spacing = 0.0;
+  internal::ScaleToClasses({{0.06, 0.005, 0}}, kReferenceCamera, &given);
+  EXPECT_EQ(given.min_segment_spacing, 0.0);
 }
 
 TEST(PartSettings, EstimatorSpacingsFollowThePartsDiameter) {
