@@ -1472,13 +1472,17 @@ VerdictCounts CountVerdicts(const PerceptionResult& result, const Frame& frame,
 // detection to these piles. The enclosing pass, after it, is left out of
 // both runs: in 1001 without the regions a bushing fitted into the tee is
 // replaced by the tee there. planar_view_min_share is off in both: with it,
-// 1026's bracket is found by its face seeds without the pass.
+// 1026's bracket is found by its face seeds without the pass. Both count
+// the segment minimum the same on every frame (min_segment_spacing 0): 1001's
+// frame is coarser than the cell camera's, and counted as an area its tee's
+// pieces are segments, found without the pass.
 TEST(PerceptionEval, TheSamplesNoDetectionExplainsAreMatchedAsRegions) {
   Fixture& f = Fixture::Get();
   if (!f.renderer) GTEST_SKIP() << "no OSMesa renderer";
   PerceptionOptions on;
   on.enclosing_parts = false;
   on.planar_view_min_share = 0.0;
+  on.min_segment_spacing = 0.0;
   PerceptionOptions off = on;
   off.residual_regions = false;
   const std::unique_ptr<Perception> with = Perception::Build(f.cell, on).value();
