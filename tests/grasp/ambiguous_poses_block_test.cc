@@ -21,20 +21,14 @@
 #include "core/mesh.h"
 #include "grasp/grasp_planning.h"
 #include "tests/pipeline/pose_test_util.h"
+#include "tests/testing/default_cell.h"
 
 namespace bp {
 namespace {
 
 constexpr int kBushing = 0, kTee = 2;
 
-const Cell& DefaultCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    return *c;
-  }();
-  return cell;
-}
+using testing::DefaultCell;
 
 // The default cell without the seen-contact rule: the raised branch hides
 // part of the hub's top from the camera, and the test is about the parts.

@@ -2,6 +2,7 @@
 // centre at the grasp's own point on the true part (2 mm) and the approach
 // within the gripper's compliance, modulo the part's symmetry.
 #include "grasp/grasp_judge.h"
+#include "tests/testing/default_cell.h"
 
 #include <gtest/gtest.h>
 
@@ -13,14 +14,7 @@ namespace {
 constexpr double kDeg = M_PI / 180.0;
 constexpr int kBushing = 0, kBracket = 1, kTee = 2;
 
-const Cell& DefaultCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    return *c;
-  }();
-  return cell;
-}
+using testing::DefaultCell;
 
 const GraspPlanningModel& Model() {
   static const std::shared_ptr<const GraspPlanningModel> model = [] {

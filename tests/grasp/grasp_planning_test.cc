@@ -18,6 +18,7 @@
 #include "pipeline/synthetic_source.h"
 #include "pipeline/truth_perception.h"
 #include "tests/testing/truth_piles.h"
+#include "tests/testing/default_cell.h"
 
 namespace bp {
 namespace {
@@ -29,14 +30,7 @@ using testing::VerdictMap;
 // hub up to z = 40 mm; hub_top is a straight-down suction grasp on the hub.
 constexpr int kBushing = 0;
 
-const Cell& DefaultCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    return *c;
-  }();
-  return cell;
-}
+using testing::DefaultCell;
 
 // The scenes here are detections without a depth frame: the seen-contact
 // rule (tests/grasp/seen_contact_test.cc) is off so that they test the rest.

@@ -19,20 +19,14 @@
 #include "grasp/grasp_planning.h"
 #include "pipeline/pose_estimator.h"
 #include "tests/pipeline/pose_test_util.h"
+#include "tests/testing/default_cell.h"
 
 namespace bp {
 namespace {
 
 constexpr int kTee = 2;
 
-const Cell& DefaultCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    return *c;
-  }();
-  return cell;
-}
+using testing::DefaultCell;
 
 const TriangleMesh& TeeMesh() {
   static const TriangleMesh mesh = [] {

@@ -17,20 +17,14 @@
 #include "grasp/internal/contact_region.h"
 #include "pipeline/frame.h"
 #include "tests/pipeline/pose_test_util.h"
+#include "tests/testing/default_cell.h"
 
 namespace bp {
 namespace {
 
 constexpr int kBracket = 1, kTee = 2;
 
-const Cell& DefaultCell() {
-  static const Cell cell = [] {
-    Result<Cell> c = LoadDefaultCell();
-    EXPECT_TRUE(c.ok()) << c.status().ToString();
-    return *c;
-  }();
-  return cell;
-}
+using testing::DefaultCell;
 
 std::shared_ptr<const GraspPlanningModel> ModelOf(const Cell& cell) {
   auto m = GraspPlanningModel::Build(cell);
