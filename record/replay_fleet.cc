@@ -67,26 +67,6 @@ std::vector<std::string> ExpandEntry(const std::string& pattern) {
   return dirs;
 }
 
-// One perception per distinct cell (text and the directory its paths resolve
-// against): building the model tables is the slow part of a replay.
-ReplayOptions WithSharedPerception(ReplayOptions options) {
-  if (options.make_planner) return options;
-  auto cache = std::make_shared<std::map<std::string, std::shared_ptr<const Perception>>>();
-  options.make_planner = [cache](const Cell& cell,
-                                 std::unique_ptr<CaptureSource> source) -> Result<std::unique_ptr<GraspPlanner>> {
-    std::shared_ptr<const Perception>& perception = (*cache)[cell.base_dir + '\n' + cell.yaml_text];
-    if (!perception) {
-      Result<std::unique_ptr<Perception>> built = Perception::Build(cell);
-      if (!built.ok()) return built.status();
-      perception = std::move(*built);
-    }
-    auto planner = BinPickingPlanner::Create(cell, perception, std::move(source));
-    if (!planner.ok()) return planner.status();
-    return std::unique_ptr<GraspPlanner>(std::move(*planner));
-  };
-  return options;
-}
-
 // ---- merge ----
 
 struct LatencyStats {
@@ -273,6 +253,22 @@ Status CheckShards(const std::vector<std::string>& files, const std::vector<json
 
 }  // namespace
 
+decltype(ReplayOptions::make_planner) SharedPerceptionPlanners(const BinPickingPlannerOptions& planner_options) {
+  auto cache = std::make_shared<std::map<std::string, std::shared_ptr<const Perception>>>();
+  return [cache, planner_options](const Cell& cell,
+                                  std::unique_ptr<CaptureSource> source) -> Result<std::unique_ptr<GraspPlanner>> {
+    std::shared_ptr<const Perception>& perception = (*cache)[cell.base_dir + '\n' + cell.yaml_text];
+    if (!perception) {
+      Result<std::unique_ptr<Perception>> built = Perception::Build(cell);
+      if (!built.ok()) return built.status();
+      perception = std::move(*built);
+    }
+    auto planner = BinPickingPlanner::Create(cell, perception, std::move(source), planner_options);
+    if (!planner.ok()) return planner.status();
+    return std::unique_ptr<GraspPlanner>(std::move(*planner));
+  };
+}
+
 Result<ReplayManifest> LoadReplayManifest(const std::string& path) {
   std::ifstream in(path);
   if (!in) return Status::NotFound("'" + path + "': cannot open the manifest");
@@ -345,7 +341,8 @@ ShardRun ReplayShard(const ReplayManifest& manifest, const ShardSpec& shard, con
   std::vector<uint64_t> bytes;
   for (const std::string& s : manifest.sessions) bytes.push_back(DirectoryBytes(s));
   const std::vector<int> assignment = AssignShards(bytes, shard.count);
-  const ReplayOptions replay = WithSharedPerception(options);
+  ReplayOptions replay = options;
+  if (!replay.make_planner) replay.make_planner = SharedPerceptionPlanners();
 
   ShardRun run;
   OrderedJson sessions = OrderedJson::array();

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "core/status.h"
+#include "grasp/bin_picking_planner.h"
 #include "record/replay.h"
 
 namespace bp {
@@ -58,6 +59,14 @@ struct ShardRun {
   int failed_sessions = 0;  // sessions that could not be replayed at all
   int differing = 0;        // captures that differ or failed to replay, over its sessions
 };
+
+// A ReplayOptions::make_planner that builds one perception per distinct
+// cell (its text and the directory its paths resolve against) and shares it
+// between the planners it makes: building the model tables is the slow part
+// of a replay, and a shard's sessions are mostly of a few cells. Not for
+// concurrent calls (the replays of one process run one after another).
+decltype(ReplayOptions::make_planner) SharedPerceptionPlanners(
+    const BinPickingPlannerOptions& planner_options = {});
 
 // Replays shard `shard` of `manifest`. A session that cannot be replayed
 // (its directory gone, its cell unreadable) is reported as such, never

@@ -13,7 +13,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <map>
 #include <memory>
 #include <string>
 
@@ -127,27 +126,10 @@ Command ReplayCommand() {
                 ->capture_default_str()
                 ->check(CLI::NonNegativeNumber);
             return [dir, json_out, manifest, shard, options, retry_ms, retry_estimates]() -> int {
-              // One perception per distinct cell (its text and the directory its
-              // paths resolve against), as ReplayShard shares it: the sessions of
-              // a shard are mostly of the same few cells, and building the model
-              // tables is the slow part of a replay.
-              auto perceptions = std::make_shared<std::map<std::string, std::shared_ptr<const Perception>>>();
-              options->make_planner = [retry_ms, retry_estimates, perceptions](const Cell& cell,
-                                                                                std::unique_ptr<CaptureSource> source)
-                  -> Result<std::unique_ptr<GraspPlanner>> {
-                std::shared_ptr<const Perception>& perception = (*perceptions)[cell.base_dir + '\n' + cell.yaml_text];
-                if (!perception) {
-                  Result<std::unique_ptr<Perception>> built = Perception::Build(cell);
-                  if (!built.ok()) return built.status();
-                  perception = std::move(*built);
-                }
-                BinPickingPlannerOptions planner_options;
-                planner_options.thorough_retry_ms = *retry_ms;
-                planner_options.thorough_retry_estimates = *retry_estimates;
-                auto planner = BinPickingPlanner::Create(cell, perception, std::move(source), planner_options);
-                if (!planner.ok()) return planner.status();
-                return std::unique_ptr<GraspPlanner>(std::move(*planner));
-              };
+              BinPickingPlannerOptions planner_options;
+              planner_options.thorough_retry_ms = *retry_ms;
+              planner_options.thorough_retry_estimates = *retry_estimates;
+              options->make_planner = SharedPerceptionPlanners(planner_options);
               if (manifest->empty()) {
                 if (dir->empty()) return Fail("replay", Status::InvalidArgument("give a DIR or --manifest FILE"));
                 return ReplayOne(*dir, *json_out, *options);
